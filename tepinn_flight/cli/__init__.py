@@ -1,0 +1,1 @@
+"""Command-line interface: ``tepinn-flight <command>``; one module per subcommand."""

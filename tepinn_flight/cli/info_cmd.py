@@ -1,0 +1,49 @@
+"""``tepinn-flight info FILE...``: what is in a raw log or a flight record."""
+
+from __future__ import annotations
+
+import json
+
+HELP = "describe a raw log or a flight record (format, rates, reference, segments, clipping)"
+
+
+def add_arguments(p) -> None:
+    p.add_argument("files", nargs="+", metavar="FILE", help="raw log or flight record (.parquet)")
+    p.add_argument("--imu", type=int, default=None, metavar="N", help="IMU instance (raw logs)")
+    p.add_argument("--reference", default=None, metavar="SOURCE", help="reference source (raw logs)")
+    p.add_argument("--json", action="store_true", help="print machine-readable JSON")
+
+
+def run(args) -> int:
+    import sys
+
+    from ..errors import TepinnError
+    from ..ingest import ingest_log
+    from ..ingest.sniff import sniff
+    from ..record import read_record
+    from ..summary import summarize
+    from .summary import render_info
+
+    failures = 0
+    results = {}
+    for path in args.files:
+        try:
+            fmt = sniff(path)
+            if fmt == "parquet":
+                rec = read_record(path)
+            else:
+                rec = ingest_log(path, imu=args.imu, reference=args.reference)
+            s = summarize(rec)
+            if fmt != "parquet":
+                s["format"] = fmt
+        except TepinnError as exc:
+            failures += 1
+            sys.stderr.write(f"tepinn-flight info: error: {exc if exc.path else f'{path}: {exc}'}\n")
+            continue
+        if args.json:
+            results[str(path)] = s
+        else:
+            print(render_info(path, s))
+    if args.json:
+        print(json.dumps(results, indent=2, default=str))
+    return 2 if failures else 0

@@ -1,0 +1,78 @@
+"""``tepinn-flight ingest LOG... [-o OUT] [--imu N] [--reference SOURCE]``."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+HELP = "turn real logs (tlog, DataFlash .bin/.log, ULog, BROAD .hdf5) into flight records"
+DESCRIPTION = (
+    "Parse ArduPilot/PX4 logs (MAVLink .tlog, DataFlash binary or text, PX4 .ulg) and BROAD trials "
+    "(.hdf5) into flight records (Parquet), with the autopilot's attitude (or optical/simulator "
+    "truth) as the reference. The format is sniffed from the content, not the extension."
+)
+
+
+def add_arguments(p) -> None:
+    p.add_argument("logs", nargs="+", metavar="LOG", help="log files")
+    p.add_argument("-o", "--output", metavar="OUT",
+                   help="output file (one log) or folder (several logs); default: LOG name + .parquet in the current folder")
+    p.add_argument("--imu", type=int, default=None, metavar="N",
+                   help="IMU instance to use (default: the first one with data)")
+    p.add_argument("--reference", default=None, metavar="SOURCE",
+                   help="reference attitude source, e.g. ATT, XKQ, NKQ1, ATTITUDE_QUATERNION, ATTITUDE, "
+                        "vehicle_attitude, vehicle_attitude_groundtruth (default: the best available)")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+
+
+def output_paths(logs: list[Path], output: str | None) -> list[Path]:
+    """One output per log: ``-o`` is a file for one log, a folder for several."""
+    if output is not None and len(logs) == 1 and not Path(output).is_dir() and not output.endswith(("/", "\\")):
+        return [Path(output)]
+    folder = Path(output) if output is not None else Path.cwd()
+    names: list[Path] = []
+    seen: set[str] = set()
+    for log in logs:
+        name = log.stem
+        if name in seen:
+            name = f"{log.stem}_{log.suffix.lstrip('.').lower() or 'log'}"
+        k = 2
+        base = name
+        while name in seen:
+            name, k = f"{base}_{k}", k + 1
+        seen.add(name)
+        names.append(folder / f"{name}.parquet")
+    return names
+
+
+def run(args) -> int:
+    from ..errors import TepinnError
+    from ..ingest import ingest_log
+    from ..record import write_record
+    from .summary import record_summary_line
+
+    logs = [Path(p) for p in args.logs]
+    outs = output_paths(logs, args.output)
+    failures = 0
+    progress = None
+    if len(logs) > 1 and not args.quiet:
+        from tqdm import tqdm
+
+        progress = tqdm(total=len(logs), unit="log", file=sys.stderr, leave=False)
+    for log, out in zip(logs, outs):
+        try:
+            rec = ingest_log(log, imu=args.imu, reference=args.reference)
+            write_record(rec, out)
+        except TepinnError as exc:
+            failures += 1
+            msg = str(exc) if exc.path else f"{log}: {exc}"
+            sys.stderr.write(f"tepinn-flight ingest: error: {msg}\n")
+        else:
+            if not args.quiet:
+                line = f"{log} -> {out}: {record_summary_line(rec)}"
+                (progress.write(line) if progress else print(line))
+        if progress:
+            progress.update(1)
+    if progress:
+        progress.close()
+    return 2 if failures else 0

@@ -1,0 +1,50 @@
+"""Human-readable renderings of :func:`tepinn_flight.summary.summarize`."""
+
+from __future__ import annotations
+
+
+def _hz(v) -> str:
+    return "n/a" if v is None else f"{v:.1f} Hz"
+
+
+def record_summary_line(rec) -> str:
+    m = rec.meta
+    s = f"{len(rec)} samples, IMU {_hz(m.get('imu_rate_hz'))}, reference {m.get('reference_source')}"
+    s += f" ({100 * m.get('reference_coverage', 0):.0f}% covered), {m.get('segments')} segment(s)"
+    if not m.get("estimation_ok", True):
+        s += " [IMU rate too low for estimation]"
+    return s
+
+
+def render_info(path, s: dict) -> str:
+    lines = [f"{path}"]
+    add = lambda k, v: lines.append(f"  {k:<20} {v}")  # noqa: E731
+    add("format", s.get("format"))
+    add("vehicle", s.get("vehicle_type"))
+    add("autopilot/firmware", f"{s.get('autopilot')} / {s.get('firmware')}")
+    add("duration", f"{s.get('duration_s', 0):.1f} s in segments (span {s.get('span_s', 0):.1f} s)")
+    add("samples", s.get("samples"))
+    inst = s.get("imu_instances") or []
+    if inst:
+        for i in inst:
+            add(f"IMU {i.get('instance')}", f"{i.get('name', '')} {i.get('samples', '?')} samples, {_hz(i.get('rate_hz'))}")
+    add("IMU used", f"instance {s.get('imu_instance')} at {_hz(s.get('imu_rate_hz'))}"
+        + ("" if s.get("estimation_ok", True) else "  ** too slow for windowed estimation **"))
+    add("reference", f"{s.get('reference_source')} at {_hz(s.get('reference_rate_hz'))}, "
+        f"covers {100 * s.get('reference_coverage', 0):.1f}% of IMU samples")
+    gaps = s.get("gaps", [])
+    add("segments", f"{s.get('segments')} ({len(gaps)} break(s))")
+    for g in gaps[:10]:
+        add("", f"break at t={g['at_s']:.3f} s, step {g['gap_s']:+.3f} s")
+    if len(gaps) > 10:
+        add("", f"... and {len(gaps) - 10} more")
+    add("max angular rate", f"{s.get('max_rate_deg_s', 0):.0f} deg/s (per axis {s.get('max_axis_rate_deg_s')})")
+    add("clipped samples", s.get("clipped_samples"))
+    add("magnetometer", "yes" if s.get("has_mag") else "no")
+    if "valid_fraction" in s:
+        add("valid (scored)", f"{100 * s['valid_fraction']:.1f}% of samples")
+    add("corrupt frames", s.get("corrupt_frames"))
+    add("skipped frames", s.get("skipped_frames"))
+    for n in s.get("notes", []):
+        add("note", n)
+    return "\n".join(lines)

@@ -1,0 +1,85 @@
+"""What a log reader hands over: raw streams in SI units on the log's own clock.
+
+Readers (``tlog``, ``dataflash``, ``ulog``, ``broad``) only parse and convert units; putting the
+streams on one time base, splitting segments and interpolating the reference onto the IMU samples
+is done once, in :mod:`tepinn_flight.ingest.assemble`.
+
+Clock: ``t_s`` is the source's own sample time in seconds (time since boot, or UNIX time), never a
+receive timestamp. ``epoch`` numbers boot epochs: it increases by one at each reboot the reader
+detected (time going backwards in file order), so streams of the same epoch share one clock.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+
+@dataclass
+class ImuStream:
+    t_s: np.ndarray  # (N,) float64, source clock
+    gyr_rad_s: np.ndarray  # (N, 3) body FRD
+    acc_m_s2: np.ndarray  # (N, 3) specific force, body FRD
+    clipped: np.ndarray | None = None  # (N,) bool
+    epoch: np.ndarray | None = None  # (N,) int, boot epoch
+
+
+@dataclass
+class MagStream:
+    t_s: np.ndarray  # (M,)
+    mag_ut: np.ndarray  # (M, 3) µT, body FRD
+    epoch: np.ndarray | None = None
+
+
+@dataclass
+class RefStream:
+    t_s: np.ndarray  # (K,)
+    q_nb_wxyz: np.ndarray  # (K, 4) body FRD -> NED
+    source: str  # e.g. "ATT", "XKQ", "vehicle_attitude", "ATTITUDE_QUATERNION", "optitrack"
+    epoch: np.ndarray | None = None
+
+
+@dataclass
+class RawLog:
+    """A parsed log: the selected IMU, optional magnetometer and reference, and what we know.
+
+    ``meta`` carries at least ``source_kind``; readers add what they know: ``vehicle_type``,
+    ``autopilot``, ``firmware``, ``imu_instance``, ``imu_instances`` (list of
+    ``{"instance", "name", "samples", "rate_hz"}``), ``reference_candidates`` (list of names),
+    ``corrupt_frames``, ``skipped_frames``, ``notes`` (list of str).
+    """
+
+    imu: ImuStream
+    mag: MagStream | None = None
+    ref: RefStream | None = None
+    meta: dict[str, Any] = field(default_factory=dict)
+    valid: np.ndarray | None = None  # (N,) bool on the IMU samples (BROAD's movement mask)
+    extra: dict[str, np.ndarray] = field(default_factory=dict)  # optional record columns (N, ...)
+
+
+def nominal_period_s(t_s: np.ndarray, epoch: np.ndarray | None = None) -> float:
+    """1 / nominal rate: the median positive step inside boot epochs (NaN if fewer than 2)."""
+    t_s = np.asarray(t_s, np.float64)
+    if len(t_s) < 2:
+        return float("nan")
+    dt = np.diff(t_s)
+    ok = dt > 0
+    if epoch is not None:
+        ok &= np.diff(epoch) == 0
+    if not np.any(ok):
+        return float("nan")
+    return float(np.median(dt[ok]))
+
+
+def detect_epochs(t_s: np.ndarray, backstep_s: float = 1.0) -> np.ndarray:
+    """Boot epochs from one clock in file order: a new epoch where time jumps back > ``backstep_s``.
+
+    Small backward steps (reordering, jitter) are not reboots; they end a segment only.
+    """
+    t_s = np.asarray(t_s, np.float64)
+    if len(t_s) == 0:
+        return np.zeros(0, np.int64)
+    back = np.diff(t_s) < -backstep_s
+    return np.concatenate([[0], np.cumsum(back)]).astype(np.int64)

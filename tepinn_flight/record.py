@@ -1,0 +1,273 @@
+"""The flight record: one Parquet file, one row per IMU sample, every part reads and writes it.
+
+Columns (exact names; frames and units in :mod:`tepinn_flight.conventions`):
+
+====================================  ==========  ===============================================
+``t_s``                               float64     seconds from the start of the record
+``segment``                           int32       contiguous piece (new at gap > 2.5 periods,
+                                                  time reversal or reboot); ``t_s`` strictly
+                                                  increases inside a segment
+``gyr_{x,y,z}_rad_s``                 float64     angular rate, body FRD
+``acc_{x,y,z}_m_s2``                  float64     specific force, body FRD (level at rest z≈-9.81)
+``mag_{x,y,z}_ut``                    float64     magnetometer µT, NaN where none
+``q_ref_{w,x,y,z}``                   float64     reference attitude body→NED (slerp onto IMU
+                                                  times), NaN where no reference covers the sample
+``clipped``                           bool        a sensor axis at its range limit
+====================================  ==========  ===============================================
+
+Optional columns: ``valid`` (bool, BROAD's movement mask), simulated truths ``gyr_bias_{x,y,z}_rad_s``
+and ``acc_bias_{x,y,z}_m_s2``.
+
+Key-value metadata: every key of :attr:`FlightRecord.meta` is stored as its own Parquet key with a
+JSON value; ``format_version`` is mandatory and checked on read.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from .errors import RecordFormatError
+
+FORMAT_VERSION = 1
+
+GYR_COLS = ["gyr_x_rad_s", "gyr_y_rad_s", "gyr_z_rad_s"]
+ACC_COLS = ["acc_x_m_s2", "acc_y_m_s2", "acc_z_m_s2"]
+MAG_COLS = ["mag_x_ut", "mag_y_ut", "mag_z_ut"]
+QREF_COLS = ["q_ref_w", "q_ref_x", "q_ref_y", "q_ref_z"]
+GYR_BIAS_COLS = ["gyr_bias_x_rad_s", "gyr_bias_y_rad_s", "gyr_bias_z_rad_s"]
+ACC_BIAS_COLS = ["acc_bias_x_m_s2", "acc_bias_y_m_s2", "acc_bias_z_m_s2"]
+
+REQUIRED_COLUMNS = ["t_s", "segment", *GYR_COLS, *ACC_COLS, *MAG_COLS, *QREF_COLS, "clipped"]
+OPTIONAL_COLUMNS = ["valid", *GYR_BIAS_COLS, *ACC_BIAS_COLS]
+_DTYPES = {"t_s": "float64", "segment": "int32", "clipped": "bool", "valid": "bool"}
+
+SOURCE_KINDS = ("tlog", "dataflash", "ulog", "broad", "jsbsim")
+
+#: Below this IMU rate windowed estimation is not meaningful; records are still written.
+MIN_ESTIMATION_RATE_HZ = 20.0
+
+#: Metadata every record carries (others may be added freely).
+REQUIRED_META = ("format_version", "source_file", "source_kind", "imu_rate_hz", "reference_source")
+
+
+@dataclass
+class FlightRecord:
+    """A flight record in memory: the sample table and its metadata."""
+
+    data: pd.DataFrame
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    # ---- convenient typed views (numpy, float64)
+    @property
+    def t_s(self) -> np.ndarray:
+        return self.data["t_s"].to_numpy(np.float64)
+
+    @property
+    def gyr_rad_s(self) -> np.ndarray:
+        return self.data[GYR_COLS].to_numpy(np.float64)
+
+    @property
+    def acc_m_s2(self) -> np.ndarray:
+        return self.data[ACC_COLS].to_numpy(np.float64)
+
+    @property
+    def mag_ut(self) -> np.ndarray:
+        return self.data[MAG_COLS].to_numpy(np.float64)
+
+    @property
+    def q_ref_wxyz(self) -> np.ndarray:
+        return self.data[QREF_COLS].to_numpy(np.float64)
+
+    @property
+    def segment(self) -> np.ndarray:
+        return self.data["segment"].to_numpy()
+
+    @property
+    def clipped(self) -> np.ndarray:
+        return self.data["clipped"].to_numpy(bool)
+
+    @property
+    def valid(self) -> np.ndarray:
+        """BROAD's movement mask where present, else all True."""
+        if "valid" in self.data:
+            return self.data["valid"].to_numpy(bool)
+        return np.ones(len(self.data), bool)
+
+    def __len__(self) -> int:
+        return len(self.data)
+
+    def validate(self) -> None:
+        """Raise :class:`RecordFormatError` unless columns, dtypes and segments are consistent."""
+        missing = [c for c in REQUIRED_COLUMNS if c not in self.data.columns]
+        if missing:
+            raise RecordFormatError(f"missing columns {missing}")
+        unknown = [c for c in self.data.columns if c not in REQUIRED_COLUMNS + OPTIONAL_COLUMNS]
+        if unknown:
+            raise RecordFormatError(f"unknown columns {unknown}")
+        for key in REQUIRED_META:
+            if key not in self.meta:
+                raise RecordFormatError(f"metadata lacks '{key}'")
+        if self.meta["source_kind"] not in SOURCE_KINDS:
+            raise RecordFormatError(f"unknown source_kind {self.meta['source_kind']!r}")
+        t, seg = self.t_s, self.segment
+        if len(t) > 1:
+            same = seg[1:] == seg[:-1]
+            if np.any(np.diff(seg) < 0):
+                raise RecordFormatError("segment numbers decrease")
+            if np.any(np.diff(t)[same] <= 0):
+                raise RecordFormatError("t_s does not strictly increase inside a segment")
+
+
+def make_frame(
+    t_s: np.ndarray,
+    segment: np.ndarray,
+    gyr_rad_s: np.ndarray,
+    acc_m_s2: np.ndarray,
+    mag_ut: np.ndarray | None = None,
+    q_ref_wxyz: np.ndarray | None = None,
+    clipped: np.ndarray | None = None,
+    **optional: np.ndarray,
+) -> pd.DataFrame:
+    """Build the column table in the canonical order from arrays (missing parts become NaN/False).
+
+    ``optional`` takes ``valid`` (N,), ``gyr_bias_rad_s`` (N, 3), ``acc_bias_m_s2`` (N, 3).
+    """
+    n = len(t_s)
+    nan3 = np.full((n, 3), np.nan)
+    cols: dict[str, np.ndarray] = {
+        "t_s": np.asarray(t_s, np.float64),
+        "segment": np.asarray(segment, np.int32),
+    }
+    for names, arr in (
+        (GYR_COLS, gyr_rad_s),
+        (ACC_COLS, acc_m_s2),
+        (MAG_COLS, nan3 if mag_ut is None else mag_ut),
+        (QREF_COLS, np.full((n, 4), np.nan) if q_ref_wxyz is None else q_ref_wxyz),
+    ):
+        arr = np.asarray(arr, np.float64)
+        for i, name in enumerate(names):
+            cols[name] = arr[:, i]
+    cols["clipped"] = np.zeros(n, bool) if clipped is None else np.asarray(clipped, bool)
+    if optional.get("valid") is not None:
+        cols["valid"] = np.asarray(optional.pop("valid"), bool)
+    optional.pop("valid", None)
+    for key, names in (("gyr_bias_rad_s", GYR_BIAS_COLS), ("acc_bias_m_s2", ACC_BIAS_COLS)):
+        arr = optional.pop(key, None)
+        if arr is not None:
+            arr = np.asarray(arr, np.float64)
+            for i, name in enumerate(names):
+                cols[name] = arr[:, i]
+    if optional:
+        raise ValueError(f"unknown optional columns {sorted(optional)}")
+    return pd.DataFrame(cols)
+
+
+# --------------------------------------------------------------------------- I/O
+
+
+def atomic_write(path: str | os.PathLike, write_fn) -> None:
+    """Call ``write_fn(tmp_path)`` then rename onto ``path``; no partial file survives a crash."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        write_fn(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def write_record(record: FlightRecord, path: str | os.PathLike) -> None:
+    """Validate and write atomically (temp file + rename)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    meta = dict(record.meta)
+    meta["format_version"] = FORMAT_VERSION
+    rec = FlightRecord(record.data, meta)
+    rec.validate()
+    cols = [c for c in REQUIRED_COLUMNS + OPTIONAL_COLUMNS if c in rec.data.columns]
+    df = rec.data[cols].reset_index(drop=True)
+    for c, dt in _DTYPES.items():
+        if c in df:
+            df[c] = df[c].astype(dt)
+    table = pa.Table.from_pandas(df, preserve_index=False)
+    kv = {k.encode(): json.dumps(v, default=_json_default).encode() for k, v in meta.items()}
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}), **kv})
+    atomic_write(path, lambda tmp: pq.write_table(table, tmp, compression="zstd"))
+
+
+def read_record(path: str | os.PathLike) -> FlightRecord:
+    """Read and validate a record; refuse unknown ``format_version`` and non-records clearly."""
+    import pyarrow.parquet as pq
+
+    path = Path(path)
+    if not path.exists():
+        raise RecordFormatError("no such file", path)
+    try:
+        table = pq.read_table(path)
+    except Exception as exc:  # pyarrow raises several types for non-Parquet input
+        raise RecordFormatError(f"not a Parquet flight record ({_first_line(exc)})", path) from None
+    raw = table.schema.metadata or {}
+    meta: dict[str, Any] = {}
+    for k, v in raw.items():
+        key = k.decode(errors="replace")
+        if key == "pandas":
+            continue
+        try:
+            meta[key] = json.loads(v)
+        except ValueError:
+            meta[key] = v.decode(errors="replace")
+    if "format_version" not in meta:
+        raise RecordFormatError("Parquet file without 'format_version': not a flight record", path)
+    if meta["format_version"] != FORMAT_VERSION:
+        raise RecordFormatError(
+            f"unknown format_version {meta['format_version']!r} (this tepinn-flight reads "
+            f"version {FORMAT_VERSION}); upgrade tepinn-flight or re-create the record",
+            path,
+        )
+    rec = FlightRecord(table.to_pandas(), meta)
+    try:
+        rec.validate()
+    except RecordFormatError as exc:
+        raise RecordFormatError(exc.reason, path) from None
+    return rec
+
+
+def is_record(path: str | os.PathLike) -> bool:
+    """True for a Parquet file (magic ``PAR1``) — the only container a record can be."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(4) == b"PAR1"
+    except OSError:
+        return False
+
+
+def _json_default(v):
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, (np.floating,)):
+        return float(v)
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, Path):
+        return str(v)
+    raise TypeError(f"not JSON serialisable: {type(v).__name__}")
+
+
+def _first_line(exc: BaseException) -> str:
+    s = str(exc).strip().splitlines()
+    return s[0] if s else type(exc).__name__

@@ -1,0 +1,55 @@
+"""What ``info`` reports about a flight record: pure computation on the record, no printing."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .record import FlightRecord
+
+
+def summarize(rec: FlightRecord) -> dict:
+    """Duration, rates, segments and gaps, max angular rate, clipping and reference coverage."""
+    t = rec.t_s
+    seg = rec.segment
+    m = rec.meta
+    gyr = rec.gyr_rad_s
+    out: dict = {
+        "source_file": m.get("source_file"),
+        "source_kind": m.get("source_kind"),
+        "format": m.get("format", m.get("source_kind")),
+        "vehicle_type": m.get("vehicle_type"),
+        "autopilot": m.get("autopilot"),
+        "firmware": m.get("firmware"),
+        "samples": int(len(rec)),
+        "imu_instance": m.get("imu_instance"),
+        "imu_instances": m.get("imu_instances"),
+        "imu_rate_hz": m.get("imu_rate_hz"),
+        "estimation_ok": m.get("estimation_ok"),
+        "reference_source": m.get("reference_source"),
+        "reference_rate_hz": m.get("reference_rate_hz"),
+        "reference_coverage": float(np.mean(np.all(np.isfinite(rec.q_ref_wxyz), axis=1))) if len(rec) else 0.0,
+        "corrupt_frames": m.get("corrupt_frames", 0),
+        "skipped_frames": m.get("skipped_frames", 0),
+        "notes": m.get("notes", []),
+    }
+    if len(rec) == 0:
+        out.update(duration_s=0.0, segments=0, gaps=[], max_rate_deg_s=0.0, clipped_samples=0)
+        return out
+    seg_ids = np.unique(seg)
+    durations = [float(t[seg == s][-1] - t[seg == s][0]) for s in seg_ids]
+    breaks = np.flatnonzero(np.diff(seg) != 0)
+    gaps = [{"at_s": float(t[i]), "gap_s": float(t[i + 1] - t[i])} for i in breaks]
+    norm = np.linalg.norm(gyr, axis=1)
+    out.update(
+        duration_s=float(sum(durations)),
+        span_s=float(t[-1] - t[0]),
+        segments=int(len(seg_ids)),
+        gaps=gaps,
+        max_rate_deg_s=float(np.degrees(np.nanmax(norm))) if np.any(np.isfinite(norm)) else float("nan"),
+        max_axis_rate_deg_s=np.degrees(np.nanmax(np.abs(gyr), axis=0)).round(1).tolist(),
+        clipped_samples=int(rec.clipped.sum()),
+        has_mag=bool(np.any(np.isfinite(rec.mag_ut))),
+    )
+    if "valid" in rec.data:
+        out["valid_fraction"] = float(rec.valid.mean())
+    return out
