@@ -10,7 +10,7 @@ import numpy as np
 from .. import __version__, conventions
 from ..errors import NoImuData
 from ..quat import quat_canonical, slerp
-from ..record import MIN_ESTIMATION_RATE_HZ, FlightRecord, make_frame
+from ..record import FORMAT_VERSION, MIN_ESTIMATION_RATE_HZ, FlightRecord, make_frame
 from .streams import RawLog, nominal_period_s
 
 #: A new segment starts where the IMU step exceeds this many nominal periods.
@@ -140,6 +140,7 @@ def build_record(raw: RawLog, source_path: str | os.PathLike) -> FlightRecord:
 
     rate = 1.0 / period if np.isfinite(period) and period > 0 else None
     meta = {
+        "format_version": FORMAT_VERSION,
         "source_file": Path(source_path).name,
         "source_kind": raw.meta.get("source_kind"),
         "vehicle_type": raw.meta.get("vehicle_type", "unknown"),

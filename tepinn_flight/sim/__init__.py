@@ -1,0 +1,1 @@
+"""JSBSim-based flight simulation: truth dynamics, maneuvers, sensor model and records."""

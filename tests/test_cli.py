@@ -1,0 +1,87 @@
+"""The command line: help, one-line errors with exit code 2, no output left behind, light imports."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from tepinn_flight.cli.main import main
+from tests.conftest import real_log
+
+
+def run_cli(*args, cwd=None):
+    """Run ``python -m tepinn_flight`` in a subprocess; returns (code, stdout, stderr)."""
+    env = {k: v for k, v in os.environ.items() if k != "TEPINN_DEBUG"}
+    p = subprocess.run([sys.executable, "-m", "tepinn_flight", *args], capture_output=True, text=True,
+                       cwd=cwd, env=env, timeout=300)  # fmt: skip
+    return p.returncode, p.stdout, p.stderr
+
+
+def test_help_lists_subcommands():
+    code, out, _ = run_cli("--help")
+    assert code == 0
+    for cmd in ("ingest", "info"):
+        assert cmd in out
+
+
+@pytest.mark.parametrize(
+    "content, reason",
+    [
+        (b"", "empty file"),
+        (os.urandom(4096), "not a ULog, DataFlash"),
+        (b"time,gyr_x\n0.0,1.0\n" * 50, "not a ULog, DataFlash"),
+    ],
+    ids=["empty", "random-bytes", "csv"],
+)
+@pytest.mark.parametrize("command", ["ingest", "info"])
+def test_bad_input_one_line_exit_2_nothing_written(tmp_path, content, reason, command):
+    bad = tmp_path / "bad.bin"
+    bad.write_bytes(content)
+    out = tmp_path / "out"
+    out.mkdir()
+    args = [command, str(bad)] + (["-o", str(out / "x.parquet")] if command == "ingest" else [])
+    code, stdout, stderr = run_cli(*args)
+    assert code == 2
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1, stderr
+    assert str(bad) in lines[0] and reason in lines[0]
+    assert "Traceback" not in stderr
+    assert list(out.iterdir()) == []
+
+
+def test_missing_file_and_directory(tmp_path):
+    code, _, err = run_cli("ingest", str(tmp_path / "nope.tlog"), "-o", str(tmp_path / "x.parquet"))
+    assert code == 2 and "no such file" in err and len(err.strip().splitlines()) == 1
+    code, _, err = run_cli("info", str(tmp_path))
+    assert code == 2 and "directory" in err
+
+
+def test_usage_error_is_one_line():
+    code, _, err = run_cli("ingest")
+    assert code == 2 and "error" in err and "Traceback" not in err
+
+
+def test_ingest_and_info_do_not_import_torch_or_jsbsim(tmp_path):
+    log = real_log("erle_pxf_copter_15-12-2014_16.BIN")
+    code = (
+        "import sys\n"
+        "from tepinn_flight.cli.main import main\n"
+        f"rc1 = main(['ingest', {str(log)!r}, '-q', '-o', {str(tmp_path / 'r.parquet')!r}])\n"
+        f"rc2 = main(['info', {str(tmp_path / 'r.parquet')!r}, {str(log)!r}])\n"
+        "print('RC', rc1, rc2)\n"
+        "print('HEAVY', sorted(m for m in ('torch', 'jsbsim') if m in sys.modules))\n"
+    )
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert "RC 0 0" in p.stdout, p.stderr
+    assert "HEAVY []" in p.stdout
+
+
+def test_main_returns_2_on_tepinn_error(tmp_path, capsys):
+    bad = tmp_path / "x.log"
+    bad.write_bytes(b"\x00" * 100)
+    assert main(["info", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1

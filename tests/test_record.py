@@ -1,0 +1,187 @@
+"""Flight record: round trip, atomic writes, validation, format_version, assembly rules."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from tepinn_flight import quat as Q
+from tepinn_flight.errors import RecordFormatError
+from tepinn_flight.ingest.assemble import build_record
+from tepinn_flight.ingest.streams import ImuStream, MagStream, RawLog, RefStream, detect_epochs
+from tepinn_flight.record import (
+    FORMAT_VERSION,
+    REQUIRED_COLUMNS,
+    FlightRecord,
+    make_frame,
+    read_record,
+    write_record,
+)
+
+
+def sample_record(n=500, seed=0, **extra) -> FlightRecord:
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / 100.0
+    seg = np.zeros(n, int)
+    seg[n // 2 :] = 1
+    t[n // 2 :] += 1.0  # a gap
+    q = Q.quat_canonical(Q.quat_normalize(rng.normal(size=(n, 4))))
+    q[:10] = np.nan
+    df = make_frame(t, seg, rng.normal(size=(n, 3)), rng.normal(size=(n, 3)) - [0, 0, 9.81], None, q,
+                    rng.random(n) < 0.01, **extra)  # fmt: skip
+    meta = {"source_file": "x.bin", "source_kind": "dataflash", "imu_rate_hz": 100.0,
+            "reference_source": "ATT", "vehicle_type": "quadrotor", "notes": ["a", "b"]}  # fmt: skip
+    return FlightRecord(df, meta)
+
+
+def test_round_trip_is_exact(tmp_path):
+    rec = sample_record(gyr_bias_rad_s=np.ones((500, 3)) * 0.01, valid=np.arange(500) % 2 == 0)
+    p = tmp_path / "r.parquet"
+    write_record(rec, p)
+    back = read_record(p)
+    assert list(back.data.columns[: len(REQUIRED_COLUMNS)]) == REQUIRED_COLUMNS
+    for c in rec.data.columns:
+        np.testing.assert_array_equal(back.data[c].to_numpy(), rec.data[c].to_numpy())
+    assert back.meta["format_version"] == FORMAT_VERSION
+    assert back.meta["notes"] == ["a", "b"] and back.meta["imu_rate_hz"] == 100.0
+    # second trip: identical again
+    write_record(back, tmp_path / "r2.parquet")
+    again = read_record(tmp_path / "r2.parquet")
+    assert again.data.equals(back.data) and again.meta == back.meta
+    assert back.data["segment"].dtype == np.int32 and back.data["clipped"].dtype == bool
+
+
+def test_metadata_is_plain_json_key_value(tmp_path):
+    p = tmp_path / "r.parquet"
+    write_record(sample_record(), p)
+    md = pq.read_schema(p).metadata
+    assert json.loads(md[b"format_version"]) == FORMAT_VERSION
+    assert json.loads(md[b"source_kind"]) == "dataflash"
+
+
+def test_unknown_format_version_refused(tmp_path):
+    p = tmp_path / "r.parquet"
+    write_record(sample_record(), p)
+    table = pq.read_table(p)
+    md = dict(table.schema.metadata)
+    md[b"format_version"] = b"99"
+    pq.write_table(table.replace_schema_metadata(md), p)
+    with pytest.raises(RecordFormatError, match="unknown format_version 99"):
+        read_record(p)
+
+
+def test_non_record_parquet_and_garbage_refused(tmp_path):
+    import pandas as pd
+
+    p = tmp_path / "other.parquet"
+    pd.DataFrame({"a": [1, 2]}).to_parquet(p)
+    with pytest.raises(RecordFormatError, match="format_version"):
+        read_record(p)
+    g = tmp_path / "garbage.parquet"
+    g.write_bytes(os.urandom(1000))
+    with pytest.raises(RecordFormatError, match="not a Parquet"):
+        read_record(g)
+
+
+def test_validation_catches_bad_records(tmp_path):
+    rec = sample_record()
+    bad = FlightRecord(rec.data.drop(columns=["gyr_x_rad_s"]), rec.meta)
+    with pytest.raises(RecordFormatError, match="missing columns"):
+        write_record(bad, tmp_path / "x.parquet")
+    d = rec.data.copy()
+    d.loc[5, "t_s"] = d.loc[4, "t_s"]  # not strictly increasing inside segment 0
+    with pytest.raises(RecordFormatError, match="strictly increase"):
+        write_record(FlightRecord(d, rec.meta), tmp_path / "x.parquet")
+    assert not list(tmp_path.iterdir())  # nothing left behind
+
+
+def test_atomic_write_leaves_old_file_intact_on_crash(tmp_path, monkeypatch):
+    import pyarrow.parquet as pqm
+
+    p = tmp_path / "r.parquet"
+    write_record(sample_record(seed=1), p)
+    before = p.read_bytes()
+
+    def boom(table, where, **kw):
+        with open(where, "wb") as f:
+            f.write(b"PAR1 half written")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(pqm, "write_table", boom)
+    with pytest.raises(OSError):
+        write_record(sample_record(seed=2), p)
+    assert p.read_bytes() == before
+    assert [x.name for x in tmp_path.iterdir()] == ["r.parquet"]  # temp file removed
+
+
+# ---------------------------------------------------------------- assembly rules
+
+
+def _raw(t, ep=None, ref=None):
+    n = len(t)
+    imu = ImuStream(np.asarray(t, float), np.zeros((n, 3)), np.tile([0, 0, -9.81], (n, 1)), epoch=ep)
+    return RawLog(imu=imu, ref=ref, meta={"source_kind": "tlog"})
+
+
+def test_segments_split_at_gaps_reversals_and_reboots():
+    t = np.r_[np.arange(0, 1, 0.01), np.arange(1.5, 2, 0.01)]  # gap of 0.5 s = 50 periods
+    rec = build_record(_raw(t), "x")
+    assert rec.meta["segments"] == 2 and np.all(np.diff(rec.segment) >= 0)
+    assert abs(rec.meta["imu_rate_hz"] - 100) < 1e-6
+    # a gap of exactly 2 periods stays in the segment, 3 periods splits
+    t2 = np.r_[np.arange(0, 1, 0.01), 0.99 + 0.02 + np.arange(0, 1, 0.01)]
+    assert build_record(_raw(t2), "x").meta["segments"] == 1
+    t3 = np.r_[np.arange(0, 1, 0.01), 0.99 + 0.03 + np.arange(0, 1, 0.01)]
+    assert build_record(_raw(t3), "x").meta["segments"] == 2
+    # reboot: the clock starts again; record time continues and stays increasing
+    tb = np.r_[np.arange(5, 6, 0.01), np.arange(0.2, 1.2, 0.01)]
+    ep = detect_epochs(tb)
+    rec = build_record(_raw(tb, ep), "x")
+    assert rec.meta["segments"] == 2 and rec.meta["boot_epochs"] == 2
+    assert np.all(np.diff(rec.t_s) > 0)
+    assert rec.t_s[0] == 0.0
+
+
+def test_reference_is_slerped_and_nan_outside_coverage():
+    t = np.arange(0, 2, 0.01)
+    w = np.array([0.0, 0.0, 1.0])  # 1 rad/s yaw
+    tr = np.arange(0.5, 1.5, 0.1)
+    qr = Q.quat_from_rotvec(tr[:, None] * w)
+    rec = build_record(_raw(t, ref=RefStream(tr, qr, "ATT")), "x")
+    q = rec.q_ref_wxyz
+    inside = (t >= 0.5 - 1e-9) & (t <= tr[-1] - 1e-9)
+    outside = (t < 0.5 - 1e-9) | (t > tr[-1] + 1e-9)
+    assert np.all(np.isfinite(q[inside])) and np.all(np.isnan(q[outside]))
+    np.testing.assert_allclose(Q.quat_to_rotvec(q[inside])[:, 2], t[inside], atol=1e-9)
+    assert rec.meta["reference_source"] == "ATT"
+    assert abs(rec.meta["reference_rate_hz"] - 10) < 1e-6
+
+
+def test_reference_gap_gives_nan_not_interpolation():
+    t = np.arange(0, 3, 0.01)
+    tr = np.r_[np.arange(0, 1, 0.1), np.arange(2, 3, 0.1)]  # 1 s hole in the reference
+    qr = np.tile([1.0, 0, 0, 0], (len(tr), 1))
+    q = build_record(_raw(t, ref=RefStream(tr, qr, "ATT")), "x").q_ref_wxyz
+    hole = (t > 1.0) & (t < 2.0)
+    assert np.all(np.isnan(q[hole])) and np.all(np.isfinite(q[(t > 0.05) & (t < 0.85)]))
+
+
+def test_mag_is_interpolated_onto_imu_times():
+    t = np.arange(0, 1, 0.01)
+    tm = np.arange(0, 1, 0.05)
+    m = np.stack([tm, 2 * tm, -tm], 1) * 10
+    raw = _raw(t)
+    raw.mag = MagStream(tm, m)
+    rec = build_record(raw, "x")
+    ok = t <= tm[-1]
+    np.testing.assert_allclose(rec.mag_ut[ok], np.stack([t, 2 * t, -t], 1)[ok] * 10, atol=1e-9)
+
+
+def test_low_rate_is_said_plainly():
+    rec = build_record(_raw(np.arange(0, 60, 0.5)), "x")  # 2 Hz telemetry
+    assert rec.meta["estimation_ok"] is False
+    assert any("too slow" in n for n in rec.meta["notes"])
