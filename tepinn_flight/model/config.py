@@ -1,0 +1,57 @@
+"""TE-PINN model configuration: one frozen dataclass, every paper component switchable."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from ..errors import ConfigError
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    # --- tokens: IMU samples averaged onto a fixed time grid, so one model serves 25–400 Hz logs
+    token_rate_hz: float = 25.0  # tokens per second
+    window_tokens: int = 80  # K tokens per window (window length K / token_rate_hz seconds)
+    use_mag: bool = False  # 9-D mode: magnetometer channels as inputs (and heading from them)
+
+    # --- encoder
+    encoder: Literal["transformer", "lstm", "mlp"] = "transformer"
+    d_model: int = 48
+    n_heads: int = 4
+    n_layers: int = 2
+    d_ff: int = 96
+    dropout: float = 0.0
+    pe_min_wavelength_s: float = 0.04  # timestamp positional encoding wavelengths (seconds)
+    pe_max_wavelength_s: float = 16.0
+
+    # --- physics-informed parts (each switchable for the ablation)
+    physics: bool = True  # sensor model + RK4-propagated inputs/outputs + physics losses
+    correction_layer: bool = True  # yaw := 0 on the output (the paper's 6-D attitude correction)
+    uncertainty: bool = True  # σ head trained with a Gaussian NLL on the tilt error
+
+    def __post_init__(self):
+        if self.token_rate_hz <= 0:
+            raise ConfigError("token_rate_hz must be > 0")
+        if self.window_tokens < 2:
+            raise ConfigError("window_tokens must be >= 2")
+        if self.encoder == "transformer" and self.d_model % self.n_heads:
+            raise ConfigError("d_model must be a multiple of n_heads")
+        if min(self.d_model, self.n_layers, self.d_ff) <= 0:
+            raise ConfigError("d_model, n_layers and d_ff must be > 0")
+        if not 0 <= self.dropout < 1:
+            raise ConfigError("dropout must be in [0, 1)")
+
+    @property
+    def window_s(self) -> float:
+        return self.window_tokens / self.token_rate_hz
+
+    @property
+    def n_inputs(self) -> int:
+        """Channels per token given to the encoder."""
+        n = 6 + 1  # ω, a, log sample count
+        if self.physics:
+            n += 3  # corrected specific force rotated into the window's first body frame (RK4)
+        if self.use_mag:
+            n += 3
+        return n

@@ -1,0 +1,197 @@
+"""TE-PINN: transformer encoder over IMU token windows, physics-informed, with a quaternion output.
+
+Forward pass for one window of K tokens ending at time t_K (B batch, K tokens, d d_model):
+
+1. sensor model     ω_c = ω − b_g − S_g ω,  a_c = a − b_a − S_a a                       (B, K, 3)
+2. RK4 kinematics   R_{K←j}: rotation body(t_j) → body(t_K) from ω_c (log-depth prefix products
+                    of per-token RK4 steps); v_j = R_{K←j^mid} a_c,j is each token's specific
+                    force seen in the *current* body frame. Unaccelerated, every v_j = −g_body(t_K).
+3. tokens           x_j = [ω_c, a_c/g, log n, v_j/g (, mag)] → Linear + PE(t_j − t_K, seconds)
+4. encoder          L post-LayerNorm transformer layers (multi-head self-attention + feed-forward)
+5. heads            last token → quaternion (normalised), σ (rad), gyro bias b̂ (rad/s), and a
+                    torque τ per token for the rigid-body loss
+6. correction       yaw := 0 (the paper's attitude correction layer; the 6-D estimate is tilt)
+
+A window holds only samples up to t_K, so the estimate at t_K uses nothing after it (causal).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from ..conventions import GRAVITY_M_S2
+from ..quat import quat_conj, quat_from_euler_zyx, quat_mul, quat_normalize, quat_rotate
+from .config import ModelConfig
+from .physics import RigidBody, SensorModel, prefix_products, rk4_delta
+
+BIAS_SCALE_RAD_S = 0.02  # bias head output units (≈ 1.1 °/s per unit)
+
+
+def zero_yaw(q: torch.Tensor) -> torch.Tensor:
+    """The paper's correction layer: keep roll and pitch of ``q_nb``, set yaw to 0.
+
+    Computed from the gravity direction in body axes (equal to the Euler route
+    q → (φ, θ, ψ) → (φ, θ, 0) → q, but with bounded gradients at ±90° pitch).
+    """
+    w, x, y, z = q.unbind(-1)
+    gx = 2 * (x * z - w * y)  # R_nbᵀ e_z = (−sinθ, sinφ cosθ, cosφ cosθ)
+    gy = 2 * (y * z + w * x)
+    gz = 1 - 2 * (x * x + y * y)
+    roll = torch.atan2(gy, gz)
+    pitch = torch.atan2(-gx, torch.sqrt(gy * gy + gz * gz + 1e-12))
+    return quat_from_euler_zyx(roll, pitch, torch.zeros_like(roll))
+
+
+class TimestampEncoding(nn.Module):
+    """Sinusoidal encoding of token timestamps in seconds (not indices).
+
+    ``P[2k] = sin(2π t / λ_k)``, ``P[2k+1] = cos(2π t / λ_k)`` with wavelengths λ_k spaced
+    geometrically from ``min_wavelength_s`` to ``max_wavelength_s`` (the paper's 10000^(2k/d)
+    progression, rescaled so that it resolves seconds-long windows).
+    """
+
+    def __init__(self, d_model: int, min_wavelength_s: float, max_wavelength_s: float):
+        super().__init__()
+        n = d_model // 2
+        lam = min_wavelength_s * (max_wavelength_s / min_wavelength_s) ** (torch.arange(n) / max(n - 1, 1))
+        self.register_buffer("omega", 2 * math.pi / lam, persistent=False)
+        self.d_model = d_model
+
+    def forward(self, t_s: torch.Tensor) -> torch.Tensor:  # (B, K) -> (B, K, d)
+        ang = t_s[..., None] * self.omega
+        pe = torch.stack([torch.sin(ang), torch.cos(ang)], dim=-1).flatten(-2)
+        if pe.shape[-1] < self.d_model:
+            pe = F.pad(pe, (0, self.d_model - pe.shape[-1]))
+        return pe
+
+
+class CausalMeanMLP(nn.Module):
+    """'No sequence model' ablation: per-token MLP, then a causal running mean."""
+
+    def __init__(self, d: int, d_ff: int, n_layers: int):
+        super().__init__()
+        layers: list[nn.Module] = []
+        for _ in range(n_layers):
+            layers += [nn.Linear(d, d_ff), nn.GELU(), nn.Linear(d_ff, d)]
+        self.net = nn.Sequential(*layers)
+
+    def forward(self, h: torch.Tensor) -> torch.Tensor:
+        h = self.net(h)
+        n = torch.arange(1, h.shape[1] + 1, device=h.device, dtype=h.dtype)[None, :, None]
+        return torch.cumsum(h, dim=1) / n
+
+
+class TEPINN(nn.Module):
+    def __init__(self, config: ModelConfig):
+        super().__init__()
+        self.config = c = config
+        self.sensor = SensorModel()
+        self.body = RigidBody()
+        self.inp = nn.Linear(c.n_inputs, c.d_model)
+        self.pe = TimestampEncoding(c.d_model, c.pe_min_wavelength_s, c.pe_max_wavelength_s)
+        if c.encoder == "transformer":
+            layer = nn.TransformerEncoderLayer(
+                c.d_model, c.n_heads, c.d_ff, c.dropout, activation="gelu", batch_first=True, norm_first=False
+            )
+            self.encoder = nn.TransformerEncoder(layer, c.n_layers, enable_nested_tensor=False)
+        elif c.encoder == "lstm":
+            self.encoder = nn.LSTM(c.d_model, c.d_model, c.n_layers, batch_first=True, dropout=c.dropout if c.n_layers > 1 else 0.0)
+        else:
+            self.encoder = CausalMeanMLP(c.d_model, c.d_ff, c.n_layers)
+        self.head_q = nn.Linear(c.d_model, 4)
+        self.head_sigma = nn.Linear(c.d_model, 1)
+        self.head_bias = nn.Linear(c.d_model, 3)
+        self.head_torque = nn.Linear(c.d_model, 3)
+        # the quaternion head starts near "level" so early training is stable
+        with torch.no_grad():
+            self.head_q.weight.mul_(0.1)
+            self.head_q.bias.copy_(torch.tensor([1.0, 0.0, 0.0, 0.0]))
+            self.head_bias.weight.mul_(0.1)
+            self.head_bias.bias.zero_()
+            self.head_sigma.bias.fill_(-3.0)
+        self.register_buffer("in_mean", torch.zeros(c.n_inputs))
+        self.register_buffer("in_std", torch.ones(c.n_inputs))
+
+    # ------------------------------------------------------------------ helpers
+
+    def physics_parameters(self) -> list[nn.Parameter]:
+        return list(self.sensor.parameters()) + list(self.body.parameters())
+
+    def network_parameters(self) -> list[nn.Parameter]:
+        ids = {id(p) for p in self.physics_parameters()}
+        return [p for p in self.parameters() if id(p) not in ids]
+
+    def set_normalization(self, mean: torch.Tensor, std: torch.Tensor) -> None:
+        self.in_mean.copy_(torch.as_tensor(mean, dtype=self.in_mean.dtype))
+        self.in_std.copy_(torch.as_tensor(std, dtype=self.in_std.dtype).clamp_min(1e-6))
+
+    @staticmethod
+    def frames(w_c: torch.Tensor, dt: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """RK4 rotations body(t_j) → body(t_0): at token ends ``P`` and token midpoints ``P_mid``.
+
+        Token j's mean rate acts over its own interval ``(t_{j-1}, t_j]`` of length ``dt_j``.
+        """
+        one = w_c.new_tensor([1.0, 0.0, 0.0, 0.0])
+        dq = rk4_delta(w_c[:, 1:], dt[:, 1:])  # (B, K-1, 4)
+        p_end = prefix_products(torch.cat([one.expand_as(dq[:, :1]), dq], dim=1))  # P_0 = 1
+        half = rk4_delta(w_c[:, 1:], 0.5 * dt[:, 1:])
+        p_mid = torch.cat([p_end[:, :1], quat_mul(p_end[:, :-1], half)], dim=1)
+        return p_end, p_mid
+
+    def features(self, gyr, acc, count, mag=None, dt=None):
+        """Token inputs (B, K, n_inputs) before normalisation, plus corrected gyro and accel."""
+        c = self.config
+        if c.physics:
+            w_c = self.sensor.gyro(gyr)
+            a_c = self.sensor.accel(acc)
+        else:
+            w_c, a_c = gyr, acc
+        parts = [w_c, a_c / GRAVITY_M_S2, torch.log1p(count)[..., None]]
+        v = None
+        if c.physics:
+            p_end, p_mid = self.frames(w_c, dt)
+            to_last = quat_mul(quat_conj(p_end[:, -1:]), p_mid)  # body(t_j mid) → body(t_K)
+            v = quat_rotate(to_last, a_c) / GRAVITY_M_S2  # (B, K, 3) in units of g
+            parts.append(v)
+        if c.use_mag:
+            parts.append(torch.nan_to_num(mag) / 50.0)
+        return torch.cat(parts, dim=-1), w_c, a_c, v
+
+    # ------------------------------------------------------------------ forward
+
+    def forward(self, gyr, acc, count, t_rel, dt, mag=None) -> dict[str, torch.Tensor]:
+        """``gyr``/``acc`` (B, K, 3) token means in rad/s and m/s², ``count`` (B, K) samples per
+        token, ``t_rel`` (B, K) seconds relative to the last token (≤ 0), ``dt`` (B, K) token
+        durations in s, ``mag`` (B, K, 3) µT (9-D mode).
+
+        Returns the window's estimate for t_K: ``q`` (B, 4) body→NED, ``sigma`` (B,) rad,
+        ``bias`` (B, 3) rad/s, ``f_mean`` (B, 3) the window's mean specific force in body(t_K)
+        (physics on); and per token ``torque`` (B, K, 3), ``w_c``, ``a_c`` (B, K, 3).
+        """
+        c = self.config
+        x, w_c, a_c, v = self.features(gyr, acc, count, mag, dt)
+        h = self.inp((x - self.in_mean) / self.in_std) + self.pe(t_rel)  # (B, K, d)
+        if c.encoder == "lstm":
+            h, _ = self.encoder(h)
+        else:
+            h = self.encoder(h)  # transformer: full attention inside the window (it ends at t_K)
+        last = h[:, -1]  # (B, d)
+        q = quat_normalize(self.head_q(last))  # (B, 4)
+        if c.correction_layer:
+            q = zero_yaw(q)
+        out = {
+            "q": q,
+            "bias": BIAS_SCALE_RAD_S * self.head_bias(last),
+            "torque": self.head_torque(h),
+            "w_c": w_c,
+            "a_c": a_c,
+        }
+        if v is not None:
+            out["f_mean"] = v.mean(dim=1)  # window-mean specific force in body(t_K), in g
+        if c.uncertainty:
+            out["sigma"] = F.softplus(self.head_sigma(last))[..., 0] + 1e-4
+        return out
