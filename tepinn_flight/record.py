@@ -49,7 +49,7 @@ REQUIRED_COLUMNS = ["t_s", "segment", *GYR_COLS, *ACC_COLS, *MAG_COLS, *QREF_COL
 OPTIONAL_COLUMNS = ["valid", *GYR_BIAS_COLS, *ACC_BIAS_COLS]
 _DTYPES = {"t_s": "float64", "segment": "int32", "clipped": "bool", "valid": "bool"}
 
-SOURCE_KINDS = ("tlog", "dataflash", "ulog", "broad", "jsbsim")
+SOURCE_KINDS = ("tlog", "dataflash", "ulog", "broad", "jsbsim", "synthetic")
 
 #: Below this IMU rate windowed estimation is not meaningful; records are still written.
 MIN_ESTIMATION_RATE_HZ = 20.0

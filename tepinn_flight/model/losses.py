@@ -73,8 +73,9 @@ class TEPINNLoss(nn.Module):
     def __init__(self, config: LossConfig, body: RigidBody):
         super().__init__()
         self.config = config
-        self.body = body
+        self._body = (body,)  # shared with the model; not registered twice as a parameter owner
         self.log_vars = nn.Parameter(torch.zeros(len(TERMS)))
+        self.register_buffer("initialised", torch.zeros(len(TERMS), dtype=torch.bool))
 
     def forward(self, out: dict, batch: dict, out_prev: dict | None = None) -> tuple[torch.Tensor, dict]:
         c = self.config
@@ -99,7 +100,7 @@ class TEPINNLoss(nn.Module):
             dt = batch["dt"][:, 1:, None]
             w_dot = (w[:, 1:] - w[:, :-1]) / dt
             wm = 0.5 * (w[:, 1:] + w[:, :-1])
-            res = self.body.residual(wm, w_dot, out["torque"][:, :-1]) / c.dyn_scale_rad_s2
+            res = self._body[0].residual(wm, w_dot, out["torque"][:, :-1]) / c.dyn_scale_rad_s2
             terms["dyn"] = (res**2).sum(-1).mean()
         if out_prev is not None and "f_mean" in out:
             # L_gyro: the estimate n tokens earlier, carried forward by RK4 of ω_c − b̂, must agree
@@ -113,6 +114,10 @@ class TEPINNLoss(nn.Module):
             if name not in terms:
                 continue
             if c.adaptive:
+                if not self.initialised[i]:  # start each weight at 1/L_i: every term begins at ~½
+                    with torch.no_grad():
+                        self.log_vars[i] = torch.log(terms[name].detach().clamp_min(1e-8)).to(self.log_vars.dtype)
+                        self.initialised[i] = True
                 s = self.log_vars[i]
                 total = total + 0.5 * torch.exp(-s) * terms[name] + 0.5 * s
             else:

@@ -112,7 +112,7 @@ class TEPINN(nn.Module):
             self.head_q.bias.copy_(torch.tensor([1.0, 0.0, 0.0, 0.0]))
             self.head_bias.weight.mul_(0.1)
             self.head_bias.bias.zero_()
-            self.head_sigma.bias.fill_(-3.0)
+            self.head_sigma.bias.fill_(-1.0)
         self.register_buffer("in_mean", torch.zeros(c.n_inputs))
         self.register_buffer("in_std", torch.ones(c.n_inputs))
 
@@ -193,5 +193,6 @@ class TEPINN(nn.Module):
         if v is not None:
             out["f_mean"] = v.mean(dim=1)  # window-mean specific force in body(t_K), in g
         if c.uncertainty:
-            out["sigma"] = F.softplus(self.head_sigma(last))[..., 0] + 1e-4
+            # σ reads the representation but does not shape it (its NLL would swamp early training)
+            out["sigma"] = F.softplus(self.head_sigma(last.detach()))[..., 0] + 1e-4
         return out

@@ -1,0 +1,682 @@
+"""ArduPilot DataFlash logs (binary ``.bin`` and text ``.log``) → :class:`RawLog`.
+
+Binary logs go through the numpy fast path in :mod:`.dataflash_scan` (mmap, bulk decode of the
+wanted message ids only; memory ≈ output size plus one scan chunk). Text logs are classified line
+by line with numpy and the wanted lines parsed by pandas' C CSV parser (memory ≈ a few times the
+file size: text logs are small). Both expose the same small "source" interface, so the semantics
+below are written once.
+
+Streams
+    IMU   ``IMU``/``IMU2``/``IMU3`` (old logs: instances 0/1/2) or 4.x ``IMU`` with instance
+          column ``I``. Gyro rad/s, accel m/s² FRD, already SI. Default: the lowest instance with rows.
+    MAG   ``MAG``/``MAG2``/``MAG3`` or ``MAG[I]``, milliGauss × 0.1 → µT; the IMU's instance if
+          logged, else the lowest one.
+    ref   quaternions ``XKQ[C]`` (EKF3), ``NKQ1``/``NKQ2``/``NKQ[C]`` (EKF2) or ``AHR2`` with
+          Q1..Q4 (w, x, y, z body→NED); Euler ``ATT``/``AHR2``/``EKF1``/``NKF1``/``XKF1``
+          (degrees, Z-Y-X, yaw 0–360). Default: XKQ core 0, else NKQ1, else NKQ core 0, else
+          XKQ1 (EKF3 of 3.6–4.0), else ATT. ``reference=`` picks any candidate by name, case-
+          insensitive, with ``[k]`` for core/instance k (``XKQ[1]``); an absent one is a
+          :class:`ConfigError` listing the candidates.
+    time  ``TimeUS`` (µs) or ``TimeMS`` (ms) since boot. Messages without either (Copter 3.0.x)
+          cannot be timed; the GPS ``TimeMS`` of old logs is GPS time of week and is never used.
+          Boot epochs follow the rule of :func:`detect_epochs` (time jumps back > 1 s) on the
+          merged clock of the streams read, in file order (a reboot makes time jump back).
+
+Clipping rule (``ImuStream.clipped``), a sample is marked when any of:
+    * a gyro axis reaches 98 % of the ±2000 °/s full scale (|ω| ≥ 34.2 rad/s) — the logged IMU is
+      a 20 Hz low-pass snapshot, so a saturated sensor shows slightly below full scale;
+    * an accel axis reaches 98 % of ±16 g (|a| ≥ 153.8 m/s²);
+    * the ``VIBE`` accel clip counter of that IMU (``Clip`` in 4.x, ``Clip0..2`` in 3.3+) increased
+      since the previous VIBE row: all IMU rows written between the two VIBE rows are marked;
+    * 4.x health flags ``GH``/``AH`` are 0, or the error counters ``EG``/``EA`` increased.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from ..conventions import DEG_TO_RAD, GRAVITY_M_S2, MILLIGAUSS_TO_UT
+from ..errors import ConfigError, CorruptLog, NoImuData
+from ..quat import quat_from_euler_zyx, quat_normalize
+from . import dataflash_scan as dfs
+from .sniff import sniff
+from .streams import ImuStream, MagStream, RawLog, RefStream, detect_epochs, nominal_period_s
+
+#: Clipping thresholds (see the module docstring).
+GYRO_FULL_SCALE_RAD_S = 2000.0 * DEG_TO_RAD
+ACCEL_FULL_SCALE_M_S2 = 16.0 * GRAVITY_M_S2
+CLIP_FRACTION = 0.98
+
+TIME_FIELDS = {"TimeUS": 1e6, "TimeMS": 1e3}  # ticks per second (divide: exact for whole ms)
+GYR = ("GyrX", "GyrY", "GyrZ")
+ACC = ("AccX", "AccY", "AccZ")
+MAGC = ("MagX", "MagY", "MagZ")
+QUAT = ("Q1", "Q2", "Q3", "Q4")
+EULER = ("Roll", "Pitch", "Yaw")
+INSTANCE_COLS = ("I", "C", "IMU")
+_BLOCK = 1 << 15  # rows per decode block
+REBOOT_BACKSTEP_S = 1.0  # time jumping back more than this (s) is a reboot (streams.detect_epochs)
+
+#: Reference message families (listing order of ``reference_candidates``) and the default choice.
+QUAT_REFS = ("XKQ", "NKQ1", "NKQ", "NKQ2", "XKQ1", "XKQ2")
+EULER_REFS = ("ATT", "AHR2", "XKF1", "NKF1", "EKF1")
+DEFAULT_ORDER = ("XKQ", "NKQ1", "NKQ", "XKQ1", "ATT")
+
+_FIRMWARE_RE = re.compile(r"^\s*((Ardu\w+|APM:\w+|APMrover2|AntennaTracker|Blimp)\s+V?\d[^\s]*)")
+_VEHICLES = (("copter", "copter"), ("heli", "copter"), ("plane", "plane"), ("sub", "sub"),
+             ("rover", "rover"), ("tracker", "antenna_tracker"), ("blimp", "blimp"))  # fmt: skip
+
+
+# --------------------------------------------------------------------------- sources
+
+
+class _BinarySource:
+    """Binary log: formats from FMT records, rows decoded in bulk from the mmap."""
+
+    kind = "binary"
+
+    def __init__(self, path: str | os.PathLike, wanted_names: set[str], counted_names: set[str]):
+        self._mm, self.buf = dfs.open_buffer(path)
+        if self._mm is None:
+            raise CorruptLog("empty file")
+        table = dfs.find_formats(self._mm)
+        res = None
+        for _ in range(3):  # a false FMT inside a payload is dropped and the chain rescanned
+            names = table.by_name
+            ids = {dfs.FMT_ID} | {names[n].type_id for n in wanted_names if n in names}
+            inst = {}
+            for n in counted_names - wanted_names:  # count rows per instance without keeping offsets
+                col = _instance_col(names[n]) if n in names else None
+                if col is not None and names[n].dtype.fields[col][0].itemsize == 1:
+                    inst[names[n].type_id] = names[n].field_offset(col)
+                elif col is not None:  # a wider instance field: keep the offsets and decode it
+                    ids.add(names[n].type_id)
+            res = dfs.scan(self.buf, table.lengths(), ids, instance_bytes=inst)
+            false_fmt = set(table.fmt_offsets.tolist()) - set(res.offsets[dfs.FMT_ID].tolist())
+            if not false_fmt:
+                break
+            table = dfs.find_formats(self._mm, exclude=false_fmt)
+        self.formats = {f.name: f for f in table.by_id.values() if f.type_id != dfs.FMT_ID}
+        self._offsets = {table.by_id[i].name: o for i, o in res.offsets.items() if i in table.by_id}
+        self.counts = {table.by_id[i].name: int(c) for i, c in enumerate(res.counts) if c and i in table.by_id}
+        self._inst_counts = {table.by_id[i].name: c for i, c in res.instance_counts.items()}
+        self.corrupt_frames = res.corrupt_regions
+        self.skipped_frames = res.unknown_id_headers + (1 if res.truncated_tail_bytes else 0)
+        self.notes = list(table.redefined)
+        if res.corrupt_regions:
+            self.notes.append(
+                f"{res.corrupt_regions} corrupt region(s), {res.skipped_bytes} bytes skipped to resynchronise"
+            )
+        if res.unknown_id_headers:
+            self.notes.append(f"{res.unknown_id_headers} message header(s) with an id that has no FMT skipped")
+        if res.truncated_tail_bytes:
+            self.notes.append(f"truncated tail: the last {res.truncated_tail_bytes} bytes are not a complete message")
+        self.banner = ""
+
+    def count(self, name: str) -> int:
+        return self.counts.get(name, 0)
+
+    def order(self, name: str) -> np.ndarray:
+        return self._offsets.get(name, np.zeros(0, np.int64))
+
+    def instance_column(self, name: str, col: str) -> np.ndarray:
+        mf = self.formats[name]
+        return dfs.scaled(dfs.decode_column(self.buf, mf, self.order(name), col), mf.multiplier(col))
+
+    def instance_counts(self, name: str, col: str) -> dict[int, int]:
+        c = self._inst_counts.get(name)
+        if c is not None:
+            return {int(i): int(c[i]) for i in np.flatnonzero(c)}
+        v, n = np.unique(self.instance_column(name, col), return_counts=True)
+        return {int(a): int(b) for a, b in zip(v, n) if np.isfinite(a)}
+
+    def table(self, name: str, cols: tuple[str, ...], rows: np.ndarray | None = None) -> np.ndarray:
+        mf = self.formats[name]
+        offs = self.order(name) if rows is None else self.order(name)[rows]
+        out = np.empty((len(offs), len(cols)))
+        for i in range(0, len(offs), _BLOCK):  # blocks keep the raw rows' memory constant
+            raw = dfs.decode_rows(self.buf, mf, offs[i : i + _BLOCK])
+            for k, c in enumerate(cols):
+                out[i : i + _BLOCK, k] = dfs.scaled(raw[c], mf.multiplier(c))
+        return out
+
+    def strings(self, name: str, col: str) -> list[str]:
+        mf = self.formats.get(name)
+        if mf is None or self.count(name) == 0 or col not in mf.columns or mf.type_char(col) not in dfs.STRING_CHARS:
+            return []
+        raw = dfs.decode_rows(self.buf, mf, self.order(name))[col]
+        return [dfs._null_term(bytes(b)) for b in raw]
+
+
+class _TextSource:
+    """Text log: ``NAME, v1, v2, ...`` lines.
+
+    Lines are classified with numpy (line starts, first comma, a key from the ≤ 4-character
+    message name), so Python touches only the FMT lines and the wanted messages' lines; numeric
+    tables are parsed by pandas' C CSV parser.
+    """
+
+    kind = "text"
+
+    def __init__(self, path: str | os.PathLike, wanted_names: set[str], counted_names: set[str] = frozenset()):
+        with open(path, "rb") as f:
+            self._raw = f.read()
+        data = np.frombuffer(self._raw, np.uint8)
+        nl = np.flatnonzero(data == 10)
+        starts = np.concatenate([[0], nl + 1]).astype(np.int64)
+        ends = np.concatenate([nl, [len(data)]]).astype(np.int64)
+        self._commas = commas = np.flatnonzero(data == 44)
+        ci = np.searchsorted(commas, starts)
+        first = commas[np.minimum(ci, max(len(commas) - 1, 0))] if len(commas) else np.full(len(starts), -1)
+        has = (ci < len(commas)) & (first < ends)
+        keys = np.full(len(starts), -1, np.int64)
+        nlen = np.where(has, first - starts, 0)
+        okn = has & (nlen >= 1) & (nlen <= 4)
+        if okn.any():
+            k = np.zeros(int(okn.sum()), np.int64)
+            s0, ln = starts[okn], nlen[okn]
+            for j in range(4):
+                k |= np.where(j < ln, data[np.minimum(s0 + j, len(data) - 1)].astype(np.int64), 0) << (8 * j)
+            keys[okn] = k | (ln << 32)
+        self._starts, self._first, self._ends, self._keys = starts, first, ends, keys
+
+        fmt_key = _name_key("FMT")
+        self.formats: dict[str, dfs.MsgFormat] = {}
+        bad_fmt = 0
+        fmt_lines = np.flatnonzero(keys == fmt_key)
+        for i in fmt_lines:
+            mf = self._parse_fmt(self._line(i, first[i] + 1), int(starts[i]))
+            if mf is None:
+                bad_fmt += 1
+            elif mf.name != "FMT" and mf.name not in self.formats:
+                self.formats[mf.name] = mf
+        body_from = int(fmt_lines[0]) if len(fmt_lines) else len(starts)
+        banner = [self._line(i, starts[i]).strip() for i in range(min(body_from, 20))]
+        self.banner = next((b for b in banner if b), "")
+        kb = keys[body_from:]
+        u, n = np.unique(kb, return_counts=True)
+        by_key = dict(zip(u.tolist(), n.tolist()))
+        self._name_keys = {name: _name_key(name) for name in self.formats}
+        self.counts = {name: by_key[k] for name, k in self._name_keys.items() if k in by_key}
+        known = sum(self.counts.values()) + by_key.get(fmt_key, 0)
+        blank = int(np.sum((ends[body_from:] - starts[body_from:]) <= 1))  # empty or a lone '\r'
+        unknown = len(kb) - known - blank
+        self._rows = {
+            name: np.flatnonzero(keys == k)
+            for name, k in self._name_keys.items()
+            if name in wanted_names or name in counted_names
+        }
+        self._cache: dict[str, np.ndarray] = {}
+        self.corrupt_frames = bad_fmt
+        self.skipped_frames = unknown
+        self.notes = []
+        if unknown:
+            self.notes.append(f"{unknown} line(s) with no FMT definition skipped")
+        if bad_fmt:
+            self.notes.append(f"{bad_fmt} malformed FMT line(s) skipped")
+
+    def _line(self, i: int, start: int) -> str:
+        return self._raw[start : self._ends[i]].decode("utf-8", "replace").rstrip("\r")
+
+    @staticmethod
+    def _parse_fmt(rest: str, pos: int) -> dfs.MsgFormat | None:
+        parts = [p.strip() for p in rest.split(",")]
+        if len(parts) < 4:
+            return None
+        try:
+            tid, length = int(parts[0]), int(parts[1])
+        except ValueError:
+            return None
+        return dfs.make_format(tid, parts[2], length, parts[3], ",".join(parts[4:]), pos)
+
+    def count(self, name: str) -> int:
+        return self.counts.get(name, 0)
+
+    def order(self, name: str) -> np.ndarray:
+        rows = self._rows.get(name)
+        return np.zeros(0, np.int64) if rows is None else self._starts[rows]
+
+    def _numeric(self, name: str) -> np.ndarray:
+        """``(n, ncols)`` float64 of one message's lines; strings and malformed rows are NaN."""
+        if name in self._cache:
+            return self._cache[name]
+        mf = self.formats[name]
+        k = len(mf.fmt)
+        rows = self._rows.get(name, np.zeros(0, np.int64))
+        out = np.full((len(rows), k), np.nan)
+        if len(rows) and k:
+            a, e = self._first[rows] + 1, self._ends[rows]
+            n_commas = np.searchsorted(self._commas, e) - np.searchsorted(self._commas, a)
+            good = n_commas == k - 1
+            if not good.all():
+                self.corrupt_frames += int((~good).sum())
+                self.notes.append(f"{int((~good).sum())} {name} line(s) with a wrong number of fields skipped")
+            raw = self._raw
+            joined = b"\n".join([raw[x:y] for x, y in zip(a[good].tolist(), e[good].tolist())])
+            num = [c for c, ch in enumerate(mf.fmt) if ch not in dfs.STRING_CHARS and ch != "a"]
+            if good.any() and num:
+                out[np.ix_(good, num)] = _parse_csv(joined, k, num)
+        self._cache[name] = out
+        return out
+
+    def instance_column(self, name: str, col: str) -> np.ndarray:
+        return self._numeric(name)[:, self.formats[name].columns.index(col)]
+
+    def instance_counts(self, name: str, col: str) -> dict[int, int]:
+        v, n = np.unique(self.instance_column(name, col), return_counts=True)
+        return {int(a): int(b) for a, b in zip(v, n) if np.isfinite(a)}
+
+    def table(self, name: str, cols: tuple[str, ...], rows: np.ndarray | None = None) -> np.ndarray:
+        arr = self._numeric(name)
+        mf = self.formats[name]
+        idx = [mf.columns.index(c) for c in cols]
+        return arr[:, idx] if rows is None else arr[np.ix_(rows, idx)]
+
+    def strings(self, name: str, col: str) -> list[str]:
+        mf = self.formats.get(name)
+        if mf is None or col not in mf.columns:
+            return []
+        i = mf.columns.index(col)
+        last = i == len(mf.columns) - 1
+        out = []
+        for r in self._rows.get(name, []):
+            parts = self._line(r, self._first[r] + 1).split(",", i if last else i + 1)
+            out.append(parts[i].strip() if len(parts) > i else "")
+        return out
+
+
+def _parse_csv(data: bytes, ncols: int, numeric: list[int]) -> np.ndarray:
+    """Numeric columns of comma-separated lines via pandas' C parser; bad cells become NaN."""
+    kw = dict(header=None, names=list(range(ncols)), usecols=numeric, skipinitialspace=True, engine="c")
+    try:
+        table = pd.read_csv(io.BytesIO(data), dtype=np.float64, **kw)
+    except ValueError:
+        table = pd.read_csv(io.BytesIO(data), dtype=object, **kw)
+        table = table.apply(lambda c: pd.to_numeric(c.astype(str).str.strip(), errors="coerce"))
+    return table[numeric].to_numpy(np.float64)
+
+
+def _name_key(name: str) -> int:
+    """The integer key of a ≤ 4-character message name used by :class:`_TextSource`."""
+    b = name.encode("ascii", "replace")[:4]
+    return int.from_bytes(b, "little") | (len(b) << 32)
+
+
+# --------------------------------------------------------------------------- streams
+
+
+@dataclass
+class _Instance:
+    name: str  # message name
+    instance: int
+    samples: int
+    rows: np.ndarray | None = None  # row indices into that message (None: all rows)
+
+
+def _time_field(mf: dfs.MsgFormat) -> str | None:
+    for f in TIME_FIELDS:
+        if f in mf.columns:
+            return f
+    return None
+
+
+def _has(src, name: str, cols: tuple[str, ...]) -> bool:
+    return set(cols) <= set(src.formats[name].columns)
+
+
+def _instance_col(mf: dfs.MsgFormat) -> str | None:
+    for c in INSTANCE_COLS:
+        if c in mf.columns and mf.type_char(c) in "BbHhIi":
+            return c
+    return None
+
+
+def _instances(src, base: str, numbered: tuple[str, ...] = (), rows: bool = True) -> list[_Instance]:
+    """Instances with rows of a multi-instance message: ``NAME[I]`` columns or NAME, NAME2, NAME3.
+
+    ``rows=False`` only counts (no decoding where the scan counted instances already).
+    """
+    out: list[_Instance] = []
+    mf = src.formats.get(base)
+    if mf is not None and src.count(base) and _time_field(mf) is not None:
+        col = _instance_col(mf)
+        if col is None:
+            out.append(_Instance(base, 0, src.count(base)))
+        elif rows:
+            inst = src.instance_column(base, col)
+            for v in np.unique(inst[np.isfinite(inst)]).astype(int):
+                r = np.flatnonzero(inst == v)
+                out.append(_Instance(base, int(v), len(r), r))
+        else:
+            out += [_Instance(base, v, n) for v, n in sorted(src.instance_counts(base, col).items())]
+    for k, name in enumerate(numbered, start=1):
+        f = src.formats.get(name)
+        if f is not None and src.count(name) and _time_field(f) is not None and not any(i.instance == k for i in out):
+            out.append(_Instance(name, k, src.count(name)))
+    return sorted(out, key=lambda i: i.instance)
+
+
+def _with_rows(src, inst: _Instance) -> _Instance:
+    """The instance with its row indices resolved (for messages with an instance column)."""
+    col = _instance_col(src.formats[inst.name])
+    if col is None or inst.rows is not None:
+        return inst
+    r = np.flatnonzero(src.instance_column(inst.name, col) == inst.instance)
+    return _Instance(inst.name, inst.instance, len(r), r)
+
+
+def _timed(src, inst: _Instance, cols: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """(t_s, values (n, len(cols))) of one instance, time field scaled to seconds."""
+    tf = _time_field(src.formats[inst.name])
+    arr = src.table(inst.name, (tf, *cols), inst.rows)
+    return arr[:, 0] / TIME_FIELDS[tf], arr[:, 1:]
+
+
+def _order(src, inst: _Instance) -> np.ndarray:
+    o = src.order(inst.name)
+    return o if inst.rows is None else o[inst.rows]
+
+
+def _reference_candidates(src) -> dict[str, _Instance]:
+    """Reference streams with rows and a time field, by label (``XKQ``, ``XKQ[1]``, ``ATT``...)."""
+    out: dict[str, _Instance] = {}
+    for name in QUAT_REFS + EULER_REFS:
+        mf = src.formats.get(name)
+        if mf is None or not (set(QUAT) <= set(mf.columns) or set(EULER) <= set(mf.columns)):
+            continue
+        for inst in _instances(src, name, rows=False):
+            out[name if inst.instance == 0 else f"{name}[{inst.instance}]"] = inst
+    return out
+
+
+def _requested_family(requested: str | None) -> str | None:
+    if requested is None:
+        return None
+    m = re.match(r"\s*([A-Za-z0-9]+)", requested)
+    return m.group(1).upper() if m else None
+
+
+def _pick_reference(cands: dict[str, _Instance], requested: str | None) -> tuple[str, _Instance] | None:
+    if requested is None:
+        for fam in DEFAULT_ORDER:
+            hits = sorted((i.instance, lab) for lab, i in cands.items() if i.name == fam)
+            if hits:
+                return hits[0][1], cands[hits[0][1]]
+        return None
+    req = re.sub(r"\s+", "", requested).upper().replace("C=", "").replace("I=", "")
+    for lab, inst in cands.items():
+        if lab.upper() == req:
+            return lab, inst
+    m = re.fullmatch(r"([A-Z0-9]+)\[(\d+)\]", req)
+    if m:
+        for lab, inst in cands.items():
+            if inst.name.upper() == m.group(1) and inst.instance == int(m.group(2)):
+                return lab, inst
+    avail = ", ".join(cands) if cands else "none"
+    raise ConfigError(f"reference {requested!r} not in this log; available: {avail}")
+
+
+def _ref_quaternions(src, inst: _Instance) -> tuple[np.ndarray, np.ndarray]:
+    mf = src.formats[inst.name]
+    if set(QUAT) <= set(mf.columns):
+        t, q = _timed(src, inst, QUAT)
+        norm = np.linalg.norm(q, axis=-1)
+        bad = ~(np.isfinite(norm) & (norm > 0.5) & (norm < 1.5))
+        q[bad] = 1.0
+        q = quat_normalize(q)
+        q[bad] = np.nan
+        return t, q
+    # Euler degrees → quaternions block by block: the temporaries stay one block in size
+    tf = _time_field(mf)
+    rows = np.arange(src.count(inst.name)) if inst.rows is None else inst.rows
+    t = np.empty(len(rows))
+    q = np.empty((len(rows), 4))
+    for i in range(0, len(rows), _BLOCK):
+        b = src.table(inst.name, (tf, *EULER), rows[i : i + _BLOCK])
+        t[i : i + _BLOCK] = b[:, 0] / TIME_FIELDS[tf]
+        e = b[:, 1:] * DEG_TO_RAD
+        q[i : i + _BLOCK] = quat_from_euler_zyx(e[:, 0], e[:, 1], e[:, 2])
+    return t, q
+
+
+def _clipped(src, inst: _Instance, gyr: np.ndarray, acc: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    notes = []
+    sat = (np.abs(gyr) >= CLIP_FRACTION * GYRO_FULL_SCALE_RAD_S).any(axis=1)
+    sat |= (np.abs(acc) >= CLIP_FRACTION * ACCEL_FULL_SCALE_M_S2).any(axis=1)
+    clipped = sat.copy()
+    mf = src.formats[inst.name]
+    health = [c for c in ("GH", "AH") if c in mf.columns]
+    errs = [c for c in ("EG", "EA") if c in mf.columns]
+    if health or errs:
+        d = src.table(inst.name, tuple(health + errs), inst.rows)
+        bad = np.zeros(len(gyr), bool)
+        for k in range(len(health)):
+            bad |= d[:, k] == 0
+        for k in range(len(health), d.shape[1]):
+            bad[1:] |= np.diff(d[:, k]) > 0
+        if bad.any():
+            notes.append(
+                f"{int(bad.sum())} IMU sample(s) unhealthy or with sensor errors (GH/AH/EG/EA): marked clipped"
+            )
+        clipped |= bad
+    vibe = src.formats.get("VIBE")
+    if vibe is not None and src.count("VIBE"):
+        col, rows = None, None
+        if "Clip" in vibe.columns and "IMU" in vibe.columns:
+            col = "Clip"
+            rows = np.flatnonzero(src.instance_column("VIBE", "IMU") == inst.instance)
+        elif f"Clip{inst.instance}" in vibe.columns:
+            col = f"Clip{inst.instance}"
+        if col is not None:
+            clip = src.table("VIBE", (col,), rows)[:, 0]
+            v_order = src.order("VIBE") if rows is None else src.order("VIBE")[rows]
+            inc = np.flatnonzero(np.diff(clip) > 0) + 1
+            vmark = np.zeros(len(gyr), bool)
+            for k in inc:  # IMU rows written between the two VIBE rows (file order)
+                lo, hi = np.searchsorted(order, v_order[k - 1 : k + 1], "right")
+                vmark[lo:hi] = True
+            if vmark.any():
+                notes.append(f"VIBE accel clip counter rose: {int(vmark.sum())} IMU sample(s) marked clipped")
+            clipped |= vmark
+    if sat.any():
+        notes.append(f"{int(sat.sum())} IMU sample(s) at ≥98 % of the ±2000 °/s or ±16 g range: marked clipped")
+    return clipped, notes
+
+
+def _firmware(src, messages: list[str]) -> tuple[str, str | None]:
+    for s in [*messages, src.banner]:
+        m = _FIRMWARE_RE.match(s or "")
+        if m:
+            return m.group(1), s
+    if "VER" in src.formats and src.count("VER") and "FWS" in src.formats["VER"].columns:
+        for s in src.strings("VER", "FWS"):
+            if s:
+                return s, s
+    return "unknown", None
+
+
+def _vehicle_type(firmware: str, param_names) -> str:
+    """Vehicle family from the firmware string, else guessed from parameter names (callable: lazy)."""
+    low = firmware.lower()
+    for key, kind in _VEHICLES:
+        if key in low:
+            return kind
+    params = param_names()
+    if any(p.startswith(("WPNAV_", "PILOT_")) for p in params):
+        return "copter"
+    if any(p.startswith(("ARSPD_", "TECS_")) for p in params):
+        return "plane"
+    if "SURFACE_DEPTH" in params:
+        return "sub"
+    if "CRUISE_SPEED" in params:
+        return "rover"
+    return "unknown"
+
+
+def _param(src, name: str) -> float | None:
+    """Last logged value of a parameter (None if absent)."""
+    if "PARM" not in src.formats or not src.count("PARM") or not _has(src, "PARM", ("Name", "Value")):
+        return None
+    names = src.strings("PARM", "Name")
+    if name not in names:
+        return None
+    vals = src.table("PARM", ("Value",))[:, 0]
+    return float(vals[len(names) - 1 - names[::-1].index(name)])
+
+
+def _rate(t: np.ndarray) -> float | None:
+    p = nominal_period_s(t, detect_epochs(t))
+    return round(1.0 / p, 3) if np.isfinite(p) and p > 0 else None
+
+
+def _merged_epochs(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
+    """Boot epochs of several streams from their merged clock in file order.
+
+    Each part is ``(t_s, file_position)`` with positions increasing; the merged order comes from
+    ``searchsorted`` on the other parts' positions (no argsort, no merged position array).
+    """
+    total = sum(len(t) for t, _ in parts)
+    t_merged = np.empty(total)
+    where = []
+    for a, (t_a, o_a) in enumerate(parts):
+        pos = np.arange(len(o_a), dtype=np.int64)
+        for b, (_, o_b) in enumerate(parts):
+            if b != a:
+                pos += np.searchsorted(o_b, o_a, side="right" if b < a else "left")
+        t_merged[pos] = t_a
+        where.append(pos)
+    # the rule of streams.detect_epochs (new epoch where time jumps back more than 1 s), applied
+    # through the jump positions so that no second merged-size array is needed
+    jumps = np.flatnonzero(np.diff(t_merged) < -REBOOT_BACKSTEP_S)
+    del t_merged
+    return [np.searchsorted(jumps, pos, side="left").astype(np.int64) for pos in where]
+
+
+# --------------------------------------------------------------------------- reader
+
+_BASE_NAMES = {"IMU", "IMU2", "IMU3", "MAG", "MAG2", "MAG3", "VIBE", "MSG", "VER", "PARM"}
+
+
+def read(path: str | os.PathLike, imu: int | None = None, reference: str | None = None) -> RawLog:
+    """Parse a binary or text DataFlash log (see the module docstring for the rules)."""
+    kind = sniff(path)
+    if kind not in ("dataflash-bin", "dataflash-text"):
+        raise CorruptLog(f"not a DataFlash log (sniffed as {kind})", path)
+    # rows are kept only for what may be decoded; the other reference candidates are only counted
+    wanted = _BASE_NAMES | set(DEFAULT_ORDER) | {_requested_family(reference) or "ATT"}
+    counted = set(QUAT_REFS) | set(EULER_REFS)
+    src = (_BinarySource if kind == "dataflash-bin" else _TextSource)(path, wanted, counted)
+    if not src.formats:
+        raise CorruptLog("no valid FMT records: not a readable DataFlash log", path)
+
+    messages = src.strings("MSG", "Message")
+    firmware, fw_msg = _firmware(src, messages)
+    frame = next((s.split(":", 1)[1].strip() for s in messages if s.startswith("Frame:")), None)
+    meta: dict = {
+        "source_kind": "dataflash",
+        "dataflash_encoding": src.kind,
+        "autopilot": "ardupilot",
+        "firmware": firmware,
+        "vehicle_type": _vehicle_type(fw_msg or firmware, lambda: set(src.strings("PARM", "Name"))),
+    }
+    if frame:
+        meta["frame"] = frame
+    notes: list[str] = []
+
+    # ---- IMU
+    imu_fmt = src.formats.get("IMU")
+    if imu_fmt is None:
+        present = ", ".join(sorted(n for n in src.counts if n != "FMT")) or "none"
+        raise NoImuData(f"no IMU message defined in the log (messages with rows: {present})", path)
+    if _time_field(imu_fmt) is None:
+        if not any(src.count(n) for n in ("IMU", "IMU2", "IMU3")):
+            raise NoImuData(
+                "IMU is defined without a time field (TimeUS/TimeMS) and the log holds no IMU rows "
+                "(ArduCopter 3.0.x-style log)", path)  # fmt: skip
+        raise CorruptLog("IMU rows carry no time field (TimeUS/TimeMS): samples cannot be placed in time", path)
+    insts = [i for i in _instances(src, "IMU", ("IMU2", "IMU3")) if _has(src, i.name, GYR + ACC)]
+    if not insts and any(src.count(n) for n in ("IMU", "IMU2", "IMU3")):
+        raise CorruptLog(f"IMU messages lack the columns {', '.join(GYR + ACC)} (malformed FMT)", path)
+    if not insts:
+        bitmask = _param(src, "LOG_BITMASK")
+        extra = f"; LOG_BITMASK={bitmask:g}" if bitmask is not None and np.isfinite(bitmask) else ""
+        raise NoImuData(f"the log defines IMU but holds no IMU rows (IMU logging disabled{extra})", path)
+    if imu is None:
+        sel = insts[0]
+    else:
+        hits = [i for i in insts if i.instance == imu]
+        if not hits:
+            have = ", ".join(str(i.instance) for i in insts)
+            raise NoImuData(f"IMU instance {imu} has no samples; instances with data: {have}", path)
+        sel = hits[0]
+    t_imu, v = _timed(src, sel, (*GYR, *ACC))
+    gyr, acc = v[:, :3], v[:, 3:]
+    o_imu = _order(src, sel)
+    clipped, clip_notes = _clipped(src, sel, gyr, acc, o_imu)
+    notes += clip_notes
+    ok = np.isfinite(t_imu) & np.all(np.isfinite(v), axis=1)
+    if not ok.all():
+        notes.append(f"{int((~ok).sum())} IMU row(s) with non-finite values dropped")
+        t_imu, gyr, acc, o_imu, clipped = t_imu[ok], gyr[ok], acc[ok], o_imu[ok], clipped[ok]
+    if len(t_imu) == 0:
+        raise NoImuData("no IMU rows with finite values", path)
+    meta["imu_instance"] = sel.instance
+    meta["imu_message"] = sel.name
+    meta["imu_time_field"] = _time_field(src.formats[sel.name])
+    meta["imu_instances"] = [
+        {"instance": i.instance, "name": i.name, "samples": i.samples,
+         "rate_hz": _rate(t_imu) if i is sel else _rate(_timed(src, i, ())[0])}
+        for i in insts
+    ]  # fmt: skip
+
+    # ---- magnetometer (same instance as the IMU if logged)
+    parts = [(t_imu, o_imu)]
+    mag = None
+    mags = [i for i in _instances(src, "MAG", ("MAG2", "MAG3")) if _has(src, i.name, MAGC)]
+    if mags:
+        msel = next((i for i in mags if i.instance == sel.instance), mags[0])
+        t_mag, m = _timed(src, msel, MAGC)
+        mag = MagStream(t_mag, m * MILLIGAUSS_TO_UT)
+        parts.append((t_mag, _order(src, msel)))
+        meta["mag_instance"] = msel.instance
+
+    # ---- reference
+    cands = _reference_candidates(src)
+    meta["reference_candidates"] = list(cands)
+    try:
+        pick = _pick_reference(cands, reference)
+    except ConfigError as exc:
+        raise ConfigError(exc.reason, path) from None
+    ref = None
+    if pick is not None:
+        label, rinst = pick
+        rinst = _with_rows(src, rinst)
+        t_ref, q = _ref_quaternions(src, rinst)
+        ref = RefStream(t_ref, q, label)
+        parts.append((t_ref, _order(src, rinst)))
+    else:
+        notes.append("no reference attitude (XKQ/NKQ/ATT/AHR2/EKF1 with a time field) in the log")
+
+    # ---- boot epochs on the merged clock, in file order
+    eps = _merged_epochs(parts)
+    n_boots = int(max(e.max() for e in eps)) + 1
+    if n_boots > 1:
+        notes.append(f"time jumps back {n_boots - 1} time(s) (reboot): {n_boots} boot epochs")
+    k = 1
+    if mag is not None:
+        mag.epoch = eps[k]
+        k += 1
+    if ref is not None:
+        ref.epoch = eps[k]
+
+    # text tables are parsed lazily: their malformed lines are known only now
+    meta["corrupt_frames"] = int(src.corrupt_frames)
+    meta["skipped_frames"] = int(src.skipped_frames)
+    meta["notes"] = list(src.notes) + notes
+    return RawLog(ImuStream(t_imu, gyr, acc, clipped, eps[0]), mag, ref, meta)

@@ -1,0 +1,80 @@
+"""Self-describing, versioned checkpoints: everything needed to rebuild and run the model.
+
+A checkpoint is a plain dict saved with ``torch.save`` and loadable with
+``torch.load(weights_only=True)`` (tensors, dicts, lists, strings and numbers only):
+
+``format`` ("tepinn-flight-checkpoint"), ``version``, ``model_config``, ``loss_config``,
+``fusion_config`` (dicts), ``state_dict`` (weights incl. the input normalisation buffers),
+``conventions``, ``training`` (data summary, seed, epochs), ``metrics``, plus, for resumable
+training checkpoints, ``optimizer``/``loss_state``/``rng``/``epoch``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+
+import torch
+
+from .. import conventions
+from ..errors import TepinnError
+from ..record import atomic_write
+from .config import ModelConfig
+from .fusion import FusionConfig
+from .network import TEPINN
+
+FORMAT = "tepinn-flight-checkpoint"
+VERSION = 1
+
+
+class CheckpointError(TepinnError):
+    """A checkpoint that cannot be used (corrupt, foreign, or from an unknown version)."""
+
+
+def save_checkpoint(path: str | os.PathLike, model: TEPINN, fusion: FusionConfig, **extra) -> None:
+    ckpt = {
+        "format": FORMAT,
+        "version": VERSION,
+        "model_config": dataclasses.asdict(model.config),
+        "fusion_config": dataclasses.asdict(fusion),
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        "conventions": conventions.describe(),
+        **extra,
+    }
+    atomic_write(path, lambda tmp: torch.save(ckpt, tmp))
+
+
+def read_checkpoint(path: str | os.PathLike) -> dict:
+    p = Path(path)
+    if not p.exists():
+        raise CheckpointError("no such checkpoint", p)
+    try:
+        ckpt = torch.load(p, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types on corrupt files
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+        raise CheckpointError(f"not a readable checkpoint ({first})", p) from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        raise CheckpointError("not a tepinn-flight checkpoint", p)
+    if ckpt.get("version") != VERSION:
+        raise CheckpointError(f"unknown checkpoint version {ckpt.get('version')!r} (this tepinn-flight reads {VERSION})", p)
+    return ckpt
+
+
+def load_model(path: str | os.PathLike) -> tuple[TEPINN, FusionConfig, dict]:
+    """Rebuild the model (eval mode, float32) and its fusion settings from a checkpoint."""
+    ckpt = read_checkpoint(path)
+    try:
+        model = TEPINN(ModelConfig(**ckpt["model_config"]))
+        model.load_state_dict(ckpt["state_dict"])
+        fusion = FusionConfig(**ckpt.get("fusion_config", {}))
+    except (TypeError, KeyError, RuntimeError) as exc:
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+        raise CheckpointError(f"checkpoint does not match this model ({first})", path) from None
+    model.eval()
+    return model, fusion, ckpt
+
+
+def default_model_path() -> Path:
+    """The shipped model inside the package."""
+    return Path(__file__).resolve().parents[1] / "assets" / "tepinn_default.pt"

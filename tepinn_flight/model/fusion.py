@@ -1,0 +1,176 @@
+"""Causal per-sample attitude output: RK4 gyro propagation fused with TE-PINN window estimates.
+
+The network gives a tilt estimate with a calibrated σ at each token end (25 Hz by default). Between
+them, and to carry heading, the attitude is propagated sample by sample with RK4 quaternion
+kinematics of the bias-corrected gyro ``ω − b̂``. At each window estimate, the tilt is pulled
+toward the network's by a Kalman gain ``K = P / (P + σ²)`` (P: propagated tilt variance), and the
+bias follows the network's per-window bias estimate through a first-order low-pass (the bias is a
+slow random walk). Heading comes from gyro integration only (6-D) and starts at 0.
+
+Pure numpy/float math, one sample at a time, so the offline estimator and the live bridge share it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    enabled: bool = True  # False: take each window estimate as is (then propagate to the next)
+    process_noise_rad2_s: float = 1e-4  # tilt variance growth of the propagation (gyro noise + bias)
+    bias_time_constant_s: float = 10.0  # low-pass of the network's per-window bias estimates
+    sigma_scale: float = 1.0  # calibration factor applied to the network's σ
+    yaw: str = "gyro"  # "gyro": heading from gyro integration; "zero": yaw := 0 on the output
+
+
+def _qmul(a, b):
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return (
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    )
+
+
+def _qnorm(q):
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
+
+
+def _qdot(q, w):
+    return _scale(_qmul(q, (0.0, w[0], w[1], w[2])), 0.5)
+
+
+def _scale(q, s):
+    return (q[0] * s, q[1] * s, q[2] * s, q[3] * s)
+
+
+def _add(q, p, s):
+    return (q[0] + s * p[0], q[1] + s * p[1], q[2] + s * p[2], q[3] + s * p[3])
+
+
+def rk4(q, w0, w1, dt):
+    """RK4 of q̇ = ½ q ⊗ (0, ω) with ω linear from w0 to w1 over dt."""
+    wm = ((w0[0] + w1[0]) * 0.5, (w0[1] + w1[1]) * 0.5, (w0[2] + w1[2]) * 0.5)
+    k1 = _qdot(q, w0)
+    k2 = _qdot(_add(q, k1, 0.5 * dt), wm)
+    k3 = _qdot(_add(q, k2, 0.5 * dt), wm)
+    k4 = _qdot(_add(q, k3, dt), w1)
+    s = dt / 6.0
+    return _qnorm(tuple(q[i] + s * (k1[i] + 2 * k2[i] + 2 * k3[i] + k4[i]) for i in range(4)))
+
+
+def _gravity_body(q):
+    w, x, y, z = q
+    return (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
+
+
+def _exp(r):
+    th = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+    if th < 1e-12:
+        return (1.0, 0.5 * r[0], 0.5 * r[1], 0.5 * r[2])
+    k = math.sin(0.5 * th) / th
+    return (math.cos(0.5 * th), k * r[0], k * r[1], k * r[2])
+
+
+def tilt_toward(q, q_meas, gain):
+    """Rotate q (in its body frame) so its gravity direction moves ``gain`` of the way to q_meas's."""
+    gp = _gravity_body(q)
+    gm = _gravity_body(q_meas)
+    cx = gp[1] * gm[2] - gp[2] * gm[1]
+    cy = gp[2] * gm[0] - gp[0] * gm[2]
+    cz = gp[0] * gm[1] - gp[1] * gm[0]
+    s = math.sqrt(cx * cx + cy * cy + cz * cz)
+    c = gp[0] * gm[0] + gp[1] * gm[1] + gp[2] * gm[2]
+    ang = math.atan2(s, c)
+    if s < 1e-12:
+        return q
+    k = -gain * ang / s  # rotation by -gain·ang about n = gp × gm (body frame)
+    return _qnorm(_qmul(q, _exp((k * cx, k * cy, k * cz))))
+
+
+def zero_yaw_np(q):
+    g = _gravity_body(q)
+    roll = math.atan2(g[1], g[2])
+    pitch = math.atan2(-g[0], math.sqrt(g[1] * g[1] + g[2] * g[2]))
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    return (cr * cp, sr * cp, cr * sp, -sr * sp)
+
+
+class AttitudeFusion:
+    """State of one causal pass: call :meth:`step` for every IMU sample in order."""
+
+    def __init__(self, config: FusionConfig):
+        self.c = config
+        self.reset()
+
+    def reset(self) -> None:
+        self.q = None  # full attitude body→NED (tuple), None until the first window estimate
+        self.bias = (0.0, 0.0, 0.0)
+        self.P = 0.0
+        self.t = None
+        self.w = None
+        self.t_est = None
+
+    def step(self, t: float, w_rad_s, est=None):
+        """Advance to sample time ``t`` with gyro ``w``; ``est`` = (q_tilt, σ_rad, bias) when a
+        window estimate belongs to this sample. Returns (q or None, σ, bias)."""
+        w = (float(w_rad_s[0]), float(w_rad_s[1]), float(w_rad_s[2]))
+        c = self.c
+        if self.q is not None and self.t is not None:
+            dt = t - self.t
+            if dt > 0:
+                b = self.bias
+                self.q = rk4(self.q, (self.w[0] - b[0], self.w[1] - b[1], self.w[2] - b[2]),
+                             (w[0] - b[0], w[1] - b[1], w[2] - b[2]), dt)  # fmt: skip
+                self.P += c.process_noise_rad2_s * dt
+        self.t, self.w = t, w
+        if est is not None:
+            q_m, sigma, b_m = est
+            r = (c.sigma_scale * sigma) ** 2
+            if self.q is None:
+                self.q, self.P = tuple(float(v) for v in q_m), r
+                self.bias = tuple(float(v) for v in b_m)
+            else:
+                gain = self.P / (self.P + r) if c.enabled else 1.0
+                self.q = tilt_toward(self.q, q_m, gain)
+                self.P = (1 - gain) * self.P
+                if c.enabled:
+                    a = min(1.0, max(0.0, t - self.t_est) / c.bias_time_constant_s)
+                    self.bias = tuple(self.bias[i] + a * (float(b_m[i]) - self.bias[i]) for i in range(3))
+                else:
+                    self.bias = tuple(float(v) for v in b_m)
+            self.t_est = t
+        if self.q is None:
+            return None, float("nan"), self.bias
+        q = zero_yaw_np(self.q) if c.yaw == "zero" else self.q
+        return q, math.sqrt(self.P), self.bias
+
+
+def run_fusion(t_s, gyr, est_index, est_q, est_sigma, est_bias, config: FusionConfig):
+    """Offline pass over one segment. ``est_index[k]`` is the sample index of window estimate k.
+
+    Returns q (N, 4) with NaN before the first estimate, σ (N,), bias (N, 3).
+    """
+    n = len(t_s)
+    q_out = np.full((n, 4), np.nan)
+    s_out = np.full(n, np.nan)
+    b_out = np.full((n, 3), np.nan)
+    f = AttitudeFusion(config)
+    lookup = {int(i): k for k, i in enumerate(est_index)}
+    for i in range(n):
+        k = lookup.get(i)
+        est = None if k is None else (est_q[k], float(est_sigma[k]), est_bias[k])
+        q, s, b = f.step(float(t_s[i]), gyr[i], est)
+        if q is not None:
+            q_out[i] = q
+            s_out[i] = s
+            b_out[i] = b
+    return q_out, s_out, b_out

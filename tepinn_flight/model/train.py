@@ -1,0 +1,336 @@
+"""Training: strict TOML config, split by flight, adaptive physics-informed loss, early stopping,
+atomic checkpoints, ``--resume``, determinism for a seed, and DistributedDataParallel under
+``torchrun`` (gloo on CPU, nccl on GPUs).
+
+The global batch is ``optim.batch_size`` windows; under DDP each of the N processes takes an
+equal share of the same globally-drawn windows, so N processes compute the same step as one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from .. import __version__
+from ..config import from_dict, load_toml, to_dict
+from ..errors import ConfigError, TepinnError
+from ..record import FlightRecord, atomic_write, read_record
+from .checkpoint import read_checkpoint, save_checkpoint
+from .config import ModelConfig
+from .dataset import TokenBank, build_bank, input_statistics, make_batch
+from .estimate import estimate_record
+from .fusion import FusionConfig
+from .losses import LossConfig, TEPINNLoss, tilt_angle
+from .network import TEPINN
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    records: tuple[str, ...] = ()  # record files, folders or globs (relative to the config file)
+    synthetic_flights: int = 0  # closed-form synthetic flights (tests, tiny runs)
+    synthetic_duration_s: float = 20.0
+    val_fraction: float = 0.2  # share of flights held out for validation (at least one)
+    rate_factors: tuple[int, ...] = (1, 2, 4)  # IMU decimation factors: rate augmentation
+    max_val_windows: int = 2048
+
+
+@dataclass(frozen=True)
+class OptimConfig:
+    batch_size: int = 64  # global batch (windows)
+    epochs: int = 20
+    steps_per_epoch: int = 100
+    lr: float = 1e-3  # network weights
+    lr_physics: float = 3e-4  # sensor model, inertia and loss weights
+    weight_decay: float = 1e-4  # network weights only
+    grad_clip: float = 1.0
+    early_stop_patience: int = 5  # epochs without validation improvement
+    max_minutes: float = 0.0  # stop after this wall time (0: no limit)
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    seed: int = 0
+    model: ModelConfig = field(default_factory=ModelConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    data: DataConfig = field(default_factory=DataConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    fusion: FusionConfig = field(default_factory=FusionConfig)
+
+
+def load_train_config(path: str | os.PathLike, overrides=()) -> TrainConfig:
+    from ..config import load_config
+
+    return load_config(TrainConfig, path, overrides)
+
+
+# ---------------------------------------------------------------------- data
+
+
+def resolve_records(patterns, base: Path) -> list[Path]:
+    out: list[Path] = []
+    for pat in patterns:
+        p = Path(pat)
+        p = p if p.is_absolute() else base / p
+        if p.is_dir():
+            out += sorted(p.rglob("*.parquet"))
+        elif any(ch in str(pat) for ch in "*?["):
+            out += sorted(Path(p.anchor or ".").glob(str(p.relative_to(p.anchor))) if p.is_absolute() else base.glob(str(pat)))
+        elif p.exists():
+            out.append(p)
+        else:
+            raise ConfigError(f"training data not found: {pat}")
+    return sorted(set(out))
+
+
+def load_records(cfg: TrainConfig, extra_dirs=(), base: Path = Path(".")) -> list[FlightRecord]:
+    recs: list[FlightRecord] = []
+    paths = resolve_records(list(cfg.data.records) + [str(d) for d in extra_dirs], base)
+    for p in paths:
+        recs.append(read_record(p))
+    if cfg.data.synthetic_flights:
+        from .synthetic import synthetic_record
+
+        for i in range(cfg.data.synthetic_flights):
+            recs.append(synthetic_record(seed=1000 * cfg.seed + i, duration_s=cfg.data.synthetic_duration_s))
+    if not recs:
+        raise ConfigError("no training data: give --data DIR, data.records or data.synthetic_flights")
+    return recs
+
+
+def split_by_flight(n: int, val_fraction: float, seed: int) -> tuple[list[int], list[int]]:
+    """Hold out whole flights: a seeded permutation, at least one flight on each side when n ≥ 2."""
+    perm = np.random.default_rng(seed).permutation(n)
+    n_val = 0 if n < 2 else min(n - 1, max(1, int(round(val_fraction * n))))
+    return sorted(perm[n_val:].tolist()), sorted(perm[:n_val].tolist())
+
+
+# ---------------------------------------------------------------------- distributed
+
+
+def dist_info() -> tuple[int, int]:
+    ws = int(os.environ.get("WORLD_SIZE", "1"))
+    rank = int(os.environ.get("RANK", "0"))
+    return rank, ws
+
+
+class TrainStep(nn.Module):
+    """Model + loss in one module, so DDP synchronises the loss weights too."""
+
+    def __init__(self, model: TEPINN, loss: TEPINNLoss):
+        super().__init__()
+        self.model = model
+        self.loss = loss
+
+    def forward(self, batch: dict, batch_prev: dict | None):
+        m = self.model
+        if batch_prev is None:
+            out = m(batch["gyr"], batch["acc"], batch["count"], batch["t_rel"], batch["dt"], batch["mag"])
+            return self.loss(out, batch)
+        both = {k: torch.cat([batch[k], batch_prev[k]]) for k in ("gyr", "acc", "count", "t_rel", "dt", "mag")}
+        out = m(both["gyr"], both["acc"], both["count"], both["t_rel"], both["dt"], both["mag"])
+        b = len(batch["gyr"])
+        cur = {k: v[:b] for k, v in out.items()}
+        prev = {k: v[b:] for k, v in out.items()}
+        return self.loss(cur, batch, prev)
+
+
+# ---------------------------------------------------------------------- evaluation
+
+
+@torch.no_grad()
+def validate(model: TEPINN, bank: TokenBank, ends: np.ndarray, cfg: TrainConfig) -> dict:
+    model.eval()
+    errs, sig = [], []
+    for a in range(0, len(ends), 512):
+        b = make_batch(bank, ends[a : a + 512], cfg.model.window_tokens, cfg.model.correction_layer)
+        out = model(b["gyr"], b["acc"], b["count"], b["t_rel"], b["dt"], b["mag"])
+        errs.append(tilt_angle(out["q"], b["q_ref"]).double().numpy())
+        if "sigma" in out:
+            sig.append(out["sigma"].double().numpy())
+    model.train()
+    e = np.concatenate(errs)
+    res = {"val_tilt_rmse_deg": float(np.degrees(np.sqrt(np.mean(e**2))))}
+    if sig:
+        s = np.concatenate(sig)
+        res["val_nees"] = float(np.mean(e**2 / s**2))  # 2 when calibrated (2-D tilt error)
+        res["val_sigma_corr"] = float(np.corrcoef(s, e)[0, 1]) if len(e) > 2 else float("nan")
+    return res
+
+
+def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionConfig, max_records: int = 4) -> tuple[FusionConfig, dict]:
+    """Pick the fusion's process noise on validation flights (tilt RMSE of the fused output)."""
+    from ..quat import inclination_heading_split, quat_conj, quat_mul
+
+    recs = [r for r in records if (r.meta.get("imu_rate_hz") or 0) >= 20][:max_records]
+    if not recs:
+        return base, {}
+    best, best_err, table = base, float("inf"), {}
+    for pn in (1e-6, 1e-5, 1e-4, 1e-3, 1e-2):
+        cand = dataclasses.replace(base, process_noise_rad2_s=pn)
+        sq = []
+        for r in recs:
+            est = estimate_record(model, r, cand)
+            q = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+            ok = np.all(np.isfinite(q), 1) & np.all(np.isfinite(r.q_ref_wxyz), 1)
+            inc, _ = inclination_heading_split(quat_mul(q[ok], quat_conj(r.q_ref_wxyz[ok])))
+            sq.append(inc**2)
+        err = float(np.degrees(np.sqrt(np.mean(np.concatenate(sq))))) if sq else float("inf")
+        table[f"{pn:g}"] = err
+        if err < best_err:
+            best, best_err = cand, err
+    return best, {"fusion_val_tilt_rmse_deg": best_err, "fusion_grid": table}
+
+
+# ---------------------------------------------------------------------- main loop
+
+
+def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bool = False,
+          config_base: Path = Path("."), progress: bool = True, log=print) -> dict:  # fmt: skip
+    """Train and write ``out_dir/{last.pt,best.pt,model.pt,metrics.jsonl,config.toml.json}``."""
+    rank, world = dist_info()
+    if world > 1 and not torch.distributed.is_initialized():
+        torch.distributed.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+    if cfg.optim.batch_size % world:
+        raise ConfigError(f"optim.batch_size {cfg.optim.batch_size} is not divisible by {world} processes")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.manual_seed(cfg.seed)
+    rng = np.random.default_rng(cfg.seed)
+
+    records = load_records(cfg, data_dirs, config_base)
+    tr_idx, va_idx = split_by_flight(len(records), cfg.data.val_fraction, cfg.seed)
+    train_recs = [records[i] for i in tr_idx]
+    val_recs = [records[i] for i in va_idx] or train_recs[:1]
+    pair = cfg.loss.gyro_pair_tokens
+    bank = build_bank(train_recs, cfg.model, cfg.data.rate_factors, pair)
+    vbank = build_bank(val_recs, cfg.model, (1,), pair)
+    val_ends = vbank.ends
+    if len(val_ends) > cfg.data.max_val_windows:
+        val_ends = np.sort(np.random.default_rng(cfg.seed + 1).choice(val_ends, cfg.data.max_val_windows, replace=False))
+
+    model = TEPINN(cfg.model)
+    mean, std = input_statistics(model.features, bank, cfg.model, seed=cfg.seed)
+    model.set_normalization(mean, std)
+    loss_fn = TEPINNLoss(cfg.loss, model.body)
+    step_mod = TrainStep(model, loss_fn)
+    groups = [
+        {"params": model.network_parameters(), "lr": cfg.optim.lr, "weight_decay": cfg.optim.weight_decay},
+        {"params": model.physics_parameters() + list(loss_fn.parameters()), "lr": cfg.optim.lr_physics, "weight_decay": 0.0},
+    ]
+    opt = torch.optim.AdamW(groups)
+    start_epoch, best_val, stale = 0, float("inf"), 0
+    history: list[dict] = []
+    if resume and (out / "last.pt").exists():
+        ck = read_checkpoint(out / "last.pt")
+        model.load_state_dict(ck["state_dict"])
+        loss_fn.load_state_dict(ck["loss_state"])
+        opt.load_state_dict(ck["optimizer"])
+        start_epoch, best_val, stale = ck["epoch"], ck["best_val"], ck["stale"]
+        rng = np.random.default_rng(cfg.seed)
+        rng.bit_generator.state = json.loads(ck["rng"])
+        torch.set_rng_state(ck["torch_rng"])
+        history = json.loads(ck.get("history", "[]"))
+        log(f"resumed from epoch {start_epoch} (best validation tilt RMSE {best_val:.3f}°)")
+    ddp = step_mod
+    if world > 1:
+        ddp = torch.nn.parallel.DistributedDataParallel(step_mod, find_unused_parameters=True)
+
+    summary = {
+        "train_flights": [r.meta.get("source_file") for r in train_recs],
+        "val_flights": [r.meta.get("source_file") for r in val_recs],
+        "train_windows": int(len(bank)), "val_windows": int(len(val_ends)),
+        "imu_rates_hz": sorted({round(float(r.meta.get("imu_rate_hz") or 0), 1) for r in records}),
+        "rate_factors": list(cfg.data.rate_factors), "seed": cfg.seed, "world_size": world,
+    }  # fmt: skip
+    if rank == 0:
+        atomic_write(out / "config.json", lambda tmp: Path(tmp).write_text(json.dumps(to_dict(cfg), indent=2)))
+        log(f"training on {len(train_recs)} flights ({len(bank)} windows), validating on {len(val_recs)} "
+            f"flights ({len(val_ends)} windows), {world} process(es)")  # fmt: skip
+
+    t_start = time.monotonic()
+    bar = None
+    if progress and rank == 0:
+        from tqdm import tqdm
+
+        bar = tqdm(total=cfg.optim.epochs * cfg.optim.steps_per_epoch, initial=start_epoch * cfg.optim.steps_per_epoch,
+                   unit="step", file=sys.stderr, dynamic_ncols=True)  # fmt: skip
+    B = cfg.optim.batch_size
+    share = B // world
+    for epoch in range(start_epoch, cfg.optim.epochs):
+        logs_acc: dict[str, float] = {}
+        for step in range(cfg.optim.steps_per_epoch):
+            use_pair = cfg.model.physics and pair > 0
+            pool = bank.ends[bank.prev_ok] if use_pair and bank.prev_ok.any() else bank.ends
+            ends = rng.choice(pool, size=B, replace=len(pool) < B)
+            mine = ends[rank * share : (rank + 1) * share]
+            batch = make_batch(bank, mine, cfg.model.window_tokens, cfg.model.correction_layer)
+            prev = make_batch(bank, mine - pair, cfg.model.window_tokens, cfg.model.correction_layer) if use_pair and bank.prev_ok.any() else None
+            total, logs = ddp(batch, prev)
+            opt.zero_grad(set_to_none=True)
+            total.backward()
+            torch.nn.utils.clip_grad_norm_(step_mod.parameters(), cfg.optim.grad_clip)
+            opt.step()
+            for k, v in logs.items():
+                logs_acc[k] = logs_acc.get(k, 0.0) + float(v) / cfg.optim.steps_per_epoch
+            if bar:
+                bar.update(1)
+                if step % 10 == 0:
+                    bar.set_postfix(loss=f"{float(total):.3g}", tilt=f"{float(logs['tilt_rmse_deg']):.2f}°")
+        val = validate(model, vbank, val_ends, cfg)
+        elapsed = time.monotonic() - t_start
+        rec = {"epoch": epoch + 1, **{k: round(v, 6) for k, v in logs_acc.items()}, **val,
+               "loss_weights": [round(float(x), 4) for x in loss_fn.log_vars.detach()], "elapsed_s": round(elapsed, 1)}  # fmt: skip
+        history.append(rec)
+        improved = val["val_tilt_rmse_deg"] < best_val - 1e-6
+        if improved:
+            best_val, stale = val["val_tilt_rmse_deg"], 0
+        else:
+            stale += 1
+        if rank == 0:
+            with open(out / "metrics.jsonl", "a") as f:
+                f.write(json.dumps(rec) + "\n")
+            common = {"training": summary, "metrics": rec, "tepinn_flight_version": __version__}
+            if improved:
+                save_checkpoint(out / "best.pt", model, cfg.fusion, **common)
+            save_checkpoint(
+                out / "last.pt", model, cfg.fusion, **common, epoch=epoch + 1, best_val=best_val, stale=stale,
+                optimizer=opt.state_dict(), loss_state=loss_fn.state_dict(),
+                rng=json.dumps(rng.bit_generator.state), torch_rng=torch.get_rng_state(),
+                history=json.dumps(history),
+            )  # fmt: skip
+            msg = f"epoch {epoch + 1}: train tilt {logs_acc.get('tilt_rmse_deg', float('nan')):.2f}°, val tilt {val['val_tilt_rmse_deg']:.2f}°"
+            (bar.write(msg) if bar else log(msg))
+        if stale >= cfg.optim.early_stop_patience:
+            if rank == 0:
+                log(f"early stop: no validation improvement for {stale} epochs")
+            break
+        if cfg.optim.max_minutes and elapsed > 60 * cfg.optim.max_minutes:
+            if rank == 0:
+                log(f"stopping at the time limit ({cfg.optim.max_minutes} min)")
+            break
+    if bar:
+        bar.close()
+    result = {"best_val_tilt_rmse_deg": best_val, "epochs": len(history)}
+    if rank == 0:
+        from .checkpoint import load_model
+
+        best_model, _, ck = load_model(out / "best.pt") if (out / "best.pt").exists() else (model, None, {})
+        fusion, fus_metrics = calibrate_fusion(best_model, val_recs, cfg.fusion)
+        final_metrics = {**(ck.get("metrics") or {}), **fus_metrics}
+        save_checkpoint(out / "model.pt", best_model, fusion, training=summary, metrics=final_metrics,
+                        tepinn_flight_version=__version__)  # fmt: skip
+        result.update(fus_metrics)
+        log(f"best validation tilt RMSE {best_val:.3f}° (window), fused {fus_metrics.get('fusion_val_tilt_rmse_deg', float('nan')):.3f}°; model: {out / 'model.pt'}")
+    if world > 1:
+        torch.distributed.barrier()
+    return result
