@@ -52,8 +52,9 @@ def rate_consistency(
         w_ref = body_rates_from_quats(q[ii], dt)
         csum = np.cumsum(np.vstack([np.zeros((1, 3)), gyr]), axis=0)
         a, b = ii[:-1], ii[1:]
-        # mean gyro over (a, b]: what the attitude change between the two samples integrates
-        w_gyr = (csum[b + 1] - csum[a + 1]) / (b - a)[:, None]
+        # trapezoidal mean of the gyro samples a..b: what the attitude change between the two
+        # reference samples integrates (with snapshot gyros, both ends count half)
+        w_gyr = (csum[b + 1] - csum[a] - 0.5 * (gyr[a] + gyr[b])) / (b - a)[:, None]
         ref_rates.append(w_ref[good])
         gyr_means.append(w_gyr[good])
     if not ref_rates:

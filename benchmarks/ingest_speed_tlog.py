@@ -1,0 +1,211 @@
+"""tlog ingestion speed: our vectorised reader vs a plain pymavlink ``recv_match`` loop, same run.
+
+Builds >= 100 MB tlogs in a temporary folder and extracts the IMU and attitude messages
+(RAW_IMU, SCALED_IMU*, HIGHRES_IMU, ATTITUDE, ATTITUDE_QUATERNION) from each with
+
+  (a) pymavlink: ``mavutil.mavlink_connection(path)`` + ``recv_match(type=[...])`` until None,
+      keeping the fields of every message (the usual way to read a tlog);
+  (b) ours: ``tepinn_flight.ingest.tlog.read(path)`` (scan + decode + units + streams), and
+      the frame scan alone (``mavlink_scan.scan_tlog``).
+
+Two files (``--source``):
+
+* ``synth``: a synthetic flight encoded with pymavlink's own encoder: HIGHRES_IMU 200 Hz,
+  ATTITUDE and ATTITUDE_QUATERNION 50 Hz, a companion computer's ATTITUDE 50 Hz (component 191,
+  must be ignored), SERVO_OUTPUT_RAW 50 Hz, GLOBAL_POSITION_INT, VFR_HUD 10 Hz, SYS_STATUS 2 Hz,
+  HEARTBEATs 1 Hz; one frame in 10,000 with a flipped payload byte (CRC failure) and a few junk
+  bytes every 50,000 records. Mostly IMU/attitude traffic: pymavlink's decoding dominates.
+* ``repeat``: ``uavlv_vtol.tlog`` (shared real log) repeated; IMU/attitude are ~10 % of the
+  frames, so pymavlink's time is mostly its record index. Each copy looks like a reboot.
+
+Prints msg/s of both, the ratio, and our peak traced memory (tracemalloc) next to the output
+size. Values are checked equal (counts per type, time fields) so the comparison is fair.
+
+    python benchmarks/ingest_speed_tlog.py [--mb 100] [--source both|synth|repeat]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import shutil
+import struct
+import sys
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+
+os.environ["MAVLINK20"] = "1"
+
+import numpy as np  # noqa: E402
+
+from tepinn_flight.ingest import tlog  # noqa: E402
+from tepinn_flight.ingest.mavlink_scan import _id_tables, layout, scan_tlog  # noqa: E402
+
+WANTED = [*tlog.IMU_MESSAGES, *tlog.REF_MESSAGES]
+REAL = Path(__file__).resolve().parents[2] / "shared" / "real-logs" / "uavlv_vtol.tlog"
+
+
+def make_synth(path: Path, mb: float) -> None:
+    from pymavlink.dialects.v20 import all as mavlink2
+
+    ap = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    cc = mavlink2.MAVLink(None, srcSystem=1, srcComponent=191)
+    gcs = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
+    rng = np.random.default_rng(1)
+    target = int(mb * 1e6)
+    t0_unix = 1_700_000_000.0
+    n_rec = 0
+    written = 0
+    step = 0  # 200 Hz ticks
+    with open(path, "wb", buffering=1 << 20) as f:
+
+        def put(mav, msg, t_s):
+            nonlocal n_rec, written
+            buf = bytearray(msg.pack(mav))
+            mav.seq = (mav.seq + 1) % 256
+            n_rec += 1
+            if n_rec % 10_000 == 0:
+                buf[12] ^= 0x5A  # CRC failure
+            rec = struct.pack(">Q", int((t0_unix + t_s) * 1e6)) + bytes(buf)
+            if n_rec % 50_000 == 0:
+                rec = b"\x00\x13\x37" + rec  # junk
+            f.write(rec)
+            written += len(rec)
+
+        while written < target:
+            t = step / 200.0
+            boot_us = int(5e6 + t * 1e6)
+            roll, pitch, yaw = 0.3 * math.sin(0.5 * t), 0.2 * math.sin(0.3 * t), math.remainder(0.1 * t, 2 * math.pi)
+            g = rng.normal(0, 0.01, 3)
+            a = rng.normal(0, 0.05, 3) + (0.0, 0.0, -9.80665)
+            put(ap, mavlink2.MAVLink_highres_imu_message(
+                boot_us, *a, *g, 0.2, 0.01, 0.4, 1013.0, 0.0, 100.0, 25.0, 0x1FFF, 0), t)  # fmt: skip
+            if step % 4 == 0:
+                tb = boot_us // 1000
+                cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+                cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+                cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+                q = [cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+                     cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy]  # fmt: skip
+                put(ap, mavlink2.MAVLink_attitude_message(tb, roll, pitch, yaw, *g), t)
+                put(ap, mavlink2.MAVLink_attitude_quaternion_message(tb, *q, *g, [0, 0, 0, 0]), t)
+                put(cc, mavlink2.MAVLink_attitude_message(tb, roll + 0.01, pitch, yaw, *g), t)
+                put(ap, mavlink2.MAVLink_servo_output_raw_message(boot_us & 0xFFFFFFFF, 0, *([1500] * 8)), t)
+            if step % 20 == 0:
+                put(ap, mavlink2.MAVLink_global_position_int_message(tb, 473977420, 85455940, 500000, 20000, 10, 0, 0, 0), t)
+                put(ap, mavlink2.MAVLink_vfr_hud_message(12.0, 12.5, 90, 50, 500.0, 0.1), t)
+            if step % 100 == 0:
+                put(ap, mavlink2.MAVLink_sys_status_message(0, 0, 0, 500, 12600, 500, 80, 0, 0, 0, 0, 0, 0), t)
+            if step % 200 == 0:
+                put(ap, mavlink2.MAVLink_heartbeat_message(2, 12, 0, 0, 4, 3), t)  # quadrotor, PX4
+                put(cc, mavlink2.MAVLink_heartbeat_message(18, 8, 0, 0, 4, 3), t)
+                put(gcs, mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3), t)
+            step += 1
+
+
+def make_repeat(path: Path, mb: float) -> None:
+    data = REAL.read_bytes()
+    with open(path, "wb") as f:
+        for _ in range(math.ceil(mb * 1e6 / len(data))):
+            f.write(data)
+
+
+def run_pymavlink(path: Path):
+    from pymavlink import mavutil
+
+    t0 = time.perf_counter()
+    conn = mavutil.mavlink_connection(str(path))
+    out = {n: [] for n in WANTED}
+    while True:
+        m = conn.recv_match(type=WANTED)
+        if m is None:
+            break
+        d = m.to_dict()
+        out[m.get_type()].append(d)
+    dt = time.perf_counter() - t0
+    return dt, out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--mb", type=float, default=100.0, help="size of each test tlog in MB (default 100)")
+    ap.add_argument("--source", choices=["both", "synth", "repeat"], default="both")
+    ap.add_argument("--keep", metavar="DIR", help="build the tlogs here and keep them")
+    args = ap.parse_args()
+
+    tmp = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="tlogbench_"))
+    tmp.mkdir(parents=True, exist_ok=True)
+    sources = ["synth", "repeat"] if args.source == "both" else [args.source]
+    if "repeat" in sources and not REAL.exists():
+        print(f"skipping 'repeat': {REAL} not found", file=sys.stderr)
+        sources.remove("repeat")
+    # warm-up outside the timings: the dialect tables (pymavlink is imported inside run_pymavlink
+    # before its clock starts)
+    _id_tables()
+    for n in WANTED:
+        layout(n)
+    rows = []
+    try:
+        for src in sources:
+            path = tmp / f"bench_{src}.tlog"
+            if not path.exists():
+                t = time.perf_counter()
+                (make_synth if src == "synth" else make_repeat)(path, args.mb)
+                print(f"[{src}] built {path.stat().st_size / 1e6:.1f} MB in {time.perf_counter() - t:.1f} s", flush=True)
+            size_mb = path.stat().st_size / 1e6
+
+            t = time.perf_counter()
+            scan = scan_tlog(path, WANTED)
+            t_scan = time.perf_counter() - t
+            t = time.perf_counter()
+            raw = tlog.read(path)
+            t_read = time.perf_counter() - t
+
+            tracemalloc.start()
+            raw2 = tlog.read(path)
+            peak = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+            out_bytes = sum(
+                a.nbytes
+                for s in (raw2.imu, raw2.mag, raw2.ref)
+                if s is not None
+                for a in vars(s).values()
+                if isinstance(a, np.ndarray)
+            )
+            del raw2
+
+            t_pm, pm = run_pymavlink(path)
+            n_pm = sum(len(v) for v in pm.values())
+            n_ours = sum(len(scan.frames[n].offset) for n in WANTED)
+            # fairness: same messages, same values (counts per type and the time fields)
+            for n in WANTED:
+                assert len(pm[n]) == len(scan.frames[n].offset), (n, len(pm[n]), len(scan.frames[n].offset))
+                if pm[n]:
+                    tf = "time_usec" if "time_usec" in pm[n][0] else "time_boot_ms"
+                    assert np.array_equal([d[tf] for d in pm[n]], scan.frames[n].fields[tf]), n
+            rows.append((src, size_mb, n_pm, t_pm, t_scan, t_read, peak, out_bytes, len(raw.imu.t_s), scan))
+            print(f"[{src}] pymavlink {t_pm:.1f} s, ours read() {t_read:.2f} s (scan {t_scan:.2f} s)", flush=True)
+    finally:
+        if not args.keep:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+    print()
+    print(f"{'file':8} {'MB':>6} {'msgs':>9} {'pymavlink msg/s':>16} {'ours read() msg/s':>18} "
+          f"{'scan msg/s':>11} {'ratio read':>10} {'ratio scan':>10} {'MB/s read':>9}")  # fmt: skip
+    for src, mb, n, t_pm, t_scan, t_read, peak, out_b, n_imu, scan in rows:
+        print(f"{src:8} {mb:6.1f} {n:9d} {n / t_pm:16,.0f} {n / t_read:18,.0f} {n / t_scan:11,.0f} "
+              f"{t_pm / t_read:9.1f}x {t_pm / t_scan:9.1f}x {mb / t_read:9.1f}")  # fmt: skip
+    print()
+    for src, mb, n, t_pm, t_scan, t_read, peak, out_b, n_imu, scan in rows:
+        print(f"[{src}] frames scanned {scan.good_frames:,} ({scan.good_frames / t_scan:,.0f} frames/s), "
+              f"corrupt {scan.corrupt_frames}, junk bytes {scan.junk_bytes}; IMU samples kept {n_imu:,}")  # fmt: skip
+        print(f"[{src}] peak traced memory of read(): {peak / 1e6:.1f} MB; output arrays {out_b / 1e6:.1f} MB; "
+              f"file {mb:.1f} MB")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,437 @@
+"""Vectorised walker over MAVLink telemetry-log records: selected message ids into numpy arrays.
+
+A tlog is a repetition of ``[uint64 big-endian receive time, µs][MAVLink frame]``. A frame is
+
+* v1: ``FE len seq sysid compid msgid`` + payload + CRC16 (little endian);
+* v2: ``FD len incompat compat seq sysid compid msgid(3 bytes LE)`` + payload + CRC16
+  (+ a 13-byte signature when ``incompat & 0x01``); trailing zero bytes of the payload are cut.
+
+The CRC is CRC-16/MCRF4XX (X.25) over everything after the start byte, then the message's
+``CRC_EXTRA`` byte. pymavlink's dialect (``all``, the one ``mavutil`` uses) gives ``CRC_EXTRA``,
+the little-endian wire layout (``unpacker.format``) and the field names in wire order
+(``ordered_fieldnames``) of each message; nothing else of pymavlink runs here.
+
+How the scan works, chunk by chunk (the file is read in fixed-size chunks, so memory is the chunk
+plus the decoded output; no Python object per frame):
+
+1. Every byte position ``i`` with a start byte at ``i + 8`` is a candidate record; its header
+   gives the record length, hence where the next record should begin.
+2. Candidates with a known message id, allowed incompat flags and a complete frame are
+   CRC-checked, all at once (two bytes per numpy step over every frame still that long), if the
+   next record's start byte is where it should be (or the file ends there) or, failing that,
+   their receive timestamp lies within a day of the chunk's typical one (a frame before junk).
+3. Frames whose CRC matches are the *good* frames; a good frame inside an earlier one is
+   dropped. Only the wanted message ids are decoded: payloads are zero-padded to the full
+   length (MAVLink 2 truncation) and viewed as a numpy structured array.
+4. Bytes between good frames (junk, CRC-failed frames, frames of ids the dialect does not know,
+   an incomplete last record) are walked record by record, which gives the counts.
+
+Versus pymavlink (``mavutil.mavlink_connection(tlog)``, a ``mavmmaplog``): on the shared tlogs the
+decoded messages equal its ``recv_match(type=[...])`` output value for value (a test).
+``corrupt_frames`` counts structurally valid frames (start byte, a length that lands on the next
+record, allowed flags) with a known id whose CRC fails: pymavlink's ``BAD_DATA`` "invalid MAVLink
+CRC" (4 in ``ardusub_small.tlog``, 1967 in ``ardusub_2023-04-18_11-03-34.tlog``: the same numbers).
+pymavlink also emits a ``BAD_DATA`` per run of junk bytes ("Bad prefix"; 140 in
+``uavlv_pr437_flight_logs.tlog``): we count those bytes as ``junk_bytes`` (2565 there), not as
+frames. Its sequential parser also loses 5 HEARTBEATs in that junk prefix (and decodes 3 false
+``UNKNOWN_*`` frames); its indexed ``recv_match(type=...)`` and this scan find them. Frames of ids
+the dialect does not know (pymavlink's ``UNKNOWN_*``) are ``unknown_frames``.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Iterable
+
+import numpy as np
+
+TS_LEN = 8
+HDR_V1 = 6
+HDR_V2 = 10
+SIG_LEN = 13
+STX_V1 = 0xFE
+STX_V2 = 0xFD
+#: Longest record: timestamp + v2 header + 255 payload + CRC + signature.
+MAX_RECORD = TS_LEN + HDR_V2 + 255 + 2 + SIG_LEN
+#: Look-ahead kept after a chunk: a record starting in the chunk plus the next record's header.
+_PAD = 2 * MAX_RECORD
+DEFAULT_CHUNK_BYTES = 8 << 20
+#: Receive timestamps of real records lie within this of the chunk's median (µs).
+_TS_WINDOW_US = 86_400 * 1_000_000
+_MAX_ID = 1 << 16  # dialect ids are below this (all: max 60053)
+
+
+def _crc_table() -> np.ndarray:
+    x = np.arange(256, dtype=np.uint32)
+    tmp = (x ^ (x << 4)) & 0xFF
+    return (((tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF).astype(np.uint16)
+
+
+_CRC_TABLE = _crc_table()
+
+
+def x25_crc(data: bytes, crc: int = 0xFFFF) -> int:
+    """CRC-16/MCRF4XX of ``data`` (scalar reference; used by the gap walk and tests)."""
+    for b in data:
+        crc = (crc >> 8) ^ int(_CRC_TABLE[(crc ^ b) & 0xFF])
+    return crc
+
+
+@lru_cache(maxsize=1)
+def dialect():
+    """pymavlink's ``all`` dialect, MAVLink 2 (what ``mavutil`` uses by default)."""
+    from pymavlink.dialects.v20 import all as mavlink  # noqa: PLC0415 - heavy import, on demand
+
+    return mavlink
+
+
+_STRUCT_TO_NUMPY = {
+    "B": "u1", "b": "i1", "H": "<u2", "h": "<i2", "I": "<u4", "i": "<i4",
+    "Q": "<u8", "q": "<i8", "f": "<f4", "d": "<f8", "c": "S1",
+}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class MsgLayout:
+    """Wire layout of one message id, from the dialect."""
+
+    msgid: int
+    name: str
+    crc_extra: int
+    size: int  # full payload length, extensions included
+    dtype: np.dtype  # packed little-endian structured dtype, fields in wire order
+
+
+@lru_cache(maxsize=None)
+def layout(name: str) -> MsgLayout:
+    """Layout of the message called ``name`` (e.g. ``"RAW_IMU"``); KeyError if unknown."""
+    mav = dialect()
+    msgid = getattr(mav, f"MAVLINK_MSG_ID_{name}")
+    cls = mav.mavlink_map[msgid]
+    tokens = re.findall(r"(\d*)([a-zA-Z?])", cls.unpacker.format.lstrip("<>=!@"))
+    if len(tokens) != len(cls.ordered_fieldnames):
+        raise ValueError(f"cannot map the struct format of {name} to its fields")
+    fields = []
+    for (count, code), fname in zip(tokens, cls.ordered_fieldnames):
+        n = int(count) if count else 1
+        if code == "s":
+            fields.append((fname, f"S{n}"))
+        elif n > 1:
+            fields.append((fname, _STRUCT_TO_NUMPY[code], (n,)))
+        else:
+            fields.append((fname, _STRUCT_TO_NUMPY[code]))
+    dt = np.dtype(fields)
+    if dt.itemsize != cls.unpacker.size:
+        raise ValueError(f"layout size mismatch for {name}")
+    return MsgLayout(msgid, cls.msgname, int(cls.crc_extra), int(cls.unpacker.size), dt)
+
+
+@lru_cache(maxsize=1)
+def _id_tables():
+    """(known, crc_extra) lookup tables indexed by message id (< 65536)."""
+    mav = dialect()
+    known = np.zeros(_MAX_ID, bool)
+    extra = np.zeros(_MAX_ID, np.uint16)
+    for mid, cls in mav.mavlink_map.items():
+        if mid < _MAX_ID:
+            known[mid] = True
+            extra[mid] = cls.crc_extra
+    return known, extra
+
+
+@dataclass
+class Frames:
+    """The good frames of one message id, in file order."""
+
+    name: str
+    offset: np.ndarray  # (n,) int64, file offset of the record (its receive timestamp)
+    sysid: np.ndarray  # (n,) uint8
+    compid: np.ndarray  # (n,) uint8
+    fields: np.ndarray  # (n,) structured, field names as in pymavlink
+
+
+@dataclass
+class ScanResult:
+    frames: dict[str, Frames]
+    good_frames: int = 0
+    corrupt_frames: int = 0
+    unknown_frames: int = 0
+    junk_bytes: int = 0
+    truncated_bytes: int = 0
+    file_size: int = 0
+    #: good frames per (sysid, compid)
+    sources: dict[tuple[int, int], int] = field(default_factory=dict)
+
+
+def _gather_u(buf: np.ndarray, pos: np.ndarray, nbytes: int, big_endian: bool) -> np.ndarray:
+    """Unsigned integer of ``nbytes`` bytes at each position (uint64)."""
+    out = np.zeros(len(pos), np.uint64)
+    for k in range(nbytes):
+        shift = 8 * (nbytes - 1 - k) if big_endian else 8 * k
+        out |= buf[pos + k].astype(np.uint64) << np.uint64(shift)
+    return out
+
+
+def _crc16_table(t8: np.ndarray) -> np.ndarray:
+    """Two bytes at a time: after 16 bits the register is ``T16[crc ^ (b0 | b1 << 8)]``."""
+    y = np.arange(1 << 16, dtype=np.uint32)
+    for _ in range(2):
+        y = (y >> 8) ^ t8[y & 0xFF]
+    return y.astype(np.uint16)
+
+
+_CRC_TABLE16 = _crc16_table(_CRC_TABLE)
+
+
+def _crc_many(buf: np.ndarray, start: np.ndarray, length: np.ndarray, extra: np.ndarray) -> np.ndarray:
+    """X.25 CRC of ``buf[start:start+length]`` followed by the ``extra`` byte, for many frames.
+
+    Two bytes per step through a 65536-entry table, read as little-endian uint16 from one of two
+    views of ``buf`` (even or odd start). Frames are sorted by length, longest first, so step ``j``
+    updates a prefix of the arrays: the frames with more than ``j`` words. An odd last byte and
+    ``CRC_EXTRA`` go through the byte table afterwards.
+    """
+    n = len(start)
+    out = np.empty(n, np.uint16)
+    if n == 0:
+        return out
+    nb = len(buf) - (len(buf) % 2)
+    shifted = np.zeros(nb, np.uint8)  # an aligned copy one byte on: odd starts read aligned words
+    shifted[: nb - 1] = buf[1:nb]
+    views = (buf[:nb].view("<u2"), shifted.view("<u2"))
+    t8, t16 = _CRC_TABLE, _CRC_TABLE16
+    for parity in (0, 1):
+        sel = np.flatnonzero((start & 1) == parity)
+        if len(sel) == 0:
+            continue
+        words = length[sel] // 2
+        order = np.argsort(-words, kind="stable")
+        idx = sel[order]
+        base = (start[idx] - parity) // 2
+        w = words[order]
+        crc = np.full(len(idx), 0xFFFF, np.uint16)
+        longer = len(idx) - np.cumsum(np.bincount(w, minlength=int(w[0]) + 1))
+        view = views[parity]
+        pos = np.empty(len(idx), np.intp)
+        word = np.empty(len(idx), np.uint16)
+        for j in range(int(w[0])):  # np.take with out=: no temporaries, faster than fancy indexing
+            k = int(longer[j])
+            np.add(base[:k], j, out=pos[:k])
+            np.take(view, pos[:k], out=word[:k], mode="clip")
+            np.bitwise_xor(word[:k], crc[:k], out=word[:k])
+            np.take(t16, word[:k], out=crc[:k], mode="clip")
+        odd = np.flatnonzero(length[idx] & 1)
+        if len(odd):
+            last = buf[start[idx[odd]] + length[idx[odd]] - 1]
+            crc[odd] = (crc[odd] >> 8) ^ t8[(crc[odd] ^ last) & 0xFF]
+        crc = (crc >> 8) ^ t8[(crc ^ extra[idx].astype(np.uint16)) & 0xFF]
+        out[idx] = crc
+    return out
+
+
+class _Acc:
+    """Per-message accumulation of decoded chunks."""
+
+    def __init__(self, lay: MsgLayout):
+        self.lay = lay
+        self.parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+
+    def add(self, buf, rec, pstart, plen, sysid, compid, base):
+        lay = self.lay
+        n = len(rec)
+        if n == 0:
+            return
+        mat = np.lib.stride_tricks.sliding_window_view(buf, lay.size)[pstart]  # (n, size) copy
+        short = np.flatnonzero(plen < lay.size)
+        if len(short):  # v2 zero truncation (and short v1 frames): pad with zeros
+            cols = np.arange(lay.size)
+            part = mat[short]
+            part[cols[None, :] >= plen[short, None]] = 0
+            mat[short] = part
+        rows = mat.view(lay.dtype).reshape(n)
+        self.parts.append((rec.astype(np.int64) + base, sysid.copy(), compid.copy(), rows))
+
+    def result(self) -> Frames:
+        if not self.parts:
+            z = np.zeros(0, np.int64)
+            return Frames(self.lay.name, z, z.astype(np.uint8), z.astype(np.uint8), np.zeros(0, self.lay.dtype))
+        o, s, c, f = (np.concatenate(x) for x in zip(*self.parts))
+        return Frames(self.lay.name, o, s, c, f)
+
+
+def scan_tlog(
+    path: str | os.PathLike, names: Iterable[str], chunk_bytes: int = DEFAULT_CHUNK_BYTES
+) -> ScanResult:
+    """Decode the good frames of the messages ``names`` from the tlog at ``path``."""
+    known_tab, extra_tab = _id_tables()
+    lays = {}
+    for nm in names:
+        lay = layout(nm)
+        lays[lay.msgid] = lay
+    accs = {mid: _Acc(lay) for mid, lay in lays.items()}
+    wanted = np.zeros(_MAX_ID, bool)
+    wanted[list(lays)] = True
+
+    chunk_bytes = max(int(chunk_bytes), 4 * MAX_RECORD)
+    size = os.path.getsize(path)
+    res = ScanResult(frames={}, file_size=size)
+    src_counts = np.zeros(256 * 256, np.int64)
+    covered = 0  # file offset up to which bytes belong to accepted good frames or known gaps
+    buf = np.zeros(chunk_bytes + _PAD + 32, np.uint8)  # even length: uint16 views in _crc_many
+
+    with open(path, "rb") as f:
+        a = 0
+        while a < size:
+            f.seek(a)
+            m = f.readinto(memoryview(buf)[: chunk_bytes + _PAD])
+            buf[m:] = 0
+            n_starts = min(chunk_bytes, m)  # record starts handled in this chunk: [a, a + n_starts)
+            last = a + chunk_bytes >= size
+            # 1. candidates: a start byte 8 bytes after the record start (h: its position)
+            win = buf[TS_LEN : TS_LEN + n_starts]
+            h = np.flatnonzero(win >= STX_V2) + TS_LEN  # FD, FE (and FF, dropped below)
+            if covered > a:
+                h = h[h >= covered - a + TS_LEN]  # inside an earlier chunk's frame: done there
+            stx = np.take(buf, h)
+            h = h[stx != 0xFF]
+            stx = stx[stx != 0xFF]
+            i = h - TS_LEN
+            v2 = stx == STX_V2
+            ln = np.take(buf, h + 1).astype(np.int64)
+            inc = np.take(buf, h + 2) * v2
+            hdr = np.where(v2, HDR_V2, HDR_V1)
+            id2 = (
+                np.take(buf, h + 7).astype(np.int32)
+                | (np.take(buf, h + 8).astype(np.int32) << 8)
+                | (np.take(buf, h + 9).astype(np.int32) << 16)
+            )
+            msgid = np.where(v2, id2, np.take(buf, h + 5))
+            rl = TS_LEN + hdr + ln + 2 + (inc & 1) * SIG_LEN
+            nxt = i + rl
+            checkable = (nxt <= m) & ((inc & 0xFE) == 0) & np.take(known_tab, msgid & 0xFFFF) & (msgid < _MAX_ID)
+            # 2. plausibility before paying for a CRC: chained to a next record, or a sane timestamp
+            nstx = np.take(buf, np.minimum(nxt + TS_LEN, len(buf) - 1))
+            chain = ((nstx == STX_V1) | (nstx == STX_V2)) | (a + nxt == size)
+            loose = np.flatnonzero(checkable & ~chain)
+            check = checkable & chain
+            if len(loose):
+                ref = np.flatnonzero(chain)
+                if len(ref):
+                    ref = ref[:: max(1, len(ref) // 257)]
+                    med = np.median(_gather_u(buf, i[ref], TS_LEN, big_endian=True).astype(np.float64))
+                    ts = _gather_u(buf, i[loose], TS_LEN, big_endian=True).astype(np.float64)
+                    check[loose[np.abs(ts - med) < _TS_WINDOW_US]] = True
+            ci = np.flatnonzero(check)
+            crc_len = hdr[ci] - 1 + ln[ci]
+            crc = _crc_many(buf, h[ci] + 1, crc_len, np.take(extra_tab, msgid[ci]))
+            pos_crc = h[ci] + hdr[ci] + ln[ci]
+            got = np.take(buf, pos_crc).astype(np.uint16) | (np.take(buf, pos_crc + 1).astype(np.uint16) << 8)
+            good = ci[crc == got]
+            # 3. good frames must not overlap (a frame inside another one is not a record)
+            g_start = i[good] + a
+            g_end = nxt[good] + a
+            keep = _non_overlapping(g_start, g_end, covered)
+            good = good[keep]
+            g_start, g_end = g_start[keep], g_end[keep]
+            if len(good):
+                prev_end = np.concatenate([[covered], g_end[:-1]])
+                gap = g_start > prev_end
+                _walk_gaps(f, zip(prev_end[gap].tolist(), g_start[gap].tolist()), size, res)
+                covered = int(g_end[-1])
+            res.good_frames += len(good)
+            hg = h[good] + np.where(v2[good], 5, 3)
+            sysid = np.take(buf, hg)
+            compid = np.take(buf, hg + 1)
+            src_counts += np.bincount(sysid.astype(np.int64) * 256 + compid, minlength=65536)
+            # 4. decode the wanted ids (good frames have ids below _MAX_ID)
+            gid = msgid[good]
+            sel = np.flatnonzero(np.take(wanted, gid))
+            if len(sel):
+                for mid in np.unique(gid[sel]).tolist():
+                    s = sel[gid[sel] == mid]
+                    g = good[s]
+                    accs[mid].add(buf, i[g], i[g] + TS_LEN + hdr[g], ln[g], sysid[s], compid[s], a)
+            if last:
+                break
+            a += chunk_bytes
+        if covered < size:
+            _walk_gaps(f, [(covered, size)], size, res)
+    res.frames = {acc.lay.name: acc.result() for acc in accs.values()}
+    nz = np.flatnonzero(src_counts)
+    res.sources = {(int(k) // 256, int(k) % 256): int(src_counts[k]) for k in nz}
+    return res
+
+
+def _non_overlapping(start: np.ndarray, end: np.ndarray, covered: int) -> np.ndarray:
+    """Mask of frames that do not start inside an earlier kept frame (file order)."""
+    keep = start >= covered
+    while True:
+        e = np.where(keep, end, 0)
+        prev = np.maximum.accumulate(np.concatenate([[covered], e[:-1]])) if len(e) else e
+        new = keep & (start >= prev)
+        if np.array_equal(new, keep):
+            return keep
+        keep = new
+
+
+_GAP_WINDOW = 4 << 20
+
+
+def _walk_gaps(f, gaps: Iterable[tuple[int, int]], size: int, res: ScanResult) -> None:
+    """Classify the bytes between good frames: bad-CRC frames, unknown ids, junk, a cut tail.
+
+    A frame in a gap must end exactly where the next record (or the gap) begins; the rest is
+    junk. Long gaps are read in windows, so memory stays bounded.
+    """
+    known_tab, _ = _id_tables()
+    for g0, g1 in gaps:
+        o = g0  # absolute: bytes before o are classified
+        for w0 in range(g0, g1, _GAP_WINDOW):
+            w1 = min(g1, w0 + _GAP_WINDOW)
+            if o >= w1:
+                continue
+            f.seek(w0)
+            data = f.read(w1 - w0 + 2 * MAX_RECORD)
+            arr = np.frombuffer(data, np.uint8)
+            win = arr[TS_LEN : w1 - w0 + TS_LEN]
+            for p in (np.flatnonzero((win == STX_V1) | (win == STX_V2)) + w0).tolist():
+                if p < o:
+                    continue
+                rl, msgid, flags_ok = _record_header(data, p - w0)
+                end = p + rl if rl else None
+                fits = end is not None and end <= g1
+                if fits and end < g1:
+                    q = end - w0 + TS_LEN
+                    fits = q < len(data) and data[q] in (STX_V1, STX_V2)
+                if fits:
+                    res.junk_bytes += p - o
+                    if flags_ok and not (msgid < _MAX_ID and known_tab[msgid]):
+                        res.unknown_frames += 1
+                    else:
+                        res.corrupt_frames += 1  # CRC failed (or invalid incompat flags)
+                    o = end
+                elif g1 == size and (end is None or end > size):
+                    res.junk_bytes += p - o
+                    res.truncated_bytes += size - p  # a record cut by the end of the file
+                    o = size
+                    break
+        res.junk_bytes += max(0, g1 - o)
+
+
+def _record_header(data: bytes, p: int) -> tuple[int, int, bool]:
+    """(record length, msgid, incompat flags allowed) of the record at ``p``; length 0 if cut."""
+    s = p + TS_LEN
+    if s + 2 > len(data):
+        return 0, -1, False
+    if data[s] == STX_V2:
+        if s + HDR_V2 > len(data):
+            return 0, -1, False
+        inc = data[s + 2]
+        msgid = data[s + 7] | (data[s + 8] << 8) | (data[s + 9] << 16)
+        return TS_LEN + HDR_V2 + data[s + 1] + 2 + (SIG_LEN if inc & 1 else 0), msgid, (inc & 0xFE) == 0
+    if s + HDR_V1 > len(data):
+        return 0, -1, False
+    return TS_LEN + HDR_V1 + data[s + 1] + 2, data[s + 5], True

@@ -1,0 +1,413 @@
+"""MAVLink telemetry logs (``.tlog``) → :class:`~tepinn_flight.ingest.streams.RawLog`.
+
+Frames are found and decoded by the vectorised walker in :mod:`.mavlink_scan` (CRC-checked,
+bit-identical to pymavlink's decoding); this module picks the autopilot's messages, converts
+units and builds the streams.
+
+Source
+    Only the autopilot's messages count: component 1 (``MAV_COMP_ID_AUTOPILOT1``) of the system
+    whose component-1 HEARTBEAT names a real autopilot (``autopilot != MAV_AUTOPILOT_INVALID``;
+    the most frequent such sysid), else the sysid with the most component-1 frames. Companion
+    computers, cameras, ground stations and radios in the same file are ignored.
+
+IMU instances (``--imu N``)
+    ``RAW_IMU`` (its ``id`` field, 0 for frames without it), ``SCALED_IMU`` = 0, ``SCALED_IMU2`` = 1,
+    ``SCALED_IMU3`` = 2, ``HIGHRES_IMU`` (its ``id`` field). When several messages carry the same
+    instance, HIGHRES_IMU is preferred, then RAW_IMU, then SCALED_IMU. Streams whose accelerometer
+    and gyro are zero in every sample are dropped (a missing 2nd/3rd IMU arrives as all-zero
+    ``SCALED_IMU2/3``). Default: the lowest instance with data.
+
+Units
+    ``SCALED_IMU*``: mG, mrad/s, mGauss (by the MAVLink definition, any autopilot).
+    ``RAW_IMU``: ArduPilot sends the same scaled units; other stacks may send raw sensor counts,
+    so a RAW_IMU from a non-ArduPilot autopilot is refused (its scale is unknown).
+    ``HIGHRES_IMU``: m/s², rad/s, gauss. The axes are body FRD already.
+
+Reference (``--reference``)
+    ``ATTITUDE_QUATERNION`` (q1..q4 = w, x, y, z, body → NED) preferred, else ``ATTITUDE``
+    (roll, pitch, yaw in rad, Z-Y-X).
+
+Time
+    Sample time from ``time_usec`` / ``time_boot_ms`` (since boot; ``time_usec`` above 1e15 is UNIX
+    time), never the tlog receive timestamp. A reboot is the boot clock going back by more than 1 s
+    across the autopilot's IMU and attitude messages in file order *and staying back* for the
+    next :data:`REBOOT_CONFIRM` messages (a single late message, seen in ``uavlv_vtol.tlog``, is
+    not a reboot). Inside a boot epoch each stream is sorted by sample time.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+
+import numpy as np
+
+from ..conventions import (
+    GAUSS_TO_UT,
+    MILLI_G_TO_M_S2,
+    MILLIGAUSS_TO_UT,
+    MRAD_S_TO_RAD_S,
+    UNIX_TIME_THRESHOLD_US,
+)
+from ..errors import ConfigError, CorruptLog, NoImuData
+from ..quat import quat_from_euler_zyx
+from .mavlink_scan import dialect, scan_tlog
+from .streams import ImuStream, MagStream, RawLog, RefStream
+
+MAV_COMP_ID_AUTOPILOT1 = 1
+MAV_AUTOPILOT_INVALID = 8
+MAV_AUTOPILOT_ARDUPILOTMEGA = 3
+
+#: IMU messages: (time field, fixed instance or None when the ``id`` field numbers it).
+IMU_MESSAGES = {
+    "HIGHRES_IMU": ("time_usec", None),
+    "RAW_IMU": ("time_usec", None),
+    "SCALED_IMU": ("time_boot_ms", 0),
+    "SCALED_IMU2": ("time_boot_ms", 1),
+    "SCALED_IMU3": ("time_boot_ms", 2),
+}
+#: Preference when several messages carry the same instance (first wins).
+IMU_PREFERENCE = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
+#: Reference messages, preferred first.
+REF_MESSAGES = ("ATTITUDE_QUATERNION", "ATTITUDE")
+META_MESSAGES = ("HEARTBEAT", "AUTOPILOT_VERSION")
+
+#: A back step of the boot clock larger than this (s) may be a reboot ...
+REBOOT_BACKSTEP_S = 1.0
+#: ... if the next this-many autopilot messages all stay below the time before the step.
+REBOOT_CONFIRM = 16
+
+_FW_TYPES = {0: "dev", 64: "alpha", 128: "beta", 192: "rc", 255: "official"}
+
+
+def read(path: str | os.PathLike, imu: int | None = None, reference: str | None = None) -> RawLog:
+    """Parse a MAVLink tlog into raw streams (SI units, the autopilot's own clock)."""
+    names = (*IMU_MESSAGES, *REF_MESSAGES, *META_MESSAGES)
+    try:
+        scan = scan_tlog(path, names)
+    except OSError as exc:
+        raise CorruptLog(f"cannot read the tlog ({exc.strerror or exc})") from None
+    notes: list[str] = []
+
+    if scan.good_frames == 0:
+        raise CorruptLog("no valid MAVLink frame (start byte, length and CRC) in the file")
+    sysid, hb = _autopilot(scan)
+    if sysid is None:
+        seen = ", ".join(f"{s}/{c}" for s, c in sorted(scan.sources)) or "none"
+        raise NoImuData(
+            f"no messages from an autopilot (component {MAV_COMP_ID_AUTOPILOT1}) in the tlog; "
+            f"sysid/compid seen: {seen}"
+        )
+    autopilot_id = _mode(hb["autopilot"]) if len(hb) else None
+    vehicle_type = _enum_name("MAV_TYPE", _mode(hb["type"])) if len(hb) else "unknown"
+    autopilot = _autopilot_name(autopilot_id)
+
+    frames = {}
+    other_src = 0
+    for name in names:
+        fr = scan.frames.pop(name)  # drop the scan's copy as we go (memory)
+        mine = (fr.sysid == sysid) & (fr.compid == MAV_COMP_ID_AUTOPILOT1)
+        if name not in META_MESSAGES:
+            other_src += int((~mine).sum())
+        frames[name] = (fr.offset, fr.fields) if mine.all() else (fr.offset[mine], fr.fields[mine])
+        del fr
+    firmware = _firmware(frames.pop("AUTOPILOT_VERSION")[1])
+    if other_src:
+        notes.append(f"{other_src} IMU/attitude messages from other systems or components ignored")
+
+    # ---- IMU candidate streams
+    streams = _imu_streams(frames, autopilot_id)
+    for s in streams:
+        if s["all_zero"]:
+            notes.append(f"{s['name']} (instance {s['instance']}) is all zero (no such IMU): dropped")
+    live = [s for s in streams if not s["all_zero"]]
+    imu_instances = [
+        {"instance": int(s["instance"]), "name": s["name"], "samples": int(len(s["t_s"])),
+         "rate_hz": s["rate_hz"], "units_known": bool(s["scale_known"])}
+        for s in sorted(live, key=lambda s: (s["instance"], IMU_PREFERENCE.index(s["name"])))
+    ]  # fmt: skip
+    by_inst: dict[int, dict] = {}
+    for s in sorted(live, key=lambda s: IMU_PREFERENCE.index(s["name"])):
+        by_inst.setdefault(s["instance"], s)
+
+    # ---- reference candidates
+    refs = _ref_streams(frames)
+    del frames
+
+    # ---- boot epochs from every boot-clock time stamp of the autopilot's data messages
+    clocked = [s for s in live] + list(refs.values())
+    _assign_epochs(clocked)
+
+    # ---- select the IMU
+    usable = {k: s for k, s in by_inst.items() if s["scale_known"]}
+    if imu is None:
+        if not usable:
+            if by_inst:
+                s = by_inst[min(by_inst)]
+                raise NoImuData(_unknown_scale_reason(s, autopilot))
+            raise NoImuData(
+                "no IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU) with data from the autopilot "
+                f"(sysid {sysid}, compid {MAV_COMP_ID_AUTOPILOT1})"
+            )
+        sel = usable[min(usable)]
+    else:
+        if imu not in by_inst:
+            avail = ", ".join(f"{k} ({s['name']})" for k, s in sorted(by_inst.items())) or "none"
+            raise NoImuData(f"IMU instance {imu} not in this tlog; instances with data: {avail}")
+        sel = by_inst[imu]
+        if not sel["scale_known"]:
+            raise NoImuData(_unknown_scale_reason(sel, autopilot))
+    if sel["clock"] == "unix":
+        notes.append(f"{sel['name']} time_usec is UNIX time (above 1e15 µs)")
+
+    order = _time_order(sel["t_s"], sel["epoch"])
+    imu_stream = ImuStream(
+        t_s=sel["t_s"][order],
+        gyr_rad_s=sel["gyr"][order],
+        acc_m_s2=sel["acc"][order],
+        epoch=sel["epoch"][order],
+    )
+    mag = None
+    if np.any(sel["mag"] != 0):
+        mag = MagStream(t_s=imu_stream.t_s, mag_ut=sel["mag"][order], epoch=imu_stream.epoch)
+    del streams, live, by_inst, usable, clocked
+
+    # ---- select the reference
+    ref = None
+    cand = [n for n in REF_MESSAGES if n in refs]
+    if reference is not None:
+        want = reference.strip().upper()
+        if want not in refs:
+            raise ConfigError(
+                f"reference {reference!r} not in this tlog; available: {', '.join(cand) or 'none'}"
+            )
+        rname = want
+    else:
+        rname = cand[0] if cand else None
+    if rname is not None:
+        r = refs[rname]
+        if r["clock"] != sel["clock"]:
+            notes.append(f"{rname} and {sel['name']} use different clocks (boot vs UNIX): no reference")
+        else:
+            o = _time_order(r["t_s"], r["epoch"])
+            ref = RefStream(t_s=r["t_s"][o], q_nb_wxyz=r["q"][o], source=rname, epoch=r["epoch"][o])
+
+    meta = {
+        "source_kind": "tlog",
+        "vehicle_type": vehicle_type,
+        "autopilot": autopilot,
+        "autopilot_sysid": int(sysid),
+        "imu_instance": int(sel["instance"]),
+        "imu_message": sel["name"],
+        "imu_instances": imu_instances,
+        "reference_candidates": cand,
+        "corrupt_frames": int(scan.corrupt_frames),
+        "skipped_frames": int(scan.unknown_frames),
+        "junk_bytes": int(scan.junk_bytes),
+        "truncated_bytes": int(scan.truncated_bytes),
+        "frames": int(scan.good_frames),
+        "notes": notes,
+    }
+    if firmware:
+        meta["firmware"] = firmware
+    if scan.corrupt_frames:
+        notes.append(f"{scan.corrupt_frames} frames failed their CRC check: skipped")
+    if scan.junk_bytes:
+        notes.append(f"{scan.junk_bytes} bytes outside any MAVLink frame skipped")
+    if scan.truncated_bytes:
+        notes.append(f"the last record is cut after {scan.truncated_bytes} bytes (truncated file)")
+    n_epochs = int(imu_stream.epoch.max()) + 1 if len(imu_stream.epoch) else 0
+    if n_epochs > 1:
+        notes.append(f"{n_epochs - 1} autopilot reboot(s) detected (boot time went back)")
+    return RawLog(imu=imu_stream, mag=mag, ref=ref, meta=meta)
+
+
+# ------------------------------------------------------------------------------------------------
+def _mode(values) -> int:
+    return int(Counter(np.asarray(values).tolist()).most_common(1)[0][0])
+
+
+def _enum_name(enum: str, value: int | None) -> str:
+    if value is None:
+        return "unknown"
+    entry = dialect().enums.get(enum, {}).get(int(value))
+    if entry is None:
+        return f"{enum.lower()}_{value}"
+    return entry.name.removeprefix(f"{enum}_").lower()
+
+
+def _autopilot_name(value: int | None) -> str:
+    if value is None:
+        return "unknown"
+    if value == MAV_AUTOPILOT_ARDUPILOTMEGA:
+        return "ardupilot"
+    return _enum_name("MAV_AUTOPILOT", value)
+
+
+def _autopilot(scan):
+    """(sysid of the autopilot, its component-1 HEARTBEAT fields) or (None, ...)."""
+    hb = scan.frames["HEARTBEAT"]
+    comp1 = hb.compid == MAV_COMP_ID_AUTOPILOT1
+    real = comp1 & (hb.fields["autopilot"] != MAV_AUTOPILOT_INVALID)
+    if np.any(real):
+        sysid = _mode(hb.sysid[real])
+    else:
+        c1 = {s: n for (s, c), n in scan.sources.items() if c == MAV_COMP_ID_AUTOPILOT1}
+        if not c1:
+            return None, hb.fields[:0]
+        sysid = max(c1, key=lambda s: (c1[s], -s))
+    mine = real & (hb.sysid == sysid)
+    return sysid, hb.fields[mine]
+
+
+def _imu_streams(frames, autopilot_id) -> list[dict]:
+    out = []
+    for name, (tfield, fixed) in IMU_MESSAGES.items():
+        off, f = frames[name]
+        if len(off) == 0:
+            continue
+        inst = np.full(len(off), fixed, np.int64) if fixed is not None else f["id"].astype(np.int64)
+        for k in np.unique(inst).tolist():
+            m = inst == k
+            ff, offs = (f, off) if m.all() else (f[m], off[m])
+            acc = _columns(ff, ("xacc", "yacc", "zacc"))
+            gyr = _columns(ff, ("xgyro", "ygyro", "zgyro"))
+            mag = _columns(ff, ("xmag", "ymag", "zmag"))
+            all_zero = not (np.any(acc != 0) or np.any(gyr != 0))
+            if name == "HIGHRES_IMU":
+                scale_known = True
+                mag *= GAUSS_TO_UT
+            else:
+                scale_known = name != "RAW_IMU" or autopilot_id == MAV_AUTOPILOT_ARDUPILOTMEGA
+                acc *= MILLI_G_TO_M_S2
+                gyr *= MRAD_S_TO_RAD_S
+                mag *= MILLIGAUSS_TO_UT
+            t_s, clock = _time_s(ff[tfield], tfield)
+            out.append({
+                "name": name, "instance": int(k), "offset": offs, "t_s": t_s, "clock": clock,
+                "acc": acc, "gyr": gyr, "mag": mag, "all_zero": all_zero,
+                "scale_known": scale_known, "rate_hz": _rate_hz(t_s),
+            })  # fmt: skip
+    return out
+
+
+def _ref_streams(frames) -> dict[str, dict]:
+    refs = {}
+    for name in REF_MESSAGES:
+        off, f = frames[name]
+        if len(off) == 0:
+            continue
+        if name == "ATTITUDE_QUATERNION":
+            q = np.stack([f["q1"], f["q2"], f["q3"], f["q4"]], axis=1).astype(np.float64)
+        else:
+            q = quat_from_euler_zyx(
+                f["roll"].astype(np.float64), f["pitch"].astype(np.float64), f["yaw"].astype(np.float64)
+            )
+        norm = np.linalg.norm(q, axis=1)
+        ok = np.isfinite(norm) & (norm > 0.5)  # a zero quaternion means "not set"
+        if not np.any(ok):
+            continue
+        t_s, clock = _time_s(f["time_boot_ms"][ok], "time_boot_ms")
+        refs[name] = {"name": name, "offset": off[ok], "t_s": t_s, "clock": clock, "q": q[ok] / norm[ok, None]}
+    return refs
+
+
+def _columns(f: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
+    out = np.empty((len(f), len(names)), np.float64)
+    for k, n in enumerate(names):
+        out[:, k] = f[n]
+    return out
+
+
+def _time_order(t_s: np.ndarray, epoch: np.ndarray):
+    """Index that sorts by (epoch, time), or a plain slice when already sorted (no copy)."""
+    if len(t_s) < 2 or np.all((np.diff(epoch) > 0) | ((np.diff(epoch) == 0) & (np.diff(t_s) >= 0))):
+        return slice(None)
+    return np.lexsort((t_s, epoch))
+
+
+def _time_s(raw: np.ndarray, field: str) -> tuple[np.ndarray, str]:
+    if field == "time_usec":
+        us = raw.astype(np.float64)
+        clock = "unix" if len(us) and np.median(us) > UNIX_TIME_THRESHOLD_US else "boot"
+        return us / 1e6, clock
+    return raw.astype(np.float64) / 1e3, "boot"
+
+
+def _rate_hz(t_s: np.ndarray) -> float | None:
+    if len(t_s) < 2:
+        return None
+    dt = np.diff(np.sort(t_s))
+    dt = dt[dt > 0]
+    return float(1.0 / np.median(dt)) if len(dt) else None
+
+
+def boot_epochs(t_s: np.ndarray, backstep_s: float = REBOOT_BACKSTEP_S, confirm: int = REBOOT_CONFIRM) -> np.ndarray:
+    """Boot epoch per sample of one boot clock in file order, robust to single late messages.
+
+    A reboot starts at ``k`` when ``t[k]`` lies more than ``backstep_s`` below the latest time of
+    the current epoch and the next ``confirm`` samples all stay below it.
+    """
+    t = np.asarray(t_s, np.float64)
+    epoch = np.zeros(len(t), np.int64)
+    start = 0
+    e = 0
+    while start < len(t) - 1:
+        seg = t[start:]
+        cm = np.maximum.accumulate(seg)
+        cand = np.flatnonzero(seg[1:] < cm[:-1] - backstep_s) + 1
+        nxt = None
+        for k in cand:  # usually the first one; no list of all candidates
+            if np.max(seg[k : k + confirm]) < cm[k - 1]:
+                nxt = k
+                break
+        if nxt is None:
+            break
+        start += nxt
+        e += 1
+        epoch[start:] = e
+    return epoch
+
+
+def _assign_epochs(streams: list[dict]) -> None:
+    """Give every stream an ``epoch`` array from the merged boot clock (file order)."""
+    boot = [s for s in streams if s["clock"] == "boot"]
+    for s in streams:
+        s["epoch"] = np.zeros(len(s["t_s"]), np.int64)
+    if not boot:
+        return
+    off = np.concatenate([s["offset"] for s in boot])
+    t = np.concatenate([s["t_s"] for s in boot])
+    order = np.argsort(off, kind="stable")
+    ep_sorted = boot_epochs(t[order])
+    ep = np.empty_like(ep_sorted)
+    ep[order] = ep_sorted
+    i = 0
+    for s in boot:
+        n = len(s["t_s"])
+        s["epoch"] = ep[i : i + n]
+        i += n
+
+
+def _unknown_scale_reason(s: dict, autopilot: str) -> str:
+    return (
+        f"{s['name']} (IMU instance {s['instance']}) from a {autopilot} autopilot may carry raw sensor "
+        "counts: its scale is unknown, refusing to guess (only ArduPilot's RAW_IMU is known to be in "
+        "mG and mrad/s)"
+    )
+
+
+def _firmware(av: np.ndarray) -> str | None:
+    if len(av) == 0:
+        return None
+    v = int(av["flight_sw_version"][-1])
+    if v == 0:
+        return None
+    major, minor, patch, kind = (v >> 24) & 0xFF, (v >> 16) & 0xFF, (v >> 8) & 0xFF, v & 0xFF
+    s = f"{major}.{minor}.{patch}"
+    if kind != 255:
+        s += f"-{_FW_TYPES.get(kind, kind)}"
+    git = bytes(av["flight_custom_version"][-1].tolist()).split(b"\x00")[0]
+    if git and all(32 < c < 127 for c in git):
+        s += f" ({git.decode('ascii')})"
+    return s

@@ -1,0 +1,189 @@
+"""TE-PINN model: shapes, causality, physics against slow references, training, checkpoints."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from tepinn_flight import quat as Q
+from tepinn_flight.model.checkpoint import CheckpointError, load_model, save_checkpoint
+from tepinn_flight.model.config import ModelConfig
+from tepinn_flight.model.dataset import build_bank, input_statistics, make_batch
+from tepinn_flight.model.estimate import estimate_record
+from tepinn_flight.model.fusion import FusionConfig, rk4 as rk4_float, tilt_toward
+from tepinn_flight.model.losses import LossConfig, TEPINNLoss, tilt_angle
+from tepinn_flight.model.network import TEPINN, zero_yaw
+from tepinn_flight.model.physics import RigidBody, prefix_products, rk4_delta, rk4_step
+from tepinn_flight.model.synthetic import synthetic_record
+
+SMALL = ModelConfig(window_tokens=16, d_model=16, n_heads=2, n_layers=1, d_ff=32)
+
+
+def random_window(cfg, b=3, seed=0, dtype=torch.float64):
+    g = torch.Generator().manual_seed(seed)
+    k = cfg.window_tokens
+    gyr = torch.randn(b, k, 3, generator=g, dtype=dtype)
+    acc = torch.randn(b, k, 3, generator=g, dtype=dtype) + torch.tensor([0, 0, -9.81], dtype=dtype)
+    count = torch.full((b, k), 4.0, dtype=dtype)
+    dt = torch.full((b, k), 1 / cfg.token_rate_hz, dtype=dtype)
+    t_rel = (torch.arange(k, dtype=dtype) - (k - 1)) / cfg.token_rate_hz
+    return gyr, acc, count, t_rel.expand(b, k), dt
+
+
+@pytest.mark.parametrize("encoder", ["transformer", "lstm", "mlp"])
+@pytest.mark.parametrize("physics", [True, False])
+def test_shapes_and_unit_norm(encoder, physics):
+    cfg = dataclasses.replace(SMALL, encoder=encoder, physics=physics)
+    m = TEPINN(cfg).double()
+    out = m(*random_window(cfg))
+    assert out["q"].shape == (3, 4) and out["bias"].shape == (3, 3) and out["sigma"].shape == (3,)
+    assert out["torque"].shape == (3, cfg.window_tokens, 3)
+    np.testing.assert_allclose(out["q"].norm(dim=-1).detach().numpy(), 1.0, atol=1e-12)
+    assert torch.all(out["sigma"] > 0)
+    # correction layer: yaw is exactly zero
+    _, _, yaw = Q.quat_to_euler_zyx(out["q"].detach().numpy())
+    np.testing.assert_allclose(yaw, 0.0, atol=1e-12)
+
+
+def test_zero_yaw_equals_paper_euler_route():
+    q = Q.quat_normalize(np.random.default_rng(0).normal(size=(200, 4)))
+    np.testing.assert_allclose(
+        Q.quat_canonical(zero_yaw(torch.tensor(q)).numpy()), Q.quat_canonical(Q.quat_zero_yaw(q)), atol=1e-9
+    )
+
+
+def test_estimates_are_causal():
+    """Changing samples after time t never changes any output at or before t."""
+    torch.manual_seed(0)
+    m = TEPINN(SMALL).eval()
+    rec = synthetic_record(seed=3, duration_s=8.0, rate_hz=100.0)
+    base = estimate_record(m, rec)
+    cut = 500
+    rec2 = dataclasses.replace(rec, data=rec.data.copy())
+    cols = ["gyr_x_rad_s", "gyr_y_rad_s", "acc_z_m_s2"]
+    rec2.data.loc[cut + 1 :, cols] += 3.0
+    other = estimate_record(m, rec2)
+    q0 = base[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+    q1 = other[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+    assert np.isfinite(q0[cut]).all()
+    np.testing.assert_array_equal(q0[: cut + 1], q1[: cut + 1])
+    assert not np.allclose(q0[cut + 50 :], q1[cut + 50 :], equal_nan=True)
+    # NaN until the first window is full
+    first = np.flatnonzero(np.isfinite(q0[:, 0]))[0]
+    assert rec.t_s[first] >= (SMALL.window_tokens - 1) / SMALL.token_rate_hz - 1e-9
+
+
+def test_rk4_exact_for_constant_rate():
+    w = torch.tensor([[0.3, -1.1, 2.5]], dtype=torch.float64)
+    q = torch.tensor([[1.0, 0, 0, 0]], dtype=torch.float64)
+    dt = torch.tensor([0.0025], dtype=torch.float64)
+    for _ in range(400):  # 1 s at 400 Hz
+        q = rk4_step(q, w, w, dt)
+    exact = Q.quat_from_rotvec(w.numpy()[0] * 1.0)
+    np.testing.assert_allclose(Q.quat_canonical(q.numpy()[0]), Q.quat_canonical(exact), atol=1e-11)
+    # the float path of the fusion agrees with the torch path
+    qf = (1.0, 0.0, 0.0, 0.0)
+    for _ in range(400):
+        qf = rk4_float(qf, tuple(w[0].tolist()), tuple(w[0].tolist()), 0.0025)
+    np.testing.assert_allclose(Q.quat_canonical(np.array(qf)), Q.quat_canonical(exact), atol=1e-11)
+
+
+def test_prefix_products_match_sequential_reference():
+    rng = np.random.default_rng(1)
+    dq = Q.quat_from_rotvec(rng.normal(size=(2, 13, 3)))
+    got = prefix_products(torch.tensor(dq)).numpy()
+    for b in range(2):
+        p = np.array([1.0, 0, 0, 0])
+        for j in range(13):
+            p = Q.quat_mul(p, dq[b, j])
+            np.testing.assert_allclose(got[b, j], p, atol=1e-12)
+
+
+def test_rigid_body_residual_against_float64_loop_and_gradcheck():
+    torch.manual_seed(0)
+    body = RigidBody().double()
+    with torch.no_grad():
+        body.L_raw.copy_(torch.tensor([[1.0, 0, 0], [0.2, 0.7, 0], [-0.1, 0.3, 1.4]]))
+    w = torch.randn(5, 3, dtype=torch.float64)
+    wd = torch.randn(5, 3, dtype=torch.float64)
+    tau = torch.randn(5, 3, dtype=torch.float64)
+    got = body.residual(w, wd, tau).detach().numpy()
+    inertia = body.inertia().detach().numpy()
+    for i in range(5):
+        iw = [sum(inertia[r][c] * float(w[i, c]) for c in range(3)) for r in range(3)]
+        wx = [float(v) for v in w[i]]
+        cross = [wx[1] * iw[2] - wx[2] * iw[1], wx[2] * iw[0] - wx[0] * iw[2], wx[0] * iw[1] - wx[1] * iw[0]]
+        want = [sum(inertia[r][c] * float(wd[i, c]) for c in range(3)) + cross[r] - float(tau[i, r]) for r in range(3)]
+        np.testing.assert_allclose(got[i], want, atol=1e-12)
+    assert torch.autograd.gradcheck(lambda a, b, c: body.residual(a, b, c), (w.requires_grad_(), wd.requires_grad_(), tau.requires_grad_()))
+    assert torch.autograd.gradcheck(lambda w_, dt_: rk4_delta(w_, dt_), (torch.randn(4, 3, dtype=torch.float64, requires_grad=True), torch.full((4,), 0.04, dtype=torch.float64, requires_grad=True)))
+
+
+def _train_steps(cfg, loss_cfg, recs, steps, lr=3e-3, seed=0):
+    torch.manual_seed(seed)
+    bank = build_bank(recs, cfg, (1,), loss_cfg.gyro_pair_tokens)
+    m = TEPINN(cfg)
+    m.set_normalization(*input_statistics(m.features, bank, cfg))
+    loss = TEPINNLoss(loss_cfg, m.body)
+    opt = torch.optim.Adam([{"params": list(m.parameters())}, {"params": list(loss.parameters()), "lr": 2e-2}], lr=lr)
+    rng = np.random.default_rng(seed)
+    first = last = None
+    for _ in range(steps):
+        e = rng.choice(bank.ends[bank.prev_ok], 32)
+        b = make_batch(bank, e, cfg.window_tokens, cfg.correction_layer)
+        p = make_batch(bank, e - loss_cfg.gyro_pair_tokens, cfg.window_tokens, cfg.correction_layer)
+        both = {k: torch.cat([b[k], p[k]]) for k in ("gyr", "acc", "count", "t_rel", "dt", "mag")}
+        o = m(both["gyr"], both["acc"], both["count"], both["t_rel"], both["dt"], both["mag"])
+        total, logs = loss({k: v[:32] for k, v in o.items()}, b, {k: v[32:] for k, v in o.items()})
+        opt.zero_grad()
+        total.backward()
+        opt.step()
+        first = first if first is not None else float(logs["L_data"])
+        last = float(logs["L_data"])
+    return m, first, last
+
+
+def test_tiny_overfit_drives_loss_down_and_inertia_stays_positive_definite():
+    recs = [synthetic_record(seed=0, duration_s=10.0, rate_hz=100.0, max_rate_rad_s=2.0)]
+    m, first, last = _train_steps(SMALL, LossConfig(), recs, steps=80)
+    assert last < 0.3 * first, (first, last)
+    eig = torch.linalg.eigvalsh(m.body.inertia().detach())
+    assert torch.all(eig > 0)
+
+
+def test_checkpoint_round_trip_and_corrupt_files(tmp_path):
+    torch.manual_seed(0)
+    m = TEPINN(SMALL)
+    fusion = FusionConfig(process_noise_rad2_s=3e-4)
+    save_checkpoint(tmp_path / "m.pt", m, fusion, metrics={"x": 1.0})
+    m2, f2, ck = load_model(tmp_path / "m.pt")
+    assert f2 == fusion and ck["metrics"] == {"x": 1.0} and ck["model_config"]["window_tokens"] == 16
+    x = [t.float() for t in random_window(SMALL, dtype=torch.float32)]
+    m.eval()
+    torch.testing.assert_close(m(*x)["q"], m2(*x)["q"], rtol=0, atol=0)
+    raw = (tmp_path / "m.pt").read_bytes()
+    (tmp_path / "cut.pt").write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(CheckpointError, match="not a readable checkpoint"):
+        load_model(tmp_path / "cut.pt")
+    torch.save({"weights": torch.zeros(2)}, tmp_path / "foreign.pt")
+    with pytest.raises(CheckpointError, match="not a tepinn-flight checkpoint"):
+        load_model(tmp_path / "foreign.pt")
+    ck = torch.load(tmp_path / "m.pt", weights_only=True)
+    ck["version"] = 99
+    torch.save(ck, tmp_path / "future.pt")
+    with pytest.raises(CheckpointError, match="unknown checkpoint version 99"):
+        load_model(tmp_path / "future.pt")
+
+
+def test_fusion_tilt_update_moves_gravity_by_the_gain():
+    q = tuple(Q.quat_from_euler_zyx(0.2, -0.1, 1.0))
+    q_meas = tuple(Q.quat_from_euler_zyx(0.5, 0.3, 0.0))
+    full = tilt_toward(q, q_meas, 1.0)
+    np.testing.assert_allclose(Q.gravity_body(np.array(full)), Q.gravity_body(np.array(q_meas)), atol=1e-12)
+    half = tilt_toward(q, q_meas, 0.5)
+    a = tilt_angle(torch.tensor([q]), torch.tensor([q_meas])).item()
+    b = tilt_angle(torch.tensor([half]), torch.tensor([q_meas])).item()
+    assert abs(b - a / 2) < 1e-9
