@@ -120,10 +120,16 @@ class AttitudeFusion:
         self.t_est = None
 
     def step(self, t: float, w_rad_s, est=None):
-        """Advance to sample time ``t`` with gyro ``w``; ``est`` = (q_tilt, σ_rad, bias) when a
-        window estimate belongs to this sample. Returns (q or None, σ, bias)."""
+        """Advance to sample time ``t`` with gyro ``w`` and return (q or None, σ, bias) for it.
+
+        ``est`` = (q_tilt, σ_rad, bias) is a window estimate that ended at the *previous* sample
+        (a token is known to be complete only when the next sample arrives): it corrects the state
+        at that time, before the propagation to ``t``. Offline and live runs therefore agree.
+        """
         w = (float(w_rad_s[0]), float(w_rad_s[1]), float(w_rad_s[2]))
         c = self.c
+        if est is not None:
+            self._update(est)
         if self.q is not None and self.t is not None:
             dt = t - self.t
             if dt > 0:
@@ -132,39 +138,43 @@ class AttitudeFusion:
                              (w[0] - b[0], w[1] - b[1], w[2] - b[2]), dt)  # fmt: skip
                 self.P += c.process_noise_rad2_s * dt
         self.t, self.w = t, w
-        if est is not None:
-            q_m, sigma, b_m = est
-            r = (c.sigma_scale * sigma) ** 2
-            if self.q is None:
-                self.q, self.P = tuple(float(v) for v in q_m), r
-                self.bias = tuple(float(v) for v in b_m)
-            else:
-                gain = self.P / (self.P + r) if c.enabled else 1.0
-                self.q = tilt_toward(self.q, q_m, gain)
-                self.P = (1 - gain) * self.P
-                if c.enabled:
-                    a = min(1.0, max(0.0, t - self.t_est) / c.bias_time_constant_s)
-                    self.bias = tuple(self.bias[i] + a * (float(b_m[i]) - self.bias[i]) for i in range(3))
-                else:
-                    self.bias = tuple(float(v) for v in b_m)
-            self.t_est = t
         if self.q is None:
             return None, float("nan"), self.bias
         q = zero_yaw_np(self.q) if c.yaw == "zero" else self.q
         return q, math.sqrt(self.P), self.bias
 
+    def _update(self, est) -> None:
+        c = self.c
+        q_m, sigma, b_m = est
+        r = (c.sigma_scale * float(sigma)) ** 2
+        t = self.t
+        if self.q is None:
+            self.q, self.P = tuple(float(v) for v in q_m), r
+            self.bias = tuple(float(v) for v in b_m)
+        else:
+            gain = self.P / (self.P + r) if c.enabled else 1.0
+            self.q = tilt_toward(self.q, q_m, gain)
+            self.P = (1 - gain) * self.P
+            if c.enabled and self.t_est is not None:
+                a = min(1.0, max(0.0, t - self.t_est) / c.bias_time_constant_s)
+                self.bias = tuple(self.bias[i] + a * (float(b_m[i]) - self.bias[i]) for i in range(3))
+            elif not c.enabled:
+                self.bias = tuple(float(v) for v in b_m)
+        self.t_est = t
+
 
 def run_fusion(t_s, gyr, est_index, est_q, est_sigma, est_bias, config: FusionConfig):
-    """Offline pass over one segment. ``est_index[k]`` is the sample index of window estimate k.
+    """Offline pass over one segment. ``est_index[k]`` is the sample index of window estimate k
+    (the window's last sample); it is applied when the next sample arrives, as live.
 
-    Returns q (N, 4) with NaN before the first estimate, σ (N,), bias (N, 3).
+    Returns q (N, 4) with NaN until the sample after the first estimate, σ (N,), bias (N, 3).
     """
     n = len(t_s)
     q_out = np.full((n, 4), np.nan)
     s_out = np.full(n, np.nan)
     b_out = np.full((n, 3), np.nan)
     f = AttitudeFusion(config)
-    lookup = {int(i): k for k, i in enumerate(est_index)}
+    lookup = {int(i) + 1: k for k, i in enumerate(est_index)}
     for i in range(n):
         k = lookup.get(i)
         est = None if k is None else (est_q[k], float(est_sigma[k]), est_bias[k])

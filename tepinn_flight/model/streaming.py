@@ -1,0 +1,143 @@
+"""Live TE-PINN: push IMU samples one at a time, get an estimate for each (same math as offline).
+
+Tokens are accumulated exactly as :mod:`tepinn_flight.model.tokens` does offline; when a sample
+opens a new token, the finished token joins the window, the network runs on the window (once per
+token, 25 Hz by default) and the fusion is corrected at the finished token's last sample before
+propagating to the new one. A time reversal or a gap longer than 2.5 nominal periods starts a new
+segment (the state is reset; estimates resume when the next window is full).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .fusion import AttitudeFusion, FusionConfig
+from .network import TEPINN
+
+GAP_PERIODS = 2.5
+
+
+@dataclass
+class Estimate:
+    t_s: float  # time of the IMU sample this estimate belongs to
+    q_nb_wxyz: tuple | None  # None until the first window is full
+    sigma_rad: float
+    gyr_bias_rad_s: tuple
+    model_ran: bool  # the network ran on this sample (a token closed)
+    compute_s: float  # processing time of this push
+
+
+class _Token:
+    __slots__ = ("g", "a", "m", "m_n", "n", "t_last")
+
+    def __init__(self):
+        self.g = [0.0, 0.0, 0.0]
+        self.a = [0.0, 0.0, 0.0]
+        self.m = [0.0, 0.0, 0.0]
+        self.m_n = 0
+        self.n = 0
+        self.t_last = None
+
+
+class StreamingEstimator:
+    def __init__(self, model: TEPINN, fusion: FusionConfig | None = None, threads: int | None = 1):
+        self.model = model.eval()
+        self.cfg = model.config
+        self.fusion_cfg = fusion or FusionConfig()
+        self.delta = 1.0 / self.cfg.token_rate_hz
+        self.dtype = next(model.parameters()).dtype
+        if threads:
+            torch.set_num_threads(threads)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget everything (a new segment: reboot, time jump, dropout)."""
+        self.fusion = AttitudeFusion(self.fusion_cfg)
+        self.t0 = None
+        self.t_prev = None
+        self.period = None  # nominal sample period, running median of the first steps
+        self._dts: list[float] = []
+        self.k = 0
+        self.cur = _Token()
+        k = self.cfg.window_tokens
+        self.win = deque(maxlen=k)  # finished tokens: (t, g(3), a(3), m(3), count)
+        self.last_means = None
+
+    def _new_segment(self, t: float) -> bool:
+        if self.t_prev is None:
+            return True
+        dt = t - self.t_prev
+        if dt <= 0:
+            return True
+        if self.period is not None and dt > GAP_PERIODS * self.period:
+            return True
+        return False
+
+    def push(self, t_s: float, gyr_rad_s, acc_m_s2, mag_ut=None) -> Estimate:
+        t0c = time.perf_counter()
+        t = float(t_s)
+        if self._new_segment(t):
+            self.reset()
+            self.t0 = t
+        else:
+            dt = t - self.t_prev
+            if len(self._dts) < 51:
+                self._dts.append(dt)
+                self.period = float(np.median(self._dts))
+        k = 0 if t == self.t0 else int(math.ceil((t - self.t0) / self.delta - 1e-6))
+        est = None
+        ran = False
+        if k > self.k:
+            est = self._close_token()
+            ran = est is not None
+            for j in range(self.k + 1, k):  # empty tokens: hold the previous means (causal)
+                g, a, m = self.last_means
+                self.win.append((self.t0 + j * self.delta, g, a, m, 0.0))
+            self.k = k
+            self.cur = _Token()
+        tok = self.cur
+        for i in range(3):
+            tok.g[i] += float(gyr_rad_s[i])
+            tok.a[i] += float(acc_m_s2[i])
+        if mag_ut is not None and all(math.isfinite(float(v)) for v in mag_ut):
+            for i in range(3):
+                tok.m[i] += float(mag_ut[i])
+            tok.m_n += 1
+        tok.n += 1
+        tok.t_last = t
+        q, sigma, bias = self.fusion.step(t, gyr_rad_s, est)
+        self.t_prev = t
+        return Estimate(t, q, sigma, bias, ran, time.perf_counter() - t0c)
+
+    def _close_token(self):
+        tok = self.cur
+        if tok.n == 0:
+            return None
+        g = [v / tok.n for v in tok.g]
+        a = [v / tok.n for v in tok.a]
+        m = [v / tok.m_n for v in tok.m] if tok.m_n else [float("nan")] * 3
+        self.last_means = (g, a, m)
+        self.win.append((tok.t_last, g, a, m, float(tok.n)))
+        if len(self.win) < self.cfg.window_tokens:
+            return None
+        return self._run_model()
+
+    @torch.inference_mode()
+    def _run_model(self):
+        w = list(self.win)
+        t = np.array([x[0] for x in w])
+        g = torch.tensor([x[1] for x in w], dtype=self.dtype)[None]
+        a = torch.tensor([x[2] for x in w], dtype=self.dtype)[None]
+        m = torch.tensor(np.nan_to_num(np.array([x[3] for x in w])), dtype=self.dtype)[None]
+        n = torch.tensor([x[4] for x in w], dtype=self.dtype)[None]
+        t_rel = torch.tensor(t - t[-1], dtype=self.dtype)[None]
+        dt = torch.full_like(n, self.delta)
+        out = self.model(g, a, n, t_rel, dt, m)
+        sigma = float(out["sigma"][0]) if "sigma" in out else math.radians(2.0)
+        return (out["q"][0].double().tolist(), sigma, out["bias"][0].double().tolist())
