@@ -37,6 +37,8 @@ from .network import TEPINN
 @dataclass(frozen=True)
 class DataConfig:
     records: tuple[str, ...] = ()  # record files, folders or globs (relative to the config file)
+    campaign: str | None = None  # a simulation campaign TOML, flown into RUN_DIR/data (resumable)
+    campaign_workers: int = 0  # processes for the campaign (0: one per CPU)
     synthetic_flights: int = 0  # closed-form synthetic flights (tests, tiny runs)
     synthetic_duration_s: float = 20.0
     val_fraction: float = 0.2  # share of flights held out for validation (at least one)
@@ -92,9 +94,21 @@ def resolve_records(patterns, base: Path) -> list[Path]:
     return sorted(set(out))
 
 
-def load_records(cfg: TrainConfig, extra_dirs=(), base: Path = Path(".")) -> list[FlightRecord]:
+def load_records(cfg: TrainConfig, extra_dirs=(), base: Path = Path("."), run_dir: Path | None = None,
+                 progress: bool = True) -> list[FlightRecord]:  # fmt: skip
     recs: list[FlightRecord] = []
-    paths = resolve_records(list(cfg.data.records) + [str(d) for d in extra_dirs], base)
+    extra = [str(Path(d).resolve()) for d in extra_dirs]  # --data folders are relative to the cwd
+    if cfg.data.campaign:
+        from ..sim.campaign import run_campaign
+
+        camp = Path(cfg.data.campaign)
+        camp = camp if camp.is_absolute() else base / camp
+        data_dir = (run_dir or Path(".")) / "data"
+        res = run_campaign(camp, data_dir, workers=cfg.data.campaign_workers or None, progress=progress)
+        if res.failed:
+            raise TepinnError(f"{len(res.failed)} simulated flight(s) failed, e.g. {res.failed[0][0]}: {res.failed[0][1]}")
+        extra.append(str(data_dir.resolve()))
+    paths = resolve_records(list(cfg.data.records) + extra, base)
     for p in paths:
         recs.append(read_record(p))
     if cfg.data.synthetic_flights:
@@ -207,7 +221,11 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
 
-    records = load_records(cfg, data_dirs, config_base)
+    if world > 1 and rank != 0:
+        torch.distributed.barrier()  # rank 0 flies the campaign (if any) first
+    records = load_records(cfg, data_dirs, config_base, out, progress and rank == 0)
+    if world > 1 and rank == 0:
+        torch.distributed.barrier()
     tr_idx, va_idx = split_by_flight(len(records), cfg.data.val_fraction, cfg.seed)
     train_recs = [records[i] for i in tr_idx]
     val_recs = [records[i] for i in va_idx] or train_recs[:1]

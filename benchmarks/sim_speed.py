@@ -1,0 +1,155 @@
+"""Simulation speed: real-time factors of the JSBSim flights against JSBSim's bare ``run()`` loop.
+
+For each aircraft, measured in the same process, one core, at 400 Hz:
+
+* ceiling: JSBSim's own ``run()`` loop on the same aircraft and start condition, no Python I/O;
+* dynamics: ``fly()`` (our controller in the loop, truth logging, post-processing);
+* full chain: ``simulate_record()`` (dynamics + sensor model + record building), if present.
+
+Then campaign throughput: the same campaign with 1 and with 2 worker processes (the campaign
+runner ``run_campaign`` when it exists, else ``multiprocessing`` over ``fly``); a speed-up needs
+two idle cores.
+
+Usage: python benchmarks/sim_speed.py [--duration 60] [--aircraft c172x F450 agile_quad]
+The target is >= 100x real time at 400 Hz for the full chain on one core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import os
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+RATE_HZ = 400.0
+
+
+class Clock:
+    """Wall time and this process's CPU time (the machine may be shared: CPU time is the fair one)."""
+
+    def __enter__(self):
+        self.w0, self.c0 = time.perf_counter(), time.process_time()
+        return self
+
+    def __exit__(self, *exc):
+        self.wall = time.perf_counter() - self.w0
+        self.cpu = time.process_time() - self.c0
+
+
+def bare_rtf(aircraft: str, duration_s: float) -> tuple[float, float]:
+    """Real-time factor of JSBSim's run() alone from the same start condition as fly()."""
+    from tepinn_flight.sim.flight import AIRCRAFT, _site
+    from tepinn_flight.sim.jsbsim_env import open_fdm
+
+    vehicle = AIRCRAFT[aircraft].build()
+    rng = np.random.default_rng(0)
+    with open_fdm(vehicle.model, 1.0 / RATE_HZ, own_aircraft=vehicle.own_aircraft) as fdm:
+        ctl = vehicle.start(fdm, _site(rng), rng, 1.0 / RATE_HZ)
+        for _ in range(400):  # motors spun up / trimmed state, as in fly()'s warm-up
+            ctl.step()
+            fdm.run()
+        n = int(duration_s * RATE_HZ)
+        run = fdm.run
+        with Clock() as c:
+            for _ in range(n):
+                run()
+    return duration_s / c.wall, duration_s / c.cpu
+
+
+def fly_rtf(aircraft: str, duration_s: float, seed: int) -> tuple[float, float, str]:
+    from tepinn_flight.sim.flight import fly
+
+    with Clock() as c:
+        tr = fly(aircraft, duration_s, RATE_HZ, seed=seed)
+    sim_s = len(tr.t_s) / RATE_HZ
+    return sim_s / c.wall, sim_s / c.cpu, tr.meta["termination"]
+
+
+def chain_rtf(aircraft: str, duration_s: float, seed: int) -> tuple[float, float] | None:
+    try:
+        from tepinn_flight.record import write_record
+        from tepinn_flight.sim.simulate import simulate_record
+    except ImportError:
+        return None
+    with tempfile.TemporaryDirectory() as d:
+        with Clock() as c:  # dynamics + sensor model + record written to disk
+            rec = simulate_record(aircraft, duration_s, RATE_HZ, seed)
+            write_record(rec, os.path.join(d, "r.parquet"))
+    return duration_s / c.wall, duration_s / c.cpu
+
+
+def _fly_job(args):
+    aircraft, duration_s, seed = args
+    from tepinn_flight.sim.flight import fly
+
+    tr = fly(aircraft, duration_s, RATE_HZ, seed=seed)
+    return float(tr.q_nb_wxyz.sum())
+
+
+def campaign_speedup(aircraft: str, duration_s: float, n_flights: int) -> tuple[str, float, float, bool]:
+    """Serial against 2 workers: the campaign runner when it exists, else a Pool over fly()."""
+    try:
+        from tepinn_flight.sim.campaign import run_campaign
+    except ImportError:
+        run_campaign = None
+    if run_campaign is not None:
+        import pandas as pd
+
+        with tempfile.TemporaryDirectory() as d:
+            toml = os.path.join(d, "bench.toml")
+            with open(toml, "w") as fh:
+                fh.write(f'name = "bench"\nseed = 3\nduration_s = {duration_s}\nrate_hz = {RATE_HZ}\n'
+                         f'[[groups]]\naircraft = ["{aircraft}"]\nprofiles = [{{ name = "random" }}]\n'
+                         f'sensors = ["consumer"]\nturbulence = ["random"]\nrepeats = {n_flights}\n')
+            times = {}
+            for workers in (1, 2):
+                with Clock() as c:
+                    res = run_campaign(toml, os.path.join(d, f"w{workers}"), workers=workers, progress=False)
+                assert not res.failed, res.failed
+                times[workers] = c.wall
+            a = sorted(os.listdir(os.path.join(d, "w1")))
+            same = all(pd.read_parquet(os.path.join(d, "w1", f)).equals(pd.read_parquet(os.path.join(d, "w2", f)))
+                       for f in a if f.endswith(".parquet"))
+        return "run_campaign", times[1], times[2], same
+    jobs = [(aircraft, duration_s, 100 + i) for i in range(n_flights)]
+    with Clock() as c1:
+        serial = [_fly_job(j) for j in jobs]
+    ctx = mp.get_context("forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn")
+    with Clock() as c2:
+        with ctx.Pool(2) as pool:
+            par = pool.map(_fly_job, jobs)
+    return "Pool over fly()", c1.wall, c2.wall, serial == par
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--duration", type=float, default=60.0, help="simulated seconds per flight")
+    ap.add_argument("--aircraft", nargs="+", default=["c172x", "F450", "agile_quad"])
+    ap.add_argument("--campaign-flights", type=int, default=4)
+    args = ap.parse_args(argv)
+    print(f"cpu cores: {os.cpu_count()}, load average: {os.getloadavg()[0]:.2f}, rate {RATE_HZ:g} Hz, "
+          f"{args.duration:g} s flights")  # fmt: skip
+    print("real-time factors (simulated s per s), wall clock | CPU time of this process")
+    print(f"{'aircraft':11s} {'bare run() (ceiling)':>21s} {'fly() dynamics':>17s} {'ratio':>5s} "
+          f"{'full chain + record':>20s} {'ratio':>5s}  termination")  # fmt: skip
+    for ac in args.aircraft:
+        fly_rtf(ac, 2.0, 0)  # import / first-load costs out of the way
+        bw, bc = bare_rtf(ac, args.duration)
+        dw, dc, term = fly_rtf(ac, args.duration, 1)
+        chain = chain_rtf(ac, args.duration, 1)
+        chain_s = f"{chain[0]:8.0f}x |{chain[1]:6.0f}x {chain[1] / bc:6.2f}" if chain else f"{'n/a':>20s} {'':5s}"
+        print(f"{ac:11s} {bw:10.0f}x |{bc:6.0f}x {dw:7.0f}x |{dc:6.0f}x {dc / bc:5.2f} {chain_s}  {term}")
+    ac = args.aircraft[0]
+    how, t_s, t_p, same = campaign_speedup(ac, args.duration, args.campaign_flights)
+    print(f"campaign via {how} ({args.campaign_flights} x {args.duration:g} s {ac}, wall clock): "
+          f"1 worker {t_s:.2f} s, 2 workers {t_p:.2f} s, speed-up {t_s / t_p:.2f}x, "
+          f"identical records: {same}")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,361 @@
+"""Campaigns: many simulated flights (aircraft × maneuver profiles × sensors × turbulence × repeats).
+
+A campaign TOML (``flight_sims/campaigns/*.toml``, :class:`CampaignConfig`) lists groups of flights;
+each group is the full product of its lists. Flights are numbered in that order (groups, aircraft,
+profiles, sensors, turbulence, repeats) and flight ``i`` gets the seed
+``SeedSequence(campaign seed, spawn_key=(i,))`` (its first 32-bit word): the same flights and
+bits whatever the worker count or completion order.
+
+Output folder: one record per flight, named ``{i:04d}-{aircraft}-{profile}-{sensor}-{turbulence}
+-r{repeat}.parquet`` and written atomically, plus ``campaign.json`` (the resolved definition, its
+hash and the flight list). Re-running skips flights whose record exists, so a killed campaign
+continues where it stopped; a folder holding a *different* campaign is refused.
+
+Flights run in a pool of worker processes (``forkserver`` where available, else ``spawn``; never
+threads: JSBSim is not thread-safe), one JSBSim instance per process. Ctrl-C or SIGTERM terminates
+the workers at once; finished records stay, temporaries are removed by the next run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import multiprocessing
+import os
+import re
+import signal
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..config import check, from_dict, load_toml, to_dict
+from ..errors import ConfigError, TepinnError
+from ..record import atomic_write
+
+MANIFEST = "campaign.json"
+#: A worker process is replaced after this many flights (bounds any memory growth in JSBSim).
+MAX_TASKS_PER_WORKER = 20
+RANDOM = "random"  # turbulence drawn from the flight seed / maneuvers chained at random
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A named maneuver list, flown in order and cycled; empty: a random chain from the seed."""
+
+    name: str
+    maneuvers: tuple[str, ...] = ()
+
+    def __post_init__(self):
+        check(bool(re.fullmatch(r"[A-Za-z0-9_.]+", self.name)),
+              f"profile name {self.name!r} may only hold letters, digits, '_' and '.'")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class FlightGroup:
+    aircraft: tuple[str, ...]
+    profiles: tuple[Profile, ...] = (Profile(RANDOM),)
+    sensors: tuple[str, ...] = ("consumer",)  # preset names or TOML paths (relative to the campaign file)
+    sensor_set: tuple[str, ...] = ()  # key=value overrides applied to every sensor of the group
+    turbulence: tuple[str, ...] = (RANDOM,)
+    repeats: int = 1
+    duration_s: float | None = None  # default: the campaign's
+    rate_hz: float | None = None
+
+    def __post_init__(self):
+        for name in ("aircraft", "profiles", "sensors", "turbulence"):
+            check(len(getattr(self, name)) > 0, f"'{name}' must not be empty")
+        check(self.repeats >= 1, f"'repeats' must be >= 1, got {self.repeats}")
+        names = [p.name for p in self.profiles]
+        check(len(set(names)) == len(names), f"profile names repeat: {names}")
+
+
+@dataclass(frozen=True)
+class CampaignConfig:
+    name: str
+    seed: int
+    groups: tuple[FlightGroup, ...]
+    description: str = ""
+    duration_s: float = 60.0
+    rate_hz: float = 400.0
+
+    def __post_init__(self):
+        check(len(self.groups) > 0, "'groups' must not be empty")
+        check(self.seed >= 0, f"'seed' must be >= 0, got {self.seed}")
+        check(bool(re.fullmatch(r"[A-Za-z0-9_.-]+", self.name)), f"campaign name {self.name!r} is not a plain word")
+
+
+@dataclass(frozen=True)
+class FlightSpec:
+    index: int
+    aircraft: str
+    profile: str
+    maneuvers: tuple[str, ...] | None
+    sensor: str  # preset name or resolved TOML path
+    sensor_set: tuple[str, ...]
+    turbulence: str | None
+    repeat: int
+    duration_s: float
+    rate_hz: float
+    seed: int
+    file: str
+
+
+def flight_seed(campaign_seed: int, index: int) -> int:
+    """Seed of flight ``index``: SeedSequence(campaign_seed, spawn_key=(index,)), first uint32."""
+    ss = np.random.SeedSequence(int(campaign_seed), spawn_key=(int(index),))
+    return int(ss.generate_state(1, np.uint32)[0])
+
+
+def load_campaign(path: str | os.PathLike) -> CampaignConfig:
+    data = load_toml(path)
+    try:
+        return from_dict(CampaignConfig, data)
+    except ConfigError as exc:
+        raise ConfigError(exc.reason, path) from None
+
+
+def _word(s: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.]+", "_", s)
+
+
+def _sensor_ref(sensor: str, base: Path | None) -> str:
+    if sensor.endswith(".toml") or "/" in sensor or os.sep in sensor:
+        p = Path(sensor)
+        return str(p if p.is_absolute() or base is None else (base / p).resolve())
+    return sensor
+
+
+def expand(cfg: CampaignConfig, base: Path | None = None) -> list[FlightSpec]:
+    """All flights of the campaign, in index order (no validation of names)."""
+    out: list[FlightSpec] = []
+    for g in cfg.groups:
+        for ac in g.aircraft:
+            for prof in g.profiles:
+                for sensor in g.sensors:
+                    for turb in g.turbulence:
+                        for rep in range(g.repeats):
+                            i = len(out)
+                            ref = _sensor_ref(sensor, base)
+                            sname = Path(sensor).stem if ref != sensor else sensor
+                            out.append(FlightSpec(
+                                index=i, aircraft=ac, profile=prof.name,
+                                maneuvers=tuple(prof.maneuvers) or None, sensor=ref, sensor_set=tuple(g.sensor_set),
+                                turbulence=None if turb == RANDOM else turb, repeat=rep,
+                                duration_s=float(g.duration_s if g.duration_s is not None else cfg.duration_s),
+                                rate_hz=float(g.rate_hz if g.rate_hz is not None else cfg.rate_hz),
+                                seed=flight_seed(cfg.seed, i),
+                                file=f"{i:04d}-{_word(ac)}-{_word(prof.name)}-{_word(sname)}-{_word(turb)}-r{rep}.parquet",
+                            ))  # fmt: skip
+    return out
+
+
+def validate(cfg: CampaignConfig, flights: list[FlightSpec]) -> dict[str, dict]:
+    """Check every name before any work; returns the resolved sensor parameters per (sensor, overrides)."""
+    from . import flight as fl
+    from .sensors import load_sensor_config
+    from .simulate import check_flight_args
+
+    known_turb = set(getattr(fl, "TURBULENCE", {}))
+    resolved: dict[str, dict] = {}
+    checked: set = set()
+    for f in flights:
+        where = f"flight {f.index} ({f.file})"
+        key = (f.aircraft, f.maneuvers, f.turbulence, f.duration_s, f.rate_hz)
+        if key not in checked:
+            checked.add(key)
+            if f.aircraft not in fl.AIRCRAFT:
+                raise ConfigError(f"unknown aircraft {f.aircraft!r} (known: {', '.join(fl.AIRCRAFT)})")
+            if f.maneuvers:
+                names = fl.maneuver_names(f.aircraft)
+                bad = [m for m in f.maneuvers if m not in names]
+                if bad:
+                    raise ConfigError(f"unknown maneuver {bad[0]!r} for {f.aircraft} (known: {', '.join(names)})")
+            if f.turbulence is not None and known_turb and f.turbulence not in known_turb:
+                raise ConfigError(f"unknown turbulence {f.turbulence!r} (known: {RANDOM}, {', '.join(known_turb)})")
+            try:
+                check_flight_args(f.duration_s, f.rate_hz, f.seed)
+            except ConfigError as exc:
+                raise ConfigError(f"{where}: {exc.reason}") from None
+            lo, hi = getattr(fl, "MIN_RATE_HZ", 0.0), getattr(fl, "MAX_RATE_HZ", math.inf)
+            if not lo <= f.rate_hz <= hi:
+                raise ConfigError(f"rate must be within {lo:g}..{hi:g} Hz, got {f.rate_hz:g}")
+        skey = json.dumps([f.sensor, list(f.sensor_set)])
+        if skey not in resolved:
+            resolved[skey] = load_sensor_config(f.sensor, list(f.sensor_set)).to_dict()
+    return resolved
+
+
+# --------------------------------------------------------------------------- running
+
+
+@dataclass
+class CampaignResult:
+    total: int
+    computed: int = 0
+    skipped: int = 0
+    failed: list[tuple[str, str]] = field(default_factory=list)
+    wall_s: float = 0.0
+    flight_s: float = 0.0  # sum of per-flight times (CPU-side work)
+
+
+def _fly_one(spec: dict, out_dir: str) -> tuple[int, str | None, float, str]:
+    """Worker: simulate one flight and write its record atomically. Never raises."""
+    t0 = time.perf_counter()
+    try:
+        from ..record import write_record
+        from .simulate import simulate_record
+
+        rec = simulate_record(
+            spec["aircraft"], spec["duration_s"], spec["rate_hz"], spec["seed"], sensor=spec["sensor"],
+            sensor_overrides=list(spec["sensor_set"]),
+            maneuvers=list(spec["maneuvers"]) if spec["maneuvers"] else None, turbulence=spec["turbulence"],
+        )  # fmt: skip
+        rec.meta["campaign_flight"] = {k: spec[k] for k in ("index", "profile", "repeat", "file")}
+        write_record(rec, Path(out_dir) / spec["file"])
+        return spec["index"], None, time.perf_counter() - t0, str(rec.meta.get("termination"))
+    except TepinnError as exc:
+        return spec["index"], str(exc), time.perf_counter() - t0, "error"
+    except Exception as exc:  # a bug or a JSBSim failure: report it, keep the campaign going
+        first = (str(exc).strip().splitlines() or [""])[0]
+        return spec["index"], f"{type(exc).__name__}: {first}", time.perf_counter() - t0, "error"
+
+
+def _fly_one_packed(args):
+    return _fly_one(*args)
+
+
+def _worker_init() -> None:
+    """Workers ignore Ctrl-C: the main process handles it and terminates them."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@contextmanager
+def _terminate_on_sigterm():
+    """Turn SIGTERM into KeyboardInterrupt while the pool runs, so the workers get stopped too."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+def _mp_context():
+    methods = multiprocessing.get_all_start_methods()
+    ctx = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
+    if ctx.get_start_method() == "forkserver":
+        ctx.set_forkserver_preload(["tepinn_flight.sim.campaign", "tepinn_flight.sim.simulate"])
+    return ctx
+
+
+def _manifest(cfg: CampaignConfig, flights: list[FlightSpec], sensors: dict) -> dict:
+    definition = {"campaign": to_dict(cfg), "sensors_resolved": sensors,
+                  "flights": [[f.file, f.seed, f.sensor] for f in flights]}  # fmt: skip
+    digest = hashlib.sha256(json.dumps(definition, sort_keys=True, default=str).encode()).hexdigest()
+    return {
+        "name": cfg.name,
+        "description": cfg.description,
+        "seed": cfg.seed,
+        "definition_sha256": digest,
+        "definition": definition["campaign"],
+        "sensors_resolved": sensors,
+        "flights": [asdict(f) for f in flights],
+    }
+
+
+def _prepare_dir(out_dir: Path, manifest: dict) -> None:
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ConfigError("campaign output must be a folder", out_dir)
+    mpath = out_dir / MANIFEST
+    if mpath.exists():
+        try:
+            old = json.loads(mpath.read_text())
+        except (OSError, ValueError):
+            raise ConfigError(f"unreadable {MANIFEST}; delete it or use another folder", out_dir) from None
+        if old.get("definition_sha256") != manifest["definition_sha256"]:
+            raise ConfigError(
+                f"holds a different campaign ({old.get('name')!r}, other definition or sensor presets); "
+                "use another folder or delete it", out_dir,
+            )  # fmt: skip
+    elif out_dir.is_dir() and any(p.suffix == ".parquet" for p in out_dir.iterdir()):
+        raise ConfigError(f"holds records but no {MANIFEST}: not a campaign folder; use another folder", out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for tmp in out_dir.glob(".*.tmp"):  # left by a killed run (atomic_write's temporaries)
+        tmp.unlink(missing_ok=True)
+    text = json.dumps(manifest, indent=1, default=str)
+    atomic_write(mpath, lambda p: Path(p).write_text(text))
+
+
+def run_campaign(
+    path: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    workers: int | None = None,
+    progress: bool = True,
+    log=None,
+) -> CampaignResult:
+    """Run (or resume) the campaign at ``path`` into ``out_dir``; see the module doc."""
+    if workers is not None and workers < 1:
+        raise ConfigError(f"--workers must be >= 1, got {workers}")
+    path = Path(path)
+    cfg = load_campaign(path)
+    flights = expand(cfg, base=path.parent)
+    sensors = validate(cfg, flights)
+    out = Path(out_dir)
+    _prepare_dir(out, _manifest(cfg, flights, sensors))
+    pending = [f for f in flights if not (out / f.file).exists()]
+    res = CampaignResult(total=len(flights), skipped=len(flights) - len(pending))
+    n_workers = min(workers or os.cpu_count() or 1, max(len(pending), 1))
+    log = log or (lambda s: sys.stderr.write(s + "\n"))
+    t0 = time.perf_counter()
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(flights), initial=res.skipped, unit="flight", desc=cfg.name, file=sys.stderr,
+                   dynamic_ncols=True, leave=False)  # fmt: skip
+    by_index = {f.index: f for f in flights}
+
+    def done(index, err, secs, _termination):
+        res.flight_s += secs
+        if err is None:
+            res.computed += 1
+        else:
+            res.failed.append((by_index[index].file, err))
+            (bar.write if bar else log)(f"flight {by_index[index].file}: {err}")
+        if bar:
+            bar.update(1)
+
+    try:
+        specs = [(asdict(f), str(out)) for f in pending]
+        if n_workers == 1:
+            for s in specs:
+                done(*_fly_one(*s))
+        elif specs:
+            with _terminate_on_sigterm():
+                pool = _mp_context().Pool(n_workers, initializer=_worker_init, maxtasksperchild=MAX_TASKS_PER_WORKER)
+                try:
+                    for result in pool.imap_unordered(_fly_one_packed, specs):
+                        done(*result)
+                    pool.close()
+                except BaseException:
+                    pool.terminate()  # Ctrl-C / SIGTERM: stop the workers now; finished records stay
+                    raise
+                finally:
+                    pool.join()
+    finally:
+        if bar:
+            bar.close()
+        res.wall_s = time.perf_counter() - t0
+    return res

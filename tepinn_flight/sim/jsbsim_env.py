@@ -1,0 +1,103 @@
+"""JSBSim set-up in the order that works, silencing, and cached property access.
+
+The pitfalls handled here are the reproduced ones in ``/work/shared/notes/jsbsim.md``:
+``set_dt`` before ``load_model`` (P1), output files redirected to a private temporary folder and
+disabled (P8), every log message silenced with a C++ logger (P5; a C++ logger has no GIL issue, P6),
+and the rotational-position integrator switched to Buss' second-order method so the logged attitude
+is consistent with the logged body rates (see :func:`open_fdm`).
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Callable, Iterator
+
+from tepinn_flight.errors import ConfigError
+
+#: Our own aircraft definitions (``flight_sims/aircraft/<name>/<name>.xml``).
+AIRCRAFT_DIR = Path(__file__).resolve().parents[2] / "flight_sims" / "aircraft"
+
+FT_TO_M = 0.3048
+LBF_TO_N = 4.4482216152605
+SLUG_TO_KG = 14.59390293720636
+
+#: JSBSim integrator codes (FGPropagate::eIntegrateType).
+INTEGRATOR_BUSS2 = 7
+
+
+def jsbsim_module():
+    """Import jsbsim lazily so that reading records never needs it."""
+    try:
+        import jsbsim
+    except ImportError as exc:  # pragma: no cover - jsbsim is a dependency
+        raise ConfigError(f"the simulator needs the jsbsim package ({exc})") from exc
+    return jsbsim
+
+
+def jsbsim_version() -> str:
+    return str(jsbsim_module().__version__)
+
+
+def silence() -> None:
+    """Silence JSBSim in this thread (its logger is thread-local).
+
+    A C++ ``DefaultLogger`` at FATAL level drops every message (P5) and, unlike a Python
+    ``FGLogger`` subclass, cannot abort the process when several threads use JSBSim (P6).
+    """
+    jsbsim = jsbsim_module()
+    if hasattr(jsbsim, "set_logger"):  # jsbsim >= 1.3; older versions only honour set_debug_level
+        jsbsim.set_logger(jsbsim.DefaultLogger(jsbsim.LogLevel.FATAL))
+
+
+@contextmanager
+def open_fdm(model: str, dt_s: float, own_aircraft: bool = False) -> Iterator[object]:
+    """Yield a loaded, silent ``FGFDMExec`` stepping at ``dt_s``; clean up its output folder.
+
+    ``own_aircraft`` loads ``flight_sims/aircraft/<model>`` with the package's engines and
+    systems; otherwise the aircraft that ships with JSBSim.
+    """
+    jsbsim = jsbsim_module()
+    silence()
+    out_dir = tempfile.mkdtemp(prefix="tepinn-jsbsim-")
+    try:
+        fdm = jsbsim.FGFDMExec(None)
+        fdm.set_debug_level(0)
+        fdm.set_output_path(out_dir)  # P8: <output> files go here, never to the working folder
+        fdm.set_dt(dt_s)  # P1: before load_model
+        if own_aircraft:
+            root = Path(jsbsim.get_default_root_dir())
+            ok = fdm.load_model_with_paths(
+                model, str(AIRCRAFT_DIR), str(root / "engine"), str(root / "systems")
+            )
+        else:
+            ok = fdm.load_model(model)
+        if not ok:
+            raise ConfigError(f"JSBSim could not load aircraft {model!r}")
+        fdm.disable_output()
+        # Attitude integrated with Buss' augmented 2nd-order method: the quaternion advances with
+        # the mid-step rate w_k + dt/2 * wdot_k, i.e. exactly what linear interpolation of the
+        # logged rates between samples implies (the JSBSim default, rectangular Euler, lags
+        # by half a step: 0.75 deg of attitude error per 600 deg/s of rate change).
+        fdm["simulation/integrator/position/rotational"] = INTEGRATOR_BUSS2
+        yield fdm
+    finally:
+        shutil.rmtree(out_dir, ignore_errors=True)
+
+
+def getter(fdm, path: str) -> Callable[[], float]:
+    """Cached fast read of a property (about 50 ns against 70 ns for ``fdm[path]``)."""
+    node = fdm.get_property_manager().get_node(path)
+    if node is None:
+        raise ConfigError(f"JSBSim property {path!r} does not exist")
+    return node.get_double_value
+
+
+def setter(fdm, path: str, create: bool = False) -> Callable[[float], None]:
+    """Cached fast write of a property."""
+    node = fdm.get_property_manager().get_node(path, create)
+    if node is None:
+        raise ConfigError(f"JSBSim property {path!r} does not exist")
+    return node.set_double_value
