@@ -185,3 +185,16 @@ def test_low_rate_is_said_plainly():
     rec = build_record(_raw(np.arange(0, 60, 0.5)), "x")  # 2 Hz telemetry
     assert rec.meta["estimation_ok"] is False
     assert any("too slow" in n for n in rec.meta["notes"])
+
+
+def test_reference_nan_sample_is_a_hole_and_knots_are_exact():
+    """A single NaN reference sample is not interpolated over; samples at knots take the knot."""
+    t = np.arange(0, 1, 0.01)
+    qr = Q.quat_from_rotvec(np.stack([t, 0 * t, 0 * t], 1))
+    qr[50] = np.nan  # one dropout (e.g. optical markers lost)
+    rec = build_record(_raw(t, ref=RefStream(t, qr, "optitrack")), "x")
+    q = rec.q_ref_wxyz
+    assert np.isnan(q[50]).all()
+    ok = np.ones(len(t), bool)
+    ok[50] = False
+    np.testing.assert_allclose(q[ok], Q.quat_canonical(qr[ok]), atol=1e-12)  # 49 and 51 kept

@@ -32,19 +32,6 @@ def segments_from_time(t_s: np.ndarray, epoch: np.ndarray, period_s: float) -> n
     return np.concatenate([[0], np.cumsum(brk)]).astype(np.int32)
 
 
-def interp_gapped(t_query, t_knots, values, max_gap_s):
-    """Linear interpolation of ``(M, k)`` values; NaN outside the knots or across gaps > max_gap."""
-    out = np.full((len(t_query), values.shape[1]), np.nan)
-    if len(t_knots) < 2:
-        return out
-    inside = (t_query >= t_knots[0]) & (t_query <= t_knots[-1])
-    i = np.clip(np.searchsorted(t_knots, t_query, side="right") - 1, 0, len(t_knots) - 2)
-    ok = inside & ((t_knots[i + 1] - t_knots[i]) <= max_gap_s)
-    for k in range(values.shape[1]):
-        out[ok, k] = np.interp(t_query[ok], t_knots, values[:, k])
-    return out
-
-
 def _clean_knots(t, *vals):
     """Sort by time and drop repeated times (keep the first) for interpolation."""
     order = np.argsort(t, kind="stable")
@@ -53,30 +40,43 @@ def _clean_knots(t, *vals):
     return (t[keep], *[v[order][keep] for v in vals])
 
 
+def _covered(tq, tk, finite, max_gap):
+    """Queries a stream covers: exactly at a finite knot, or between two finite knots that are
+    neighbours in the stream (a NaN knot is a hole, not skipped) and at most ``max_gap`` apart."""
+    if len(tk) == 0:
+        return np.zeros(len(tq), bool)
+    j = np.clip(np.searchsorted(tk, tq, side="right") - 1, 0, len(tk) - 1)
+    exact = (tq == tk[j]) & finite[j]
+    j2 = np.minimum(j, len(tk) - 2) if len(tk) > 1 else j
+    nxt = np.minimum(j2 + 1, len(tk) - 1)
+    between = (tq > tk[j2]) & (tq < tk[nxt]) & finite[j2] & finite[nxt] & ((tk[nxt] - tk[j2]) <= max_gap)
+    return exact | between
+
+
 def _on_imu_times(t_imu, ep_imu, t_src, ep_src, values, period_src, quaternion):
-    """Put a secondary stream (reference or magnetometer) onto the IMU samples, epoch by epoch."""
+    """Put a secondary stream (reference or magnetometer) onto the IMU samples, epoch by epoch.
+
+    NaN outside the stream's span, across gaps longer than 2.5 of its periods and next to its own
+    NaN samples; values exactly at a stream sample are that sample.
+    """
     out = np.full((len(t_imu), values.shape[1]), np.nan)
-    max_gap = GAP_PERIODS * period_src if np.isfinite(period_src) else 0.0
+    max_gap = max(GAP_PERIODS * period_src if np.isfinite(period_src) else 0.0, 1e-9)
     for e in np.unique(ep_imu):
-        qi = ep_imu == e
+        qi = np.flatnonzero(ep_imu == e)
         si = ep_src == e
         if si.sum() == 0:
             continue
         tk, vk = _clean_knots(t_src[si], values[si])
         finite = np.all(np.isfinite(vk), axis=1)
-        tk, vk = tk[finite], vk[finite]
-        if len(tk) == 0:
+        if not finite.any():
             continue
         tq = t_imu[qi]
+        ok = _covered(tq, tk, finite, max_gap)
         if quaternion:
-            res = slerp(tq, tk, vk)
-            # NaN across reference gaps
-            if len(tk) > 1:
-                j = np.clip(np.searchsorted(tk, tq, side="right") - 1, 0, len(tk) - 2)
-                res[(tk[j + 1] - tk[j]) > max(max_gap, 1e-9)] = np.nan
-            out[qi] = res
+            res = slerp(tq[ok], tk[finite], vk[finite])
         else:
-            out[qi] = interp_gapped(tq, tk, vk, max(max_gap, 1e-9))
+            res = np.stack([np.interp(tq[ok], tk[finite], vk[finite][:, k]) for k in range(vk.shape[1])], 1)
+        out[qi[ok]] = res
     return out
 
 
