@@ -31,11 +31,7 @@ def run(args) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     cfg = load_train_config(args.config, args.set)
-    out = Path(args.output)
-    if (out / "last.pt").exists() and not args.resume:
-        from ..errors import TepinnError
-
-        raise TepinnError(f"{out} already holds a run (last.pt): use --resume to continue it or pick a new folder")
+    out = Path(args.output)  # train() refuses a folder holding a run (last.pt) without --resume
     train(cfg, out, data_dirs=args.data, resume=args.resume, config_base=Path(args.config).resolve().parent,
           progress=not args.quiet)  # fmt: skip
     return 0

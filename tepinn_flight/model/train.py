@@ -1,9 +1,19 @@
 """Training: strict TOML config, split by flight, adaptive physics-informed loss, early stopping,
 atomic checkpoints, ``--resume``, determinism for a seed, and DistributedDataParallel under
-``torchrun`` (gloo on CPU, nccl on GPUs).
+``torchrun`` (gloo: training runs on the CPU).
 
 The global batch is ``optim.batch_size`` windows; under DDP each of the N processes takes an
-equal share of the same globally-drawn windows, so N processes compute the same step as one.
+equal share of the same globally-drawn windows, so N processes compute the same step as one:
+every loss term is a mean over the share, DDP averages the gradients, and the mean of equal-share
+means is the global mean. Two details keep that exact (see :class:`TrainStep`): the adaptive
+loss weights are initialised from the *global* first batch (all-reduced), not from each rank's
+share, and ``L_bias`` (a mean over the windows with a known gyro bias only) is weighted by each
+rank's share of those windows (:func:`deal_to_ranks` deals them evenly, so this is rarely needed).
+
+Checkpoints are written at the end of every epoch (``last.pt``, atomically); ``--resume``
+continues from the last one, so a killed run redoes at most the epoch it was in and ends with the
+same weights as an uninterrupted run. ``optim.max_minutes`` is checked at epoch ends: the run stops
+when the next epoch would end past the limit (the limit counts from the start of this invocation).
 """
 
 from __future__ import annotations
@@ -25,12 +35,12 @@ from .. import __version__
 from ..config import from_dict, load_toml, to_dict
 from ..errors import ConfigError, TepinnError
 from ..record import FlightRecord, atomic_write, read_record
-from .checkpoint import read_checkpoint, save_checkpoint
+from .checkpoint import CheckpointError, read_checkpoint, save_checkpoint
 from .config import ModelConfig
 from .dataset import TokenBank, build_bank, input_statistics, make_batch
 from .estimate import estimate_record
 from .fusion import FusionConfig
-from .losses import LossConfig, TEPINNLoss, tilt_angle
+from .losses import TERMS, LossConfig, TEPINNLoss, tilt_angle
 from .network import TEPINN
 
 
@@ -84,9 +94,15 @@ def resolve_records(patterns, base: Path) -> list[Path]:
         p = Path(pat)
         p = p if p.is_absolute() else base / p
         if p.is_dir():
-            out += sorted(p.rglob("*.parquet"))
+            found = sorted(p.rglob("*.parquet"))
+            if not found:
+                raise ConfigError(f"no flight records (*.parquet) in training data folder {pat}")
+            out += found
         elif any(ch in str(pat) for ch in "*?["):
-            out += sorted(Path(p.anchor or ".").glob(str(p.relative_to(p.anchor))) if p.is_absolute() else base.glob(str(pat)))
+            found = sorted(Path(p.anchor).glob(str(p.relative_to(p.anchor))) if p.is_absolute() else base.glob(str(pat)))
+            if not found:
+                raise ConfigError(f"training data pattern matches nothing: {pat}")
+            out += found
         elif p.exists():
             out.append(p)
         else:
@@ -137,25 +153,89 @@ def dist_info() -> tuple[int, int]:
     return rank, ws
 
 
-class TrainStep(nn.Module):
-    """Model + loss in one module, so DDP synchronises the loss weights too."""
+def deal_to_ranks(ends: np.ndarray, has_bias: np.ndarray, rank: int, world: int) -> np.ndarray:
+    """This rank's equal share of the global batch ``ends``.
 
-    def __init__(self, model: TEPINN, loss: TEPINNLoss):
+    Windows with a known gyro bias are dealt round-robin first, so every share holds the same
+    number of them (±1 when their count is not a multiple of ``world``): ``L_bias`` is a mean over
+    those windows only, and equal counts make the mean of the ranks' means the global mean.
+    """
+    if world == 1:
+        return ends
+    order = np.argsort(~has_bias, kind="stable")
+    return ends[order][rank::world]
+
+
+class TrainStep(nn.Module):
+    """Model + loss in one module, so DDP synchronises the loss weights too.
+
+    With ``world`` > 1 processes (DDP averages their gradients) two corrections make the step
+    equal to one process on the global batch:
+
+    - the adaptive loss weights are initialised from the global batch: :class:`TEPINNLoss` starts
+      each weight at ``1/L_i`` of the first batch it sees, which on a rank is only its share.
+      Before such a first use, the ranks' ``L_i`` are all-reduced (``L_bias`` weighted by each
+      rank's count of bias windows) and every rank starts from the global value;
+    - ``L_bias`` is a mean over the windows with a known gyro bias only. When this rank holds
+      ``n`` of the global batch's ``N`` such windows and ``n·world ≠ N``, its bias term is scaled by
+      ``world·n/N`` (computed as the loss with minus the loss without the bias windows), so the
+      ranks' average is ``Σ S_r / N``. :func:`deal_to_ranks` makes this rare (odd ``N`` only).
+    """
+
+    def __init__(self, model: TEPINN, loss: TEPINNLoss, world: int = 1):
         super().__init__()
         self.model = model
         self.loss = loss
+        self.world = world
 
-    def forward(self, batch: dict, batch_prev: dict | None):
+    def forward(self, batch: dict, batch_prev: dict | None, n_bias_global: int | None = None):
         m = self.model
         if batch_prev is None:
-            out = m(batch["gyr"], batch["acc"], batch["count"], batch["t_rel"], batch["dt"], batch["mag"])
-            return self.loss(out, batch)
-        both = {k: torch.cat([batch[k], batch_prev[k]]) for k in ("gyr", "acc", "count", "t_rel", "dt", "mag")}
-        out = m(both["gyr"], both["acc"], both["count"], both["t_rel"], both["dt"], both["mag"])
-        b = len(batch["gyr"])
-        cur = {k: v[:b] for k, v in out.items()}
-        prev = {k: v[b:] for k, v in out.items()}
-        return self.loss(cur, batch, prev)
+            cur = m(batch["gyr"], batch["acc"], batch["count"], batch["t_rel"], batch["dt"], batch["mag"])
+            prev = None
+        else:
+            both = {k: torch.cat([batch[k], batch_prev[k]]) for k in ("gyr", "acc", "count", "t_rel", "dt", "mag")}
+            out = m(both["gyr"], both["acc"], both["count"], both["t_rel"], both["dt"], both["mag"])
+            b = len(batch["gyr"])
+            cur = {k: v[:b] for k, v in out.items()}
+            prev = {k: v[b:] for k, v in out.items()}
+        n_bias = int(batch["has_bias"].sum())
+        if self.world > 1 and self.loss.config.adaptive and not bool(self.loss.initialised.all()):
+            self._init_weights_globally(cur, batch, prev, n_bias)
+        total, logs = self.loss(cur, batch, prev)
+        if self.world > 1 and n_bias_global and n_bias * self.world != n_bias_global:
+            rest, _ = self.loss(cur, {**batch, "has_bias": torch.zeros_like(batch["has_bias"])}, prev)
+            total = rest + (self.world * n_bias / n_bias_global) * (total - rest)
+        return total, logs
+
+    @torch.no_grad()
+    def _init_weights_globally(self, cur: dict, batch: dict, prev: dict | None, n_bias: int) -> None:
+        # every rank gets here together: DDP broadcasts the `initialised` buffer before forward
+        before = self.loss.initialised.clone()
+        det = {k: v.detach() for k, v in cur.items()}
+        _, logs = self.loss(det, batch, None if prev is None else {k: v.detach() for k, v in prev.items()})
+        vals = torch.zeros(len(TERMS), dtype=torch.float64)
+        cnt = torch.zeros(len(TERMS), dtype=torch.float64)
+        for i, name in enumerate(TERMS):
+            if not before[i] and f"L_{name}" in logs:
+                w = float(n_bias) if name == "bias" else 1.0  # L_bias: a mean over n_bias windows
+                vals[i], cnt[i] = w * float(logs[f"L_{name}"]), w
+        torch.distributed.all_reduce(vals)
+        torch.distributed.all_reduce(cnt)
+        new = (cnt > 0) & ~before
+        lv = self.loss.log_vars
+        lv[new] = torch.log((vals[new] / cnt[new]).clamp_min(1e-8)).to(lv.dtype)
+        self.loss.initialised.copy_(before | new)
+
+
+def _mean_over_ranks(logs: dict[str, float]) -> dict[str, float]:
+    """Average each rank's epoch-mean training logs (a term may be missing on some ranks)."""
+    keys = ["tilt_rmse_deg", *(f"L_{t}" for t in TERMS), "L_nll"]
+    vals = torch.tensor([logs.get(k, 0.0) for k in keys], dtype=torch.float64)
+    cnt = torch.tensor([float(k in logs) for k in keys], dtype=torch.float64)
+    torch.distributed.all_reduce(vals)
+    torch.distributed.all_reduce(cnt)
+    return {**logs, **{k: float(v / c) for k, v, c in zip(keys, vals, cnt) if c > 0}}
 
 
 # ---------------------------------------------------------------------- evaluation
@@ -210,13 +290,30 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
 
 def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bool = False,
           config_base: Path = Path("."), progress: bool = True, log=print) -> dict:  # fmt: skip
-    """Train and write ``out_dir/{last.pt,best.pt,model.pt,metrics.jsonl,config.toml.json}``."""
+    """Train and write ``out_dir/{last.pt,best.pt,model.pt,metrics.jsonl,config.json}``.
+
+    Refuses a folder that already holds a run (``last.pt``) unless ``resume``. Returns the best
+    validation tilt RMSE, the number of epochs done and why the run stopped (``stop_reason``:
+    ``epochs``, ``early_stop`` or ``time_limit``) plus the fusion calibration metrics.
+    """
     rank, world = dist_info()
-    if world > 1 and not torch.distributed.is_initialized():
-        torch.distributed.init_process_group("nccl" if torch.cuda.is_available() else "gloo")
+    out = Path(out_dir)
+    if (out / "last.pt").exists() and not resume:
+        raise TepinnError(f"{out} already holds a run (last.pt): use --resume to continue it or pick a new folder")
     if cfg.optim.batch_size % world:
         raise ConfigError(f"optim.batch_size {cfg.optim.batch_size} is not divisible by {world} processes")
-    out = Path(out_dir)
+    own_group = world > 1 and not torch.distributed.is_initialized()
+    if own_group:
+        torch.distributed.init_process_group("gloo")  # the training loop keeps every tensor on the CPU
+    try:
+        return _train(cfg, out, data_dirs, resume, config_base, progress, log, rank, world)
+    finally:
+        if own_group and torch.distributed.is_initialized():
+            torch.distributed.destroy_process_group()
+
+
+def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Path, progress: bool, log,
+           rank: int, world: int) -> dict:  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
@@ -230,8 +327,14 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
     train_recs = [records[i] for i in tr_idx]
     val_recs = [records[i] for i in va_idx] or train_recs[:1]
     pair = cfg.loss.gyro_pair_tokens
-    bank = build_bank(train_recs, cfg.model, cfg.data.rate_factors, pair)
-    vbank = build_bank(val_recs, cfg.model, (1,), pair)
+    try:
+        bank = build_bank(train_recs, cfg.model, cfg.data.rate_factors, pair)
+    except ValueError as exc:
+        raise ConfigError(f"training flights: {exc}") from None
+    try:
+        vbank = build_bank(val_recs, cfg.model, (1,), pair)
+    except ValueError as exc:
+        raise ConfigError(f"validation flights: {exc}") from None
     val_ends = vbank.ends
     if len(val_ends) > cfg.data.max_val_windows:
         val_ends = np.sort(np.random.default_rng(cfg.seed + 1).choice(val_ends, cfg.data.max_val_windows, replace=False))
@@ -240,7 +343,7 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
     mean, std = input_statistics(model.features, bank, cfg.model, seed=cfg.seed)
     model.set_normalization(mean, std)
     loss_fn = TEPINNLoss(cfg.loss, model.body)
-    step_mod = TrainStep(model, loss_fn)
+    step_mod = TrainStep(model, loss_fn, world)
     groups = [
         {"params": model.network_parameters(), "lr": cfg.optim.lr, "weight_decay": cfg.optim.weight_decay},
         {"params": model.physics_parameters() + list(loss_fn.parameters()), "lr": cfg.optim.lr_physics, "weight_decay": 0.0},
@@ -250,15 +353,22 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
     history: list[dict] = []
     if resume and (out / "last.pt").exists():
         ck = read_checkpoint(out / "last.pt")
-        model.load_state_dict(ck["state_dict"])
-        loss_fn.load_state_dict(ck["loss_state"])
-        opt.load_state_dict(ck["optimizer"])
-        start_epoch, best_val, stale = ck["epoch"], ck["best_val"], ck["stale"]
-        rng = np.random.default_rng(cfg.seed)
-        rng.bit_generator.state = json.loads(ck["rng"])
-        torch.set_rng_state(ck["torch_rng"])
-        history = json.loads(ck.get("history", "[]"))
-        log(f"resumed from epoch {start_epoch} (best validation tilt RMSE {best_val:.3f}°)")
+        try:
+            model.load_state_dict(ck["state_dict"])
+            loss_fn.load_state_dict(ck["loss_state"])
+            opt.load_state_dict(ck["optimizer"])
+            start_epoch, best_val, stale = ck["epoch"], ck["best_val"], ck["stale"]
+            rng = np.random.default_rng(cfg.seed)
+            rng.bit_generator.state = json.loads(ck["rng"])
+            torch.set_rng_state(ck["torch_rng"])
+            history = json.loads(ck.get("history", "[]"))
+        except (KeyError, RuntimeError, ValueError, TypeError) as exc:
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
+            raise CheckpointError(f"cannot resume: checkpoint does not match this recipe ({first})", out / "last.pt") from None
+        if rank == 0:
+            log(f"resumed from epoch {start_epoch} (best validation tilt RMSE {best_val:.3f}°)")
+    elif resume and rank == 0:
+        log(f"nothing to resume in {out} (no last.pt): starting a new run")
     ddp = step_mod
     if world > 1:
         ddp = torch.nn.parallel.DistributedDataParallel(step_mod, find_unused_parameters=True)
@@ -272,6 +382,9 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
     }  # fmt: skip
     if rank == 0:
         atomic_write(out / "config.json", lambda tmp: Path(tmp).write_text(json.dumps(to_dict(cfg), indent=2)))
+        # epochs after the checkpoint (a killed run) are redone: drop their lines
+        lines = "".join(json.dumps(r) + "\n" for r in history)
+        atomic_write(out / "metrics.jsonl", lambda tmp: Path(tmp).write_text(lines))
         log(f"training on {len(train_recs)} flights ({len(bank)} windows), validating on {len(val_recs)} "
             f"flights ({len(val_ends)} windows), {world} process(es)")  # fmt: skip
 
@@ -283,17 +396,19 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
         bar = tqdm(total=cfg.optim.epochs * cfg.optim.steps_per_epoch, initial=start_epoch * cfg.optim.steps_per_epoch,
                    unit="step", file=sys.stderr, dynamic_ncols=True)  # fmt: skip
     B = cfg.optim.batch_size
-    share = B // world
+    stop_reason = "epochs"
     for epoch in range(start_epoch, cfg.optim.epochs):
+        t_epoch = time.monotonic()
         logs_acc: dict[str, float] = {}
         for step in range(cfg.optim.steps_per_epoch):
             use_pair = cfg.model.physics and pair > 0
             pool = bank.ends[bank.prev_ok] if use_pair and bank.prev_ok.any() else bank.ends
             ends = rng.choice(pool, size=B, replace=len(pool) < B)
-            mine = ends[rank * share : (rank + 1) * share]
+            has_bias = np.all(np.isfinite(bank.bias[ends]), axis=1)
+            mine = deal_to_ranks(ends, has_bias, rank, world)
             batch = make_batch(bank, mine, cfg.model.window_tokens, cfg.model.correction_layer)
             prev = make_batch(bank, mine - pair, cfg.model.window_tokens, cfg.model.correction_layer) if use_pair and bank.prev_ok.any() else None
-            total, logs = ddp(batch, prev)
+            total, logs = ddp(batch, prev, int(has_bias.sum()))
             opt.zero_grad(set_to_none=True)
             total.backward()
             torch.nn.utils.clip_grad_norm_(step_mod.parameters(), cfg.optim.grad_clip)
@@ -303,7 +418,9 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
             if bar:
                 bar.update(1)
                 if step % 10 == 0:
-                    bar.set_postfix(loss=f"{float(total):.3g}", tilt=f"{float(logs['tilt_rmse_deg']):.2f}°")
+                    bar.set_postfix(loss=f"{float(total.detach()):.3g}", tilt=f"{float(logs['tilt_rmse_deg']):.2f}°")
+        if world > 1:
+            logs_acc = _mean_over_ranks(logs_acc)
         val = validate(model, vbank, val_ends, cfg)
         elapsed = time.monotonic() - t_start
         rec = {"epoch": epoch + 1, **{k: round(v, 6) for k, v in logs_acc.items()}, **val,
@@ -315,8 +432,6 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
         else:
             stale += 1
         if rank == 0:
-            with open(out / "metrics.jsonl", "a") as f:
-                f.write(json.dumps(rec) + "\n")
             common = {"training": summary, "metrics": rec, "tepinn_flight_version": __version__}
             if improved:
                 save_checkpoint(out / "best.pt", model, cfg.fusion, **common)
@@ -326,19 +441,31 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
                 rng=json.dumps(rng.bit_generator.state), torch_rng=torch.get_rng_state(),
                 history=json.dumps(history),
             )  # fmt: skip
+            with open(out / "metrics.jsonl", "a") as f:  # after last.pt: never an epoch that is not saved
+                f.write(json.dumps(rec) + "\n")
             msg = f"epoch {epoch + 1}: train tilt {logs_acc.get('tilt_rmse_deg', float('nan')):.2f}°, val tilt {val['val_tilt_rmse_deg']:.2f}°"
             (bar.write(msg) if bar else log(msg))
-        if stale >= cfg.optim.early_stop_patience:
+        if stale >= cfg.optim.early_stop_patience:  # the same on every rank (same weights, same data)
             if rank == 0:
                 log(f"early stop: no validation improvement for {stale} epochs")
+            stop_reason = "early_stop"
             break
-        if cfg.optim.max_minutes and elapsed > 60 * cfg.optim.max_minutes:
+        # time limit: stop when the next epoch (as long as this one) would end past it; rank 0's
+        # clock decides for everyone, or the ranks could part ways and hang in an all-reduce
+        next_end = elapsed + (time.monotonic() - t_epoch)
+        out_of_time = bool(cfg.optim.max_minutes) and next_end > 60 * cfg.optim.max_minutes
+        if world > 1:
+            flag = torch.tensor([int(out_of_time)])
+            torch.distributed.broadcast(flag, 0)
+            out_of_time = bool(flag.item())
+        if out_of_time and epoch + 1 < cfg.optim.epochs:
             if rank == 0:
                 log(f"stopping at the time limit ({cfg.optim.max_minutes} min)")
+            stop_reason = "time_limit"
             break
     if bar:
         bar.close()
-    result = {"best_val_tilt_rmse_deg": best_val, "epochs": len(history)}
+    result = {"best_val_tilt_rmse_deg": best_val, "epochs": len(history), "stop_reason": stop_reason}
     if rank == 0:
         from .checkpoint import load_model
 
