@@ -49,7 +49,7 @@ class ModelConfig:
     @property
     def n_inputs(self) -> int:
         """Channels per token given to the encoder."""
-        n = 6 + 1  # ω, a, log sample count
+        n = 6 + 2  # ω, a, log sample count, clipped fraction
         if self.physics:
             n += 3  # corrected specific force rotated into the window's first body frame (RK4)
         if self.use_mag:

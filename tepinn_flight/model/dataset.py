@@ -29,6 +29,7 @@ class TokenBank:
     acc: np.ndarray  # (T, 3)
     mag: np.ndarray  # (T, 3)
     count: np.ndarray  # (T,)
+    clip: np.ndarray  # (T,) clipped fraction
     t_s: np.ndarray  # (T,)
     dt_s: np.ndarray  # (T,)
     q_ref: np.ndarray  # (T, 4) at each token's last sample (NaN: no target)
@@ -45,7 +46,7 @@ def build_bank(records: list[FlightRecord], model: ModelConfig, rate_factors=(1,
                max_rate_hz: float | None = None) -> TokenBank:  # fmt: skip
     """Tokenize ``records`` at each decimation factor in ``rate_factors`` (a factor that would
     bring the IMU below 20 Hz is skipped); ``max_rate_hz`` first decimates very fast records."""
-    cols = {k: [] for k in ("gyr", "acc", "mag", "count", "t_s", "dt_s", "q_ref", "bias")}
+    cols = {k: [] for k in ("gyr", "acc", "mag", "count", "clip", "t_s", "dt_s", "q_ref", "bias")}
     ends, prev_ok, rec_of = [], [], []
     offset = 0
     k = model.window_tokens
@@ -57,7 +58,8 @@ def build_bank(records: list[FlightRecord], model: ModelConfig, rate_factors=(1,
             "gyr": rec.gyr_rad_s, "acc": rec.acc_m_s2, "mag": rec.mag_ut,
             "q_ref": rec.q_ref_wxyz,
             "bias": rec.data[GYR_BIAS_COLS].to_numpy(float) if GYR_BIAS_COLS[0] in rec.data else np.full((len(rec), 3), np.nan),
-            "valid": rec.valid & ~rec.clipped,
+            "valid": rec.valid,
+            "clipped": rec.clipped,
         }  # fmt: skip
         for f in rate_factors:
             if rate / f < 20.0:
@@ -67,7 +69,7 @@ def build_bank(records: list[FlightRecord], model: ModelConfig, rate_factors=(1,
                 t, seg, arr, _ = decimate(rec.t_s, rec.segment, base, int(f))
             if len(t) == 0:
                 continue
-            tok = tokenize(t, seg, arr["gyr"], arr["acc"], arr["mag"], model.token_rate_hz)
+            tok = tokenize(t, seg, arr["gyr"], arr["acc"], arr["mag"], model.token_rate_hz, arr["clipped"])
             li = tok.last_index
             has = li >= 0
             q = np.full((len(tok), 4), np.nan)
@@ -82,7 +84,7 @@ def build_bank(records: list[FlightRecord], model: ModelConfig, rate_factors=(1,
             # the pair window (n tokens earlier) must also be full and inside the same segment
             seg_start = np.repeat(tok.segment_start, tok.segment_len)
             p_ok = (e - gyro_pair_tokens - (k - 1)) >= seg_start[e]
-            for name, v in (("gyr", tok.gyr), ("acc", tok.acc), ("mag", tok.mag), ("count", tok.count),
+            for name, v in (("gyr", tok.gyr), ("acc", tok.acc), ("mag", tok.mag), ("count", tok.count), ("clip", tok.clip),
                             ("t_s", tok.t_s), ("dt_s", tok.dt_s), ("q_ref", q), ("bias", b)):  # fmt: skip
                 cols[name].append(v)
             ends.append(e + offset)
@@ -109,6 +111,7 @@ def make_batch(bank: TokenBank, ends: np.ndarray, window_tokens: int, correction
         "acc": torch.as_tensor(bank.acc[idx], dtype=dtype),
         "mag": torch.as_tensor(np.nan_to_num(bank.mag[idx]), dtype=dtype),
         "count": torch.as_tensor(bank.count[idx], dtype=dtype),
+        "clip": torch.as_tensor(bank.clip[idx], dtype=dtype),
         "t_rel": torch.as_tensor(t - t[:, -1:], dtype=dtype),
         "dt": torch.as_tensor(bank.dt_s[idx], dtype=dtype),
         "q_ref": torch.as_tensor(q_ref, dtype=dtype),
@@ -127,6 +130,6 @@ def input_statistics(model_cls_features, bank: TokenBank, config: ModelConfig, n
     ends = rng.choice(bank.ends, size=min(n, len(bank.ends)), replace=False)
     b = make_batch(bank, ends, config.window_tokens, config.correction_layer)
     with torch.no_grad():
-        x = model_cls_features(b["gyr"], b["acc"], b["count"], b["mag"], b["dt"])[0]
+        x = model_cls_features(b["gyr"], b["acc"], b["count"], b["mag"], b["dt"], b["clip"])[0]
     x = x.reshape(-1, x.shape[-1])
     return x.mean(0), x.std(0)

@@ -38,6 +38,7 @@ def window_estimates(model: TEPINN, rec: FlightRecord, batch_size: int = 256):
             torch.as_tensor(gyr[idx], dtype=dtype), torch.as_tensor(acc[idx], dtype=dtype),
             torch.as_tensor(tok.count[idx], dtype=dtype), torch.as_tensor(t - t[:, -1:], dtype=dtype),
             torch.as_tensor(tok.dt_s[idx], dtype=dtype), torch.as_tensor(mag[idx], dtype=dtype),
+            torch.as_tensor(tok.clip[idx], dtype=dtype),
         )  # fmt: skip
         qs.append(out["q"].double().numpy())
         ss.append(out["sigma"].double().numpy() if "sigma" in out else np.full(len(e), np.radians(2.0)))
@@ -60,10 +61,11 @@ def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | Non
     seg = rec.segment
     t = rec.t_s
     gyr = rec.gyr_rad_s
+    clipped = rec.clipped
     bounds = np.flatnonzero(np.diff(seg)) + 1
     for a, b in zip(np.r_[0, bounds], np.r_[bounds, n]):
         m = (idx >= a) & (idx < b)
-        qo, so, bo = run_fusion(t[a:b], gyr[a:b], idx[m] - a, q[m], sigma[m], bias[m], fusion)
+        qo, so, bo = run_fusion(t[a:b], gyr[a:b], idx[m] - a, q[m], sigma[m], bias[m], fusion, clipped[a:b])
         q_out[a:b], s_out[a:b], b_out[a:b] = qo, so, bo
     df = pd.DataFrame({"t_s": t})
     for i, c in enumerate(EST_Q_COLS):

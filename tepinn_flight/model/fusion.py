@@ -24,6 +24,7 @@ class FusionConfig:
     process_noise_rad2_s: float = 1e-4  # tilt variance growth of the propagation (gyro noise + bias)
     bias_time_constant_s: float = 10.0  # low-pass of the network's per-window bias estimates
     sigma_scale: float = 1.0  # calibration factor applied to the network's σ
+    clip_inflation_rad: float = 0.35  # a saturated gyro/accel sample adds this σ to the propagation
     yaw: str = "gyro"  # "gyro": heading from gyro integration; "zero": yaw := 0 on the output
 
 
@@ -119,7 +120,7 @@ class AttitudeFusion:
         self.w = None
         self.t_est = None
 
-    def step(self, t: float, w_rad_s, est=None):
+    def step(self, t: float, w_rad_s, est=None, clipped: bool = False):
         """Advance to sample time ``t`` with gyro ``w`` and return (q or None, σ, bias) for it.
 
         ``est`` = (q_tilt, σ_rad, bias) is a window estimate that ended at the *previous* sample
@@ -137,6 +138,8 @@ class AttitudeFusion:
                 self.q = rk4(self.q, (self.w[0] - b[0], self.w[1] - b[1], self.w[2] - b[2]),
                              (w[0] - b[0], w[1] - b[1], w[2] - b[2]), dt)  # fmt: skip
                 self.P += c.process_noise_rad2_s * dt
+                if clipped:  # a saturated sensor: the propagated attitude is no longer trusted
+                    self.P += c.clip_inflation_rad**2
         self.t, self.w = t, w
         if self.q is None:
             return None, float("nan"), self.bias
@@ -163,7 +166,7 @@ class AttitudeFusion:
         self.t_est = t
 
 
-def run_fusion(t_s, gyr, est_index, est_q, est_sigma, est_bias, config: FusionConfig):
+def run_fusion(t_s, gyr, est_index, est_q, est_sigma, est_bias, config: FusionConfig, clipped=None):
     """Offline pass over one segment. ``est_index[k]`` is the sample index of window estimate k
     (the window's last sample); it is applied when the next sample arrives, as live.
 
@@ -178,7 +181,7 @@ def run_fusion(t_s, gyr, est_index, est_q, est_sigma, est_bias, config: FusionCo
     for i in range(n):
         k = lookup.get(i)
         est = None if k is None else (est_q[k], float(est_sigma[k]), est_bias[k])
-        q, s, b = f.step(float(t_s[i]), gyr[i], est)
+        q, s, b = f.step(float(t_s[i]), gyr[i], est, bool(clipped[i]) if clipped is not None else False)
         if q is not None:
             q_out[i] = q
             s_out[i] = s

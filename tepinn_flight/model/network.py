@@ -6,11 +6,15 @@ Forward pass for one window of K tokens ending at time t_K (B batch, K tokens, d
 2. RK4 kinematics   R_{K←j}: rotation body(t_j) → body(t_K) from ω_c (log-depth prefix products
                     of per-token RK4 steps); v_j = R_{K←j^mid} a_c,j is each token's specific
                     force seen in the *current* body frame. Unaccelerated, every v_j = −g_body(t_K).
-3. tokens           x_j = [ω_c, a_c/g, log n, v_j/g (, mag)] → Linear + PE(t_j − t_K, seconds)
+3. tokens           x_j = [ω_c, a_c/g, log n, clipped fraction, v_j/g (, mag)]
+                    → Linear + PE(t_j − t_K, seconds)
 4. encoder          L post-LayerNorm transformer layers (multi-head self-attention + feed-forward)
 5. heads            last token → quaternion (normalised), σ (rad), gyro bias b̂ (rad/s), and a
                     torque τ per token for the rigid-body loss
-6. correction       yaw := 0 (the paper's attitude correction layer; the 6-D estimate is tilt)
+6. output           physics on: the quaternion head is a correction δq of the physics baseline
+                    q_base (the tilt whose gravity is the window-mean of v_j, i.e. a boxcar
+                    complementary filter): q = q_base ⊗ δq; physics off: q = head output
+7. correction       yaw := 0 (the paper's attitude correction layer; the 6-D estimate is tilt)
 
 A window holds only samples up to t_K, so the estimate at t_K uses nothing after it (causal).
 """
@@ -38,9 +42,14 @@ def zero_yaw(q: torch.Tensor) -> torch.Tensor:
     q → (φ, θ, ψ) → (φ, θ, 0) → q, but with bounded gradients at ±90° pitch).
     """
     w, x, y, z = q.unbind(-1)
-    gx = 2 * (x * z - w * y)  # R_nbᵀ e_z = (−sinθ, sinφ cosθ, cosφ cosθ)
-    gy = 2 * (y * z + w * x)
-    gz = 1 - 2 * (x * x + y * y)
+    # R_nbᵀ e_z = (−sinθ, sinφ cosθ, cosφ cosθ)
+    g = torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], dim=-1)
+    return gravity_tilt(g)
+
+
+def gravity_tilt(g_body: torch.Tensor) -> torch.Tensor:
+    """Zero-yaw attitude whose gravity direction in body axes is ``g_body`` (any length)."""
+    gx, gy, gz = g_body.unbind(-1)
     roll = torch.atan2(gy, gz)
     pitch = torch.atan2(-gx, torch.sqrt(gy * gy + gz * gz + 1e-12))
     return quat_from_euler_zyx(roll, pitch, torch.zeros_like(roll))
@@ -142,7 +151,7 @@ class TEPINN(nn.Module):
         p_mid = torch.cat([p_end[:, :1], quat_mul(p_end[:, :-1], half)], dim=1)
         return p_end, p_mid
 
-    def features(self, gyr, acc, count, mag=None, dt=None):
+    def features(self, gyr, acc, count, mag=None, dt=None, clip=None):
         """Token inputs (B, K, n_inputs) before normalisation, plus corrected gyro and accel."""
         c = self.config
         if c.physics:
@@ -150,7 +159,8 @@ class TEPINN(nn.Module):
             a_c = self.sensor.accel(acc)
         else:
             w_c, a_c = gyr, acc
-        parts = [w_c, a_c / GRAVITY_M_S2, torch.log1p(count)[..., None]]
+        clip = torch.zeros_like(count) if clip is None else clip
+        parts = [w_c, a_c / GRAVITY_M_S2, torch.log1p(count)[..., None], clip[..., None]]
         v = None
         if c.physics:
             p_end, p_mid = self.frames(w_c, dt)
@@ -163,17 +173,17 @@ class TEPINN(nn.Module):
 
     # ------------------------------------------------------------------ forward
 
-    def forward(self, gyr, acc, count, t_rel, dt, mag=None) -> dict[str, torch.Tensor]:
+    def forward(self, gyr, acc, count, t_rel, dt, mag=None, clip=None) -> dict[str, torch.Tensor]:
         """``gyr``/``acc`` (B, K, 3) token means in rad/s and m/s², ``count`` (B, K) samples per
         token, ``t_rel`` (B, K) seconds relative to the last token (≤ 0), ``dt`` (B, K) token
-        durations in s, ``mag`` (B, K, 3) µT (9-D mode).
+        durations in s, ``mag`` (B, K, 3) µT (9-D mode), ``clip`` (B, K) clipped fraction.
 
         Returns the window's estimate for t_K: ``q`` (B, 4) body→NED, ``sigma`` (B,) rad,
         ``bias`` (B, 3) rad/s, ``f_mean`` (B, 3) the window's mean specific force in body(t_K)
         (physics on); and per token ``torque`` (B, K, 3), ``w_c``, ``a_c`` (B, K, 3).
         """
         c = self.config
-        x, w_c, a_c, v = self.features(gyr, acc, count, mag, dt)
+        x, w_c, a_c, v = self.features(gyr, acc, count, mag, dt, clip)
         h = self.inp((x - self.in_mean) / self.in_std) + self.pe(t_rel)  # (B, K, d)
         if c.encoder == "lstm":
             h, _ = self.encoder(h)
@@ -181,6 +191,8 @@ class TEPINN(nn.Module):
             h = self.encoder(h)  # transformer: full attention inside the window (it ends at t_K)
         last = h[:, -1]  # (B, d)
         q = quat_normalize(self.head_q(last))  # (B, 4)
+        if v is not None:
+            q = quat_mul(gravity_tilt(-v.mean(dim=1)), q)  # correction of the physics baseline
         if c.correction_layer:
             q = zero_yaw(q)
         out = {

@@ -34,7 +34,7 @@ class Estimate:
 
 
 class _Token:
-    __slots__ = ("g", "a", "m", "m_n", "n", "t_last")
+    __slots__ = ("g", "a", "m", "m_n", "n", "t_last", "clip")
 
     def __init__(self):
         self.g = [0.0, 0.0, 0.0]
@@ -43,6 +43,7 @@ class _Token:
         self.m_n = 0
         self.n = 0
         self.t_last = None
+        self.clip = 0
 
 
 class StreamingEstimator:
@@ -79,7 +80,7 @@ class StreamingEstimator:
             return True
         return False
 
-    def push(self, t_s: float, gyr_rad_s, acc_m_s2, mag_ut=None) -> Estimate:
+    def push(self, t_s: float, gyr_rad_s, acc_m_s2, mag_ut=None, clipped: bool = False) -> Estimate:
         t0c = time.perf_counter()
         t = float(t_s)
         if self._new_segment(t):
@@ -97,8 +98,8 @@ class StreamingEstimator:
             est = self._close_token()
             ran = est is not None
             for j in range(self.k + 1, k):  # empty tokens: hold the previous means (causal)
-                g, a, m = self.last_means
-                self.win.append((self.t0 + j * self.delta, g, a, m, 0.0))
+                g, a, m, cl = self.last_means
+                self.win.append((self.t0 + j * self.delta, g, a, m, 0.0, cl))
             self.k = k
             self.cur = _Token()
         tok = self.cur
@@ -110,8 +111,9 @@ class StreamingEstimator:
                 tok.m[i] += float(mag_ut[i])
             tok.m_n += 1
         tok.n += 1
+        tok.clip += bool(clipped)
         tok.t_last = t
-        q, sigma, bias = self.fusion.step(t, gyr_rad_s, est)
+        q, sigma, bias = self.fusion.step(t, gyr_rad_s, est, bool(clipped))
         self.t_prev = t
         return Estimate(t, q, sigma, bias, ran, time.perf_counter() - t0c)
 
@@ -122,8 +124,9 @@ class StreamingEstimator:
         g = [v / tok.n for v in tok.g]
         a = [v / tok.n for v in tok.a]
         m = [v / tok.m_n for v in tok.m] if tok.m_n else [float("nan")] * 3
-        self.last_means = (g, a, m)
-        self.win.append((tok.t_last, g, a, m, float(tok.n)))
+        cl = tok.clip / tok.n
+        self.last_means = (g, a, m, cl)
+        self.win.append((tok.t_last, g, a, m, float(tok.n), cl))
         if len(self.win) < self.cfg.window_tokens:
             return None
         return self._run_model()
@@ -136,8 +139,9 @@ class StreamingEstimator:
         a = torch.tensor([x[2] for x in w], dtype=self.dtype)[None]
         m = torch.tensor(np.nan_to_num(np.array([x[3] for x in w])), dtype=self.dtype)[None]
         n = torch.tensor([x[4] for x in w], dtype=self.dtype)[None]
+        cl = torch.tensor([x[5] for x in w], dtype=self.dtype)[None]
         t_rel = torch.tensor(t - t[-1], dtype=self.dtype)[None]
         dt = torch.full_like(n, self.delta)
-        out = self.model(g, a, n, t_rel, dt, m)
+        out = self.model(g, a, n, t_rel, dt, m, cl)
         sigma = float(out["sigma"][0]) if "sigma" in out else math.radians(2.0)
         return (out["q"][0].double().tolist(), sigma, out["bias"][0].double().tolist())

@@ -27,6 +27,7 @@ class Tokens:
     acc: np.ndarray  # (T, 3) mean m/s²
     mag: np.ndarray  # (T, 3) mean µT (NaN where none)
     count: np.ndarray  # (T,) samples in the token
+    clip: np.ndarray  # (T,) fraction of the token's samples with a sensor axis at its range limit
     last_index: np.ndarray  # (T,) index into the record of the token's last sample (-1 if empty)
     segment_start: np.ndarray  # (S,) first token of each segment
     segment_len: np.ndarray  # (S,)
@@ -51,20 +52,22 @@ def tokenize(
     acc: np.ndarray,
     mag: np.ndarray | None,
     token_rate_hz: float,
+    clipped: np.ndarray | None = None,
 ) -> Tokens:
     """Tokens for arrays of samples (see module doc)."""
     delta = 1.0 / token_rate_hz
     n = len(t_s)
     if mag is None:
         mag = np.full((n, 3), np.nan)
+    clip = np.zeros((n, 1)) if clipped is None else np.asarray(clipped, float).reshape(n, 1)
     parts = []
     seg_ids, seg_first = np.unique(segment, return_index=True)
     bounds = list(seg_first) + [n]
     for a, b in zip(bounds[:-1], bounds[1:]):
-        parts.append(_tokenize_segment(t_s[a:b], gyr[a:b], acc[a:b], mag[a:b], delta, a))
+        parts.append(_tokenize_segment(t_s[a:b], gyr[a:b], acc[a:b], mag[a:b], clip[a:b], delta, a))
     if not parts:
         z3 = np.zeros((0, 3))
-        return Tokens(np.zeros(0), np.zeros(0), z3, z3, z3, np.zeros(0), np.zeros(0, np.int64),
+        return Tokens(np.zeros(0), np.zeros(0), z3, z3, z3, np.zeros(0), np.zeros(0), np.zeros(0, np.int64),
                       np.zeros(0, np.int64), np.zeros(0, np.int64))  # fmt: skip
     lens = np.array([len(p["t_s"]) for p in parts])
     starts = np.concatenate([[0], np.cumsum(lens)[:-1]])
@@ -73,10 +76,10 @@ def tokenize(
 
 
 def tokenize_record(rec: FlightRecord, token_rate_hz: float) -> Tokens:
-    return tokenize(rec.t_s, rec.segment, rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut, token_rate_hz)
+    return tokenize(rec.t_s, rec.segment, rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut, token_rate_hz, rec.clipped)
 
 
-def _tokenize_segment(t, gyr, acc, mag, delta, offset) -> dict:
+def _tokenize_segment(t, gyr, acc, mag, clip, delta, offset) -> dict:
     k = np.ceil((t - t[0]) / delta - 1e-6).astype(np.int64)  # token index per sample
     k[0] = 0
     n_tok = int(k[-1]) + 1
@@ -91,7 +94,7 @@ def _tokenize_segment(t, gyr, acc, mag, delta, offset) -> dict:
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(good > 0, out / np.maximum(good, 1), np.nan)
 
-    g, a, m = mean(gyr), mean(acc), mean(mag)
+    g, a, m, cl = mean(gyr), mean(acc), mean(mag), mean(clip)[:, 0]
     last = np.full(n_tok, -1, np.int64)
     last[k] = np.arange(len(t)) + offset  # later samples overwrite: the last one stays
     t_tok = t[0] + np.arange(n_tok) * delta
@@ -102,7 +105,7 @@ def _tokenize_segment(t, gyr, acc, mag, delta, offset) -> dict:
         idx = np.where(has, np.arange(n_tok), 0)
         idx = np.maximum.accumulate(idx)
         g, a = g[idx], a[idx]
-        m = m[idx]
+        m, cl = m[idx], cl[idx]
     return {
         "t_s": t_tok,
         "dt_s": np.full(n_tok, delta),
@@ -110,6 +113,7 @@ def _tokenize_segment(t, gyr, acc, mag, delta, offset) -> dict:
         "acc": a,
         "mag": m,
         "count": count,
+        "clip": np.nan_to_num(cl),
         "last_index": last,
     }
 

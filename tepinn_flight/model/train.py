@@ -191,11 +191,11 @@ class TrainStep(nn.Module):
     def forward(self, batch: dict, batch_prev: dict | None, n_bias_global: int | None = None):
         m = self.model
         if batch_prev is None:
-            cur = m(batch["gyr"], batch["acc"], batch["count"], batch["t_rel"], batch["dt"], batch["mag"])
+            cur = m(batch["gyr"], batch["acc"], batch["count"], batch["t_rel"], batch["dt"], batch["mag"], batch["clip"])
             prev = None
         else:
-            both = {k: torch.cat([batch[k], batch_prev[k]]) for k in ("gyr", "acc", "count", "t_rel", "dt", "mag")}
-            out = m(both["gyr"], both["acc"], both["count"], both["t_rel"], both["dt"], both["mag"])
+            both = {k: torch.cat([batch[k], batch_prev[k]]) for k in ("gyr", "acc", "count", "t_rel", "dt", "mag", "clip")}
+            out = m(both["gyr"], both["acc"], both["count"], both["t_rel"], both["dt"], both["mag"], both["clip"])
             b = len(batch["gyr"])
             cur = {k: v[:b] for k, v in out.items()}
             prev = {k: v[b:] for k, v in out.items()}
@@ -247,7 +247,7 @@ def validate(model: TEPINN, bank: TokenBank, ends: np.ndarray, cfg: TrainConfig)
     errs, sig = [], []
     for a in range(0, len(ends), 512):
         b = make_batch(bank, ends[a : a + 512], cfg.model.window_tokens, cfg.model.correction_layer)
-        out = model(b["gyr"], b["acc"], b["count"], b["t_rel"], b["dt"], b["mag"])
+        out = model(b["gyr"], b["acc"], b["count"], b["t_rel"], b["dt"], b["mag"], b["clip"])
         errs.append(tilt_angle(out["q"], b["q_ref"]).double().numpy())
         if "sigma" in out:
             sig.append(out["sigma"].double().numpy())

@@ -1,0 +1,83 @@
+"""Baseline-filter speed: µs per sample of each filter beside VQF (C++), measured in the same run.
+
+One core, one process, the same closed-form motion for every estimator (constant-rate coning plus
+gravity and sensor noise, 200 Hz). CPU time (``time.process_time``) is reported because the machine
+may be shared; wall time is shown too. Peers that are not installed are listed as skipped.
+
+Usage: python benchmarks/filters_speed.py [--samples 50000] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from tepinn_flight.evaluation.estimators import FilterEstimator  # noqa: E402
+from tepinn_flight.evaluation.filters import Complementary, Ekf, Madgwick, MadgwickParams  # noqa: E402
+from tepinn_flight.evaluation.peers import make_peer  # noqa: E402
+from tepinn_flight.quat import gravity_body, quat_from_rotvec, quat_mul, quat_normalize  # noqa: E402
+from tepinn_flight.record import FlightRecord, make_frame  # noqa: E402
+
+
+def motion(n: int, rate_hz: float = 200.0, with_mag: bool = True) -> FlightRecord:
+    t = np.arange(n) / rate_hz
+    w = np.array([0.6, -0.4, 0.5])
+    q = quat_normalize(quat_mul(quat_from_rotvec(np.array([0.3, -0.2, 0.1]))[None], quat_from_rotvec(w[None] * t[:, None])))
+    rng = np.random.default_rng(0)
+    gyr = w + np.array([0.01, -0.02, 0.015]) + rng.normal(0, 0.003, (n, 3))
+    acc = -gravity_body(q, 9.80665) + rng.normal(0, 0.05, (n, 3))
+    from tepinn_flight.quat import quat_conj, quat_rotate
+
+    mag = quat_rotate(quat_conj(q), np.broadcast_to([20.0, 0.0, 45.0], (n, 3))) if with_mag else None
+    return FlightRecord(make_frame(t, np.zeros(n, int), gyr, acc, mag, q), {"source_kind": "synthetic"})
+
+
+def timed(est, rec, repeat: int) -> tuple[float, float]:
+    best_cpu = best_wall = math.inf
+    for _ in range(repeat):
+        c0, w0 = time.process_time(), time.perf_counter()
+        est.estimate(rec)
+        best_cpu = min(best_cpu, time.process_time() - c0)
+        best_wall = min(best_wall, time.perf_counter() - w0)
+    return 1e6 * best_cpu / len(rec), 1e6 * best_wall / len(rec)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--samples", type=int, default=50_000)
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    rec = motion(args.samples)
+    notes: list[str] = []
+    ours = [
+        FilterEstimator(Complementary()),
+        FilterEstimator(Complementary(), use_mag=True),
+        FilterEstimator(Madgwick()),
+        FilterEstimator(Madgwick(MadgwickParams(original_quirk=True)), name="madgwick-original-9d", use_mag=True),
+        FilterEstimator(Ekf()),
+    ]
+    peers = [p for p in (make_peer(n, notes) for n in ("vqf", "vqf-9d", "offline-vqf", "fusion", "riann")) if p is not None]
+    rows = []
+    for est in peers + ours:
+        cpu, wall = timed(est, rec, args.repeat if est.name != "riann" else 1)
+        rows.append((est.name, "peer" if est in peers else "ours", cpu, wall))
+    ref = next((r for r in rows if r[0] == "vqf"), None)
+    print(f"{args.samples} samples at 200 Hz, best of {args.repeat}; µs per sample (CPU / wall)")
+    print(f"{'estimator':24s} {'':5s} {'cpu µs':>9s} {'wall µs':>9s} {'samples/s':>11s} {'× VQF':>8s}")
+    for name, who, cpu, wall in rows:
+        ratio = f"{cpu / ref[2]:8.1f}" if ref else "     n/a"
+        print(f"{name:24s} {who:5s} {cpu:9.2f} {wall:9.2f} {1e6 / cpu:11.0f} {ratio}")
+    for n in notes:
+        print(f"skipped: {n}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

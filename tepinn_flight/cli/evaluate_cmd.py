@@ -1,0 +1,131 @@
+"""``tepinn-flight evaluate RECORDS... --report DIR [--model CKPT ...] [--noise-sweep]``."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+HELP = "compare TE-PINN with baseline filters and published peers on flight records; write a report"
+DESCRIPTION = (
+    "Run every estimator (TE-PINN from a checkpoint, the complementary filter, Madgwick, a "
+    "bias-estimating EKF, and VQF / offline VQF / RIANN / Fusion when installed) on the same records "
+    "with the same scoring mask and warm-up, and write report.md with tables and PNG figures plus "
+    "metrics.json. RECORDS are flight records (.parquet) or logs (ingested on the fly); a folder "
+    "stands for the records in it."
+)
+
+
+def add_arguments(p) -> None:
+    p.add_argument("records", nargs="+", metavar="RECORD", help="flight records, logs or folders of records")
+    p.add_argument("--report", required=True, metavar="DIR", help="output folder for report.md, figures, metrics.json")
+    p.add_argument("--model", action="append", default=[], metavar="CKPT",
+                   help="TE-PINN checkpoint (repeatable); default: the shipped model if there is one")
+    p.add_argument("--no-model", action="store_true", help="evaluate the baselines only")
+    p.add_argument("--noise-sweep", action="store_true",
+                   help="also re-run on the simulated records with added gyro/acc white noise at several levels")
+    p.add_argument("--noise-levels", default="0,1,2,4,8", metavar="L,L,...",
+                   help="noise-sweep levels, multiples of the base σ (gyro 0.01 rad/s, acc 0.2 m/s² per sample; default 0,1,2,4,8)")
+    p.add_argument("--warmup-s", type=float, default=5.0, metavar="S",
+                   help="seconds skipped at the start of every segment, for every estimator (default 5)")
+    p.add_argument("--with-mag", action="store_true", help="add 9-D variants (magnetometer) of the filters and peers")
+    p.add_argument("--no-peers", action="store_true", help="skip the published peers (VQF, RIANN, Fusion)")
+    p.add_argument("--config", metavar="TOML", help="filter parameters: [madgwick], [complementary], [ekf] tables, peers = [...]")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config value, e.g. ekf.acc_noise_m_s2=2")
+    p.add_argument("--tune-ekf-on", nargs="+", default=[], metavar="RECORD",
+                   help="tune the EKF's noise parameters on these TRAINING records first (must not overlap the evaluated ones)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+
+
+def collect_records(items: list[str]) -> list[Path]:
+    from ..errors import TepinnError
+
+    out: list[Path] = []
+    for it in items:
+        p = Path(it)
+        if p.is_dir():
+            found = sorted(p.glob("*.parquet"))
+            if not found:
+                raise TepinnError("folder holds no flight records (*.parquet)", p)
+            out += found
+        elif p.exists():
+            out.append(p)
+        else:
+            raise TepinnError("no such file", p)
+    return out
+
+
+def load_any(path: Path):
+    from ..ingest import ingest_log
+    from ..record import is_record, read_record
+
+    return read_record(path) if is_record(path) else ingest_log(path)
+
+
+def run(args) -> int:
+    import dataclasses
+
+    from ..errors import ConfigError, TepinnError
+    from ..evaluation.estimators import TepinnEstimator, default_tepinn
+    from ..evaluation.harness import HarnessConfig, evaluate, noise_sweep, record_name
+    from ..evaluation.report import write_report
+    from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
+
+    cfg = load_suite_config(args.config, args.set)
+    try:
+        levels = tuple(float(v) for v in args.noise_levels.split(",") if v.strip())
+    except ValueError:
+        raise ConfigError(f"--noise-levels must be comma-separated numbers, got {args.noise_levels!r}") from None
+    if not levels or any(not (lv >= 0) for lv in levels):
+        raise ConfigError(f"--noise-levels must be numbers >= 0, got {args.noise_levels!r}")
+    hcfg = HarnessConfig(warmup_s=args.warmup_s, noise_levels=levels)
+    paths = collect_records(args.records)
+    notes: list[str] = []
+    if args.tune_ekf_on:
+        from ..evaluation.filters.ekf import tune
+
+        train = collect_records(args.tune_ekf_on)
+        overlap = {p.resolve() for p in train} & {p.resolve() for p in paths}
+        if overlap:
+            raise ConfigError(f"--tune-ekf-on overlaps the evaluated records ({', '.join(sorted(map(str, overlap)))}): "
+                              "never tune on test data")  # fmt: skip
+        best, _ = tune([load_any(p) for p in train], base=cfg.ekf, warmup_s=args.warmup_s, progress=not args.quiet)
+        cfg = dataclasses.replace(cfg, ekf=best)
+        notes.append(f"EKF tuned on {len(train)} training record(s): " + ", ".join(
+            f"{k}={getattr(best, k):g}" for k in ("gyro_noise_rad_s_sqrt_hz", "acc_noise_m_s2", "bias_walk_rad_s_sqrt_s")))
+    records = []
+    for p in paths:
+        rec = load_any(p)
+        rec.meta.setdefault("name", p.stem)
+        records.append(rec)
+    if len({record_name(r) for r in records}) < len(records):
+        notes.append("some records share a name; they are numbered #2, #3, ... in the tables")
+    estimators = []
+    if not args.no_model:
+        if args.model:
+            for i, m in enumerate(args.model):
+                name = "tepinn" if len(args.model) == 1 else f"tepinn-{Path(m).stem}"
+                estimators.append(TepinnEstimator.from_checkpoint(m, name))
+        else:
+            est = default_tepinn(notes)
+            if est is not None:
+                estimators.append(est)
+    else:
+        notes.append("TE-PINN not evaluated (--no-model)")
+    estimators += baseline_estimators(cfg, with_mag=args.with_mag)
+    if not args.no_peers:
+        estimators += peer_estimators(cfg, with_mag=args.with_mag, notes=notes)
+    names = {e.name for e in estimators}
+    if len(names) < len(estimators):
+        raise TepinnError("two estimators share a name; give the checkpoints different file names")
+    result = evaluate(records, estimators, hcfg, progress=not args.quiet, notes=notes)
+    if args.noise_sweep:
+        result.noise_sweep = noise_sweep(records, estimators, hcfg, progress=not args.quiet, notes=result.notes)
+    files = write_report(result, args.report)
+    if not args.quiet:
+        for n in result.notes:
+            sys.stderr.write(f"note: {n}\n")
+    best = sorted((d["inclination_rmse_deg"], k) for k, d in result.dataset.items() if d["inclination_rmse_deg"] is not None)
+    print(f"{len(records)} record(s), {len(estimators)} estimator(s); inclination RMSE (mean over records): "
+          + ", ".join(f"{k} {v:.2f}°" for v, k in best))
+    print(f"report: {files[-1]}")
+    return 0

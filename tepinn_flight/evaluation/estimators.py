@@ -1,0 +1,132 @@
+"""The common estimator interface of the harness, and adapters for the project's own estimators.
+
+An estimator is any object with
+
+- ``name`` (str), ``kind`` ("analytical", "filter", "peer", "learned"), ``causal`` (bool: each
+  output uses only past and current samples), ``uses_mag`` (bool: 9-D; 6-D estimates get one
+  constant heading alignment per run before heading metrics, 9-D ones none), and
+- ``estimate(record) -> pandas.DataFrame`` with one row per record row: ``t_s``,
+  ``q_est_w..z`` (body FRD → NED), optionally ``sigma_rad`` (per-axis σ of the 2-D tilt error)
+  and ``gyr_bias_est_{x,y,z}_rad_s``. NaN rows mean "no estimate yet" (e.g. a window not yet full).
+
+The harness times ``estimate`` itself (µs per sample), so TE-PINN, an LSTM or any later model plugs
+in by providing this interface. Filters restart at every record segment (a gap or a reboot).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..record import FlightRecord
+
+EST_Q_COLS = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
+EST_BIAS_COLS = ["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]
+
+
+def estimate_frame(t_s, q, sigma=None, bias=None) -> pd.DataFrame:
+    df = pd.DataFrame({"t_s": np.asarray(t_s, np.float64)})
+    q = np.asarray(q, np.float64)
+    for i, c in enumerate(EST_Q_COLS):
+        df[c] = q[:, i]
+    if sigma is not None:
+        df["sigma_rad"] = np.asarray(sigma, np.float64)
+    if bias is not None:
+        bias = np.asarray(bias, np.float64)
+        for i, c in enumerate(EST_BIAS_COLS):
+            df[c] = bias[:, i]
+    return df
+
+
+def segment_slices(record: FlightRecord):
+    seg = record.segment
+    n = len(seg)
+    bounds = np.flatnonzero(np.diff(seg)) + 1
+    return [slice(a, b) for a, b in zip(np.r_[0, bounds], np.r_[bounds, n])]
+
+
+def record_mag(record: FlightRecord) -> np.ndarray | None:
+    """The magnetometer (µT) or None when the record has none."""
+    mag = record.mag_ut
+    return mag if np.any(np.all(np.isfinite(mag), axis=1)) else None
+
+
+class FilterEstimator:
+    """Runs a baseline filter (batch API of :mod:`.filters`) per record segment."""
+
+    def __init__(self, flt, name: str | None = None, use_mag: bool = False, kind: str = "filter", q0_fn=None):
+        self.filter = flt
+        self.uses_mag = bool(use_mag)
+        self.name = name or (flt.name + ("-9d" if use_mag else ""))
+        self.kind = kind
+        self.causal = True
+        self.q0_fn = q0_fn  # optional (record, slice) -> initial quaternion
+
+    def estimate(self, record: FlightRecord) -> pd.DataFrame:
+        n = len(record)
+        q = np.full((n, 4), np.nan)
+        sigma = bias = None
+        gyr, acc, t = record.gyr_rad_s, record.acc_m_s2, record.t_s
+        mag = record_mag(record) if self.uses_mag else None
+        for sl in segment_slices(record):
+            kw = {}
+            if self.q0_fn is not None:
+                kw["q0"] = self.q0_fn(record, sl)
+            out = self.filter.estimate(gyr[sl], acc[sl], t[sl], None if mag is None else mag[sl], **kw)
+            q[sl] = out["q_nb_wxyz"]
+            if "sigma_rad" in out:
+                sigma = np.full(n, np.nan) if sigma is None else sigma
+                sigma[sl] = out["sigma_rad"]
+            if "bias_rad_s" in out:
+                bias = np.full((n, 3), np.nan) if bias is None else bias
+                bias[sl] = out["bias_rad_s"]
+        return estimate_frame(t, q, sigma, bias)
+
+
+class TepinnEstimator:
+    """TE-PINN from a checkpoint: ``tepinn_flight.model.estimate.estimate_record``."""
+
+    kind = "learned"
+    causal = True
+    uses_mag = False
+
+    def __init__(self, model, fusion, name: str = "tepinn", checkpoint: str | None = None):
+        self.model, self.fusion, self.name, self.checkpoint = model, fusion, name, checkpoint
+
+    @classmethod
+    def from_checkpoint(cls, path: str | os.PathLike, name: str | None = None) -> TepinnEstimator:
+        from ..model.checkpoint import load_model
+
+        model, fusion, _ = load_model(path)
+        return cls(model, fusion, name or "tepinn", os.fspath(path))
+
+    def estimate(self, record: FlightRecord) -> pd.DataFrame:
+        from ..model.estimate import estimate_record
+
+        return estimate_record(self.model, record, self.fusion)
+
+
+def default_tepinn(note_sink: list | None = None):
+    """The shipped TE-PINN model, or None (with a note) when there is none."""
+    try:
+        from ..model.checkpoint import default_model_path
+    except Exception as exc:  # torch missing or the model package broken
+        if note_sink is not None:
+            note_sink.append(f"TE-PINN skipped: the model package cannot be imported ({type(exc).__name__}: {exc})")
+        return None
+    path = Path(default_model_path())
+    if not path.exists():
+        if note_sink is not None:
+            note_sink.append(f"TE-PINN skipped: no model given and no shipped default model at {path}")
+        return None
+    from ..errors import TepinnError
+
+    try:
+        return TepinnEstimator.from_checkpoint(path)
+    except TepinnError as exc:
+        if note_sink is not None:
+            note_sink.append(f"TE-PINN skipped: the shipped default model cannot be used ({exc})")
+        return None

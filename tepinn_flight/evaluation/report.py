@@ -1,0 +1,416 @@
+"""Evaluation report: ``report.md`` (tables), PNG figures and ``metrics.json``, written atomically.
+
+Colours follow the TE-PINN paper: ground truth black, the analytical (complementary) filter red,
+the LSTM blue, TE-PINN green; every other estimator gets its own colour. 6-D estimates are shown
+after their one constant heading alignment per run (the same one the metrics use) and on the
+reference's quaternion hemisphere (q ≡ −q), so curves are comparable.
+
+Every file is written to a temporary name and renamed into place; ``report.md`` is written last, so
+a report whose Markdown exists is complete.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..record import atomic_write
+from .harness import EvalResult
+
+PAPER_COLOURS = {"truth": "black", "complementary": "red", "lstm": "blue", "tepinn": "green"}
+OTHER_COLOURS = ["tab:orange", "tab:purple", "tab:brown", "tab:pink", "tab:gray", "tab:olive", "tab:cyan",
+                 "goldenrod", "navy", "teal", "magenta", "darkred"]  # fmt: skip
+
+FIGURES = {
+    "quaternion": "fig_quaternion.png",
+    "euler": "fig_euler.png",
+    "inclination_error": "fig_inclination_error.png",
+    "error_vs_rate": "fig_error_vs_rate.png",
+    "per_record": "fig_per_record.png",
+    "uncertainty": "fig_uncertainty.png",
+    "error_vs_noise": "fig_error_vs_noise.png",
+}
+
+
+def colour_map(names: list[str]) -> dict[str, str]:
+    out, k = {}, 0
+    for n in names:
+        base = n.lower()
+        for key in ("complementary", "lstm", "tepinn"):
+            if base.startswith(key) or base.startswith(key.replace("tepinn", "te-pinn")):
+                out[n] = PAPER_COLOURS[key]
+                break
+        else:
+            out[n] = OTHER_COLOURS[k % len(OTHER_COLOURS)]
+            k += 1
+    return out
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=True)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig, path: Path) -> None:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
+    _plt().close(fig)
+    data = buf.getvalue()
+    atomic_write(path, lambda tmp: Path(tmp).write_bytes(data))
+
+
+def _stride(n: int, max_points: int = 6000) -> int:
+    return max(1, int(math.ceil(n / max_points)))
+
+
+def _showcase(result: EvalResult) -> dict | None:
+    """The record the time-series figures show: the one with most scored samples."""
+    if not result.series:
+        return None
+    return max(result.series, key=lambda s: int(np.sum(s["mask"])))
+
+
+# ----------------------------------------------------------------------------- figures
+
+
+def fig_quaternion(result, colours, path):
+    plt = _plt()
+    s = _showcase(result)
+    fig, axes = plt.subplots(4, 1, figsize=(10, 8), sharex=True)
+    if s is not None:
+        k = _stride(len(s["t_s"]))
+        t = s["t_s"][::k]
+        ref = s["q_ref"][::k]
+        for name, e in s["est"].items():
+            q = e["q"][::k]
+            q = np.where(np.sum(q * ref, axis=1, keepdims=True) < 0, -q, q)
+            for i in range(4):
+                axes[i].plot(t, q[:, i], color=colours[name], lw=0.8, label=name)
+        for i, c in enumerate("wxyz"):
+            axes[i].plot(t, ref[:, i], color=PAPER_COLOURS["truth"], lw=1.2, label="reference")
+            axes[i].set_ylabel(f"q_{c}")
+        axes[0].set_title(f"Quaternion components, {s['name']} (6-D estimates heading-aligned)")
+        axes[0].legend(fontsize=7, ncol=4, loc="upper right")
+    axes[-1].set_xlabel("t [s]")
+    _save(fig, path)
+
+
+def fig_euler(result, colours, path):
+    plt = _plt()
+    s = _showcase(result)
+    fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+    if s is not None:
+        from ..quat import quat_to_euler_zyx
+
+        k = _stride(len(s["t_s"]))
+        t = s["t_s"][::k]
+        for name, e in list(s["est"].items()) + [("reference", {"q": s["q_ref"]})]:
+            eul = quat_to_euler_zyx(e["q"][::k])
+            col = PAPER_COLOURS["truth"] if name == "reference" else colours[name]
+            for i in range(3):
+                axes[i].plot(t, np.degrees(eul[i]), color=col, lw=1.2 if name == "reference" else 0.8, label=name)
+        for i, lab in enumerate(("roll", "pitch", "yaw")):
+            axes[i].set_ylabel(f"{lab} [°]")
+        axes[0].set_title(f"Roll, pitch, yaw, {s['name']} (6-D yaw after one constant alignment)")
+        axes[0].legend(fontsize=7, ncol=4, loc="upper right")
+    axes[-1].set_xlabel("t [s]")
+    _save(fig, path)
+
+
+def fig_inclination_error(result, colours, path):
+    plt = _plt()
+    s = _showcase(result)
+    fig, ax = plt.subplots(figsize=(10, 4))
+    if s is not None:
+        k = _stride(len(s["t_s"]))
+        t = s["t_s"][::k]
+        m = s["mask"][::k]
+        for name, e in s["est"].items():
+            y = np.degrees(e["incl"][::k]).copy()
+            y[~m] = np.nan
+            ax.plot(t, y, color=colours[name], lw=0.8, label=name)
+        ax.set_title(f"Inclination error over scored samples, {s['name']}")
+        ax.legend(fontsize=7, ncol=4)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("inclination error [°]")
+    _save(fig, path)
+
+
+def fig_error_vs_rate(result, colours, path):
+    plt = _plt()
+    edges = list(result.config.rate_bins_deg_s)
+    labels = [f"{edges[i]:g}–{edges[i + 1]:g}" if math.isfinite(edges[i + 1]) else f">{edges[i]:g}"
+              for i in range(len(edges) - 1)]  # fmt: skip
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    x = np.arange(len(labels))
+    for name, d in result.dataset.items():
+        y = np.array([np.nan if v is None else v for v in d["dynamic_error_deg"]], np.float64)
+        ax.plot(x, y, "o-", color=colours[name], label=name)
+    ax.set_xticks(x, labels)
+    ax.set_xlabel("angular rate |ω| [°/s]")
+    ax.set_ylabel("inclination RMSE [°]")
+    ax.set_title("Dynamic error: inclination RMSE by angular rate (pooled over records)")
+    ax.legend(fontsize=7, ncol=3)
+    _save(fig, path)
+
+
+def fig_per_record(result, colours, path):
+    plt = _plt()
+    names = list(result.dataset)
+    fig, ax = plt.subplots(figsize=(max(6, 0.9 * len(names) + 2), 4.5))
+    for i, name in enumerate(names):
+        vals = [r["results"][name].get("inclination_rmse_deg") for r in result.records]
+        vals = np.array([np.nan if v is None else v for v in vals], np.float64)
+        jitter = np.linspace(-0.15, 0.15, len(vals)) if len(vals) > 1 else np.zeros(1)
+        ax.scatter(i + jitter, vals, color=colours[name], s=14)
+        if np.isfinite(vals).any():
+            ax.hlines(np.nanmean(vals), i - 0.3, i + 0.3, color=colours[name], lw=2)
+    ax.set_xticks(range(len(names)), names, rotation=30, ha="right")
+    ax.set_ylabel("inclination RMSE per record [°]")
+    ax.set_title("Per-record inclination RMSE (bar: mean over records)")
+    _save(fig, path)
+
+
+def fig_uncertainty(result, colours, path):
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6, 5.5))
+    any_sigma = False
+    top = 0.0
+    for name in result.dataset:
+        sig, err = [], []
+        for s in result.series:
+            e = s["est"][name]
+            if e.get("sigma") is None or e.get("tilt_err") is None:
+                continue
+            m = s["mask"] & np.isfinite(e["sigma"]) & np.all(np.isfinite(e["tilt_err"]), axis=1)
+            sig.append(e["sigma"][m])
+            err.append(np.sum(e["tilt_err"][m] ** 2, axis=1))
+        if not sig or not np.concatenate(sig).size:
+            continue
+        any_sigma = True
+        sig, err = np.concatenate(sig), np.concatenate(err)
+        qs = np.unique(np.quantile(sig, np.linspace(0, 1, 11)))
+        idx = np.clip(np.digitize(sig, qs[1:-1]), 0, len(qs) - 2)
+        xs, ys = [], []
+        for b in range(len(qs) - 1):
+            sel = idx == b
+            if sel.sum() >= 5:
+                xs.append(np.degrees(np.sqrt(np.mean(sig[sel] ** 2))))
+                ys.append(np.degrees(np.sqrt(np.mean(err[sel]) / 2.0)))  # RMS per-axis tilt error
+        ax.plot(xs, ys, "o-", color=colours[name], label=name)
+        top = max(top, max(xs + ys) if xs else 0.0)
+    if any_sigma:
+        ax.plot([0, top * 1.05], [0, top * 1.05], "k--", lw=1, label="calibrated")
+        ax.legend(fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "no estimator reports σ", ha="center", va="center", transform=ax.transAxes)
+    ax.set_xlabel("predicted σ per tilt axis [°] (decile bins)")
+    ax.set_ylabel("actual RMS tilt error per axis [°]")
+    ax.set_title("Uncertainty calibration")
+    _save(fig, path)
+
+
+def fig_error_vs_noise(result, colours, path):
+    plt = _plt()
+    sw = result.noise_sweep
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for name, ys in sw["inclination_rmse_deg"].items():
+        y = np.array([np.nan if v is None else v for v in ys], np.float64)
+        ax.plot(sw["levels"], y, "o-", color=colours.get(name, "gray"), label=name)
+    ax.set_xlabel(f"added white noise, multiples of σ_gyr = {sw['base_gyr_sigma_rad_s']:.3g} rad/s, "
+                  f"σ_acc = {sw['base_acc_sigma_m_s2']:.3g} m/s² per sample")  # fmt: skip
+    ax.set_ylabel("inclination RMSE [°]")
+    ax.set_title(f"Error vs added sensor noise ({sw['n_records']} simulated records)")
+    ax.legend(fontsize=7, ncol=3)
+    _save(fig, path)
+
+
+# ----------------------------------------------------------------------------- markdown
+
+
+def _f(v, nd=2):
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "–"
+    if isinstance(v, float):
+        return f"{v:.{nd}f}"
+    return str(v)
+
+
+def _pct(v):
+    return "–" if v is None or not math.isfinite(v) else f"{100 * v:.1f} %"
+
+
+def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "Attitude estimation report") -> str:
+    L = [f"# {title}", ""]
+    L.append(f"tepinn-flight {__version__}, {datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}. "
+             f"{len(result.records)} record(s), {len(result.estimators)} estimator(s).")  # fmt: skip
+    L.append("")
+    L.append("## Protocol")
+    L.append("")
+    c = result.config
+    L.append(f"- Scored samples: the record's `valid` mask ∧ finite reference ∧ after the first {c.warmup_s:g} s of every "
+             "segment ∧ a finite estimate from every estimator that covers ≥ "
+             f"{100 * c.min_coverage:.0f} % of those samples — the same samples for all estimators.")  # fmt: skip
+    L.append("- 6-D estimators (no magnetometer): ONE constant heading offset per run (segment), the circular mean of the "
+             "heading error, removed before heading / total / yaw errors and plots; 9-D estimators: none.")  # fmt: skip
+    L.append("- Errors (BROAD's definitions): earth-frame error q_e = q_est ⊗ q_ref⁻¹; inclination 2·acos(√(w²+z²)), "
+             "heading 2·atan(|z/w|), total 2·acos(|w|). Per record RMSE, then the mean over records.")  # fmt: skip
+    L.append("- Mean quaternion error: mean of the sign-invariant distance min(‖q − q_ref‖, ‖q + q_ref‖) (dimensionless); "
+             "mean angle: mean of 2·acos(|⟨q, q_ref⟩|). Shown beside the RMSEs, not as the headline.")  # fmt: skip
+    L.append("- Heading drift: slope of the aligned, unwrapped heading error over time (least squares), °/min; the table "
+             "gives the mean of |slope| over records.")  # fmt: skip
+    L.append("")
+    if result.notes:
+        L.append("## Notes")
+        L.append("")
+        L += [f"- {n}" for n in result.notes]
+        L.append("")
+    L.append("## Records")
+    L.append("")
+    L.append("| record | kind | duration [s] | samples | scored (common) |")
+    L.append("|---|---|---:|---:|---:|")
+    for r in result.records:
+        L.append(f"| {r['name']} | {r['source_kind']} | {r['duration_s']:.1f} | {r['n_samples']} | {r['n_scored_common']} |")
+    L.append("")
+    L.append("## Summary (mean over records)")
+    L.append("")
+    L.append("| estimator | kind | causal | mode | incl. RMSE [°] | median | p95 | roll [°] | pitch [°] | heading [°] | "
+             "total [°] | \\|drift\\| [°/min] | mean q dist | mean angle [°] | gyro bias RMS [°/s] | µs/sample |")  # fmt: skip
+    L.append("|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    info = {e["name"]: e for e in result.estimators}
+    for name, d in sorted(result.dataset.items(), key=lambda kv: (kv[1]["inclination_rmse_deg"] is None, kv[1]["inclination_rmse_deg"] or 0)):
+        e = info[name]
+        L.append(f"| {name} | {e['kind']} | {'yes' if e['causal'] else 'no'} | {'9-D' if e['uses_mag'] else '6-D'} | "
+                 f"**{_f(d['inclination_rmse_deg'])}** | {_f(d['inclination_rmse_median_deg'])} | {_f(d['inclination_rmse_p95_deg'])} | "
+                 f"{_f(d['roll_rmse_deg'])} | {_f(d['pitch_rmse_deg'])} | {_f(d['heading_rmse_deg'])} | {_f(d['total_rmse_deg'])} | "
+                 f"{_f(d['heading_drift_abs_deg_per_min'])} | {_f(d['mean_quat_distance'], 4)} | {_f(d['mean_quat_angle_deg'])} | "
+                 f"{_f(d['gyr_bias_rms_deg_s'], 3)} | {_f(d['us_per_sample'], 2)} |")  # fmt: skip
+    L.append("")
+    low = [f"{k} ({_pct(v['coverage_min'])})" for k, v in result.dataset.items()
+           if v.get("coverage_min") is not None and v["coverage_min"] < c.min_coverage]  # fmt: skip
+    if low:
+        L.append(f"Scored on their own finite samples (coverage below {100 * c.min_coverage:.0f} %): {', '.join(low)}.")
+        L.append("")
+    L.append(f"![quaternion components]({figures['quaternion']})")
+    L.append("")
+    L.append(f"![roll pitch yaw]({figures['euler']})")
+    L.append("")
+    L.append(f"![inclination error over time]({figures['inclination_error']})")
+    L.append("")
+    L.append("## Per record: inclination RMSE [°]")
+    L.append("")
+    names = list(result.dataset)
+    L.append("| record | " + " | ".join(names) + " |")
+    L.append("|---|" + "---:|" * len(names))
+    for r in result.records:
+        L.append(f"| {r['name']} | " + " | ".join(_f(r["results"][n].get("inclination_rmse_deg")) for n in names) + " |")
+    L.append("")
+    L.append(f"![per-record inclination RMSE]({figures['per_record']})")
+    L.append("")
+    L.append("## Dynamic error: inclination RMSE [°] by angular rate [°/s]")
+    L.append("")
+    edges = list(c.rate_bins_deg_s)
+    labels = [f"{edges[i]:g}–{edges[i + 1]:g}" if math.isfinite(edges[i + 1]) else f">{edges[i]:g}" for i in range(len(edges) - 1)]
+    L.append("| estimator | " + " | ".join(labels) + " |")
+    L.append("|---|" + "---:|" * len(labels))
+    for name, d in result.dataset.items():
+        L.append(f"| {name} | " + " | ".join(_f(v) for v in d["dynamic_error_deg"]) + " |")
+    first = next(iter(result.dataset.values()))
+    L.append("| samples | " + " | ".join(str(n) for n in first["dynamic_error_n"]) + " |")
+    L.append("")
+    L.append(f"![error vs angular rate]({figures['error_vs_rate']})")
+    L.append("")
+    L.append("## Uncertainty quality (estimators that report σ)")
+    L.append("")
+    L.append("Tilt error vector (2-D, earth frame) against the per-axis σ: coverage within 1/2/3 σ (expected for a calibrated "
+             "2-D Gaussian: 39.3 / 86.5 / 98.9 %), mean NEES ‖e‖²/σ² (expected 2), Spearman correlation of σ and ‖e‖.")  # fmt: skip
+    L.append("")
+    L.append("| estimator | 1σ | 2σ | 3σ | NEES | Spearman |")
+    L.append("|---|---:|---:|---:|---:|---:|")
+    rows = 0
+    for name, d in result.dataset.items():
+        u = d.get("uncertainty")
+        if u:
+            rows += 1
+            L.append(f"| {name} | {_pct(u['coverage_1sigma'])} | {_pct(u['coverage_2sigma'])} | {_pct(u['coverage_3sigma'])} | "
+                     f"{_f(u['nees'])} | {_f(u['spearman_mean'])} |")  # fmt: skip
+    if not rows:
+        L.append("| (none) | | | | | |")
+    L.append("")
+    L.append(f"![uncertainty calibration]({figures['uncertainty']})")
+    L.append("")
+    L.append("## Paired comparison over records (Wilcoxon signed-rank, inclination RMSE)")
+    L.append("")
+    if result.comparisons:
+        L.append("| A | B (best other) | n | mean A [°] | mean B [°] | change | A better in | p (two-sided) | p (A < B) |")
+        L.append("|---|---|---:|---:|---:|---:|---:|---:|---:|")
+        for cmp_ in result.comparisons:
+            ch = cmp_["relative_change"]
+            L.append(f"| {cmp_['a']} | {cmp_['b']} | {cmp_['n']} | {_f(cmp_['mean_a'])} | {_f(cmp_['mean_b'])} | "
+                     f"{'–' if ch is None else f'{100 * ch:+.1f} %'} | {cmp_['wins_a']}/{len(result.records)} | "
+                     f"{_f(cmp_['pvalue_two_sided'], 4)} | {_f(cmp_['pvalue_a_less'], 4)} |")  # fmt: skip
+        if not any(e["kind"] == "learned" for e in result.estimators):
+            L.append("")
+            L.append("No learned estimator (TE-PINN / LSTM) was evaluated; the row compares the runner-up with the best.")
+    else:
+        L.append("Not enough estimators for a comparison.")
+    L.append("")
+    L.append("## Error vs sensor noise")
+    L.append("")
+    sw = result.noise_sweep
+    if sw:
+        L.append(f"White Gaussian noise added to the gyro and accelerometer of the {sw['n_records']} simulated record(s), "
+                 f"σ = level × ({sw['base_gyr_sigma_rad_s']:.3g} rad/s, {sw['base_acc_sigma_m_s2']:.3g} m/s²) per sample, on top of "
+                 "the simulated sensor noise; then the same evaluation (mean inclination RMSE over records, °).")  # fmt: skip
+        L.append("")
+        L.append("| estimator | " + " | ".join(f"×{lv:g}" for lv in sw["levels"]) + " |")
+        L.append("|---|" + "---:|" * len(sw["levels"]))
+        for name, ys in sw["inclination_rmse_deg"].items():
+            L.append(f"| {name} | " + " | ".join(_f(v) for v in ys) + " |")
+        L.append("")
+        L.append(f"![error vs noise]({figures['error_vs_noise']})")
+    else:
+        L.append("Not run (use `--noise-sweep` with simulated records).")
+    L.append("")
+    L.append("Machine-readable results: [metrics.json](metrics.json).")
+    L.append("")
+    return "\n".join(L)
+
+
+def write_report(result: EvalResult, out_dir: str | os.PathLike, title: str = "Attitude estimation report") -> list[Path]:
+    """Write figures, ``metrics.json`` and (last) ``report.md`` into ``out_dir``; returns the paths."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    colours = colour_map(list(result.dataset))
+    makers = {
+        "quaternion": fig_quaternion, "euler": fig_euler, "inclination_error": fig_inclination_error,
+        "error_vs_rate": fig_error_vs_rate, "per_record": fig_per_record, "uncertainty": fig_uncertainty,
+    }  # fmt: skip
+    if result.noise_sweep:
+        makers["error_vs_noise"] = fig_error_vs_noise
+    written = []
+    for key, fn in makers.items():
+        p = out / FIGURES[key]
+        fn(result, colours, p)
+        written.append(p)
+    js = json.dumps(result.to_json(), indent=1, allow_nan=False)
+    atomic_write(out / "metrics.json", lambda tmp: Path(tmp).write_text(js, encoding="utf-8"))
+    written.append(out / "metrics.json")
+    md = render_markdown(result, FIGURES, title)
+    atomic_write(out / "report.md", lambda tmp: Path(tmp).write_text(md, encoding="utf-8"))
+    written.append(out / "report.md")
+    return written
+
+
+__all__ = ["write_report", "render_markdown", "colour_map", "FIGURES", "PAPER_COLOURS"]
