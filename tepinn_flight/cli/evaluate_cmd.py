@@ -65,7 +65,7 @@ def run(args) -> int:
     import dataclasses
 
     from ..errors import ConfigError, TepinnError
-    from ..evaluation.estimators import TepinnEstimator, default_tepinn
+    from ..evaluation.estimators import TepinnEstimator, default_learned
     from ..evaluation.harness import HarnessConfig, evaluate, noise_sweep, record_name
     from ..evaluation.report import write_report
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
@@ -102,13 +102,13 @@ def run(args) -> int:
     estimators = []
     if not args.no_model:
         if args.model:
-            for i, m in enumerate(args.model):
-                name = "tepinn" if len(args.model) == 1 else f"tepinn-{Path(m).stem}"
-                estimators.append(TepinnEstimator.from_checkpoint(m, name))
-        else:
-            est = default_tepinn(notes)
-            if est is not None:
+            for m in args.model:  # named by variant (tepinn, lstm, tepinn-nophysics, ...)
+                est = TepinnEstimator.from_checkpoint(m)
+                if est.name in {e.name for e in estimators}:
+                    est.name = f"{est.name}-{Path(m).parent.name or Path(m).stem}"
                 estimators.append(est)
+        else:
+            estimators += default_learned(notes)
     else:
         notes.append("TE-PINN not evaluated (--no-model)")
     estimators += baseline_estimators(cfg, with_mag=args.with_mag)

@@ -100,8 +100,12 @@ class TepinnEstimator:
     def from_checkpoint(cls, path: str | os.PathLike, name: str | None = None) -> TepinnEstimator:
         from ..model.checkpoint import load_model
 
-        model, fusion, _ = load_model(path)
-        return cls(model, fusion, name or "tepinn", os.fspath(path))
+        model, fusion, ckpt = load_model(path)
+        if name is None:
+            name = model.config.variant
+            if ckpt.get("loss_config", {}).get("adaptive") is False:
+                name += "-noadaptive"
+        return cls(model, fusion, name, os.fspath(path))
 
     def estimate(self, record: FlightRecord) -> pd.DataFrame:
         from ..model.estimate import estimate_record
@@ -125,8 +129,28 @@ def default_tepinn(note_sink: list | None = None):
     from ..errors import TepinnError
 
     try:
-        return TepinnEstimator.from_checkpoint(path)
+        return TepinnEstimator.from_checkpoint(path, "tepinn")
     except TepinnError as exc:
         if note_sink is not None:
             note_sink.append(f"TE-PINN skipped: the shipped default model cannot be used ({exc})")
         return None
+
+
+def default_learned(note_sink: list | None = None) -> list:
+    """The shipped TE-PINN and, when shipped too, the LSTM baseline trained by the same code."""
+    out = []
+    est = default_tepinn(note_sink)
+    if est is not None:
+        out.append(est)
+    try:
+        from ..model.checkpoint import default_lstm_path
+
+        path = Path(default_lstm_path())
+        if path.exists():
+            out.append(TepinnEstimator.from_checkpoint(path))
+        elif note_sink is not None:
+            note_sink.append(f"LSTM baseline skipped: no shipped LSTM at {path}")
+    except Exception as exc:  # a broken extra model must not stop the evaluation
+        if note_sink is not None:
+            note_sink.append(f"LSTM baseline skipped ({type(exc).__name__}: {exc})")
+    return out

@@ -78,3 +78,8 @@ def load_model(path: str | os.PathLike) -> tuple[TEPINN, FusionConfig, dict]:
 def default_model_path() -> Path:
     """The shipped model inside the package."""
     return Path(__file__).resolve().parents[1] / "assets" / "tepinn_default.pt"
+
+
+def default_lstm_path() -> Path:
+    """The shipped LSTM baseline (the paper's DL model, trained by the same recipe)."""
+    return Path(__file__).resolve().parents[1] / "assets" / "lstm_default.pt"

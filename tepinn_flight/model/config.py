@@ -43,6 +43,22 @@ class ModelConfig:
             raise ConfigError("dropout must be in [0, 1)")
 
     @property
+    def variant(self) -> str:
+        """Short name used in reports: ``tepinn``, ``lstm`` (the paper's DL baseline: LSTM, no
+        physics), or the ablation it is (``tepinn-nophysics``, ``lstm-physics``, ...)."""
+        if self.encoder == "lstm":
+            name = "lstm-physics" if self.physics else "lstm"
+        elif self.encoder == "mlp":
+            name = "tepinn-notransformer" if self.physics else "mlp"
+        else:
+            name = "tepinn" if self.physics else "tepinn-nophysics"
+        if not self.correction_layer:
+            name += "-nocorrection"
+        if not self.uncertainty:
+            name += "-nouncertainty"
+        return name
+
+    @property
     def window_s(self) -> float:
         return self.window_tokens / self.token_rate_hz
 

@@ -49,11 +49,12 @@ def window_estimates(model: TEPINN, rec: FlightRecord, batch_size: int = 256):
 
 
 def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | None = None,
-                    batch_size: int = 256) -> pd.DataFrame:  # fmt: skip
+                    batch_size: int = 256, windows=None) -> pd.DataFrame:  # fmt: skip
     """One output row per record row: ``t_s``, ``q_est_*`` (body→NED), ``sigma_rad``,
-    ``gyr_bias_est_*``; NaN until the first window of a segment is full."""
+    ``gyr_bias_est_*``; NaN until the first window of a segment is full. ``windows`` takes the
+    result of :func:`window_estimates` when it is already at hand (fusion tuning)."""
     fusion = fusion or FusionConfig()
-    idx, q, sigma, bias = window_estimates(model, rec, batch_size)
+    idx, q, sigma, bias = windows if windows is not None else window_estimates(model, rec, batch_size)
     n = len(rec)
     q_out = np.full((n, 4), np.nan)
     s_out = np.full(n, np.nan)

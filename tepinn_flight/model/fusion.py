@@ -25,6 +25,7 @@ class FusionConfig:
     bias_time_constant_s: float = 10.0  # low-pass of the network's per-window bias estimates
     sigma_scale: float = 1.0  # calibration factor applied to the network's σ
     clip_inflation_rad: float = 0.35  # a saturated gyro/accel sample adds this σ to the propagation
+    output_sigma_scale: float = 1.0  # calibration of the reported σ (fitted on validation flights)
     yaw: str = "gyro"  # "gyro": heading from gyro integration; "zero": yaw := 0 on the output
 
 
@@ -144,7 +145,7 @@ class AttitudeFusion:
         if self.q is None:
             return None, float("nan"), self.bias
         q = zero_yaw_np(self.q) if c.yaw == "zero" else self.q
-        return q, math.sqrt(self.P), self.bias
+        return q, c.output_sigma_scale * math.sqrt(self.P), self.bias
 
     def _update(self, est) -> None:
         c = self.c

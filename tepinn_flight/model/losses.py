@@ -29,6 +29,8 @@ class LossConfig:
     lambda_dyn: float = 0.01
     gyro_pair_tokens: int = 5  # L_gyro: estimates this many tokens apart, linked by RK4
     acc_cauchy_rad: float = 0.1  # scale of the robust (Cauchy) accelerometer loss
+    acc_norm_tol_g: float = 0.05  # L_acc counts windows whose mean |f| is within ~this of 1 g
+    acc_spread_tol_g: float = 0.1  # ... and whose specific force varies by ~this little
     bias_scale_rad_s: float = 0.005  # bias errors are measured in these units
     dyn_scale_rad_s2: float = 10.0  # angular-acceleration residuals in these units
 
@@ -90,11 +92,15 @@ class TEPINNLoss(nn.Module):
             terms["bias"] = (err**2).sum(-1).mean()
         if "f_mean" in out:
             # L_acc: gravity predicted by q vs the window's corrected specific force, seen in the
-            # current body frame and averaged (robust Cauchy: accelerating vehicles do not dominate)
+            # current body frame and averaged. Robust when the vehicle accelerates: a Cauchy loss,
+            # weighted by how much the window looks unaccelerated (|f| ≈ 1 g, little spread).
             g_pred = gravity_body(q)
-            a_dir = -out["f_mean"]
+            f = out["f_mean"]
+            a_dir = -f
             ang = vector_angle(g_pred, a_dir)
-            terms["acc"] = torch.log1p((ang / c.acc_cauchy_rad) ** 2).mean()
+            quiet = torch.exp(-0.5 * ((f.norm(dim=-1) - 1.0) / c.acc_norm_tol_g) ** 2)
+            quiet = quiet * torch.exp(-0.5 * (out["f_spread"] / c.acc_spread_tol_g) ** 2)
+            terms["acc"] = (quiet.detach() * torch.log1p((ang / c.acc_cauchy_rad) ** 2)).mean()
             # L_dynamics: Euler's equation with the network's torque, on consecutive tokens
             w = out["w_c"]
             dt = batch["dt"][:, 1:, None]

@@ -204,6 +204,7 @@ class TEPINN(nn.Module):
         }
         if v is not None:
             out["f_mean"] = v.mean(dim=1)  # window-mean specific force in body(t_K), in g
+            out["f_spread"] = (v - out["f_mean"][:, None]).norm(dim=-1).pow(2).mean(dim=1).sqrt()
         if c.uncertainty:
             # σ reads the representation but does not shape it (its NLL would swamp early training)
             out["sigma"] = F.softplus(self.head_sigma(last.detach()))[..., 0] + 1e-4

@@ -34,7 +34,7 @@ from torch import nn
 from .. import __version__
 from ..config import from_dict, load_toml, to_dict
 from ..errors import ConfigError, TepinnError
-from ..record import FlightRecord, atomic_write, read_record
+from ..record import GYR_BIAS_COLS, FlightRecord, atomic_write, read_record
 from .checkpoint import CheckpointError, read_checkpoint, save_checkpoint
 from .config import ModelConfig
 from .dataset import TokenBank, build_bank, input_statistics, make_batch
@@ -261,28 +261,69 @@ def validate(model: TEPINN, bank: TokenBank, ends: np.ndarray, cfg: TrainConfig)
     return res
 
 
-def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionConfig, max_records: int = 4) -> tuple[FusionConfig, dict]:
-    """Pick the fusion's process noise on validation flights (tilt RMSE of the fused output)."""
+def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionConfig, max_records: int = 6) -> tuple[FusionConfig, dict]:
+    """Fit the fusion on validation flights: the process noise minimising the mean per-flight tilt
+    RMSE of the fused output, then the σ scale that makes the reported σ calibrated (NEES = 2)."""
     from ..quat import inclination_heading_split, quat_conj, quat_mul
+    from .estimate import window_estimates
 
-    recs = [r for r in records if (r.meta.get("imu_rate_hz") or 0) >= 20][:max_records]
-    if not recs:
+    usable = [r for r in records if (r.meta.get("imu_rate_hz") or 0) >= 20]
+    if not usable:
         return base, {}
-    best, best_err, table = base, float("inf"), {}
-    for pn in (1e-6, 1e-5, 1e-4, 1e-3, 1e-2):
-        cand = dataclasses.replace(base, process_noise_rad2_s=pn)
-        sq = []
-        for r in recs:
-            est = estimate_record(model, r, cand)
+    pick = np.unique(np.linspace(0, len(usable) - 1, min(max_records, len(usable))).round().astype(int))
+    recs = [usable[i] for i in pick]
+    wins = [window_estimates(model, r) for r in recs]
+
+    def run(cand):
+        errs, sig, berr = [], [], []
+        for r, w in zip(recs, wins):
+            est = estimate_record(model, r, cand, windows=w)
             q = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
-            ok = np.all(np.isfinite(q), 1) & np.all(np.isfinite(r.q_ref_wxyz), 1)
+            ok = np.all(np.isfinite(q), 1) & np.all(np.isfinite(r.q_ref_wxyz), 1) & (est["sigma_rad"].to_numpy() > 0)
             inc, _ = inclination_heading_split(quat_mul(q[ok], quat_conj(r.q_ref_wxyz[ok])))
-            sq.append(inc**2)
-        err = float(np.degrees(np.sqrt(np.mean(np.concatenate(sq))))) if sq else float("inf")
+            errs.append(inc)
+            sig.append(est["sigma_rad"].to_numpy()[ok])
+            if GYR_BIAS_COLS[0] in r.data:
+                b = est[["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]].to_numpy()[ok]
+                berr.append(np.sqrt(np.mean(np.sum((b - r.data[GYR_BIAS_COLS].to_numpy()[ok]) ** 2, 1))))
+        return errs, sig, berr
+
+    def mean_rmse_deg(errs):
+        return float(np.mean([np.degrees(np.sqrt(np.mean(e**2))) for e in errs if len(e)])) if errs else float("inf")
+
+    best, best_err, table, best_run = base, float("inf"), {}, None
+    for pn in (1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 1e-3):
+        cand = dataclasses.replace(base, process_noise_rad2_s=pn, output_sigma_scale=1.0)
+        errs, sig, _ = run(cand)
+        err = mean_rmse_deg(errs)
         table[f"{pn:g}"] = err
         if err < best_err:
-            best, best_err = cand, err
-    return best, {"fusion_val_tilt_rmse_deg": best_err, "fusion_grid": table}
+            best, best_err, best_run = cand, err, (errs, sig)
+    metrics = {"fusion_val_tilt_rmse_deg": best_err, "fusion_grid": table, "fusion_val_flights": len(recs)}
+    # the bias low-pass: the time constant with the lowest gyro-bias error (where truth exists),
+    # kept only if the tilt error does not get worse
+    btable = {}
+    for tau in (5.0, 10.0, 20.0, 40.0):
+        cand = dataclasses.replace(best, bias_time_constant_s=tau)
+        errs, sig, berr = run(cand)
+        if berr:
+            btable[f"{tau:g}"] = (float(np.degrees(np.mean(berr))), mean_rmse_deg(errs), errs, sig, cand)
+    if btable:
+        key = min(btable, key=lambda k: btable[k][0] if btable[k][1] <= best_err * 1.02 else float("inf"))
+        if btable[key][1] <= best_err * 1.02:
+            _, best_err, errs, sig, best = btable[key]
+            best_run = (errs, sig)
+            metrics["fusion_val_tilt_rmse_deg"] = best_err
+        metrics["fusion_bias_grid_deg_s"] = {k: v[0] for k, v in btable.items()}
+        metrics["fusion_bias_time_constant_s"] = best.bias_time_constant_s
+    if best_run is not None:
+        e = np.concatenate(best_run[0])
+        s = np.concatenate(best_run[1])
+        if len(e):
+            scale = float(np.sqrt(np.mean(e**2 / s**2) / 2.0))  # 2-D tilt error: E[|e|²/σ²] = 2
+            best = dataclasses.replace(best, output_sigma_scale=scale)
+            metrics["fusion_output_sigma_scale"] = scale
+    return best, metrics
 
 
 # ---------------------------------------------------------------------- main loop
@@ -432,7 +473,8 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
         else:
             stale += 1
         if rank == 0:
-            common = {"training": summary, "metrics": rec, "tepinn_flight_version": __version__}
+            common = {"training": summary, "metrics": rec, "tepinn_flight_version": __version__,
+                      "loss_config": dataclasses.asdict(cfg.loss)}  # fmt: skip
             if improved:
                 save_checkpoint(out / "best.pt", model, cfg.fusion, **common)
             save_checkpoint(
@@ -473,6 +515,7 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
         fusion, fus_metrics = calibrate_fusion(best_model, val_recs, cfg.fusion)
         final_metrics = {**(ck.get("metrics") or {}), **fus_metrics}
         save_checkpoint(out / "model.pt", best_model, fusion, training=summary, metrics=final_metrics,
+                        loss_config=dataclasses.asdict(cfg.loss),
                         tepinn_flight_version=__version__)  # fmt: skip
         result.update(fus_metrics)
         log(f"best validation tilt RMSE {best_val:.3f}° (window), fused {fus_metrics.get('fusion_val_tilt_rmse_deg', float('nan')):.3f}°; model: {out / 'model.pt'}")
