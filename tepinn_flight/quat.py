@@ -114,6 +114,9 @@ def _ops(x: Array):
 
 
 def _split(q: Array):
+    # torch: unbind (one backward op) instead of four selects (each a full-size zero-fill)
+    if _is_torch(q):
+        return q.unbind(-1)
     return q[..., 0], q[..., 1], q[..., 2], q[..., 3]
 
 
@@ -179,8 +182,8 @@ def quat_rotate(q_ab: Array, v_b: Array) -> Array:
 
 
 def _cross(o, a: Array, b: Array) -> Array:
-    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
-    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    ax, ay, az = a.unbind(-1) if _is_torch(a) else (a[..., 0], a[..., 1], a[..., 2])
+    bx, by, bz = b.unbind(-1) if _is_torch(b) else (b[..., 0], b[..., 1], b[..., 2])
     return o.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx])
 
 
