@@ -67,6 +67,18 @@ class OptimConfig:
     grad_clip: float = 1.0
     early_stop_patience: int = 5  # epochs without validation improvement
     max_minutes: float = 0.0  # stop after this wall time (0: no limit)
+    warmup_steps: int = 0  # linear learning-rate warm-up (post-LayerNorm transformers need it)
+    cosine_decay: bool = False  # cosine decay to 10 % of the learning rate at the last epoch
+
+
+def lr_factor(step: int, optim: OptimConfig) -> float:
+    """Learning-rate multiplier at a global step: linear warm-up, then optional cosine decay."""
+    f = min(1.0, (step + 1) / optim.warmup_steps) if optim.warmup_steps > 0 else 1.0
+    if optim.cosine_decay:
+        total = max(1, optim.epochs * optim.steps_per_epoch - optim.warmup_steps)
+        p = min(1.0, max(0.0, (step - optim.warmup_steps) / total))
+        f *= 0.1 + 0.9 * 0.5 * (1.0 + math.cos(math.pi * p))
+    return f
 
 
 @dataclass(frozen=True)
@@ -390,6 +402,7 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
         {"params": model.physics_parameters() + list(loss_fn.parameters()), "lr": cfg.optim.lr_physics, "weight_decay": 0.0},
     ]
     opt = torch.optim.AdamW(groups)
+    base_lrs = [g["lr"] for g in groups]  # the schedule scales these (resume-safe: a function of the step)
     start_epoch, best_val, stale = 0, float("inf"), 0
     history: list[dict] = []
     if resume and (out / "last.pt").exists():
@@ -453,6 +466,9 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
             opt.zero_grad(set_to_none=True)
             total.backward()
             torch.nn.utils.clip_grad_norm_(step_mod.parameters(), cfg.optim.grad_clip)
+            f = lr_factor(epoch * cfg.optim.steps_per_epoch + step, cfg.optim)
+            for g, lr0 in zip(opt.param_groups, base_lrs):
+                g["lr"] = lr0 * f
             opt.step()
             for k, v in logs.items():
                 logs_acc[k] = logs_acc.get(k, 0.0) + float(v) / cfg.optim.steps_per_epoch

@@ -1,0 +1,97 @@
+"""``tepinn-flight bridge --master ENDPOINT --out ENDPOINT ...``: live TE-PINN next to the autopilot."""
+
+from __future__ import annotations
+
+HELP = "live MAVLink bridge: route autopilot <-> ground stations and add TE-PINN attitude estimates"
+DESCRIPTION = (
+    "A transparent MAVLink router (every autopilot message reaches every --out unchanged, every ground "
+    "station message reaches the autopilot unchanged) that runs TE-PINN on the autopilot's IMU stream "
+    "(HIGHRES_IMU, or ArduPilot's RAW_IMU / SCALED_IMU) and sends, as component 191 of the autopilot's "
+    "system: HEARTBEAT (onboard controller, 1 Hz), ATTITUDE and ATTITUDE_QUATERNION with the estimate "
+    "stamped with the IMU sample's time_boot_ms (--rate, default 50 Hz), and NAMED_VALUE_FLOAT "
+    "(tp_dincl, tp_sigma, tp_lat_ms, tp_imu_hz) / DEBUG_VECT (TP_RPY, TP_DIFF, TP_BIAS) diagnostics "
+    "comparing it with the autopilot's EKF (see them in the ground station's MAVLink inspector). "
+    "Stops on Ctrl-C, SIGTERM or --duration and prints a summary."
+)
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--master", required=True, metavar="ENDPOINT",
+                   help="the autopilot: udpin:0.0.0.0:14550, tcp:HOST:PORT, tcpin:, udpout: or a serial port /dev/ttyACM0,115200")
+    p.add_argument("--out", action="append", default=[], metavar="ENDPOINT",
+                   help="a ground station or router, e.g. udpout:127.0.0.1:14551 (repeatable)")
+    p.add_argument("--model", default=None, metavar="CKPT", help="checkpoint (default: the shipped model)")
+    p.add_argument("--tlog", default=None, metavar="FILE", help="write the whole session (autopilot, ground stations, estimates) as a tlog")
+    p.add_argument("--rate", type=float, default=50.0, metavar="HZ", help="estimates per second of autopilot time (default 50)")
+    p.add_argument("--diag-rate", type=float, default=10.0, metavar="HZ", help="diagnostics per second (default 10; 0 = none)")
+    p.add_argument("--imu", type=int, default=0, metavar="N", help="IMU instance to use (default 0)")
+    p.add_argument("--min-imu-rate", type=float, default=50.0, metavar="HZ",
+                   help="below this IMU rate ask the autopilot for more (MAV_CMD_SET_MESSAGE_INTERVAL; default 50)")
+    p.add_argument("--request-imu-rate", type=float, default=200.0, metavar="HZ", help="IMU rate to ask for (default 200)")
+    p.add_argument("--sysid", type=int, default=None, metavar="N", help="the autopilot's system id (default: the first seen)")
+    p.add_argument("--compid", type=int, default=191, metavar="N", help="our component id (default 191, MAV_COMP_ID_ONBOARD_COMPUTER)")
+    p.add_argument("--estimates-to-master", action="store_true",
+                   help="also send estimates to the autopilot (it may route them to its other links)")
+    p.add_argument("--worker", choices=["process", "thread"], default="process",
+                   help="run the estimator in a child process (default: never delays forwarding) or a thread")
+    p.add_argument("--max-age", type=float, default=0.2, metavar="S",
+                   help="drop IMU samples older than this when the estimator gets to them (default 0.2 s)")
+    p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
+    p.add_argument("--status-interval", type=float, default=None, metavar="S",
+                   help="seconds between status lines (default 0.5 on a terminal, 10 otherwise)")
+    p.add_argument("--summary-json", default=None, metavar="FILE", help="also write the exit summary as JSON")
+    p.add_argument("-q", "--quiet", action="store_true", help="no status line and no summary")
+
+
+def run(args) -> int:
+    import json
+    import signal
+    import sys
+    import threading
+    from pathlib import Path
+
+    from ..errors import ConfigError, TepinnError
+    from ..live.bridge import Bridge, BridgeConfig
+    from ..live.router import parse_endpoint
+    from ..live.status import StatusPrinter
+    from ..record import atomic_write
+
+    for spec in [args.master, *args.out]:
+        parse_endpoint(spec)
+    if args.model:
+        model = Path(args.model)
+        if not model.is_file():
+            raise ConfigError(f"--model {args.model}: no such checkpoint")
+    else:
+        from ..model.checkpoint import default_model_path  # imports torch: only when needed
+
+        model = default_model_path()
+        if not model.is_file():
+            raise TepinnError("the shipped default model is missing from this installation; pass --model CKPT")
+    cfg = BridgeConfig(
+        master=args.master, outs=tuple(args.out), model_path=str(model), tlog_path=args.tlog, rate_hz=args.rate,
+        diag_rate_hz=args.diag_rate, imu_instance=args.imu, min_imu_rate_hz=args.min_imu_rate,
+        request_imu_rate_hz=args.request_imu_rate, sysid=args.sysid, compid=args.compid,
+        estimates_to_master=args.estimates_to_master, worker=args.worker, max_sample_age_s=args.max_age,
+        duration_s=args.duration,
+    )  # fmt: skip
+    status = StatusPrinter(sys.stderr, quiet=args.quiet, interval_s=args.status_interval)
+    bridge = Bridge(cfg, status=status)
+    stop = threading.Event()
+
+    def on_signal(signum, frame):  # noqa: ARG001
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    status.note(f"tepinn-flight bridge: master {args.master} -> {', '.join(args.out) or 'no outs'}; model {model.name}")
+    try:
+        summary = bridge.run(stop)
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+    if args.summary_json:
+        text = json.dumps(summary, indent=2, default=str)
+        atomic_write(args.summary_json, lambda tmp: Path(tmp).write_text(text))
+    if not args.quiet:
+        print(bridge.format_summary(summary))
+    return 0

@@ -1,0 +1,192 @@
+"""Pure decoders of what the bridge reads, and the live EKF-vs-estimate comparison.
+
+IMU messages and their units follow the tlog reader (:mod:`tepinn_flight.ingest.tlog`): the same
+message table (``IMU_MESSAGES``: time field and instance), the same preference
+(``IMU_PREFERENCE``: HIGHRES_IMU, RAW_IMU, SCALED_IMU*) and the same unit rules:
+
+* ``HIGHRES_IMU``: m/s², rad/s, gauss (any autopilot); ``fields_updated`` must mark acc and gyro
+  (or be 0, "not filled in"), mag counts when marked.
+* ``SCALED_IMU*``: mG, mrad/s, mGauss (by the MAVLink definition).
+* ``RAW_IMU``: ArduPilot sends the scaled units above; from any other autopilot its scale is
+  unknown (raw counts are allowed by the spec), so it is refused (:func:`imu_scale_known`).
+* All-zero accelerometer and gyro: a missing IMU (ArduPilot's unused ``SCALED_IMU2/3``), skipped.
+* ``time_usec`` above 1e15 µs is UNIX time, else time since boot; ``time_boot_ms`` is boot time.
+
+The reader works on whole arrays; here one message at a time (the conversion factors come from
+:mod:`tepinn_flight.conventions`, the tables from the reader).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..conventions import GAUSS_TO_UT, MILLI_G_TO_M_S2, MILLIGAUSS_TO_UT, MRAD_S_TO_RAD_S, UNIX_TIME_THRESHOLD_US
+from ..ingest.tlog import IMU_MESSAGES, IMU_PREFERENCE, MAV_AUTOPILOT_ARDUPILOTMEGA
+from ..quat import slerp
+from .messages import euler_zyx
+
+_HIGHRES_ACC_GYRO = 0x003F
+_HIGHRES_MAG = 0x01C0
+
+
+@dataclass(frozen=True)
+class ImuSample:
+    t_s: float  # the message's own clock, s (boot time, or UNIX time when clock == "unix")
+    time_usec: int  # the same instant in µs
+    time_boot_ms: int | None  # ms since boot, None when the message carries UNIX time
+    gyr_rad_s: tuple
+    acc_m_s2: tuple
+    mag_ut: tuple | None
+    message: str
+    instance: int
+
+
+def imu_preference(name: str) -> int:
+    """Rank of an IMU message (0 = preferred), as in the tlog reader."""
+    return IMU_PREFERENCE.index(name)
+
+
+def imu_scale_known(name: str, autopilot: int | None) -> bool:
+    """RAW_IMU is in mG / mrad/s only from ArduPilot (the tlog reader's rule)."""
+    return name != "RAW_IMU" or autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA
+
+
+def imu_sample(msg, autopilot: int | None) -> ImuSample | None:
+    """The IMU sample in SI units carried by ``msg``, or None (not an IMU message, unusable)."""
+    name = msg.get_type()
+    spec = IMU_MESSAGES.get(name)
+    if spec is None or not imu_scale_known(name, autopilot):
+        return None
+    tfield, fixed = spec
+    instance = fixed if fixed is not None else int(getattr(msg, "id", 0) or 0)
+    acc = (float(msg.xacc), float(msg.yacc), float(msg.zacc))
+    gyr = (float(msg.xgyro), float(msg.ygyro), float(msg.zgyro))
+    mag = (float(msg.xmag), float(msg.ymag), float(msg.zmag))
+    if not any(acc) and not any(gyr):
+        return None  # a missing IMU arrives as all zeros
+    if name == "HIGHRES_IMU":
+        fu = int(msg.fields_updated)
+        if fu and (fu & _HIGHRES_ACC_GYRO) != _HIGHRES_ACC_GYRO:
+            return None  # a partial update without fresh acc/gyro
+        mag_ok = any(mag) and (fu == 0 or (fu & _HIGHRES_MAG) == _HIGHRES_MAG)
+        mag_ut = tuple(v * GAUSS_TO_UT for v in mag) if mag_ok else None
+    else:
+        acc = tuple(v * MILLI_G_TO_M_S2 for v in acc)
+        gyr = tuple(v * MRAD_S_TO_RAD_S for v in gyr)
+        mag_ut = tuple(v * MILLIGAUSS_TO_UT for v in mag) if any(mag) else None
+    if not all(math.isfinite(v) for v in acc + gyr):
+        return None
+    if mag_ut is not None and not all(math.isfinite(v) for v in mag_ut):
+        mag_ut = None
+    if tfield == "time_usec":
+        us = int(msg.time_usec)
+        boot_ms = None if us > UNIX_TIME_THRESHOLD_US else us // 1000
+        t_s = us / 1e6
+    else:
+        boot_ms = int(msg.time_boot_ms)
+        us = boot_ms * 1000
+        t_s = boot_ms / 1e3
+    return ImuSample(t_s, us, boot_ms, gyr, acc, mag_ut, name, instance)
+
+
+def ekf_attitude(msg) -> tuple[float, int, tuple] | None:
+    """(t_s, time_boot_ms, q_nb_wxyz) from ATTITUDE_QUATERNION or ATTITUDE, else None."""
+    name = msg.get_type()
+    if name == "ATTITUDE_QUATERNION":
+        q = (float(msg.q1), float(msg.q2), float(msg.q3), float(msg.q4))
+    elif name == "ATTITUDE":
+        r, p, y = float(msg.roll), float(msg.pitch), float(msg.yaw)
+        cr, sr = math.cos(r / 2), math.sin(r / 2)
+        cp, sp = math.cos(p / 2), math.sin(p / 2)
+        cy, sy = math.cos(y / 2), math.sin(y / 2)
+        q = (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+             cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)  # fmt: skip
+    else:
+        return None
+    n = math.sqrt(sum(v * v for v in q))
+    if not math.isfinite(n) or n < 0.5:  # a zero quaternion means "not set"
+        return None
+    ms = int(msg.time_boot_ms)
+    return ms / 1e3, ms, tuple(v / n for v in q)
+
+
+# ---------------------------------------------------------------------------- comparison
+def _gravity_body(q):
+    w, x, y, z = q
+    return (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def tilt_difference(q_est, q_ref) -> tuple[float, float, float]:
+    """(roll, pitch, inclination) differences in rad; inclination = angle between the gravity
+    directions in the body frame, which ignores heading (6-D heading is relative)."""
+    ge, gr = _gravity_body(q_est), _gravity_body(q_ref)
+    cx = ge[1] * gr[2] - ge[2] * gr[1]
+    cy = ge[2] * gr[0] - ge[0] * gr[2]
+    cz = ge[0] * gr[1] - ge[1] * gr[0]
+    dincl = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), ge[0] * gr[0] + ge[1] * gr[1] + ge[2] * gr[2])
+    re, pe, _ = euler_zyx(q_est)
+    rr, pr, _ = euler_zyx(q_ref)
+    return _wrap(re - rr), pe - pr, dincl
+
+
+class EkfComparator:
+    """Pairs estimates with the autopilot's attitude at the same autopilot time.
+
+    The EKF attitude for an estimate's time may arrive before or after the estimate; estimates
+    wait (bounded) until an EKF sample at or after their time brackets them, then the EKF
+    attitude is slerped onto the estimate's time (brackets longer than ``max_span_s`` are not
+    used). A backward jump of the EKF clock (a reboot) clears the state.
+    """
+
+    def __init__(self, max_span_s: float = 0.25, max_pending: int = 256, keep: int = 64):
+        self.max_span_s = max_span_s
+        self.ekf: deque = deque(maxlen=keep)
+        self.pending: deque = deque(maxlen=max_pending)
+
+    def add_ekf(self, t_s: float, q) -> list[tuple[float, float, float, float]]:
+        if self.ekf and t_s < self.ekf[-1][0] - 1.0:
+            self.ekf.clear()
+            self.pending.clear()
+        if self.ekf and t_s <= self.ekf[-1][0]:
+            return []
+        self.ekf.append((t_s, tuple(q)))
+        return self._resolve()
+
+    def add_estimate(self, t_s: float, q) -> list[tuple[float, float, float, float]]:
+        self.pending.append((t_s, tuple(q)))
+        return self._resolve()
+
+    def _resolve(self):
+        out = []
+        if not self.ekf:
+            return out
+        t_first, t_last = self.ekf[0][0], self.ekf[-1][0]
+        while self.pending and self.pending[0][0] <= t_last:
+            t, q = self.pending.popleft()
+            if t < t_first:
+                continue
+            ref = self._at(t)
+            if ref is not None:
+                out.append((t, *tilt_difference(q, ref)))
+        return out
+
+    def _at(self, t: float):
+        ts = [e[0] for e in self.ekf]
+        i = int(np.searchsorted(ts, t, side="right")) - 1
+        if i >= len(ts) - 1:
+            return self.ekf[-1][1] if ts[-1] == t else None
+        t0, t1 = ts[i], ts[i + 1]
+        if t == t0:
+            return self.ekf[i][1]
+        if t1 - t0 > self.max_span_s:
+            return None
+        q = slerp(np.array([t]), np.array([t0, t1]), np.array([self.ekf[i][1], self.ekf[i + 1][1]]))[0]
+        return tuple(float(v) for v in q)

@@ -1,0 +1,268 @@
+"""MAVLink endpoints for the bridge and the emulator, opened through pymavlink's ``mavlink_connection``.
+
+Endpoint forms (``mavlink.md`` §2: always say which way a UDP socket goes):
+
+=========================  ===================================================================
+``udpin:HOST:PORT``        bind and listen; replies go to every peer that has sent to it
+``udpout:HOST:PORT``       send to HOST:PORT; replies arrive on the same socket
+``tcp:HOST:PORT``          connect (reconnected every second while the peer is away)
+``tcpin:HOST:PORT``        listen for one TCP client (a new client may connect after it leaves)
+``DEVICE[,BAUD]``          a serial port, e.g. ``/dev/ttyACM0,115200`` (default 115200 baud)
+=========================  ===================================================================
+
+A bare ``udp:`` is refused (pymavlink and MAVProxy read it in opposite directions).
+
+:class:`Link` reads raw bytes (non-blocking, after ``select``), parses them with the link's own
+pymavlink parser (CRC-checked, robust: garbage comes back as ``BAD_DATA``) and writes raw frames.
+UDP datagrams are parsed independently: a frame cut at the end of a datagram is garbage, and must
+not swallow the start of the next datagram. Forwarding uses ``msg.get_msgbuf()``: the original
+bytes, with the original system/component ids, sequence number and signature.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import re
+import socket
+
+from ..errors import ConfigError
+from . import mavutil
+
+FORMS = "udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT or a serial DEVICE[,BAUD]"
+_NET = ("udpin", "udpout", "tcp", "tcpin")
+READ_SIZE = 65536
+RECONNECT_S = 1.0
+CONNECT_TIMEOUT_S = 0.5
+SOCKET_BUFFER_BYTES = 4 << 20
+
+
+class EndpointError(ConfigError):
+    """A command-line endpoint that is malformed or cannot be opened."""
+
+
+def parse_endpoint(spec: str) -> tuple[str, str, int]:
+    """(kind, host or device, port or baud) of an endpoint string; EndpointError when malformed."""
+    s = (spec or "").strip()
+    if not s:
+        raise EndpointError(f"empty endpoint (use {FORMS})")
+    head, _, rest = s.partition(":")
+    if head == "udp":
+        raise EndpointError(f"{s!r}: say udpin:{rest} (listen) or udpout:{rest} (send to) instead of udp:")
+    if head in _NET:
+        m = re.fullmatch(r"(\[[^\]]+\]|[^:]+):(\d+)", rest)
+        if not m:
+            raise EndpointError(f"{s!r}: expected {head}:HOST:PORT")
+        host, port = m.group(1).strip("[]"), int(m.group(2))
+        lo = 0 if head in ("udpin", "tcpin") else 1
+        if not lo <= port <= 65535:
+            raise EndpointError(f"{s!r}: port {port} out of range")
+        return head, host, port
+    if ":" in s and not re.match(r"^[A-Za-z]:\\", s):
+        raise EndpointError(f"{s!r}: unknown endpoint (use {FORMS})")
+    dev, _, baud = s.partition(",")
+    if baud:
+        if not baud.isdigit() or int(baud) <= 0:
+            raise EndpointError(f"{s!r}: bad baud rate {baud!r}")
+    return "serial", dev, int(baud or 115200)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+    return (str(text).strip().splitlines() or [type(exc).__name__])[0]
+
+
+class Link:
+    """One endpoint: raw reads, per-link parsing, raw writes, counters, reconnection."""
+
+    def __init__(self, spec: str, role: str, source_system: int = 255, source_component: int = 0):
+        self.spec = spec
+        self.role = role
+        self.kind, self.host, self.port = parse_endpoint(spec)
+        self._src = (source_system, source_component)
+        self.rx_bytes = 0
+        self.rx_msgs = 0
+        self.tx_bytes = 0
+        self.write_errors = 0
+        self.read_errors = 0
+        self.bad_frames = 0
+        self.bad_bytes = 0
+        self.down = False
+        self.next_reconnect = 0.0
+        self._dest = None
+        if self.kind in ("udpout", "tcp"):
+            try:
+                info = socket.getaddrinfo(self.host, self.port, socket.AF_INET, socket.SOCK_DGRAM)
+                self._dest = info[0][4]
+            except OSError as exc:
+                raise EndpointError(f"{role} {spec}: cannot resolve {self.host!r} ({_first_line(exc)})") from None
+        if self.kind == "serial" and not os.path.exists(self.host) and self.host.startswith("/"):
+            raise EndpointError(f"{role} {spec}: no such serial device {self.host}")
+        self.conn = self._open()
+
+    def _open(self):
+        mu = mavutil()
+        if self.kind == "serial":
+            device, kw = self.host, {"baud": self.port}
+        else:
+            device, kw = f"{self.kind}:{self.host}:{self.port}", {}
+        if self.kind == "tcp":
+            kw.update(retries=0, autoreconnect=False)
+        old_timeout = socket.getdefaulttimeout()
+        try:
+            if self.kind == "tcp":  # pymavlink connects blocking: bound how long a dead peer stalls us
+                socket.setdefaulttimeout(CONNECT_TIMEOUT_S)
+            conn = mu.mavlink_connection(device, source_system=self._src[0], source_component=self._src[1], **kw)
+        except ImportError as exc:
+            raise EndpointError(f"cannot open {self.role} {self.spec}: serial ports need pyserial "
+                                f"(pip install pyserial; {_first_line(exc)})") from None  # fmt: skip
+        except Exception as exc:  # OSError, serial.SerialException, ValueError ...
+            raise EndpointError(f"cannot open {self.role} {self.spec}: {_first_line(exc)}") from None
+        finally:
+            socket.setdefaulttimeout(old_timeout)
+        conn.mav.robust_parsing = True
+        if self.kind in ("udpin", "udpout"):
+            for opt in (socket.SO_RCVBUF, socket.SO_SNDBUF):  # ride out scheduling stalls (capped by the OS)
+                try:
+                    conn.port.setsockopt(socket.SOL_SOCKET, opt, SOCKET_BUFFER_BYTES)
+                except OSError:
+                    pass
+        return conn
+
+    # ------------------------------------------------------------------ reading
+    def fileno(self) -> int | None:
+        if self.down:
+            return None
+        fd = getattr(self.conn, "fd", None)
+        return fd if isinstance(fd, int) and fd >= 0 else None
+
+    def local_port(self) -> int | None:
+        """The bound port of a UDP/TCP socket (useful with port 0)."""
+        sock = getattr(self.conn, "listen", None) or getattr(self.conn, "port", None)
+        try:
+            return sock.getsockname()[1]
+        except (AttributeError, OSError):
+            return None
+
+    def read(self) -> bytes:
+        """Whatever is waiting (b"" if nothing); marks a dead stream link down."""
+        if self.down:
+            return b""
+        c = self.conn
+        try:
+            if self.kind == "tcpin" and c.port is None:
+                c.recv(0)  # accept a waiting client (pymavlink switches fd to it)
+                return b""
+            data = c.recv(READ_SIZE)
+        except OSError as exc:
+            if getattr(exc, "errno", None) in (errno.EAGAIN, errno.EWOULDBLOCK, errno.ECONNREFUSED):
+                return b""
+            self.read_errors += 1
+            self._lost()
+            return b""
+        except Exception:  # serial.SerialException and friends
+            self.read_errors += 1
+            self._lost()
+            return b""
+        if not data:
+            if self.kind in ("tcp", "tcpin", "serial"):
+                self._lost()  # readable but empty: the peer closed the stream
+            return b""
+        data = bytes(data) if not isinstance(data, bytes) else data
+        self.rx_bytes += len(data)
+        return data
+
+    def parse(self, data: bytes) -> list:
+        """Messages in ``data`` (good frames, BAD_DATA counted and dropped)."""
+        mav = self.conn.mav
+        try:
+            msgs = mav.parse_buffer(data) or []
+        except Exception:  # robust parsing returns BAD_DATA; anything else is a parser failure
+            msgs = []
+            self.bad_frames += 1
+            self.bad_bytes += len(data)
+            self._reset_parser()
+        out = []
+        for m in msgs:
+            if m.get_type() == "BAD_DATA":
+                self.bad_frames += 1
+                self.bad_bytes += len(getattr(m, "data", b"") or b"")
+            else:
+                out.append(m)
+        if self.kind in ("udpin", "udpout") and mav.buf_len() > 0:
+            self.bad_frames += 1  # a frame cut at the end of a datagram
+            self.bad_bytes += mav.buf_len()
+            self._reset_parser()
+        self.rx_msgs += len(out)
+        return out
+
+    def _reset_parser(self) -> None:
+        mav = self.conn.mav
+        mav.buf = bytearray()
+        mav.buf_index = 0
+        mav.expected_length = mavutil().mavlink.HEADER_LEN_V1 + 2
+        mav.have_prefix_error = False
+
+    # ------------------------------------------------------------------ writing
+    def write(self, buf: bytes) -> bool:
+        if self.down or not buf:
+            return False
+        c = self.conn
+        try:
+            if self.kind == "udpin" and not c.clients:
+                return False  # nobody to send to yet
+            if self.kind == "tcpin" and c.port is None:
+                return False
+            if self.kind == "udpout":
+                c.port.sendto(buf, self._dest)  # what mavudp.write does, without swallowing errors
+            elif self.kind == "tcp":
+                c.port.sendall(buf)
+            else:
+                c.write(buf)
+        except OSError as exc:
+            self.write_errors += 1
+            if getattr(exc, "errno", None) in (errno.ECONNRESET, errno.EPIPE) and self.kind in ("tcp", "tcpin"):
+                self._lost()
+            return False
+        except Exception:
+            self.write_errors += 1
+            return False
+        self.tx_bytes += len(buf)
+        return True
+
+    # ------------------------------------------------------------------ link loss
+    def _lost(self) -> None:
+        c = self.conn
+        if self.kind == "tcpin":
+            try:
+                if c.port is not None:
+                    c.port.close()
+            except OSError:
+                pass
+            c.port = None
+            c.fd = c.listen.fileno()
+            return
+        self.down = True
+        self.next_reconnect = 0.0
+        try:
+            c.close()
+        except Exception:
+            pass
+
+    def maintain(self, now: float) -> bool:
+        """Reopen a lost TCP/serial link (once per second). True when it came back."""
+        if not self.down or now < self.next_reconnect:
+            return False
+        self.next_reconnect = now + RECONNECT_S
+        try:
+            self.conn = self._open()
+        except EndpointError:
+            return False
+        self.down = False
+        return True
+
+    def close(self) -> None:
+        try:
+            self.conn.close()
+        except Exception:
+            pass

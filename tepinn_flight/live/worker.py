@@ -1,0 +1,402 @@
+"""The estimator, off the forwarding path: a child process (default) or a thread, fed through pipes.
+
+Why a process by default: the network's forward pass holds the GIL for part of its ~2–3 ms, so an
+estimator thread can delay the forwarding thread (measured: a 0.5 ms sleep overslept by 5 ms at p99
+next to a thread running the estimator flat out, 0.09 ms without it), and a crash or hang of the
+model in a child process cannot take the router down (the bridge restarts it). The child runs at a
+lower priority (nice 10) so that the router goes first. In the bridge the estimator is busy only
+~7–10 % of a core at 400 Hz, and on the shared 2-core test machine both modes measured alike
+(``benchmarks/bridge_latency.py``); the thread worker also serves tests and embedding.
+
+Protocol (both modes, the same :func:`worker_loop`):
+
+* bridge → worker: fixed-size ``SAMPLE`` records written to a **non-blocking** pipe. A record is
+  smaller than ``PIPE_BUF``, so a write is all-or-nothing: when the pipe is full the sample is
+  dropped by the bridge ("queue full") instead of queued without bound. The bridge also caps the
+  samples in flight (sent − processed − dropped) at its ``queue_samples``.
+* worker: reads whatever is waiting, drops samples older than ``max_age_s`` (wall clock since
+  the IMU message arrived; "stale") and pushes the rest through
+  :class:`~tepinn_flight.model.streaming.StreamingEstimator`, which resets itself on time
+  reversals and gaps. Of the samples that cross the output grid (``rate_hz`` on the autopilot's
+  clock) only the newest of a batch is sent back.
+* worker → bridge: length-prefixed frames: ``R`` ready (JSON), ``E`` estimate + counters,
+  ``S`` counters, ``X`` a non-fatal error line (the estimator raised: it is reset and goes on),
+  ``F`` a fatal error line (the model could not be loaded; the worker exits).
+
+Run as ``python -m tepinn_flight.live.worker --model CKPT``: records on stdin, frames on stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import fcntl
+import json
+import math
+import os
+import signal
+import struct
+import subprocess
+import sys
+import threading
+import time
+
+#: kind, seq, t_s, arrival (monotonic s), gyr(3), acc(3), mag(3, NaN = none), time_usec, time_boot_ms (-1 = none)
+SAMPLE = struct.Struct("<BIdd3d3d3dQi")
+KIND_SAMPLE = 1
+KIND_RESET = 2
+#: seq, t_s, arrival, q(4), sigma, bias(3), gyr(3), time_usec, time_boot_ms, model_ran, compute_s
+EST = struct.Struct("<Idd4dd3d3dQiBd")
+#: processed, dropped_stale, resets, errors, model_runs, model_s, step_s
+COUNTERS = struct.Struct("<IIIIIdd")
+HEADER = struct.Struct("<HB")
+STATS_INTERVAL_S = 0.05
+#: Scheduling priority of the worker process below the bridge's (forwarding first).
+NICE = 10
+_NAN3 = (math.nan, math.nan, math.nan)
+
+
+def pack_sample(seq, t_s, arrival, gyr, acc, mag, time_usec, time_boot_ms, kind=KIND_SAMPLE) -> bytes:
+    m = mag if mag is not None else _NAN3
+    return SAMPLE.pack(kind, seq & 0xFFFFFFFF, t_s, arrival, *gyr, *acc, *m, int(time_usec) & 0xFFFFFFFFFFFFFFFF,
+                       -1 if time_boot_ms is None else int(time_boot_ms) & 0x7FFFFFFF)  # fmt: skip
+
+
+def reset_record() -> bytes:
+    return SAMPLE.pack(KIND_RESET, 0, 0.0, 0.0, *([0.0] * 9), 0, -1)
+
+
+def unpack_estimate(payload: bytes) -> tuple[dict, tuple]:
+    v = EST.unpack_from(payload)
+    c = COUNTERS.unpack_from(payload, EST.size)
+    est = {
+        "seq": v[0], "t_s": v[1], "arrival": v[2], "q": v[3:7], "sigma": v[7], "bias": v[8:11],
+        "gyr": v[11:14], "time_usec": v[14], "time_boot_ms": None if v[15] < 0 else v[15],
+        "model_ran": bool(v[16]), "compute_s": v[17],
+    }  # fmt: skip
+    return est, c
+
+
+class _Out:
+    """Writes frames to the bridge (blocking: the bridge always reads)."""
+
+    def __init__(self, fd: int):
+        self.fd = fd
+
+    def send(self, kind: bytes, payload: bytes = b"") -> None:
+        data = HEADER.pack(len(payload), kind[0]) + payload
+        view = memoryview(data)
+        while view:
+            n = os.write(self.fd, view)
+            view = view[n:]
+
+
+def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, max_age_s: float = 0.2,
+                clock=time.monotonic) -> int:  # fmt: skip
+    """Serve one bridge until ``in_fd`` reaches EOF. Returns an exit code."""
+    out = _Out(out_fd)
+    try:
+        est = make_estimator()
+    except Exception as exc:  # noqa: BLE001 - reported to the bridge as one line
+        out.send(b"F", _one_line(exc).encode()[:2000])
+        return 3
+    info = {"pid": os.getpid()}
+    cfg = getattr(getattr(est, "model", None), "config", None)
+    if cfg is not None:
+        info.update(token_rate_hz=cfg.token_rate_hz, window_tokens=cfg.window_tokens)
+    out.send(b"R", json.dumps(info).encode())
+    buf = bytearray()
+    size = SAMPLE.size
+    processed = dropped = resets = errors = model_runs = 0
+    model_s = step_s = 0.0
+    last_k = None
+    t0_prev = None
+    last_stats = 0.0
+    while True:
+        try:
+            data = os.read(in_fd, 1 << 16)
+        except InterruptedError:
+            continue
+        except OSError:
+            break
+        if not data:
+            break
+        buf += data
+        n = len(buf) // size
+        recs = [SAMPLE.unpack_from(buf, i * size) for i in range(n)]
+        del buf[: n * size]
+        due = None
+        for r in recs:
+            if r[0] == KIND_RESET:
+                est.reset()
+                last_k = None
+                continue
+            if clock() - r[3] > max_age_s:
+                dropped += 1
+                continue
+            t_s = r[2]
+            mag = r[10:13]
+            try:
+                e = est.push(t_s, r[4:7], r[7:10], None if math.isnan(mag[0]) else mag)
+            except Exception as exc:  # noqa: BLE001 - the model raised: reset, report, go on
+                errors += 1
+                if errors == 1 or errors % 100 == 0:
+                    out.send(b"X", f"estimator error #{errors}: {_one_line(exc)}".encode()[:2000])
+                try:
+                    est.reset()
+                except Exception:  # noqa: BLE001
+                    pass
+                last_k = None
+                continue
+            processed += 1
+            t0 = getattr(est, "t0", None)
+            if t0_prev is not None and t0 != t0_prev:
+                resets += 1
+            t0_prev = t0
+            if e.model_ran:
+                model_runs += 1
+                model_s += e.compute_s
+            else:
+                step_s += e.compute_s
+            if e.q_nb_wxyz is None:
+                continue
+            k = math.floor(t_s * rate_hz + 1e-9)
+            if k != last_k:
+                last_k = k
+                due = (r, e)
+        counters = COUNTERS.pack(processed, dropped, resets, errors, model_runs, model_s, step_s)
+        now = clock()
+        if due is not None:
+            r, e = due
+            payload = EST.pack(r[1], r[2], r[3], *e.q_nb_wxyz, e.sigma_rad, *e.gyr_bias_rad_s, *r[4:7], r[13], r[14],
+                               int(e.model_ran), e.compute_s)  # fmt: skip
+            out.send(b"E", payload + counters)
+            last_stats = now
+        elif now - last_stats >= STATS_INTERVAL_S:
+            out.send(b"S", counters)
+            last_stats = now
+    return 0
+
+
+def _one_line(exc: BaseException) -> str:
+    first = (str(exc).strip().splitlines() or [""])[0]
+    return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
+
+
+def _set_nonblocking(fd: int) -> None:
+    fl = fcntl.fcntl(fd, fcntl.F_GETFL)
+    fcntl.fcntl(fd, fcntl.F_SETFL, fl | os.O_NONBLOCK)
+
+
+class FrameReader:
+    """Non-blocking reads of worker frames; ``eof`` once the worker closed its end."""
+
+    def __init__(self, fd: int):
+        self.fd = fd
+        self.buf = bytearray()
+        self.eof = False
+
+    def read(self) -> list[tuple[bytes, bytes]]:
+        while True:
+            try:
+                data = os.read(self.fd, 1 << 16)
+            except BlockingIOError:
+                break
+            except OSError:
+                self.eof = True
+                break
+            if not data:
+                self.eof = True
+                break
+            self.buf += data
+            if len(data) < (1 << 16):
+                break
+        out = []
+        b = self.buf
+        i = 0
+        while len(b) - i >= HEADER.size:
+            n, kind = HEADER.unpack_from(b, i)
+            if len(b) - i - HEADER.size < n:
+                break
+            out.append((bytes([kind]), bytes(b[i + HEADER.size : i + HEADER.size + n])))
+            i += HEADER.size + n
+        del b[:i]
+        return out
+
+
+class _WorkerBase:
+    mode = "?"
+
+    def __init__(self):
+        self.in_fd = None
+        self.reader = None
+        self.submitted = 0
+        self.full = 0
+
+    @property
+    def out_fd(self) -> int:
+        return self.reader.fd
+
+    def submit(self, record: bytes) -> bool:
+        """Queue one record without blocking; False when the pipe is full or the worker gone."""
+        if self.in_fd is None:
+            return False
+        try:
+            os.write(self.in_fd, record)
+        except BlockingIOError:
+            self.full += 1
+            return False
+        except OSError:
+            return False
+        self.submitted += 1
+        return True
+
+    def read(self):
+        return self.reader.read()
+
+    @property
+    def eof(self) -> bool:
+        return self.reader.eof
+
+    def _close_input(self) -> None:
+        if self.in_fd is not None:
+            try:
+                os.close(self.in_fd)
+            except OSError:
+                pass
+            self.in_fd = None
+
+
+class ProcessWorker(_WorkerBase):
+    """``python -m tepinn_flight.live.worker`` as a child process."""
+
+    mode = "process"
+
+    def __init__(self, model_path: str, rate_hz: float, max_age_s: float):
+        super().__init__()
+        cmd = [sys.executable, "-m", "tepinn_flight.live.worker", "--model", str(model_path),
+               "--rate", repr(float(rate_hz)), "--max-age", repr(float(max_age_s))]  # fmt: skip
+        env = dict(os.environ)
+        env.setdefault("OMP_NUM_THREADS", "1")
+        self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     env=env, bufsize=0, start_new_session=True)  # fmt: skip
+        self.in_fd = self.proc.stdin.fileno()
+        _set_nonblocking(self.in_fd)
+        _set_nonblocking(self.proc.stdout.fileno())
+        _set_nonblocking(self.proc.stderr.fileno())
+        self.reader = FrameReader(self.proc.stdout.fileno())
+        self.err_fd = self.proc.stderr.fileno()
+        self.stderr_tail = bytearray()
+
+    def read_stderr(self) -> None:
+        while self.err_fd is not None:
+            try:
+                data = os.read(self.err_fd, 1 << 16)
+            except (BlockingIOError, OSError):
+                return
+            if not data:  # the child closed stderr: stop selecting on it
+                self.err_fd = None
+                self.proc.stderr.close()
+                return
+            self.stderr_tail = (self.stderr_tail + data)[-4000:]
+
+    def last_stderr_line(self) -> str:
+        lines = [ln for ln in self.stderr_tail.decode(errors="replace").splitlines() if ln.strip()]
+        return lines[-1].strip() if lines else ""
+
+    def exit_code(self) -> int | None:
+        return self.proc.poll()
+
+    def stop(self, timeout_s: float = 3.0) -> None:
+        self._close_input()
+        try:
+            self.proc.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        self.read_stderr()
+        self.err_fd = None  # closed below: never read a recycled descriptor number
+        for f in (self.proc.stdout, self.proc.stderr, self.proc.stdin):
+            try:
+                f.close()
+            except (OSError, AttributeError):
+                pass
+
+
+class ThreadWorker(_WorkerBase):
+    """:func:`worker_loop` in a daemon thread of the bridge's process (shares the GIL)."""
+
+    mode = "thread"
+
+    def __init__(self, make_estimator, rate_hz: float, max_age_s: float):
+        super().__init__()
+        r_in, self.in_fd = os.pipe()
+        r_out, w_out = os.pipe()
+        _set_nonblocking(self.in_fd)
+        _set_nonblocking(r_out)
+        self.reader = FrameReader(r_out)
+        self.err_fd = None
+        self._fds = (r_in, w_out)
+        self.code = None
+
+        def run():
+            try:
+                self.code = worker_loop(r_in, w_out, make_estimator, rate_hz, max_age_s)
+            finally:
+                for fd in (r_in, w_out):
+                    try:
+                        os.close(fd)
+                    except OSError:
+                        pass
+
+        self.thread = threading.Thread(target=run, name="tepinn-estimator", daemon=True)
+        self.thread.start()
+
+    def read_stderr(self) -> None:
+        return None
+
+    def last_stderr_line(self) -> str:
+        return ""
+
+    def exit_code(self) -> int | None:
+        return None if self.thread.is_alive() else (self.code if self.code is not None else 1)
+
+    def stop(self, timeout_s: float = 3.0) -> None:
+        self._close_input()
+        self.thread.join(timeout_s)
+        try:
+            os.close(self.reader.fd)
+        except OSError:
+            pass
+
+
+def model_estimator_factory(model_path: str):
+    """A factory building a StreamingEstimator from a checkpoint (imports torch when called)."""
+
+    def make():
+        from ..model.checkpoint import load_model  # noqa: PLC0415 - torch only where needed
+        from ..model.streaming import StreamingEstimator  # noqa: PLC0415
+
+        model, fusion, _ = load_model(model_path)
+        return StreamingEstimator(model, fusion, threads=1)
+
+    return make
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m tepinn_flight.live.worker")
+    p.add_argument("--model", required=True)
+    p.add_argument("--rate", type=float, default=50.0)
+    p.add_argument("--max-age", type=float, default=0.2)
+    a = p.parse_args(argv)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the bridge stops us by closing stdin
+    try:
+        os.nice(NICE)  # the router goes first when a frame arrives (a 2-core machine has no spare core)
+    except OSError:
+        pass
+    out_fd = os.dup(1)
+    os.dup2(2, 1)  # stray prints of libraries go to stderr, never into the protocol
+    return worker_loop(0, out_fd, model_estimator_factory(a.model), a.rate, a.max_age)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,549 @@
+"""The live bridge on loopback: replay → bridge (→ MAVProxy) → a ground-station listener.
+
+References: the frames the emulator sent (byte for byte, in order), the offline StreamingEstimator
+run on the very samples the bridge received (the estimates must be the same numbers), the
+simulation's true attitude (inclination error), and pymavlink's parser for everything on the wire.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ["MAVLINK20"] = "1"  # before pymavlink (mavlink.md §2)
+
+import json
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import threading
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from tepinn_flight.errors import ConfigError
+from tepinn_flight.live import dialect
+from tepinn_flight.live.bridge import Bridge, BridgeConfig
+from tepinn_flight.live.messages import Encoder, highres_imu_msg
+from tepinn_flight.live.replay import record_stream
+from tepinn_flight.live.router import EndpointError, Link, parse_endpoint
+from tepinn_flight.live.status import Histogram
+from tepinn_flight.model.checkpoint import default_model_path, load_model, save_checkpoint
+from tepinn_flight.model.config import ModelConfig
+from tepinn_flight.model.fusion import FusionConfig
+from tepinn_flight.model.network import TEPINN
+from tepinn_flight.model.streaming import Estimate, StreamingEstimator
+from tepinn_flight.model.synthetic import synthetic_record
+from tepinn_flight.tlog_writer import DEFAULT_BOOT_OFFSET_S, write_tlog
+from tests.test_replay import CLI, UdpListener, free_udp_port, tlog_records
+
+M = dialect()
+SMALL = ModelConfig(window_tokens=16, d_model=16, n_heads=2, n_layers=1, d_ff=32)
+
+
+def _small_model():
+    torch.manual_seed(0)
+    return TEPINN(SMALL).eval()
+
+
+@pytest.fixture(scope="module")
+def model_path(tmp_path_factory):
+    """The shipped model when present, else a small untrained one saved as a checkpoint."""
+    if default_model_path().exists():
+        return default_model_path(), True
+    p = tmp_path_factory.mktemp("model") / "small.pt"
+    save_checkpoint(p, _small_model(), FusionConfig())
+    return p, False
+
+
+def _compid(frame: bytes) -> int:
+    return frame[6] if frame[0] == 0xFD else frame[4]
+
+
+def _parse(frames: bytes):
+    rx = M.MAVLink(None)
+    msgs = rx.parse_buffer(frames) or []
+    assert all(m.get_type() != "BAD_DATA" for m in msgs)
+    return msgs
+
+
+class StderrWatcher:
+    def __init__(self, proc):
+        self.lines: list[str] = []
+        self.t = threading.Thread(target=self._run, args=(proc,), daemon=True)
+        self.t.start()
+
+    def _run(self, proc):
+        for line in proc.stderr:
+            self.lines.append(line.rstrip("\n"))
+
+    def wait_for(self, text: str, timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if any(text in ln for ln in self.lines):
+                return True
+            time.sleep(0.05)
+        return False
+
+
+def _stop(proc, timeout=15):
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+# ---------------------------------------------------------------------------- end to end
+def _sim_tlog(tmp_path, duration_s, rate_hz):
+    from tepinn_flight.sim.simulate import simulate_record
+
+    rec = simulate_record("F450", duration_s, rate_hz=rate_hz, seed=0)
+    path = tmp_path / "flight.tlog"
+    write_tlog(path, rec)
+    return rec, path
+
+
+def _offline_estimates(model_path, tlog_path):
+    """Push the HIGHRES_IMU samples the bridge received (float32 values, own time) through the
+    offline StreamingEstimator; the estimates at the 50 Hz grid keyed by time_boot_ms."""
+    model, fusion, _ = load_model(model_path)
+    se = StreamingEstimator(model, fusion)
+    out = {}
+    for _, fr in tlog_records(tlog_path):
+        (m,) = _parse(fr)
+        if m.get_type() != "HIGHRES_IMU":
+            continue
+        mag = (m.xmag * 100, m.ymag * 100, m.zmag * 100) if m.fields_updated & 0x1C0 == 0x1C0 else None
+        e = se.push(m.time_usec / 1e6, (m.xgyro, m.ygyro, m.zgyro), (m.xacc, m.yacc, m.zacc), mag)
+        if e.q_nb_wxyz is not None:
+            out[m.time_usec // 1000] = e.q_nb_wxyz
+    return out
+
+
+def _run_chain(tmp_path, model, tlog, speed, mavproxy=False):
+    """replay → bridge → (MAVProxy →) listener; returns (listener datagrams, summary, stderr)."""
+    lis = UdpListener()
+    bridge_port = free_udp_port()
+    procs = []
+    try:
+        out_port = lis.port
+        if mavproxy:
+            mp_port = free_udp_port()
+            state = tmp_path / "mavproxy"
+            state.mkdir()
+            mp = subprocess.Popen(
+                [shutil.which("mavproxy.py"), f"--master=udpin:127.0.0.1:{mp_port}", f"--out=udpout:127.0.0.1:{lis.port}",
+                 "--daemon", f"--state-basedir={state}", "--no-state"],
+                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=tmp_path,
+            )  # fmt: skip
+            procs.append(mp)
+            mp_started = time.monotonic()
+            out_port = mp_port
+        summary_path = tmp_path / "summary.json"
+        bridge = subprocess.Popen(
+            [*CLI, "bridge", "--master", f"udpin:127.0.0.1:{bridge_port}", "--out", f"udpout:127.0.0.1:{out_port}",
+             "--model", str(model), "--max-age", "5", "--tlog", str(tmp_path / "session.tlog"),
+             "--summary-json", str(summary_path), "--status-interval", "1"],
+            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        procs.append(bridge)
+        watch = StderrWatcher(bridge)
+        assert watch.wait_for("estimator ready", 60), "\n".join(watch.lines)
+        if mavproxy:
+            time.sleep(max(0.0, mp_started + 4.5 - time.monotonic()))  # MAVProxy starts in ~4 s (mavlink.md §7)
+        r = subprocess.run([*CLI, "replay", str(tlog), "--to", f"udpout:127.0.0.1:{bridge_port}", "--speed", str(speed)],
+                           capture_output=True, text=True, timeout=120)  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        time.sleep(0.5)
+        _stop(bridge)
+        bridge.stdout.read()
+        summary = json.loads(summary_path.read_text())
+    finally:
+        for p in procs:
+            _stop(p)
+        lis.close()
+    return lis, summary, watch.lines
+
+
+def _check_chain(lis, tlog):
+    sent = [fr for _, fr in tlog_records(tlog)]
+    got = [d for _, d in lis.datagrams]
+    ap = [d for d in got if _compid(d) == 1]
+    assert ap == sent  # every autopilot frame, unchanged, in order
+    own = [m for d in got if _compid(d) == 191 for m in _parse(d)]
+    assert all((m.get_srcSystem(), m.get_srcComponent()) == (1, 191) for m in own)
+    kinds = {m.get_type() for m in own}
+    assert {"HEARTBEAT", "ATTITUDE", "ATTITUDE_QUATERNION", "NAMED_VALUE_FLOAT", "DEBUG_VECT"} <= kinds
+    hb = [m for m in own if m.get_type() == "HEARTBEAT"]
+    assert hb[0].type == M.MAV_TYPE_ONBOARD_CONTROLLER and hb[0].autopilot == M.MAV_AUTOPILOT_INVALID
+    aq = [m for m in own if m.get_type() == "ATTITUDE_QUATERNION"]
+    att = [m for m in own if m.get_type() == "ATTITUDE"]
+    ms = np.array([m.time_boot_ms for m in aq])
+    assert [m.time_boot_ms for m in att] == list(ms)
+    assert np.all(np.diff(ms) > 0)
+    rate = (len(ms) - 1) / ((ms[-1] - ms[0]) / 1e3)
+    assert 49.0 <= rate <= 51.0  # estimates at 50 Hz of autopilot time
+    first_imu_ms = DEFAULT_BOOT_OFFSET_S * 1e3
+    last_ms = first_imu_ms + (len([1 for fr in sent if _parse(fr)[0].get_type() == "HIGHRES_IMU"]) - 1) * 1e3 / 400
+    assert ms[-1] >= last_ms - 40  # estimates until the end of the flight
+    return aq, ms
+
+
+@pytest.mark.slow
+def test_replay_bridge_listener_end_to_end(tmp_path, model_path):
+    model, shipped = model_path
+    rec, tlog = _sim_tlog(tmp_path, 8.0, 400.0)
+    lis, summary, err = _run_chain(tmp_path, model, tlog, speed=2.0)
+    aq, ms = _check_chain(lis, tlog)
+    # the estimates are the offline StreamingEstimator's numbers for the same samples
+    ref = _offline_estimates(model, tlog)
+    q_live = np.array([[m.q1, m.q2, m.q3, m.q4] for m in aq])
+    q_off = np.array([ref[int(k)] for k in ms])
+    np.testing.assert_allclose(q_live, q_off, atol=2e-6)  # float32 on the wire
+    # inclination error against the simulation's truth (the tlog's ATTITUDE is the truth here)
+    t = rec.t_s
+    idx = np.rint((ms / 1e3 - DEFAULT_BOOT_OFFSET_S) * 400).astype(int)
+    q_true = rec.q_ref_wxyz[idx]
+    g = lambda q: np.stack([2 * (q[:, 1] * q[:, 3] - q[:, 0] * q[:, 2]), 2 * (q[:, 2] * q[:, 3] + q[:, 0] * q[:, 1]),
+                            1 - 2 * (q[:, 1] ** 2 + q[:, 2] ** 2)], 1)  # noqa: E731  # fmt: skip
+    incl = np.degrees(np.arccos(np.clip(np.sum(g(q_live) * g(q_true), 1), -1, 1)))
+    assert np.all(np.isfinite(incl)) and np.all(incl <= 180.0)
+    if shipped:
+        assert np.mean(incl) < 5.0, np.mean(incl)
+    # the bridge's own comparison (against the tlog's 50 Hz ATTITUDE_QUATERNION = truth) agrees
+    d = summary["ekf_difference_deg"]
+    assert d["n"] >= len(ms) - 2
+    assert d["mean"] == pytest.approx(float(np.mean(incl)), abs=0.05)
+    # the summary's counts
+    sent = tlog_records(tlog)
+    msg, est = summary["messages"], summary["estimates"]
+    assert msg["from_master"] == msg["forwarded_to_outs"] == len(sent)
+    assert msg["bad_frames"] == msg["own_echoes"] == msg["write_errors"] == msg["internal_errors"] == 0
+    assert est["count"] == len(aq) and est["errors"] == 0 and est["resets"] == 0
+    assert est["dropped_stale"] == est["dropped_queue_full"] == est["samples_without_estimator"] == 0
+    assert est["rate_hz"] == pytest.approx(50.0, abs=1.0)
+    assert summary["imu"]["message"] == "HIGHRES_IMU" and summary["imu"]["rate_hz"] == pytest.approx(400.0, rel=1e-3)
+    assert summary["autopilot"] == {"sysid": 1, "autopilot": "ardupilotmega", "vehicle_type": "quadrotor", "lost": 0}
+    lat = summary["latency_ms"]
+    assert lat["n"] == len(aq) and 0 < lat["p50"] <= lat["p99"] <= lat["max"]
+    assert any("estimator ready" in ln for ln in err)
+    # the session tlog holds the autopilot's frames and ours, readable by the tlog reader
+    from tepinn_flight.ingest import read_raw
+
+    raw = read_raw(tmp_path / "session.tlog")
+    assert raw.meta["imu_message"] == "HIGHRES_IMU" and len(raw.imu.t_s) == 3200
+    rec2 = [fr for _, fr in tlog_records(tmp_path / "session.tlog")]
+    assert sum(_compid(fr) == 191 and _parse(fr)[0].get_type() == "ATTITUDE_QUATERNION" for fr in rec2) == len(aq)
+
+
+@pytest.mark.mavproxy
+@pytest.mark.skipif(shutil.which("mavproxy.py") is None, reason="MAVProxy not installed (pip install --no-deps MAVProxy)")
+def test_replay_bridge_mavproxy_listener(tmp_path, model_path):
+    model, shipped = model_path
+    rec, tlog = _sim_tlog(tmp_path, 3.0, 200.0)  # ~500 msg/s: what MAVProxy routed without loss
+    lis, summary, _ = _run_chain(tmp_path, model, tlog, speed=1.0, mavproxy=True)
+    sent = [fr for _, fr in tlog_records(tlog)]
+    got = [d for _, d in lis.datagrams]
+    ap = [d for d in got if _compid(d) == 1 and d[5 if d[0] == 0xFD else 3] == 1]
+    assert ap == sent  # through the bridge and MAVProxy: all, unchanged, in order
+    own = [m for d in got if _compid(d) == 191 for m in _parse(d)]
+    ms = np.array([m.time_boot_ms for m in own if m.get_type() == "ATTITUDE_QUATERNION"])
+    assert len(ms) >= 0.9 * summary["estimates"]["count"] and np.all(np.diff(ms) > 0)
+    assert (len(ms) - 1) / ((ms[-1] - ms[0]) / 1e3) == pytest.approx(50.0, abs=1.0)
+    assert {"HEARTBEAT", "NAMED_VALUE_FLOAT", "DEBUG_VECT"} <= {m.get_type() for m in own}
+
+
+# ---------------------------------------------------------------------------- faults, in-process
+class FakeAutopilot(UdpListener):
+    """A vehicle on UDP: sends frames to the bridge's master port, records what comes back."""
+
+    def __init__(self, port):
+        super().__init__()
+        self.dest = ("127.0.0.1", port)
+        self.sent: list[bytes] = []  # the good frames, as they must reach the ground station
+
+    def put(self, frame: bytes, good: bool = True) -> None:
+        self.sock.sendto(frame, self.dest)
+        if good:
+            self.sent.append(frame)
+
+    def play(self, items, t0: float) -> float:
+        for p, fr in items:
+            d = t0 + p - time.monotonic()
+            if d > 0:
+                time.sleep(d)
+            self.put(fr)
+        return time.monotonic()
+
+
+def _bridge(lis_port, make_estimator=None, **kw):
+    cfg = BridgeConfig(master="udpin:127.0.0.1:0", outs=(f"udpout:127.0.0.1:{lis_port}",), worker="thread", **kw)
+    b = Bridge(cfg, make_estimator=make_estimator or (lambda: StreamingEstimator(_small_model(), FusionConfig())))
+    stop = threading.Event()
+    box = {}
+    th = threading.Thread(target=lambda: box.setdefault("summary", b.run(stop)), daemon=True)
+    th.start()
+    assert b.ready.wait(30), "estimator did not start"
+    return b, stop, th, box
+
+
+def _finish(stop, th, box):
+    stop.set()
+    th.join(10)
+    assert not th.is_alive()
+    return box["summary"]
+
+
+def test_faults_do_not_stop_forwarding():
+    gcs = UdpListener()
+    b, stop, th, box = _bridge(gcs.port, autopilot_timeout_s=0.5, min_imu_rate_hz=0)
+    ap = FakeAutopilot(b.master.local_port())
+    try:
+        a = list(record_stream(synthetic_record(seed=4, duration_s=1.2, rate_hz=200.0), boot_offset_s=10.0))
+        rb = list(record_stream(synthetic_record(seed=5, duration_s=1.2, rate_hz=200.0), boot_offset_s=1.0))
+        c = list(record_stream(synthetic_record(seed=6, duration_s=1.2, rate_hz=200.0), boot_offset_s=3.7))
+        t0 = time.monotonic()
+        ap.play(a[: len(a) // 2], t0)
+        # garbage, a CRC failure, an unknown message id, another system, our own echo
+        ap.put(b"\x00\x01garbage\xfd\x07\x00", good=False)
+        bad = bytearray(a[10][1])
+        bad[12] ^= 0xFF
+        ap.put(bytes(bad), good=False)
+        unknown = bytes([0xFD, 4, 0, 0, 9, 1, 1, 0x39, 0x30, 0, 1, 2, 3, 4, 0x55, 0xAA])  # id 12345
+        ap.put(unknown)
+        ap.put(Encoder(2, 1).pack(highres_imu_msg(123, (9.0, 9.0, 9.0), (0, 0, 0))))
+        ap.put(Encoder(1, 191).pack(highres_imu_msg(123, (0, 0, 0), (0, 0, -9.8))), good=False)
+        gcs_cmd = Encoder(255, 190).pack(M.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))
+        time.sleep(0.05)
+        gcs.send(gcs_cmd)  # ground station → autopilot through the bridge
+        gcs.send(Encoder(1, 191).pack(M.MAVLink_heartbeat_message(18, 8, 0, 0, 4, 3)))  # an echo via the out
+        ap.play(a[len(a) // 2 :], t0)
+        ap.play(rb, time.monotonic())  # reboot: the boot clock restarts at 1 s
+        time.sleep(1.2)  # the autopilot goes away (timeout 0.5 s) ...
+        ap.play(c, time.monotonic())  # ... and comes back
+        time.sleep(0.3)
+    finally:
+        s = _finish(stop, th, box)
+        gcs.close()
+        ap.close()
+    got = [d for _, d in gcs.datagrams]
+    assert [d for d in got if _compid(d) != 191] == ap.sent  # every good frame, unchanged, in order
+    back = [d for _, d in ap.datagrams]
+    assert gcs_cmd in back  # the ground station's command reached the autopilot unchanged
+    assert any(_parse(d)[0].get_type() == "HEARTBEAT" for d in back if _compid(d) == 191)
+    assert all(_compid(d) in (190, 191) for d in back)  # the echo via the out was dropped
+    assert sum(_compid(d) == 190 for d in back) == 1
+    own_ms = [m.time_boot_ms for d in got if _compid(d) == 191 for m in _parse(d) if m.get_type() == "ATTITUDE_QUATERNION"]
+    assert any(m < 2300 for m in own_ms)  # estimates resumed after the reboot (boot 1.0–2.2 s)
+    assert any(3700 <= m < 5000 for m in own_ms)  # ... and after the autopilot came back
+    msg, est = s["messages"], s["estimates"]
+    assert msg["bad_frames"] >= 2 and msg["own_echoes"] == 2 and msg["other_sources"] >= 1
+    assert msg["internal_errors"] == 0
+    assert s["autopilot"]["lost"] == 1
+    assert s["imu"]["time_jumps"] >= 2 and est["resets"] >= 2 and est["errors"] == 0
+
+
+class FlakyEstimator:
+    """Raises every 40th sample, sleeps 0.4 s every 150th (a stalled model)."""
+
+    def __init__(self):
+        self.n = 0
+        self.t0 = None
+
+    def reset(self):
+        pass
+
+    def push(self, t, gyr, acc, mag=None):
+        self.n += 1
+        if self.n % 40 == 0:
+            raise RuntimeError("model exploded")
+        if self.n % 150 == 1:
+            time.sleep(0.4)
+        return Estimate(t, (1.0, 0.0, 0.0, 0.0), 0.01, (0.0, 0.0, 0.0), False, 0.0)
+
+
+def test_a_raising_and_stalling_model_does_not_stop_forwarding():
+    gcs = UdpListener()
+    b, stop, th, box = _bridge(gcs.port, make_estimator=FlakyEstimator, queue_samples=32, min_imu_rate_hz=0)
+    ap = FakeAutopilot(b.master.local_port())
+    try:
+        ap.play(record_stream(synthetic_record(seed=7, duration_s=2.0, rate_hz=200.0)), time.monotonic())
+        time.sleep(0.6)
+    finally:
+        s = _finish(stop, th, box)
+        gcs.close()
+        ap.close()
+    assert [d for _, d in gcs.datagrams if _compid(d) != 191] == ap.sent
+    est = s["estimates"]
+    assert est["errors"] >= 5 and est["count"] > 20
+    assert est["dropped_queue_full"] > 0 and est["dropped_stale"] > 0  # bounded queue, stale dropped
+    assert "model exploded" in est["worker_error"]
+    assert s["forward_latency_ms"]["p50"] < 5.0  # forwarding did not wait for the model
+
+
+@pytest.mark.parametrize("granted", [False, True])
+def test_asks_for_a_faster_imu_stream(granted):
+    gcs = UdpListener()
+    b, stop, th, box = _bridge(gcs.port, request_grace_s=0.3, request_spacing_s=0.3, min_imu_rate_hz=50,
+                               request_imu_rate_hz=200)  # fmt: skip
+    ap = FakeAutopilot(b.master.local_port())
+    enc = Encoder(1, 1)
+    hb = lambda: enc.pack(M.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3))  # noqa: E731  ArduPilot quad
+    raw = lambda us: enc.pack(M.MAVLink_raw_imu_message(us, 0, 0, -1000, 1, 2, 3, 0, 0, 0, 0, 0))  # noqa: E731
+    period, us, acked = 0.05, 0, False  # 20 Hz RAW_IMU
+    try:
+        t_end = time.monotonic() + 2.6
+        k = 0
+        while time.monotonic() < t_end:
+            if k % 20 == 0:
+                ap.put(hb())
+            us += int(period * 1e6)
+            ap.put(raw(us))
+            k += 1
+            if granted and not acked and any(_compid(d) == 191 and _parse(d)[0].get_type() == "COMMAND_LONG"
+                                             for _, d in ap.datagrams):  # fmt: skip
+                ap.put(enc.pack(M.MAVLink_command_ack_message(511, 0, 0, 0, 1, 191)))  # ACCEPTED, to us
+                acked, period = True, 0.005  # the autopilot now streams at 200 Hz
+            time.sleep(period)
+    finally:
+        s = _finish(stop, th, box)
+        gcs.close()
+        ap.close()
+    cmds = [mm for _, d in ap.datagrams for mm in _parse(d) if mm.get_type() == "COMMAND_LONG"]
+    c = cmds[0]
+    assert (c.get_srcSystem(), c.get_srcComponent(), c.target_system, c.target_component) == (1, 191, 1, 1)
+    assert (c.command, c.param1, c.param2) == (511, 27.0, 5000.0)  # RAW_IMU (ArduPilot) every 5000 µs
+    assert not any(mm.get_type() == "COMMAND_LONG" for _, d in gcs.datagrams for mm in _parse(d))  # not to the GCS
+    if granted:
+        assert len(cmds) == 1 and s["imu"]["requested"] == 1 and s["imu"]["request_ack"] == "accepted"
+        assert s["imu"]["warning"] is None and s["imu"]["message"] == "RAW_IMU"
+    else:
+        assert len(cmds) == 3 and s["imu"]["requested"] == 3
+        w = s["imu"]["warning"]
+        assert "not granted" in w and 15 <= float(re.match(r"IMU at ([0-9.]+) Hz", w).group(1)) <= 21
+
+
+def test_stream_endpoints_tcp_and_serial_pty():
+    """A TCP master (SITL style: the autopilot listens) that drops and comes back, and a serial
+    master on a pseudo-terminal; frames split at arbitrary byte boundaries."""
+    frames = [fr for _, fr in record_stream(synthetic_record(seed=8, duration_s=0.3, rate_hz=100.0))]
+    blob = b"".join(frames)
+    cuts = list(range(0, len(blob), 37)) + [len(blob)]
+    # --- TCP
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    gcs = UdpListener()
+    cfg = BridgeConfig(master=f"tcp:127.0.0.1:{srv.getsockname()[1]}", outs=(f"udpout:127.0.0.1:{gcs.port}",),
+                       worker="thread", min_imu_rate_hz=0)  # fmt: skip
+    b = Bridge(cfg, make_estimator=lambda: StreamingEstimator(_small_model(), FusionConfig()))
+    stop = threading.Event()
+    th = threading.Thread(target=b.run, args=(stop,), daemon=True)
+    th.start()
+    try:
+        for _ in range(2):  # the second connection: the bridge reconnected after the peer closed
+            srv.settimeout(5)
+            conn, _ = srv.accept()
+            for i, j in zip(cuts[:-1], cuts[1:]):
+                conn.sendall(blob[i:j])
+            time.sleep(0.3)
+            conn.close()
+        time.sleep(0.3)
+    finally:
+        stop.set()
+        th.join(10)
+        gcs.close()
+        srv.close()
+    got = b"".join(d for _, d in gcs.datagrams if _compid(d) != 191)
+    assert got == blob + blob
+    # --- serial on a pty
+    import tty
+
+    mfd, sfd = os.openpty()
+    tty.setraw(sfd)
+    gcs = UdpListener()
+    cfg = BridgeConfig(master=f"{os.ttyname(sfd)},57600", outs=(f"udpout:127.0.0.1:{gcs.port}",), worker="thread",
+                       min_imu_rate_hz=0)  # fmt: skip
+    b = Bridge(cfg, make_estimator=lambda: StreamingEstimator(_small_model(), FusionConfig()))
+    stop = threading.Event()
+    th = threading.Thread(target=b.run, args=(stop,), daemon=True)
+    th.start()
+    try:
+        for i, j in zip(cuts[:-1], cuts[1:]):
+            os.write(mfd, blob[i:j])
+        time.sleep(0.5)
+    finally:
+        stop.set()
+        th.join(10)
+        gcs.close()
+        os.close(mfd)
+        os.close(sfd)
+    assert b"".join(d for _, d in gcs.datagrams if _compid(d) != 191) == blob
+
+
+# ---------------------------------------------------------------------------- command line
+def _cli(*args, timeout=60):
+    return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout)
+
+
+def test_cli_errors_are_one_line(tmp_path, model_path):
+    model, _ = model_path
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a checkpoint")
+    port = free_udp_port()
+    cases = [
+        (("--master", f"udpin:127.0.0.1:{port}", "--out", "bogus:1"), "unknown endpoint"),
+        (("--master", "/dev/no-such-tty,57600", "--model", model), "no such serial device"),
+        (("--master", f"udpin:127.0.0.1:{port}", "--model", tmp_path / "missing.pt"), "no such checkpoint"),
+        (("--master", f"udpin:127.0.0.1:{port}", "--model", junk, "--duration", "30"), "could not start"),
+    ]
+    for args, words in cases:
+        r = _cli("bridge", *args)
+        assert r.returncode == 2, (args, r.stderr)
+        lines = [ln for ln in r.stderr.strip().splitlines() if "error" in ln]
+        assert len(lines) == 1 and words in lines[0] and "Traceback" not in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("spec, words", [
+    ("udp:127.0.0.1:14550", "udpin"), ("udpout:127.0.0.1:0", "out of range"), ("udpin:127.0.0.1", "HOST:PORT"),
+    ("tcp:host:99999", "out of range"), ("bogus:1", "unknown endpoint"), ("/dev/ttyACM0,fast", "baud"), ("", "empty"),
+])  # fmt: skip
+def test_malformed_endpoints(spec, words):
+    with pytest.raises(EndpointError, match=words):
+        parse_endpoint(spec)
+
+
+def test_endpoint_forms():
+    assert parse_endpoint("udpin:0.0.0.0:14550") == ("udpin", "0.0.0.0", 14550)
+    assert parse_endpoint("tcp:[::1]:5760") == ("tcp", "::1", 5760)
+    assert parse_endpoint("/dev/ttyACM0,921600") == ("serial", "/dev/ttyACM0", 921600)
+    assert parse_endpoint("/dev/ttyUSB0") == ("serial", "/dev/ttyUSB0", 115200)
+    with pytest.raises(EndpointError, match="no such serial device"):
+        Link("/dev/no-such-tty", "master")
+    with pytest.raises(EndpointError, match="resolve"):
+        Link("udpout:no-such-host.invalid:14550", "out")
+
+
+def test_bridge_config_and_tlog_folder_errors(tmp_path):
+    with pytest.raises(ConfigError, match="rate"):
+        BridgeConfig(master="udpin:127.0.0.1:0", rate_hz=0)
+    with pytest.raises(ConfigError, match="does not exist"):
+        Bridge(BridgeConfig(master="udpin:127.0.0.1:0", worker="thread", tlog_path=str(tmp_path / "no" / "x.tlog")),
+               make_estimator=object)  # fmt: skip
+
+
+def test_histogram_percentiles_against_numpy():
+    rng = np.random.default_rng(1)
+    v = rng.gamma(2.0, 0.002, 5000)
+    h = Histogram(1.0, 100_000)
+    for x in v:
+        h.add(float(x))
+    for p in (50, 90, 99):
+        assert h.percentile(p) == pytest.approx(np.percentile(v, p), abs=1.1e-5)
+    assert h.max == v.max() and h.mean() == pytest.approx(v.mean())
