@@ -75,6 +75,12 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         sys.stderr.write(f"tepinn-flight {args.command}: interrupted\n")
         return 130
+    except BrokenPipeError:  # output piped into `head` and closed: not an error of ours
+        try:
+            sys.stdout = open(os.devnull, "w")
+        except OSError:
+            pass
+        return 141
     except Exception as exc:  # a bug, not bad input: still one line unless debugging
         if debug:
             raise
