@@ -171,7 +171,18 @@ def _run_chain(tmp_path, model, tlog, speed, mavproxy=False):
     return lis, summary, watch.lines
 
 
-def _check_chain(lis, tlog):
+def _assert_estimate_rate(ms, summary):
+    """Estimates at 50 Hz of autopilot time; on a machine too loaded for that, the bounded queue
+    must show the samples it dropped (it never queues without bound or stalls)."""
+    rate = (len(ms) - 1) / ((ms[-1] - ms[0]) / 1e3)
+    assert rate <= 51.0
+    if rate < 49.0:
+        est = (summary or {}).get("estimates", {})
+        drops = est.get("dropped_stale", 0) + est.get("dropped_queue_full", 0)
+        assert drops > 0 and rate >= 20.0, (rate, summary)
+
+
+def _check_chain(lis, tlog, summary=None):
     sent = [fr for _, fr in tlog_records(tlog)]
     got = [d for _, d in lis.datagrams]
     ap = [d for d in got if _compid(d) == 1]
@@ -187,8 +198,7 @@ def _check_chain(lis, tlog):
     ms = np.array([m.time_boot_ms for m in aq])
     assert [m.time_boot_ms for m in att] == list(ms)
     assert np.all(np.diff(ms) > 0)
-    rate = (len(ms) - 1) / ((ms[-1] - ms[0]) / 1e3)
-    assert 49.0 <= rate <= 51.0  # estimates at 50 Hz of autopilot time
+    _assert_estimate_rate(ms, summary)
     first_imu_ms = DEFAULT_BOOT_OFFSET_S * 1e3
     last_ms = first_imu_ms + (len([1 for fr in sent if _parse(fr)[0].get_type() == "HIGHRES_IMU"]) - 1) * 1e3 / 400
     assert ms[-1] >= last_ms - 40  # estimates until the end of the flight
@@ -200,7 +210,7 @@ def test_replay_bridge_listener_end_to_end(tmp_path, model_path):
     model, shipped = model_path
     rec, tlog = _sim_tlog(tmp_path, 8.0, 400.0)
     lis, summary, err = _run_chain(tmp_path, model, tlog, speed=2.0)
-    aq, ms = _check_chain(lis, tlog)
+    aq, ms = _check_chain(lis, tlog, summary)
     # the estimates are the offline StreamingEstimator's numbers for the same samples
     ref = _offline_estimates(model, tlog)
     q_live = np.array([[m.q1, m.q2, m.q3, m.q4] for m in aq])
@@ -255,7 +265,7 @@ def test_replay_bridge_mavproxy_listener(tmp_path, model_path):
     own = [m for d in got if _compid(d) == 191 for m in _parse(d)]
     ms = np.array([m.time_boot_ms for m in own if m.get_type() == "ATTITUDE_QUATERNION"])
     assert len(ms) >= 0.9 * summary["estimates"]["count"] and np.all(np.diff(ms) > 0)
-    assert (len(ms) - 1) / ((ms[-1] - ms[0]) / 1e3) == pytest.approx(50.0, abs=1.0)
+    _assert_estimate_rate(ms, summary)
     assert {"HEARTBEAT", "NAMED_VALUE_FLOAT", "DEBUG_VECT"} <= {m.get_type() for m in own}
 
 
