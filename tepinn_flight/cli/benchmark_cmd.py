@@ -35,7 +35,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..evaluation.broad import format_broad, run_broad_benchmark
-    from ..evaluation.estimators import TepinnEstimator, default_tepinn
+    from ..evaluation.estimators import TepinnEstimator, default_learned
     from ..evaluation.harness import _jsonable
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
     from ..record import atomic_write
@@ -46,12 +46,13 @@ def run(args) -> int:
     if not args.check_only:
         if not args.no_model:
             if args.model:
-                for m in args.model:
-                    estimators.append(TepinnEstimator.from_checkpoint(m, "tepinn" if len(args.model) == 1 else f"tepinn-{Path(m).stem}"))
-            else:
-                est = default_tepinn(notes)
-                if est is not None:
+                for m in args.model:  # named by variant (tepinn, lstm, ...)
+                    est = TepinnEstimator.from_checkpoint(m)
+                    if est.name in {e.name for e in estimators}:
+                        est.name = f"{est.name}-{Path(m).parent.name or Path(m).stem}"
                     estimators.append(est)
+            else:
+                estimators += default_learned(notes)
         estimators += baseline_estimators(cfg, with_mag=True)
         if not args.no_peers:
             estimators += peer_estimators(cfg, with_mag=True, notes=notes)
