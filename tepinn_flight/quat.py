@@ -309,7 +309,6 @@ def quat_to_euler_zyx(q: Array) -> tuple[Array, Array, Array]:
 
 def quat_zero_yaw(q: Array) -> Array:
     """Keep roll and pitch, set yaw to 0 (the paper's attitude correction, via Euler angles)."""
-    o = _ops(q)
     roll, pitch, _ = quat_to_euler_zyx(q)
     return quat_from_euler_zyx(roll, pitch, 0.0 * roll)
 

@@ -35,7 +35,7 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..evaluation.broad import format_broad, run_broad_benchmark
-    from ..evaluation.estimators import TepinnEstimator, default_learned
+    from ..evaluation.estimators import learned_estimators
     from ..evaluation.harness import _jsonable
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
     from ..record import atomic_write
@@ -45,14 +45,7 @@ def run(args) -> int:
     estimators = []
     if not args.check_only:
         if not args.no_model:
-            if args.model:
-                for m in args.model:  # named by variant (tepinn, lstm, ...)
-                    est = TepinnEstimator.from_checkpoint(m)
-                    if est.name in {e.name for e in estimators}:
-                        est.name = f"{est.name}-{Path(m).parent.name or Path(m).stem}"
-                    estimators.append(est)
-            else:
-                estimators += default_learned(notes)
+            estimators += learned_estimators(args.model, notes)
         estimators += baseline_estimators(cfg, with_mag=True)
         if not args.no_peers:
             estimators += peer_estimators(cfg, with_mag=True, notes=notes)

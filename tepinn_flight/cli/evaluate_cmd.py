@@ -65,7 +65,7 @@ def run(args) -> int:
     import dataclasses
 
     from ..errors import ConfigError, TepinnError
-    from ..evaluation.estimators import TepinnEstimator, default_learned
+    from ..evaluation.estimators import learned_estimators
     from ..evaluation.harness import HarnessConfig, evaluate, noise_sweep, record_name
     from ..evaluation.report import write_report
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
@@ -101,14 +101,7 @@ def run(args) -> int:
         notes.append("some records share a name; they are numbered #2, #3, ... in the tables")
     estimators = []
     if not args.no_model:
-        if args.model:
-            for m in args.model:  # named by variant (tepinn, lstm, tepinn-nophysics, ...)
-                est = TepinnEstimator.from_checkpoint(m)
-                if est.name in {e.name for e in estimators}:
-                    est.name = f"{est.name}-{Path(m).parent.name or Path(m).stem}"
-                estimators.append(est)
-        else:
-            estimators += default_learned(notes)
+        estimators += learned_estimators(args.model, notes)
     else:
         notes.append("TE-PINN not evaluated (--no-model)")
     estimators += baseline_estimators(cfg, with_mag=args.with_mag)

@@ -154,3 +154,17 @@ def default_learned(note_sink: list | None = None) -> list:
         if note_sink is not None:
             note_sink.append(f"LSTM baseline skipped ({type(exc).__name__}: {exc})")
     return out
+
+
+def learned_estimators(model_paths: list, note_sink: list | None = None) -> list:
+    """TE-PINN/LSTM estimators from checkpoints, named by variant (``tepinn``, ``lstm``, ...) and
+    made unique with the run folder; without paths, the shipped models."""
+    if not model_paths:
+        return default_learned(note_sink)
+    out: list = []
+    for m in model_paths:
+        est = TepinnEstimator.from_checkpoint(m)
+        if est.name in {e.name for e in out}:
+            est.name = f"{est.name}-{Path(m).parent.name or Path(m).stem}"
+        out.append(est)
+    return out

@@ -32,7 +32,7 @@ import torch
 from torch import nn
 
 from .. import __version__
-from ..config import from_dict, load_toml, to_dict
+from ..config import to_dict
 from ..errors import ConfigError, TepinnError
 from ..record import GYR_BIAS_COLS, FlightRecord, atomic_write, read_record
 from .checkpoint import CheckpointError, read_checkpoint, save_checkpoint
