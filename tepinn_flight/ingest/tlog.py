@@ -260,6 +260,12 @@ def _autopilot(scan):
     return sysid, hb.fields[mine]
 
 
+def imu_scale_known(name: str, autopilot_id: int | None) -> bool:
+    """HIGHRES_IMU and SCALED_IMU* have defined units; RAW_IMU is mG / mrad/s only from ArduPilot
+    (other stacks may send raw counts, whose scale we do not know)."""
+    return name != "RAW_IMU" or autopilot_id == MAV_AUTOPILOT_ARDUPILOTMEGA
+
+
 def _imu_streams(frames, autopilot_id) -> list[dict]:
     out = []
     for name, (tfield, fixed) in IMU_MESSAGES.items():
@@ -278,7 +284,7 @@ def _imu_streams(frames, autopilot_id) -> list[dict]:
                 scale_known = True
                 mag *= GAUSS_TO_UT
             else:
-                scale_known = name != "RAW_IMU" or autopilot_id == MAV_AUTOPILOT_ARDUPILOTMEGA
+                scale_known = imu_scale_known(name, autopilot_id)
                 acc *= MILLI_G_TO_M_S2
                 gyr *= MRAD_S_TO_RAD_S
                 mag *= MILLIGAUSS_TO_UT

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import ConfigError, TepinnError
+from ..ingest.tlog import MAV_AUTOPILOT_ARDUPILOTMEGA
 from . import MAV_COMP_ID_AUTOPILOT1, MAV_COMP_ID_ONBOARD_COMPUTER, dialect
 from .inputs import EkfComparator, ekf_attitude, imu_preference, imu_sample, imu_scale_known
 from .messages import Encoder, diagnostic_msgs, estimate_msgs, heartbeat_onboard_msg, set_message_interval_msg
@@ -48,7 +49,6 @@ from .worker import COUNTERS, ProcessWorker, ThreadWorker, pack_sample, reset_re
 
 MAV_AUTOPILOT_INVALID = 8
 MAV_AUTOPILOT_PX4 = 12
-MAV_AUTOPILOT_ARDUPILOTMEGA = 3
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 REQUEST_ATTEMPTS = 3
 RESTART_BACKOFF_S = (2.0, 4.0, 8.0, 16.0, 30.0)

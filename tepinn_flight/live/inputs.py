@@ -25,7 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..conventions import GAUSS_TO_UT, MILLI_G_TO_M_S2, MILLIGAUSS_TO_UT, MRAD_S_TO_RAD_S, UNIX_TIME_THRESHOLD_US
-from ..ingest.tlog import IMU_MESSAGES, IMU_PREFERENCE, MAV_AUTOPILOT_ARDUPILOTMEGA
+from ..ingest.tlog import IMU_MESSAGES, IMU_PREFERENCE, imu_scale_known
+from ..model.fusion import gravity_body_f
 from ..quat import slerp
 from .messages import euler_zyx
 
@@ -48,11 +49,6 @@ class ImuSample:
 def imu_preference(name: str) -> int:
     """Rank of an IMU message (0 = preferred), as in the tlog reader."""
     return IMU_PREFERENCE.index(name)
-
-
-def imu_scale_known(name: str, autopilot: int | None) -> bool:
-    """RAW_IMU is in mG / mrad/s only from ArduPilot (the tlog reader's rule)."""
-    return name != "RAW_IMU" or autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA
 
 
 def imu_sample(msg, autopilot: int | None) -> ImuSample | None:
@@ -115,11 +111,6 @@ def ekf_attitude(msg) -> tuple[float, int, tuple] | None:
 
 
 # ---------------------------------------------------------------------------- comparison
-def _gravity_body(q):
-    w, x, y, z = q
-    return (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
-
-
 def _wrap(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 
@@ -127,7 +118,7 @@ def _wrap(a: float) -> float:
 def tilt_difference(q_est, q_ref) -> tuple[float, float, float]:
     """(roll, pitch, inclination) differences in rad; inclination = angle between the gravity
     directions in the body frame, which ignores heading (6-D heading is relative)."""
-    ge, gr = _gravity_body(q_est), _gravity_body(q_ref)
+    ge, gr = gravity_body_f(q_est), gravity_body_f(q_ref)
     cx = ge[1] * gr[2] - ge[2] * gr[1]
     cy = ge[2] * gr[0] - ge[0] * gr[2]
     cz = ge[0] * gr[1] - ge[1] * gr[0]

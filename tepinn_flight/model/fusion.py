@@ -68,7 +68,8 @@ def rk4(q, w0, w1, dt):
     return _qnorm(tuple(q[i] + s * (k1[i] + 2 * k2[i] + 2 * k3[i] + k4[i]) for i in range(4)))
 
 
-def _gravity_body(q):
+def gravity_body_f(q):
+    """Earth down in body axes for a (w, x, y, z) tuple (scalar twin of ``quat.gravity_body``)."""
     w, x, y, z = q
     return (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
 
@@ -83,8 +84,8 @@ def _exp(r):
 
 def tilt_toward(q, q_meas, gain):
     """Rotate q (in its body frame) so its gravity direction moves ``gain`` of the way to q_meas's."""
-    gp = _gravity_body(q)
-    gm = _gravity_body(q_meas)
+    gp = gravity_body_f(q)
+    gm = gravity_body_f(q_meas)
     cx = gp[1] * gm[2] - gp[2] * gm[1]
     cy = gp[2] * gm[0] - gp[0] * gm[2]
     cz = gp[0] * gm[1] - gp[1] * gm[0]
@@ -98,7 +99,7 @@ def tilt_toward(q, q_meas, gain):
 
 
 def zero_yaw_np(q):
-    g = _gravity_body(q)
+    g = gravity_body_f(q)
     roll = math.atan2(g[1], g[2])
     pitch = math.atan2(-g[0], math.sqrt(g[1] * g[1] + g[2] * g[2]))
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
