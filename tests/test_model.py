@@ -207,3 +207,79 @@ def test_streaming_equals_offline():
     ok = np.isfinite(off[:, 0])
     assert ok.sum() > 100
     np.testing.assert_allclose(Q.quat_canonical(q_live[ok]), Q.quat_canonical(off[ok]), atol=1e-5)
+
+
+def test_trust_after_clipping_closed_form():
+    from tepinn_flight.model.network import trust_after_clipping
+
+    clip = torch.zeros(2, 8)
+    clip[0, 3] = 0.25  # one saturated token: it and everything before it are untrusted
+    clip[1, 7] = 1.0  # saturated last token: only the last token remains (always trusted)
+    u = trust_after_clipping(clip)
+    assert u[0].tolist() == [0, 0, 0, 0, 1, 1, 1, 1]
+    assert u[1].tolist() == [0, 0, 0, 0, 0, 0, 0, 1]
+    assert torch.all(trust_after_clipping(torch.zeros(1, 5)) == 1)
+
+
+def test_physics_baseline_ignores_rotations_across_a_saturated_gyro():
+    """With the correction head silenced, the output is the tilt of the trusted tokens' mean
+    specific force: tokens before a clipped sample (garbage RK4 rotation) change nothing."""
+    cfg = dataclasses.replace(SMALL, window_tokens=12)
+    m = TEPINN(cfg).double().eval()
+    with torch.no_grad():
+        m.head_q.weight.zero_()
+    gyr, acc, count, t_rel, dt = random_window(cfg, b=1, seed=3)
+    gyr = gyr * 0.0  # no rotation: v_j is the token's own specific force
+    clip = torch.zeros(1, 12, dtype=torch.float64)
+    clip[0, 4] = 0.5
+    q = m(gyr, acc, count, t_rel, dt, None, clip)["q"].detach()
+    acc2 = acc.clone()
+    acc2[0, :5] += torch.tensor([30.0, -20.0, 5.0], dtype=torch.float64)  # untrusted tokens
+    q2 = m(gyr, acc2, count, t_rel, dt, None, clip)["q"].detach()
+    torch.testing.assert_close(q, q2, rtol=0, atol=1e-12)
+    f = acc[0, 5:].mean(0).numpy()  # closed form: gravity along −(mean trusted specific force)
+    np.testing.assert_allclose(Q.gravity_body(q.numpy())[0], -f / np.linalg.norm(f), atol=1e-9)
+    # without clipping every token counts, so the same change moves the estimate
+    q3 = m(gyr, acc2, count, t_rel, dt, None, torch.zeros_like(clip))["q"].detach()
+    assert tilt_angle(q3, q).item() > 0.05
+
+
+def test_checkpoints_from_before_clip_awareness_still_load(tmp_path):
+    torch.manual_seed(0)
+    old_cfg = dataclasses.replace(SMALL, clip_aware=False)
+    m = TEPINN(old_cfg)
+    save_checkpoint(tmp_path / "old.pt", m, FusionConfig())
+    ck = torch.load(tmp_path / "old.pt", weights_only=True)
+    del ck["model_config"]["clip_aware"]  # as written by the first release
+    del ck["fusion_config"]["adaptive_nis"]
+    torch.save(ck, tmp_path / "old.pt")
+    m2, f2, _ = load_model(tmp_path / "old.pt")
+    assert m2.config.clip_aware is False and f2.adaptive_nis == 0.0
+    x = [t.float() for t in random_window(SMALL, dtype=torch.float32)]
+    m.eval()
+    torch.testing.assert_close(m(*x)["q"], m2(*x)["q"], rtol=0, atol=0)
+
+
+def _fuse_biased_gyro(adaptive_nis, gyro_bias, sigma=0.05, seconds=30.0):
+    """Level vehicle at rest, window estimates = the truth every 40 ms with σ, gyro with an
+    unknown constant bias: returns the final tilt error (rad) of the fused output."""
+    from tepinn_flight.model.fusion import AttitudeFusion
+
+    f = AttitudeFusion(FusionConfig(process_noise_rad2_s=1e-6, adaptive_nis=adaptive_nis))
+    level = (1.0, 0.0, 0.0, 0.0)
+    q = None
+    n = int(seconds * 400)
+    for i in range(n):
+        est = (level, sigma, (0.0, 0.0, 0.0)) if i % 16 == 1 else None
+        q, _, _ = f.step(i / 400.0, gyro_bias, est)
+    return tilt_angle(torch.tensor([q]), torch.tensor([level])).item()
+
+
+def test_innovation_adaptive_fusion_bounds_drift_and_is_neutral_on_a_good_gyro():
+    bad = (np.radians(8.0), 0.0, 0.0)  # an uncalibrated gyro: 8 °/s the network did not see
+    off = _fuse_biased_gyro(0.0, bad)
+    on = _fuse_biased_gyro(4.0, bad)
+    assert off > np.radians(20.0)  # trusts its propagation and drifts far away
+    assert on < np.radians(8.0) and on < 0.25 * off
+    good = (0.0, 0.0, 0.0)
+    assert _fuse_biased_gyro(4.0, good) == _fuse_biased_gyro(0.0, good)

@@ -25,6 +25,7 @@ import pytest
 import torch
 
 from tepinn_flight.cli.main import main
+from tepinn_flight.errors import ConfigError
 from tepinn_flight.model import train as T
 from tepinn_flight.model.checkpoint import load_model, read_checkpoint
 from tepinn_flight.model.dataset import build_bank, make_batch
@@ -443,3 +444,32 @@ def test_time_limit_stops_at_an_epoch_end(tmp_path):
     assert (tmp_path / "run" / "model.pt").is_file()
     res = quiet_train(small_cfg("optim.epochs=2", "optim.max_minutes=30.0", "optim.early_stop_patience=100"), tmp_path / "r2")
     assert res["stop_reason"] == "epochs" and res["epochs"] == 2
+
+
+def test_optional_training_data_is_used_when_present_and_skipped_when_missing(tmp_path, capsys):
+    """`optional_records`: a real log (not a record) is ingested like `tepinn-flight ingest`
+    would; a pattern that matches nothing is skipped with a note instead of failing."""
+    from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.model.train import DataConfig, TrainConfig, load_records
+
+    repo = Path(__file__).resolve().parents[1]
+    cfg = TrainConfig(data=DataConfig(optional_records=("logs/*.tlog", "no-such-folder/*.hdf5")))
+    recs = load_records(cfg, base=repo, progress=False)
+    assert "optional training data skipped" in capsys.readouterr().err
+    direct = ingest_log(repo / "logs" / "sample_f450_flips.tlog")
+    assert len(recs) == 1 and len(recs[0]) == len(direct)
+    np.testing.assert_array_equal(recs[0].gyr_rad_s, direct.gyr_rad_s)
+    with pytest.raises(ConfigError):  # the same missing pattern as required data is an error
+        load_records(TrainConfig(data=DataConfig(records=("no-such-folder/*.hdf5",))), base=repo, progress=False)
+
+
+def test_device_choice(tmp_path, capsys):
+    """`--device auto` trains on the CPU of a machine without CUDA; `--device cuda` there is a
+    one-line error before anything is written."""
+    assert T.resolve_device("cpu") == torch.device("cpu")
+    assert T.resolve_device("auto") == torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a CUDA GPU: the no-GPU error cannot be shown here")
+    out = tmp_path / "run"
+    line = one_line_error(capsys, main(["train", "--config", str(TINY), "-o", str(out), "-q", "--device", "cuda"]))
+    assert "no CUDA GPU" in line and not out.exists()

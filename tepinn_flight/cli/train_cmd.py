@@ -7,7 +7,7 @@ DESCRIPTION = (
     "Train from a strict TOML recipe (unknown keys are refused). Writes RUN_DIR/metrics.jsonl every "
     "epoch, atomic checkpoints (last.pt, best.pt) and the final RUN_DIR/model.pt. Resumable with "
     "--resume; deterministic for a seed. Runs under `torchrun --nproc_per_node=N` with "
-    "DistributedDataParallel (gloo on CPU)."
+    "DistributedDataParallel (gloo on CPU, NCCL on GPUs: --device)."
 )
 
 
@@ -17,6 +17,8 @@ def add_arguments(p) -> None:
     p.add_argument("-o", "--output", required=True, metavar="RUN_DIR", help="run folder (checkpoints, metrics)")
     p.add_argument("--resume", action="store_true", help="continue from RUN_DIR/last.pt")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a recipe value, e.g. optim.epochs=5")
+    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
+                   help="where to train: auto (a CUDA GPU when torch sees one, else the CPU), cpu, cuda")
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads per process (default: torch's choice)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
@@ -33,5 +35,5 @@ def run(args) -> int:
     cfg = load_train_config(args.config, args.set)
     out = Path(args.output)  # train() refuses a folder holding a run (last.pt) without --resume
     train(cfg, out, data_dirs=args.data, resume=args.resume, config_base=Path(args.config).resolve().parent,
-          progress=not args.quiet)  # fmt: skip
+          progress=not args.quiet, device=args.device)  # fmt: skip
     return 0

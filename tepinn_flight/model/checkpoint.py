@@ -65,7 +65,8 @@ def load_model(path: str | os.PathLike) -> tuple[TEPINN, FusionConfig, dict]:
     """Rebuild the model (eval mode, float32) and its fusion settings from a checkpoint."""
     ckpt = read_checkpoint(path)
     try:
-        model = TEPINN(ModelConfig(**ckpt["model_config"]))
+        # version-1 checkpoints written before `clip_aware` existed were trained without it
+        model = TEPINN(ModelConfig(**{"clip_aware": False, **ckpt["model_config"]}))
         model.load_state_dict(ckpt["state_dict"])
         fusion = FusionConfig(**ckpt.get("fusion_config", {}))
     except (TypeError, KeyError, RuntimeError) as exc:

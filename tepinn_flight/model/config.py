@@ -29,6 +29,7 @@ class ModelConfig:
     physics: bool = True  # sensor model + RK4-propagated inputs/outputs + physics losses
     correction_layer: bool = True  # yaw := 0 on the output (the paper's 6-D attitude correction)
     uncertainty: bool = True  # σ head trained with a Gaussian NLL on the tilt error
+    clip_aware: bool = True  # RK4-rotated inputs across a saturated sample are marked untrusted
 
     def __post_init__(self):
         if self.token_rate_hz <= 0:
@@ -67,7 +68,9 @@ class ModelConfig:
         """Channels per token given to the encoder."""
         n = 6 + 2  # ω, a, log sample count, clipped fraction
         if self.physics:
-            n += 3  # corrected specific force rotated into the window's first body frame (RK4)
+            n += 3  # corrected specific force rotated into the window's last body frame (RK4)
+            if self.clip_aware:
+                n += 1  # 1 where that rotation crosses no saturated sample, else 0
         if self.use_mag:
             n += 3
         return n

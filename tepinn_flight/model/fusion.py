@@ -7,6 +7,12 @@ toward the network's by a Kalman gain ``K = P / (P + σ²)`` (P: propagated tilt
 bias follows the network's per-window bias estimate through a first-order low-pass (the bias is a
 slow random walk). Heading comes from gyro integration only (6-D) and starts at 0.
 
+Innovation-adaptive covariance (``adaptive_nis`` = ν > 0): when the squared tilt innovation e²
+exceeds ν·(P + σ²), the propagation was worse than P says (an uncalibrated gyro, a bias the
+network has not found yet, an unflagged saturation), so P is raised to e²/ν − σ² before the
+update. With a good gyro this never fires; with a bad one the output falls back toward the
+network's window estimates instead of drifting away with the gyro.
+
 Pure numpy/float math, one sample at a time, so the offline estimator and the live bridge share it.
 """
 
@@ -26,6 +32,7 @@ class FusionConfig:
     sigma_scale: float = 1.0  # calibration factor applied to the network's σ
     clip_inflation_rad: float = 0.35  # a saturated gyro/accel sample adds this σ to the propagation
     output_sigma_scale: float = 1.0  # calibration of the reported σ (fitted on validation flights)
+    adaptive_nis: float = 0.0  # > 0: innovation-adaptive P (see AttitudeFusion._update); 0: off
     yaw: str = "gyro"  # "gyro": heading from gyro integration; "zero": yaw := 0 on the output
 
 
@@ -98,6 +105,16 @@ def tilt_toward(q, q_meas, gain):
     return _qnorm(_qmul(q, _exp((k * cx, k * cy, k * cz))))
 
 
+def _tilt_angle(q, p):
+    """Angle (rad) between the gravity directions of two attitudes."""
+    a = gravity_body_f(q)
+    b = gravity_body_f(p)
+    cx = a[1] * b[2] - a[2] * b[1]
+    cy = a[2] * b[0] - a[0] * b[2]
+    cz = a[0] * b[1] - a[1] * b[0]
+    return math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+
+
 def zero_yaw_np(q):
     g = gravity_body_f(q)
     roll = math.atan2(g[1], g[2])
@@ -157,6 +174,9 @@ class AttitudeFusion:
             self.q, self.P = tuple(float(v) for v in q_m), r
             self.bias = tuple(float(v) for v in b_m)
         else:
+            if c.enabled and c.adaptive_nis > 0:
+                e = _tilt_angle(self.q, q_m)
+                self.P = max(self.P, e * e / c.adaptive_nis - r)
             gain = self.P / (self.P + r) if c.enabled else 1.0
             self.q = tilt_toward(self.q, q_m, gain)
             self.P = (1 - gain) * self.P

@@ -6,14 +6,16 @@ Forward pass for one window of K tokens ending at time t_K (B batch, K tokens, d
 2. RK4 kinematics   R_{K←j}: rotation body(t_j) → body(t_K) from ω_c (log-depth prefix products
                     of per-token RK4 steps); v_j = R_{K←j^mid} a_c,j is each token's specific
                     force seen in the *current* body frame. Unaccelerated, every v_j = −g_body(t_K).
-3. tokens           x_j = [ω_c, a_c/g, log n, clipped fraction, v_j/g (, mag)]
+                    A saturated gyro sample makes every rotation across it wrong: tokens j with
+                    clipping in (t_{j-1}, t_K] get trust u_j = 0 (else 1; the last token always 1).
+3. tokens           x_j = [ω_c, a_c/g, log n, clipped fraction, v_j/g, u_j (, mag)]
                     → Linear + PE(t_j − t_K, seconds)
 4. encoder          L post-LayerNorm transformer layers (multi-head self-attention + feed-forward)
 5. heads            last token → quaternion (normalised), σ (rad), gyro bias b̂ (rad/s), and a
                     torque τ per token for the rigid-body loss
 6. output           physics on: the quaternion head is a correction δq of the physics baseline
-                    q_base (the tilt whose gravity is the window-mean of v_j, i.e. a boxcar
-                    complementary filter): q = q_base ⊗ δq; physics off: q = head output
+                    q_base (the tilt whose gravity is the u-weighted window mean of v_j, i.e. a
+                    boxcar complementary filter): q = q_base ⊗ δq; physics off: q = head output
 7. correction       yaw := 0 (the paper's attitude correction layer; the 6-D estimate is tilt)
 
 A window holds only samples up to t_K, so the estimate at t_K uses nothing after it (causal).
@@ -53,6 +55,16 @@ def gravity_tilt(g_body: torch.Tensor) -> torch.Tensor:
     roll = torch.atan2(gy, gz)
     pitch = torch.atan2(-gx, torch.sqrt(gy * gy + gz * gz + 1e-12))
     return quat_from_euler_zyx(roll, pitch, torch.zeros_like(roll))
+
+
+def trust_after_clipping(clip: torch.Tensor) -> torch.Tensor:
+    """(B, K) clipped fractions → 1 for tokens whose rotation to the last token crosses no
+    saturated sample (none in the token itself or after it), else 0; the last token is always 1
+    (its own rotation spans half a token)."""
+    after = torch.flip(torch.cumsum(torch.flip(clip, [1]), dim=1), [1])  # clip_j + Σ_{i>j} clip_i
+    u = (after <= 0).to(clip.dtype)
+    u[:, -1] = 1.0
+    return u
 
 
 class TimestampEncoding(nn.Module):
@@ -152,7 +164,8 @@ class TEPINN(nn.Module):
         return p_end, p_mid
 
     def features(self, gyr, acc, count, mag=None, dt=None, clip=None):
-        """Token inputs (B, K, n_inputs) before normalisation, plus corrected gyro and accel."""
+        """Token inputs (B, K, n_inputs) before normalisation, the corrected gyro and accel, and
+        (physics on) the rotated specific forces ``v`` (B, K, 3) in g with their trust ``u`` (B, K)."""
         c = self.config
         if c.physics:
             w_c = self.sensor.gyro(gyr)
@@ -161,15 +174,19 @@ class TEPINN(nn.Module):
             w_c, a_c = gyr, acc
         clip = torch.zeros_like(count) if clip is None else clip
         parts = [w_c, a_c / GRAVITY_M_S2, torch.log1p(count)[..., None], clip[..., None]]
-        v = None
+        v = u = None
         if c.physics:
             p_end, p_mid = self.frames(w_c, dt)
             to_last = quat_mul(quat_conj(p_end[:, -1:]), p_mid)  # body(t_j mid) → body(t_K)
             v = quat_rotate(to_last, a_c) / GRAVITY_M_S2  # (B, K, 3) in units of g
             parts.append(v)
+            u = torch.ones_like(count)
+            if c.clip_aware:
+                u = trust_after_clipping(clip)
+                parts.append(u[..., None])
         if c.use_mag:
             parts.append(torch.nan_to_num(mag) / 50.0)
-        return torch.cat(parts, dim=-1), w_c, a_c, v
+        return torch.cat(parts, dim=-1), w_c, a_c, v, u
 
     # ------------------------------------------------------------------ forward
 
@@ -183,7 +200,7 @@ class TEPINN(nn.Module):
         (physics on); and per token ``torque`` (B, K, 3), ``w_c``, ``a_c`` (B, K, 3).
         """
         c = self.config
-        x, w_c, a_c, v = self.features(gyr, acc, count, mag, dt, clip)
+        x, w_c, a_c, v, u = self.features(gyr, acc, count, mag, dt, clip)
         h = self.inp((x - self.in_mean) / self.in_std) + self.pe(t_rel)  # (B, K, d)
         if c.encoder == "lstm":
             h, _ = self.encoder(h)
@@ -192,7 +209,9 @@ class TEPINN(nn.Module):
         last = h[:, -1]  # (B, d)
         q = quat_normalize(self.head_q(last))  # (B, 4)
         if v is not None:
-            q = quat_mul(gravity_tilt(-v.mean(dim=1)), q)  # correction of the physics baseline
+            wts = (u / u.sum(dim=1, keepdim=True))[..., None]  # (B, K, 1)
+            f_mean = (wts * v).sum(dim=1)  # trusted window-mean specific force in body(t_K), in g
+            q = quat_mul(gravity_tilt(-f_mean), q)  # correction of the physics baseline
         if c.correction_layer:
             q = zero_yaw(q)
         out = {
@@ -203,8 +222,8 @@ class TEPINN(nn.Module):
             "a_c": a_c,
         }
         if v is not None:
-            out["f_mean"] = v.mean(dim=1)  # window-mean specific force in body(t_K), in g
-            out["f_spread"] = (v - out["f_mean"][:, None]).norm(dim=-1).pow(2).mean(dim=1).sqrt()
+            out["f_mean"] = f_mean
+            out["f_spread"] = (wts[..., 0] * (v - f_mean[:, None]).pow(2).sum(-1)).sum(dim=1).sqrt()
         if c.uncertainty:
             # σ reads the representation but does not shape it (its NLL would swamp early training)
             out["sigma"] = F.softplus(self.head_sigma(last.detach()))[..., 0] + 1e-4

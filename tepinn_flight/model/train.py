@@ -47,6 +47,9 @@ from .network import TEPINN
 @dataclass(frozen=True)
 class DataConfig:
     records: tuple[str, ...] = ()  # record files, folders or globs (relative to the config file)
+    # like `records`, but used only where present (e.g. the real data in ../shared): a missing
+    # path is skipped with a note. Files that are not records (*.parquet) are ingested as logs.
+    optional_records: tuple[str, ...] = ()
     campaign: str | None = None  # a simulation campaign TOML, flown into RUN_DIR/data (resumable)
     campaign_workers: int = 0  # processes for the campaign (0: one per CPU)
     synthetic_flights: int = 0  # closed-form synthetic flights (tests, tiny runs)
@@ -137,8 +140,18 @@ def load_records(cfg: TrainConfig, extra_dirs=(), base: Path = Path("."), run_di
             raise TepinnError(f"{len(res.failed)} simulated flight(s) failed, e.g. {res.failed[0][0]}: {res.failed[0][1]}")
         extra.append(str(data_dir.resolve()))
     paths = resolve_records(list(cfg.data.records) + extra, base)
+    for pat in cfg.data.optional_records:
+        try:
+            paths += [p for p in resolve_records([pat], base) if p not in paths]
+        except ConfigError as exc:
+            print(f"note: optional training data skipped ({exc})", file=sys.stderr)
     for p in paths:
-        recs.append(read_record(p))
+        if p.suffix == ".parquet":
+            recs.append(read_record(p))
+        else:
+            from ..ingest import ingest_log
+
+            recs.append(ingest_log(p))
     if cfg.data.synthetic_flights:
         from .synthetic import synthetic_record
 
@@ -223,7 +236,7 @@ class TrainStep(nn.Module):
     @torch.no_grad()
     def _init_weights_globally(self, cur: dict, batch: dict, prev: dict | None, n_bias: int) -> None:
         # every rank gets here together: DDP broadcasts the `initialised` buffer before forward
-        before = self.loss.initialised.clone()
+        before = self.loss.initialised.detach().cpu().clone()
         det = {k: v.detach() for k, v in cur.items()}
         _, logs = self.loss(det, batch, None if prev is None else {k: v.detach() for k, v in prev.items()})
         vals = torch.zeros(len(TERMS), dtype=torch.float64)
@@ -236,7 +249,7 @@ class TrainStep(nn.Module):
         torch.distributed.all_reduce(cnt)
         new = (cnt > 0) & ~before
         lv = self.loss.log_vars
-        lv[new] = torch.log((vals[new] / cnt[new]).clamp_min(1e-8)).to(lv.dtype)
+        lv[new.to(lv.device)] = torch.log((vals[new] / cnt[new]).clamp_min(1e-8)).to(lv)
         self.loss.initialised.copy_(before | new)
 
 
@@ -258,11 +271,12 @@ def validate(model: TEPINN, bank: TokenBank, ends: np.ndarray, cfg: TrainConfig)
     model.eval()
     errs, sig = [], []
     for a in range(0, len(ends), 512):
-        b = make_batch(bank, ends[a : a + 512], cfg.model.window_tokens, cfg.model.correction_layer)
+        dev = model.in_mean.device
+        b = _on(make_batch(bank, ends[a : a + 512], cfg.model.window_tokens, cfg.model.correction_layer), dev)
         out = model(b["gyr"], b["acc"], b["count"], b["t_rel"], b["dt"], b["mag"], b["clip"])
-        errs.append(tilt_angle(out["q"], b["q_ref"]).double().numpy())
+        errs.append(tilt_angle(out["q"], b["q_ref"]).double().cpu().numpy())
         if "sigma" in out:
-            sig.append(out["sigma"].double().numpy())
+            sig.append(out["sigma"].double().cpu().numpy())
     model.train()
     e = np.concatenate(errs)
     res = {"val_tilt_rmse_deg": float(np.degrees(np.sqrt(np.mean(e**2))))}
@@ -315,6 +329,14 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
         table[f"{pn:g}"] = err
         if err < best_err:
             best, best_err, best_run = cand, err, (errs, sig)
+    # innovation-adaptive P (helps uncalibrated gyros; kept only where it helps the typical flight)
+    for nis in (9.0, 4.0):
+        cand = dataclasses.replace(best, adaptive_nis=nis)
+        errs, sig, _ = run(cand)
+        err = mean_rmse_deg(errs)
+        table[f"{best.process_noise_rad2_s:g},nis={nis:g}"] = err
+        if err < best_err:
+            best, best_err, best_run = cand, err, (errs, sig)
     metrics = {"fusion_val_tilt_rmse_geomean_deg": best_err, "fusion_grid": table, "fusion_val_flights": len(recs)}
     # the bias low-pass: the time constant with the lowest gyro-bias error (where truth exists),
     # kept only if the tilt error does not get worse
@@ -362,15 +384,33 @@ def recalibrate(run_dir: str | os.PathLike, cfg: TrainConfig, data_dirs=(), conf
 # ---------------------------------------------------------------------- main loop
 
 
+def resolve_device(name: str = "cpu") -> torch.device:
+    """``cpu``, ``cuda`` or ``auto`` (CUDA when available) → the device of this process (under
+    torchrun each process takes the GPU of its LOCAL_RANK)."""
+    if name not in ("cpu", "cuda", "auto"):
+        raise ConfigError(f"unknown device {name!r} (cpu, cuda or auto)")
+    if name == "auto":
+        name = "cuda" if torch.cuda.is_available() else "cpu"
+    if name == "cuda":
+        if not torch.cuda.is_available():
+            raise ConfigError("--device cuda: this torch build sees no CUDA GPU (use --device cpu)")
+        return torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")) % torch.cuda.device_count())
+    return torch.device("cpu")
+
+
 def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bool = False,
-          config_base: Path = Path("."), progress: bool = True, log=print) -> dict:  # fmt: skip
+          config_base: Path = Path("."), progress: bool = True, log=print, device: str = "cpu") -> dict:  # fmt: skip
     """Train and write ``out_dir/{last.pt,best.pt,model.pt,metrics.jsonl,config.json}``.
+
+    ``device``: ``cpu`` (bitwise deterministic for a seed), ``cuda`` or ``auto``. Under DDP on
+    GPUs, gradients go through NCCL and the few CPU-side reductions through gloo.
 
     Refuses a folder that already holds a run (``last.pt``) unless ``resume``. Returns the best
     validation tilt RMSE, the number of epochs done and why the run stopped (``stop_reason``:
     ``epochs``, ``early_stop`` or ``time_limit``) plus the fusion calibration metrics.
     """
     rank, world = dist_info()
+    dev = resolve_device(device)
     out = Path(out_dir)
     if (out / "last.pt").exists() and not resume:
         raise TepinnError(f"{out} already holds a run (last.pt): use --resume to continue it or pick a new folder")
@@ -378,16 +418,22 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
         raise ConfigError(f"optim.batch_size {cfg.optim.batch_size} is not divisible by {world} processes")
     own_group = world > 1 and not torch.distributed.is_initialized()
     if own_group:
-        torch.distributed.init_process_group("gloo")  # the training loop keeps every tensor on the CPU
+        if dev.type == "cuda":
+            torch.cuda.set_device(dev)
+        torch.distributed.init_process_group("cpu:gloo,cuda:nccl" if dev.type == "cuda" else "gloo")
     try:
-        return _train(cfg, out, data_dirs, resume, config_base, progress, log, rank, world)
+        return _train(cfg, out, data_dirs, resume, config_base, progress, log, rank, world, dev)
     finally:
         if own_group and torch.distributed.is_initialized():
             torch.distributed.destroy_process_group()
 
 
+def _on(batch: dict, dev: torch.device) -> dict:
+    return batch if dev.type == "cpu" else {k: v.to(dev, non_blocking=True) for k, v in batch.items()}
+
+
 def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Path, progress: bool, log,
-           rank: int, world: int) -> dict:  # fmt: skip
+           rank: int, world: int, dev: torch.device = torch.device("cpu")) -> dict:  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
@@ -416,7 +462,8 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
     model = TEPINN(cfg.model)
     mean, std = input_statistics(model.features, bank, cfg.model, seed=cfg.seed)
     model.set_normalization(mean, std)
-    loss_fn = TEPINNLoss(cfg.loss, model.body)
+    model.to(dev)
+    loss_fn = TEPINNLoss(cfg.loss, model.body).to(dev)
     step_mod = TrainStep(model, loss_fn, world)
     groups = [
         {"params": model.network_parameters(), "lr": cfg.optim.lr, "weight_decay": cfg.optim.weight_decay},
@@ -446,7 +493,9 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
         log(f"nothing to resume in {out} (no last.pt): starting a new run")
     ddp = step_mod
     if world > 1:
-        ddp = torch.nn.parallel.DistributedDataParallel(step_mod, find_unused_parameters=True)
+        ddp = torch.nn.parallel.DistributedDataParallel(
+            step_mod, device_ids=[dev.index] if dev.type == "cuda" else None, find_unused_parameters=True
+        )
 
     summary = {
         "train_flights": [r.meta.get("source_file") for r in train_recs],
@@ -481,8 +530,8 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
             ends = rng.choice(pool, size=B, replace=len(pool) < B)
             has_bias = np.all(np.isfinite(bank.bias[ends]), axis=1)
             mine = deal_to_ranks(ends, has_bias, rank, world)
-            batch = make_batch(bank, mine, cfg.model.window_tokens, cfg.model.correction_layer)
-            prev = make_batch(bank, mine - pair, cfg.model.window_tokens, cfg.model.correction_layer) if use_pair and bank.prev_ok.any() else None
+            batch = _on(make_batch(bank, mine, cfg.model.window_tokens, cfg.model.correction_layer), dev)
+            prev = _on(make_batch(bank, mine - pair, cfg.model.window_tokens, cfg.model.correction_layer), dev) if use_pair and bank.prev_ok.any() else None
             total, logs = ddp(batch, prev, int(has_bias.sum()))
             opt.zero_grad(set_to_none=True)
             total.backward()
@@ -502,7 +551,8 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
         val = validate(model, vbank, val_ends, cfg)
         elapsed = time.monotonic() - t_start
         rec = {"epoch": epoch + 1, **{k: round(v, 6) for k, v in logs_acc.items()}, **val,
-               "loss_weights": [round(float(x), 4) for x in loss_fn.log_vars.detach()], "elapsed_s": round(elapsed, 1)}  # fmt: skip
+               "loss_weights": [round(float(x), 4) for x in loss_fn.log_vars.detach().cpu()], "elapsed_s": round(elapsed, 1),
+               **({"device": str(dev)} if dev.type != "cpu" else {})}  # fmt: skip
         history.append(rec)
         improved = val["val_tilt_rmse_deg"] < best_val - 1e-6
         if improved:
@@ -548,7 +598,7 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
     if rank == 0:
         from .checkpoint import load_model
 
-        best_model, _, ck = load_model(out / "best.pt") if (out / "best.pt").exists() else (model, None, {})
+        best_model, _, ck = load_model(out / "best.pt") if (out / "best.pt").exists() else (model.cpu().eval(), None, {})
         fusion, fus_metrics = calibrate_fusion(best_model, val_recs, cfg.fusion)
         final_metrics = {**(ck.get("metrics") or {}), **fus_metrics}
         save_checkpoint(out / "model.pt", best_model, fusion, training=summary, metrics=final_metrics,
