@@ -320,7 +320,7 @@ def test_ddp_two_processes_match_one(tmp_path):
     """torchrun, gloo, 2 CPU processes vs 1 process with the same global batch. The data mixes
     flights with a known gyro bias (synthetic) and one without (like a real log), so L_bias is a
     masked mean whose per-rank shares must hold equal numbers of bias windows."""
-    extra = ("optim.epochs=2", "optim.early_stop_patience=100")
+    extra = ("optim.epochs=2", "optim.early_stop_patience=100", "data.gyro_bias_aug_deg_s=3.0")  # augmentation dealt too
     data = tmp_path / "data"
     r = synthetic_record(seed=5, duration_s=5.0)
     write_record(FlightRecord(r.data.drop(columns=GYR_BIAS_COLS), {**r.meta, "source_file": "no-bias-5"}), data / "nb.parquet")
@@ -473,3 +473,24 @@ def test_device_choice(tmp_path, capsys):
     out = tmp_path / "run"
     line = one_line_error(capsys, main(["train", "--config", str(TINY), "-o", str(out), "-q", "--device", "cuda"]))
     assert "no CUDA GPU" in line and not out.exists()
+
+
+def test_gyro_bias_augmentation_equals_a_record_with_that_bias():
+    """Adding a bias to a batch is the same as recording the flight with a gyro that has it."""
+    cfg = small_cfg()
+    r = synthetic_record(seed=2, duration_s=6.0)
+    b = np.radians([4.0, -7.0, 2.5])
+    df = r.data.copy()
+    df[["gyr_x_rad_s", "gyr_y_rad_s", "gyr_z_rad_s"]] += b
+    df[GYR_BIAS_COLS] += b
+    k = cfg.model.window_tokens
+    banks = [build_bank([x], cfg.model, (1,), cfg.loss.gyro_pair_tokens) for x in (r, FlightRecord(df, r.meta))]
+    ends = banks[0].ends[::7]
+    aug = T.add_gyro_bias(make_batch(banks[0], ends, k, True, dtype=torch.float64), np.tile(b, (len(ends), 1)))
+    ref = make_batch(banks[1], ends, k, True, dtype=torch.float64)
+    for key in ("gyr", "bias_true", "acc", "q_ref"):
+        torch.testing.assert_close(aug[key], ref[key], rtol=0, atol=1e-9)
+    rng = np.random.default_rng(0)
+    draws = T.gyro_bias_augmentation(rng, 4000, 5.0, 0.5)
+    on = np.any(draws != 0, axis=1)
+    assert abs(on.mean() - 0.5) < 0.03 and abs(np.degrees(draws[on].std()) - 5.0) < 0.2

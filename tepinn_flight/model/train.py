@@ -57,6 +57,11 @@ class DataConfig:
     val_fraction: float = 0.2  # share of flights held out for validation (at least one)
     rate_factors: tuple[int, ...] = (1, 2, 4)  # IMU decimation factors: rate augmentation
     max_val_windows: int = 2048
+    # sensor-error augmentation: with this probability a training window (and its L_gyro partner)
+    # gets an extra constant gyro bias drawn per axis from N(0, σ) — an uncalibrated IMU's turn-on
+    # bias — added to the input and, where the true bias is known, to the bias target (0: off)
+    gyro_bias_aug_deg_s: float = 0.0
+    gyro_bias_aug_prob: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -428,6 +433,20 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
             torch.distributed.destroy_process_group()
 
 
+def gyro_bias_augmentation(rng: np.random.Generator, n: int, sigma_deg_s: float, prob: float) -> np.ndarray:
+    """(n, 3) extra gyro biases in rad/s: N(0, σ) per axis for a ``prob`` share of windows, else 0."""
+    b = rng.normal(size=(n, 3)) * np.radians(sigma_deg_s)
+    return b * (rng.random(n) < prob)[:, None]
+
+
+def add_gyro_bias(batch: dict, bias_rad_s: np.ndarray) -> dict:
+    """The batch as an IMU with these extra constant gyro biases would have recorded it (token
+    means shift by exactly the bias); known bias targets shift with it."""
+    b = torch.as_tensor(bias_rad_s, dtype=batch["gyr"].dtype)
+    known = batch["has_bias"][:, None].to(b.dtype)
+    return {**batch, "gyr": batch["gyr"] + b[:, None, :], "bias_true": batch["bias_true"] + known * b}
+
+
 def _on(batch: dict, dev: torch.device) -> dict:
     return batch if dev.type == "cpu" else {k: v.to(dev, non_blocking=True) for k, v in batch.items()}
 
@@ -529,9 +548,14 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
             pool = bank.ends[bank.prev_ok] if use_pair and bank.prev_ok.any() else bank.ends
             ends = rng.choice(pool, size=B, replace=len(pool) < B)
             has_bias = np.all(np.isfinite(bank.bias[ends]), axis=1)
-            mine = deal_to_ranks(ends, has_bias, rank, world)
-            batch = _on(make_batch(bank, mine, cfg.model.window_tokens, cfg.model.correction_layer), dev)
-            prev = _on(make_batch(bank, mine - pair, cfg.model.window_tokens, cfg.model.correction_layer), dev) if use_pair and bank.prev_ok.any() else None
+            pos = deal_to_ranks(np.arange(B), has_bias, rank, world)  # this rank's share
+            mine = ends[pos]
+            batch = make_batch(bank, mine, cfg.model.window_tokens, cfg.model.correction_layer)
+            prev = make_batch(bank, mine - pair, cfg.model.window_tokens, cfg.model.correction_layer) if use_pair and bank.prev_ok.any() else None
+            if cfg.data.gyro_bias_aug_deg_s > 0:
+                aug = gyro_bias_augmentation(rng, B, cfg.data.gyro_bias_aug_deg_s, cfg.data.gyro_bias_aug_prob)[pos]
+                batch, prev = add_gyro_bias(batch, aug), (None if prev is None else add_gyro_bias(prev, aug))
+            batch, prev = _on(batch, dev), (None if prev is None else _on(prev, dev))
             total, logs = ddp(batch, prev, int(has_bias.sum()))
             opt.zero_grad(set_to_none=True)
             total.backward()
