@@ -283,3 +283,30 @@ def test_innovation_adaptive_fusion_bounds_drift_and_is_neutral_on_a_good_gyro()
     assert on < np.radians(8.0) and on < 0.25 * off
     good = (0.0, 0.0, 0.0)
     assert _fuse_biased_gyro(4.0, good) == _fuse_biased_gyro(0.0, good)
+
+
+def test_physics_losses_skip_saturated_gyro_samples():
+    """L_gyro pairs linked across clipped tokens and L_dynamics steps across them do not count:
+    the loss with a clipped window equals the loss of the other windows alone."""
+    torch.manual_seed(0)
+    cfg = dataclasses.replace(SMALL, window_tokens=12)
+    m = TEPINN(cfg).double()
+    loss = TEPINNLoss(LossConfig(adaptive=False), m.body).double()
+    gyr, acc, count, t_rel, dt = random_window(cfg, b=3, seed=4)
+    clip = torch.zeros(3, 12, dtype=torch.float64)
+    clip[0, -2] = 0.3  # window 0: saturated inside the L_gyro link and one dynamics step
+
+    def logs(rows, clip_rows):
+        out = m(gyr[rows], acc[rows], count[rows], t_rel[rows], dt[rows], None, clip_rows)
+        prev = m(gyr[rows] * 0.5, acc[rows], count[rows], t_rel[rows], dt[rows], None, clip_rows)
+        batch = {"q_ref": out["q"].detach(), "dt": dt[rows], "clip": clip_rows,
+                 "has_bias": torch.zeros(len(rows), dtype=torch.bool), "bias_true": torch.zeros(len(rows), 3)}  # fmt: skip
+        return loss(out, batch, prev)[1]
+
+    both = logs([0, 1, 2], clip)
+    rest = logs([1, 2], clip[1:])
+    torch.testing.assert_close(both["L_gyro"], rest["L_gyro"], rtol=1e-9, atol=0)
+    unflagged = logs([0, 1, 2], torch.zeros_like(clip))
+    assert abs(float(unflagged["L_gyro"]) - float(rest["L_gyro"])) > 1e-6  # window 0 counts when unclipped
+    # dynamics: window 0 loses exactly its 2 steps touching token K-2, the mean is over the rest
+    assert float(both["L_dyn"]) != float(unflagged["L_dyn"])

@@ -69,6 +69,18 @@ def chained_rotation(w_c: torch.Tensor, dt: torch.Tensor, bias: torch.Tensor, n:
     return q
 
 
+def unclipped(batch: dict, n: int, sliding: bool = False) -> torch.Tensor:
+    """1.0 where the last ``n`` tokens hold no saturated sample (B,); with ``sliding``, for every
+    run of ``n`` consecutive tokens (B, K−n+1). All ones when the batch has no clip channel."""
+    clip = batch.get("clip")
+    if clip is None:
+        shape = (batch["dt"].shape[0],) if not sliding else (batch["dt"].shape[0], batch["dt"].shape[1] - n + 1)
+        return torch.ones(shape, dtype=batch["dt"].dtype, device=batch["dt"].device)
+    if sliding:
+        return (clip.unfold(1, n, 1).sum(-1) <= 0).to(clip.dtype)
+    return (clip[:, -n:].sum(-1) <= 0).to(clip.dtype)
+
+
 class TEPINNLoss(nn.Module):
     """Total loss ``L_data + L_phys`` (+ the uncertainty NLL), adaptively weighted."""
 
@@ -107,13 +119,18 @@ class TEPINNLoss(nn.Module):
             w_dot = (w[:, 1:] - w[:, :-1]) / dt
             wm = 0.5 * (w[:, 1:] + w[:, :-1])
             res = self._body[0].residual(wm, w_dot, out["torque"][:, :-1]) / c.dyn_scale_rad_s2
-            terms["dyn"] = (res**2).sum(-1).mean()
+            # a saturated gyro does not measure ω: no dynamics residual across clipped tokens
+            ok = unclipped(batch, 2, sliding=True)  # (B, K-1)
+            terms["dyn"] = ((res**2).sum(-1) * ok).sum() / ok.sum().clamp_min(1.0)
         if out_prev is not None and "f_mean" in out:
             # L_gyro: the estimate n tokens earlier, carried forward by RK4 of ω_c − b̂, must agree
             n = c.gyro_pair_tokens
             rot = chained_rotation(out["w_c"], batch["dt"], out["bias"], n)  # body(K) → body(K−n)
             g_prev_now = quat_rotate(quat_conj(rot), gravity_body(out_prev["q"]))
-            terms["gyro"] = (vector_angle(gravity_body(q), g_prev_now) ** 2).mean() * 1e3
+            # RK4 of a saturated gyro is not the motion: pairs linked across clipping do not count
+            ok = unclipped(batch, n)  # (B,)
+            err2 = vector_angle(gravity_body(q), g_prev_now) ** 2
+            terms["gyro"] = (err2 * ok).sum() / ok.sum().clamp_min(1.0) * 1e3
         total = torch.zeros((), dtype=q.dtype, device=q.device)
         lam = {"data": 1.0, "bias": c.lambda_bias, "acc": c.lambda_acc, "gyro": c.lambda_gyro, "dyn": c.lambda_dyn}
         for i, name in enumerate(TERMS):
