@@ -83,7 +83,8 @@ def main() -> int:
         r = inc_tp / get("lstm", "inclination_rmse_deg")
         print(f"TE-PINN / LSTM  inclination RMSE ratio {r:.3f}  (target ≤ 0.85: {'PASS' if r <= 0.85 else 'FAIL'})")
     for c in res.comparisons or []:
-        print("paired Wilcoxon (per-flight inclination RMSE):", {k: c[k] for k in c if k in ("against", "p_value", "median_diff_deg", "n")})
+        print(f"paired Wilcoxon (per-flight inclination RMSE): {c['a']} vs {c['b']}, n={c['n']}, "
+              f"{c['a']} better in {c['wins_a']}, p two-sided {c['pvalue_two_sided']:.3g}, p ({c['a']} < {c['b']}) {c['pvalue_a_less']:.3g}")
     for n in notes:
         print("note:", n)
     speed(tp.model, tp.fusion, args.speed_seconds)

@@ -246,11 +246,15 @@ def test_physics_baseline_ignores_rotations_across_a_saturated_gyro():
 
 def test_checkpoints_from_before_clip_awareness_still_load(tmp_path):
     torch.manual_seed(0)
-    old_cfg = dataclasses.replace(SMALL, clip_aware=False)
+    old_cfg = dataclasses.replace(SMALL, clip_aware=False, sensor_scale_max=0.0, sensor_gyro_bias_max_rad_s=0.0,
+                                  sensor_accel_bias_max_m_s2=0.0)  # fmt: skip
     m = TEPINN(old_cfg)
+    with torch.no_grad():
+        m.sensor.S_g.fill_(0.3)  # beyond the new limits: must load unbounded, as trained
     save_checkpoint(tmp_path / "old.pt", m, FusionConfig())
     ck = torch.load(tmp_path / "old.pt", weights_only=True)
-    del ck["model_config"]["clip_aware"]  # as written by the first release
+    for key in ("clip_aware", "sensor_scale_max", "sensor_gyro_bias_max_rad_s", "sensor_accel_bias_max_m_s2"):
+        del ck["model_config"][key]  # as written by the first release
     del ck["fusion_config"]["adaptive_nis"]
     torch.save(ck, tmp_path / "old.pt")
     m2, f2, _ = load_model(tmp_path / "old.pt")
@@ -310,3 +314,24 @@ def test_physics_losses_skip_saturated_gyro_samples():
     assert abs(float(unflagged["L_gyro"]) - float(rest["L_gyro"])) > 1e-6  # window 0 counts when unclipped
     # dynamics: window 0 loses exactly its 2 steps touching token K-2, the mean is over the rest
     assert float(both["L_dyn"]) != float(unflagged["L_dyn"])
+
+
+def test_sensor_model_limits():
+    """tanh limits: the raw value near zero, never beyond the limit, unbounded when off."""
+    from tepinn_flight.model.physics import SensorModel
+
+    s = SensorModel(scale_max=0.05, gyro_bias_max_rad_s=0.05, accel_bias_max_m_s2=0.5)
+    u = SensorModel()
+    w = torch.tensor([[0.0, 0.0, 10.0]])
+    with torch.no_grad():
+        for m in (s, u):
+            m.S_g.fill_(0.0)
+            m.S_g[2, 2] = 0.8  # the degenerate solution: −80 % yaw-rate scale
+            m.b_a.fill_(1e-4)
+    torch.testing.assert_close(u.gyro(w), torch.tensor([[0.0, 0.0, 2.0]]))
+    assert abs(float(s.gyro(w)[0, 2]) - 10.0 * (1 - 0.05 * np.tanh(16.0))) < 1e-5
+    v = s.values()
+    assert float(v["S_g"].abs().max()) <= 0.05 + 1e-6 and float(v["b_g"].abs().max()) == 0.0
+    torch.testing.assert_close(v["b_a"], torch.full((3,), 1e-4), rtol=1e-6, atol=0)  # ≈ raw near 0
+    with pytest.raises(Exception, match="sensor limits"):
+        ModelConfig(sensor_scale_max=-1.0)

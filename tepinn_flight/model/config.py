@@ -30,6 +30,11 @@ class ModelConfig:
     correction_layer: bool = True  # yaw := 0 on the output (the paper's 6-D attitude correction)
     uncertainty: bool = True  # σ head trained with a Gaussian NLL on the tilt error
     clip_aware: bool = True  # RK4-rotated inputs across a saturated sample are marked untrusted
+    # plausible limits of the learned global sensor model (tanh-bounded; 0: unbounded): scale and
+    # misalignment (fraction), gyro bias (rad/s), accelerometer bias (m/s²)
+    sensor_scale_max: float = 0.05
+    sensor_gyro_bias_max_rad_s: float = 0.05
+    sensor_accel_bias_max_m_s2: float = 0.5
 
     def __post_init__(self):
         if self.token_rate_hz <= 0:
@@ -40,6 +45,8 @@ class ModelConfig:
             raise ConfigError("d_model must be a multiple of n_heads")
         if min(self.d_model, self.n_layers, self.d_ff) <= 0:
             raise ConfigError("d_model, n_layers and d_ff must be > 0")
+        if min(self.sensor_scale_max, self.sensor_gyro_bias_max_rad_s, self.sensor_accel_bias_max_m_s2) < 0:
+            raise ConfigError("sensor limits must be >= 0 (0: unbounded)")
         if not 0 <= self.dropout < 1:
             raise ConfigError("dropout must be in [0, 1)")
 

@@ -110,7 +110,8 @@ class TEPINN(nn.Module):
     def __init__(self, config: ModelConfig):
         super().__init__()
         self.config = c = config
-        self.sensor = SensorModel()
+        self.sensor = SensorModel(c.sensor_scale_max or None, c.sensor_gyro_bias_max_rad_s or None,
+                                  c.sensor_accel_bias_max_m_s2 or None)  # fmt: skip
         self.body = RigidBody()
         self.inp = nn.Linear(c.n_inputs, c.d_model)
         self.pe = TimestampEncoding(c.d_model, c.pe_min_wavelength_s, c.pe_max_wavelength_s)

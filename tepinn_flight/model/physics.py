@@ -65,20 +65,40 @@ class SensorModel(nn.Module):
 
     ``b_g`` (rad/s), ``b_a`` (m/s²) and the 3×3 scale/misalignment matrices start at zero. These
     are global (per model) systematic errors; per-flight biases are estimated by the network.
+
+    With limits (``scale_max`` etc.), each value is ``limit · tanh(raw / limit)``: equal to the raw
+    parameter near zero, never beyond a physically plausible range. Unbounded, the optimiser can
+    use them to make physics losses trivially small instead of calibrating the sensor (we saw a
+    yaw-rate scale of −77 %: shrinking ω_z shrinks the rigid-body residual), which wrecks the RK4
+    rotations of every log whose vehicle does not fly like the training data.
     """
 
-    def __init__(self):
+    def __init__(self, scale_max: float | None = None, gyro_bias_max_rad_s: float | None = None,
+                 accel_bias_max_m_s2: float | None = None):  # fmt: skip
         super().__init__()
         self.b_g = nn.Parameter(torch.zeros(3))
         self.S_g = nn.Parameter(torch.zeros(3, 3))
         self.b_a = nn.Parameter(torch.zeros(3))
         self.S_a = nn.Parameter(torch.zeros(3, 3))
+        self.limits = (scale_max, gyro_bias_max_rad_s, accel_bias_max_m_s2)
+
+    @staticmethod
+    def _bounded(p: torch.Tensor, limit: float | None) -> torch.Tensor:
+        return p if limit is None else limit * torch.tanh(p / limit)
+
+    def values(self) -> dict[str, torch.Tensor]:
+        """The effective ``b_g``, ``S_g``, ``b_a``, ``S_a`` (after the limits)."""
+        s, bg, ba = self.limits
+        return {"b_g": self._bounded(self.b_g, bg), "S_g": self._bounded(self.S_g, s),
+                "b_a": self._bounded(self.b_a, ba), "S_a": self._bounded(self.S_a, s)}  # fmt: skip
 
     def gyro(self, w: torch.Tensor) -> torch.Tensor:
-        return w - self.b_g - w @ self.S_g.T
+        s, bg, _ = self.limits
+        return w - self._bounded(self.b_g, bg) - w @ self._bounded(self.S_g, s).T
 
     def accel(self, a: torch.Tensor) -> torch.Tensor:
-        return a - self.b_a - a @ self.S_a.T
+        s, _, ba = self.limits
+        return a - self._bounded(self.b_a, ba) - a @ self._bounded(self.S_a, s).T
 
 
 class RigidBody(nn.Module):
