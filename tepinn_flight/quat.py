@@ -301,9 +301,16 @@ def quat_to_euler_zyx(q: Array) -> tuple[Array, Array, Array]:
     """Unit ``q_nb`` → (roll, pitch, yaw) in rad; roll, yaw in (-π, π], pitch in [-π/2, π/2]."""
     o = _ops(q)
     w, x, y, z = _split(q)
+    sp = 2 * (w * y - z * x)
     roll = o.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = o.asin(o.clip(2 * (w * y - z * x), -1.0, 1.0))
+    pitch = o.asin(o.clip(sp, -1.0, 1.0))
     yaw = o.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    # gimbal lock (pitch = ±90°): only roll ∓ yaw is defined and both atan2 above lose it; report
+    # it as roll with yaw = 0 (the q·qᵀ terms are rounding noise there)
+    lock = o.abs(sp) >= 1.0 - 1e-14
+    r2 = 2 * o.atan2(x, w)
+    roll = o.where(lock, o.atan2(o.sin(r2), o.cos(r2)), roll)
+    yaw = o.where(lock, 0.0 * yaw, yaw)
     return roll, pitch, yaw
 
 

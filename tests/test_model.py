@@ -330,7 +330,7 @@ def test_sensor_model_limits():
             m.b_a.fill_(1e-4)
     torch.testing.assert_close(u.gyro(w), torch.tensor([[0.0, 0.0, 2.0]]))
     assert abs(float(s.gyro(w).detach()[0, 2]) - 10.0 * (1 - 0.05 * np.tanh(16.0))) < 1e-5
-    v = s.values()
+    v = {k: t.detach() for k, t in s.values().items()}
     assert float(v["S_g"].abs().max()) <= 0.05 + 1e-6 and float(v["b_g"].abs().max()) == 0.0
     torch.testing.assert_close(v["b_a"], torch.full((3,), 1e-4), rtol=1e-6, atol=0)  # ≈ raw near 0
     with pytest.raises(Exception, match="sensor limits"):

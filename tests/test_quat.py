@@ -209,3 +209,16 @@ def test_exp_log_jacobian_matches_finite_difference_near_pi():
     rt = torch.tensor(r0, requires_grad=True)
     ja = torch.autograd.functional.jacobian(Q.quat_from_rotvec, rt).numpy()
     np.testing.assert_allclose(ja, jac, atol=1e-6)
+
+
+@pytest.mark.parametrize("pitch", [np.pi / 2, -np.pi / 2])
+def test_euler_at_gimbal_lock_keeps_the_rotation(pitch):
+    """At pitch ±90° only roll ∓ yaw is defined; the round trip must still give the same rotation
+    (scipy as the reference) with yaw reported as 0 and roll in (−π, π]."""
+    rng = np.random.default_rng(1)
+    roll, yaw = rng.uniform(-np.pi, np.pi, (2, 50))
+    q = Q.quat_from_euler_zyx(roll, np.full(50, pitch), yaw)
+    r, p, y = Q.quat_to_euler_zyx(q)
+    assert np.all(y == 0) and np.all(np.abs(r) <= np.pi)
+    ref = Rotation.from_euler("ZYX", np.stack([yaw, np.full(50, pitch), roll], 1)).as_quat()[:, [3, 0, 1, 2]]
+    np.testing.assert_allclose(Q.quat_canonical(Q.quat_from_euler_zyx(r, p, y)), Q.quat_canonical(ref), atol=1e-7)
