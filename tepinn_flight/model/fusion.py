@@ -89,30 +89,22 @@ def _exp(r):
     return (math.cos(0.5 * th), k * r[0], k * r[1], k * r[2])
 
 
+def _tilt_axis_angle(q, p):
+    """(gp × gm, |gp × gm|, angle) between the gravity directions of two attitudes (body axes of q)."""
+    gp = gravity_body_f(q)
+    gm = gravity_body_f(p)
+    c = (gp[1] * gm[2] - gp[2] * gm[1], gp[2] * gm[0] - gp[0] * gm[2], gp[0] * gm[1] - gp[1] * gm[0])
+    s = math.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
+    return c, s, math.atan2(s, gp[0] * gm[0] + gp[1] * gm[1] + gp[2] * gm[2])
+
+
 def tilt_toward(q, q_meas, gain):
     """Rotate q (in its body frame) so its gravity direction moves ``gain`` of the way to q_meas's."""
-    gp = gravity_body_f(q)
-    gm = gravity_body_f(q_meas)
-    cx = gp[1] * gm[2] - gp[2] * gm[1]
-    cy = gp[2] * gm[0] - gp[0] * gm[2]
-    cz = gp[0] * gm[1] - gp[1] * gm[0]
-    s = math.sqrt(cx * cx + cy * cy + cz * cz)
-    c = gp[0] * gm[0] + gp[1] * gm[1] + gp[2] * gm[2]
-    ang = math.atan2(s, c)
+    c, s, ang = _tilt_axis_angle(q, q_meas)
     if s < 1e-12:
         return q
     k = -gain * ang / s  # rotation by -gain·ang about n = gp × gm (body frame)
-    return _qnorm(_qmul(q, _exp((k * cx, k * cy, k * cz))))
-
-
-def _tilt_angle(q, p):
-    """Angle (rad) between the gravity directions of two attitudes."""
-    a = gravity_body_f(q)
-    b = gravity_body_f(p)
-    cx = a[1] * b[2] - a[2] * b[1]
-    cy = a[2] * b[0] - a[0] * b[2]
-    cz = a[0] * b[1] - a[1] * b[0]
-    return math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+    return _qnorm(_qmul(q, _exp((k * c[0], k * c[1], k * c[2]))))
 
 
 def zero_yaw_np(q):
@@ -175,7 +167,7 @@ class AttitudeFusion:
             self.bias = tuple(float(v) for v in b_m)
         else:
             if c.enabled and c.adaptive_nis > 0:
-                e = _tilt_angle(self.q, q_m)
+                e = _tilt_axis_angle(self.q, q_m)[2]
                 self.P = max(self.P, e * e / c.adaptive_nis - r)
             gain = self.P / (self.P + r) if c.enabled else 1.0
             self.q = tilt_toward(self.q, q_m, gain)
