@@ -162,6 +162,7 @@ def test_cli_train_then_estimate_end_to_end(tmp_path):
         ("", ["optim.fooo=1"], "optim.fooo"),
         ("", ["optim.epochs=1.5"], "optim.epochs"),
         ("", ["model.d_model=true"], "model.d_model"),
+        ("", ["data.gyro_bias_aug_prob=1.5"], "gyro_bias_aug_prob"),
     ],
 )
 def test_strict_config_one_line_error(tmp_path, capsys, toml_extra, overrides, key):

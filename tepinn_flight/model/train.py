@@ -63,6 +63,12 @@ class DataConfig:
     gyro_bias_aug_deg_s: float = 0.0
     gyro_bias_aug_prob: float = 0.5
 
+    def __post_init__(self):
+        if self.gyro_bias_aug_deg_s < 0:
+            raise ConfigError("'gyro_bias_aug_deg_s' must be >= 0")
+        if not 0 <= self.gyro_bias_aug_prob <= 1:
+            raise ConfigError("'gyro_bias_aug_prob' must be in [0, 1]")
+
 
 @dataclass(frozen=True)
 class OptimConfig:
