@@ -85,6 +85,20 @@ class Ekf:
         return {"q_nb_wxyz": q, "bias_rad_s": b, "sigma_rad": s}
 
 
+def _rotate_body(w, x, y, z, rx, ry, rz):
+    """``q ⊗ exp(r)`` for a body-frame rotation vector ``r`` (rad), scalars for the per-sample loop.
+    Returns (the new q, the increment exp(r)) as (w, x, y, z) tuples."""
+    th = math.sqrt(rx * rx + ry * ry + rz * rz)
+    if th > 1e-12:
+        s = math.sin(0.5 * th) / th
+        dw, dx, dy, dz = math.cos(0.5 * th), rx * s, ry * s, rz * s
+    else:
+        dw, dx, dy, dz = 1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz
+    q = (w * dw - x * dx - y * dy - z * dz, w * dx + x * dw + y * dz - z * dy,
+         w * dy - x * dz + y * dw + z * dx, w * dz + x * dy - y * dx + z * dw)  # fmt: skip
+    return q, (dw, dx, dy, dz)
+
+
 def _run(gyr, acc, dt, p: EkfParams, q, b):
     n = len(gyr)
     q_out = [None] * n
@@ -106,22 +120,13 @@ def _run(gyr, acc, dt, p: EkfParams, q, b):
     rest_g2, rest_a2 = p.rest_gyr_dev_rad_s**2, p.rest_acc_dev_m_s2**2
     rest_t = 0.0
     lg = la = None
-    sqrt, sin, cos = math.sqrt, math.sin, math.cos
+    sqrt = math.sqrt
     inv = np.linalg.inv
     gyr_l, acc_l, dt_l = gyr.tolist(), acc.tolist(), dt.tolist()
     for i in range(n):
         h = dt_l[i]
         gx, gy, gz = gyr_l[i]
-        rx, ry, rz = (gx - bx) * h, (gy - by) * h, (gz - bz) * h
-        th = sqrt(rx * rx + ry * ry + rz * rz)
-        if th > 1e-12:
-            c = cos(0.5 * th)
-            s = sin(0.5 * th) / th
-            dw, dx, dy, dz = c, rx * s, ry * s, rz * s
-        else:
-            dw, dx, dy, dz = 1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz
-        w, x, y, z = (w * dw - x * dx - y * dy - z * dz, w * dx + x * dw + y * dz - z * dy,
-                      w * dy - x * dz + y * dw + z * dx, w * dz + x * dy - y * dx + z * dw)  # fmt: skip
+        (w, x, y, z), (dw, dx, dy, dz) = _rotate_body(w, x, y, z, (gx - bx) * h, (gy - by) * h, (gz - bz) * h)
         dw0, dx0, dy0, dz0 = dw, dx, dy, dz
         # F: attitude block = R(dq)ᵀ, bias coupling −I·h
         F[0:3, 0:3] = (
@@ -209,15 +214,7 @@ def _run(gyr, acc, dt, p: EkfParams, q, b):
             # (its component along the body-frame down vector v), so heading comes from the gyro only
             pv = ex * vx + ey * vy + ez * vz
             ex, ey, ez = ex - pv * vx, ey - pv * vy, ez - pv * vz
-            th = sqrt(ex * ex + ey * ey + ez * ez)
-            if th > 1e-12:
-                c = cos(0.5 * th)
-                s = sin(0.5 * th) / th
-                dw, dx, dy, dz = c, ex * s, ey * s, ez * s
-            else:
-                dw, dx, dy, dz = 1.0, 0.5 * ex, 0.5 * ey, 0.5 * ez
-            w, x, y, z = (w * dw - x * dx - y * dy - z * dz, w * dx + x * dw + y * dz - z * dy,
-                          w * dy - x * dz + y * dw + z * dx, w * dz + x * dy - y * dx + z * dw)  # fmt: skip
+            w, x, y, z = _rotate_body(w, x, y, z, ex, ey, ez)[0]
             bx = min(lim, max(-lim, bx + b0))
             by = min(lim, max(-lim, by + b1))
             bz = min(lim, max(-lim, bz + b2))
