@@ -224,7 +224,7 @@ def test_trust_after_clipping_closed_form():
 def test_physics_baseline_ignores_rotations_across_a_saturated_gyro():
     """With the correction head silenced, the output is the tilt of the trusted tokens' mean
     specific force: tokens before a clipped sample (garbage RK4 rotation) change nothing."""
-    cfg = dataclasses.replace(SMALL, window_tokens=12)
+    cfg = dataclasses.replace(SMALL, window_tokens=12, learned_pooling=False)
     m = TEPINN(cfg).double().eval()
     with torch.no_grad():
         m.head_q.weight.zero_()
@@ -244,16 +244,70 @@ def test_physics_baseline_ignores_rotations_across_a_saturated_gyro():
     assert tilt_angle(q3, q).item() > 0.05
 
 
+def test_learned_pooling_starts_as_the_plain_mean_and_can_select_tokens():
+    """Zero pooling logits: the baseline is the tilt of the plain mean of the rotated specific
+    forces (closed form, every token, clipped or not); logits that favour the first five tokens
+    move it onto their mean."""
+    cfg = dataclasses.replace(SMALL, window_tokens=12, learned_pooling=True, declip=False)
+    m = TEPINN(cfg).double().eval()
+    with torch.no_grad():
+        m.head_q.weight.zero_()
+    gyr, acc, count, t_rel, dt = random_window(cfg, b=1, seed=3)
+    gyr = gyr * 0.0  # no rotation: v_j is the token's own specific force
+    acc = acc.clone()
+    acc[0, :5] += torch.tensor([30.0, -20.0, 5.0], dtype=torch.float64)
+    clip = torch.zeros(1, 12, dtype=torch.float64)
+    clip[0, 4] = 0.5
+    q = m(gyr, acc, count, t_rel, dt, None, clip)["q"].detach()
+    f = acc[0].mean(0).numpy()
+    np.testing.assert_allclose(Q.gravity_body(q.numpy())[0], -f / np.linalg.norm(f), atol=1e-9)
+    hook = m.head_pool.register_forward_hook(lambda mod, inp, out: out + torch.tensor(
+        [20.0] * 5 + [0.0] * 7, dtype=out.dtype)[None, :, None])  # fmt: skip
+    q2 = m(gyr, acc, count, t_rel, dt, None, clip)["q"].detach()
+    hook.remove()
+    f2 = acc[0, :5].mean(0).numpy()
+    np.testing.assert_allclose(Q.gravity_body(q2.numpy())[0], -f2 / np.linalg.norm(f2), atol=1e-6)
+
+
+def test_declipping_scales_saturated_rates_by_the_learned_gain():
+    from tepinn_flight.model.physics import SensorModel
+
+    s = SensorModel(declip_max=2.0)
+    assert abs(float(s.clip_gain()) - 1.0) < 1e-6  # starts at κ = 1: true rate twice the range
+    w = torch.tensor([[7.0, -1.0, 0.5], [7.0, -1.0, 0.5]])
+    out = s.gyro(w, torch.tensor([0.0, 0.6])).detach()
+    torch.testing.assert_close(out, torch.tensor([[7.0, -1.0, 0.5], [7.0 * 1.6, -1.6, 0.8]]))
+    with torch.no_grad():
+        s.k_clip_raw.fill_(50.0)
+    assert abs(float(s.clip_gain()) - 2.0) < 1e-6  # bounded by declip_max
+    # without declipping (or without clip information) the reading passes unchanged
+    torch.testing.assert_close(SensorModel().gyro(w, torch.tensor([0.0, 0.6])), w)
+    torch.testing.assert_close(s.gyro(w), w)
+    # in the network: a window turning at a constant rate, half its tokens clipped, is rotated
+    # by (1 + κ/2)× the reading over those tokens (RK4 of a constant rate is exact)
+    cfg = dataclasses.replace(SMALL, window_tokens=12, declip=True)
+    m = TEPINN(cfg).double()
+    gyr = torch.zeros(1, 12, 3, dtype=torch.float64)
+    gyr[..., 0] = 2.0
+    clip = torch.full((1, 12), 0.5, dtype=torch.float64)
+    dt = torch.full((1, 12), 0.04, dtype=torch.float64)
+    w_c = m.sensor.gyro(gyr, clip)
+    p_end, _ = m.frames(w_c, dt)
+    angle = 2 * torch.atan2(p_end[0, -1, 1:].norm(), p_end[0, -1, 0])
+    assert abs(float(angle) - 2.0 * 1.5 * 11 * 0.04) < 1e-6  # κ is stored in float32
+
+
 def test_checkpoints_from_before_clip_awareness_still_load(tmp_path):
     torch.manual_seed(0)
     old_cfg = dataclasses.replace(SMALL, clip_aware=False, sensor_scale_max=0.0, sensor_gyro_bias_max_rad_s=0.0,
-                                  sensor_accel_bias_max_m_s2=0.0)  # fmt: skip
+                                  sensor_accel_bias_max_m_s2=0.0, declip=False, learned_pooling=False)  # fmt: skip
     m = TEPINN(old_cfg)
     with torch.no_grad():
         m.sensor.S_g.fill_(0.3)  # beyond the new limits: must load unbounded, as trained
     save_checkpoint(tmp_path / "old.pt", m, FusionConfig())
     ck = torch.load(tmp_path / "old.pt", weights_only=True)
-    for key in ("clip_aware", "sensor_scale_max", "sensor_gyro_bias_max_rad_s", "sensor_accel_bias_max_m_s2"):
+    for key in ("clip_aware", "sensor_scale_max", "sensor_gyro_bias_max_rad_s", "sensor_accel_bias_max_m_s2",
+                "declip", "declip_max", "learned_pooling"):
         del ck["model_config"][key]  # as written by the first release
     del ck["fusion_config"]["adaptive_nis"]
     torch.save(ck, tmp_path / "old.pt")
@@ -287,6 +341,25 @@ def test_innovation_adaptive_fusion_bounds_drift_and_is_neutral_on_a_good_gyro()
     assert on < np.radians(8.0) and on < 0.25 * off
     good = (0.0, 0.0, 0.0)
     assert _fuse_biased_gyro(4.0, good) == _fuse_biased_gyro(0.0, good)
+
+
+def test_fusion_propagates_saturated_samples_at_the_declipping_gain():
+    """Constant 3 rad/s roll for 0.25 s (first estimate at t=0, no later ones): the propagated roll
+    angle is ω·T on unclipped samples and (1 + gain)·ω·T where every sample is flagged clipped."""
+    from tepinn_flight.model.fusion import AttitudeFusion
+
+    def roll_after(gain, clipped):
+        f = AttitudeFusion(FusionConfig(clip_rate_gain=gain))
+        q = None
+        for i in range(101):  # t = 0 … 0.25 s; the estimate (level) arrives with the 2nd sample
+            est = ((1.0, 0.0, 0.0, 0.0), 0.01, (0.0, 0.0, 0.0)) if i == 1 else None
+            q, _, _ = f.step(i * 0.0025, (3.0, 0.0, 0.0), est, clipped)
+        return 2 * np.arctan2(q[1], q[0])
+
+    t_prop = 0.25  # the estimate sets the state at t = 0, then it is propagated to the last sample
+    assert abs(roll_after(0.6, False) - 3.0 * t_prop) < 1e-9
+    assert abs(roll_after(0.6, True) - 1.6 * 3.0 * t_prop) < 1e-9
+    assert abs(roll_after(0.0, True) - 3.0 * t_prop) < 1e-9
 
 
 def test_physics_losses_skip_saturated_gyro_samples():

@@ -65,10 +65,10 @@ def load_model(path: str | os.PathLike) -> tuple[TEPINN, FusionConfig, dict]:
     """Rebuild the model (eval mode, float32) and its fusion settings from a checkpoint."""
     ckpt = read_checkpoint(path)
     try:
-        # version-1 checkpoints written before `clip_aware` and the sensor limits existed were
-        # trained without them
+        # version-1 checkpoints written before `clip_aware`, the sensor limits, `declip` and
+        # `learned_pooling` existed were trained without them
         before = {"clip_aware": False, "sensor_scale_max": 0.0, "sensor_gyro_bias_max_rad_s": 0.0,
-                  "sensor_accel_bias_max_m_s2": 0.0}  # fmt: skip
+                  "sensor_accel_bias_max_m_s2": 0.0, "declip": False, "learned_pooling": False}  # fmt: skip
         model = TEPINN(ModelConfig(**{**before, **ckpt["model_config"]}))
         model.load_state_dict(ckpt["state_dict"])
         fusion = FusionConfig(**ckpt.get("fusion_config", {}))

@@ -30,6 +30,13 @@ class ModelConfig:
     correction_layer: bool = True  # yaw := 0 on the output (the paper's 6-D attitude correction)
     uncertainty: bool = True  # σ head trained with a Gaussian NLL on the tilt error
     clip_aware: bool = True  # RK4-rotated inputs across a saturated sample are marked untrusted
+    # a saturated gyro reads less than the true rate: clipped tokens' rates are scaled by a learned
+    # (1 + κ·clipped fraction), κ ∈ [0, declip_max], starting at 1 (a global sensor-model parameter)
+    declip: bool = True
+    declip_max: float = 2.0
+    # the physics baseline's tilt is a learned softmax pooling of the RK4-rotated specific forces
+    # (logits from each token's encoding; starts as their plain mean) instead of their trusted mean
+    learned_pooling: bool = True
     # plausible limits of the learned global sensor model (tanh-bounded; 0: unbounded): scale and
     # misalignment (fraction), gyro bias (rad/s), accelerometer bias (m/s²)
     sensor_scale_max: float = 0.05
@@ -47,6 +54,8 @@ class ModelConfig:
             raise ConfigError("d_model, n_layers and d_ff must be > 0")
         if min(self.sensor_scale_max, self.sensor_gyro_bias_max_rad_s, self.sensor_accel_bias_max_m_s2) < 0:
             raise ConfigError("sensor limits must be >= 0 (0: unbounded)")
+        if self.declip_max <= 1:
+            raise ConfigError("declip_max must be > 1 (κ starts at 1)")
         if not 0 <= self.dropout < 1:
             raise ConfigError("dropout must be in [0, 1)")
 

@@ -5,7 +5,10 @@ them, and to carry heading, the attitude is propagated sample by sample with RK4
 kinematics of the bias-corrected gyro ``ω − b̂``. At each window estimate, the tilt is pulled
 toward the network's by a Kalman gain ``K = P / (P + σ²)`` (P: propagated tilt variance), and the
 bias follows the network's per-window bias estimate through a first-order low-pass (the bias is a
-slow random walk). Heading comes from gyro integration only (6-D) and starts at 0.
+slow random walk). Heading comes from gyro integration only (6-D) and starts at 0. A saturated
+gyro sample reads less than the true rate: it is propagated at ``(1 + clip_rate_gain)``× its
+reading (the model's learned declipping gain κ, when calibration finds that it helps) and adds
+``clip_inflation_rad`` to the propagated σ.
 
 Innovation-adaptive covariance (``adaptive_nis`` = ν > 0): when the squared tilt innovation e²
 exceeds ν·(P + σ²), the propagation was worse than P says (an uncalibrated gyro, a bias the
@@ -31,6 +34,7 @@ class FusionConfig:
     bias_time_constant_s: float = 10.0  # low-pass of the network's per-window bias estimates
     sigma_scale: float = 1.0  # calibration factor applied to the network's σ
     clip_inflation_rad: float = 0.35  # a saturated gyro/accel sample adds this σ to the propagation
+    clip_rate_gain: float = 0.0  # a saturated sample is propagated at (1 + gain)× its reading (κ)
     output_sigma_scale: float = 1.0  # calibration of the reported σ (fitted on validation flights)
     adaptive_nis: float = 0.0  # > 0: innovation-adaptive P (see AttitudeFusion._update); 0: off
     yaw: str = "gyro"  # "gyro": heading from gyro integration; "zero": yaw := 0 on the output
@@ -138,8 +142,9 @@ class AttitudeFusion:
         (a token is known to be complete only when the next sample arrives): it corrects the state
         at that time, before the propagation to ``t``. Offline and live runs therefore agree.
         """
-        w = (float(w_rad_s[0]), float(w_rad_s[1]), float(w_rad_s[2]))
         c = self.c
+        k = 1.0 + c.clip_rate_gain if clipped else 1.0  # a saturated gyro reads less than the rate
+        w = (k * float(w_rad_s[0]), k * float(w_rad_s[1]), k * float(w_rad_s[2]))
         if est is not None:
             self._update(est)
         if self.q is not None and self.t is not None:

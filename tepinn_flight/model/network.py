@@ -3,6 +3,8 @@
 Forward pass for one window of K tokens ending at time t_K (B batch, K tokens, d d_model):
 
 1. sensor model     ω_c = ω − b_g − S_g ω,  a_c = a − b_a − S_a a                       (B, K, 3)
+                    and, for tokens with saturated samples, ω_c·(1 + κ·clipped fraction): a
+                    clipped gyro reads less than the true rate (κ learned, starts at 1)
 2. RK4 kinematics   R_{K←j}: rotation body(t_j) → body(t_K) from ω_c (log-depth prefix products
                     of per-token RK4 steps); v_j = R_{K←j^mid} a_c,j is each token's specific
                     force seen in the *current* body frame. Unaccelerated, every v_j = −g_body(t_K).
@@ -14,8 +16,10 @@ Forward pass for one window of K tokens ending at time t_K (B batch, K tokens, d
 5. heads            last token → quaternion (normalised), σ (rad), gyro bias b̂ (rad/s), and a
                     torque τ per token for the rigid-body loss
 6. output           physics on: the quaternion head is a correction δq of the physics baseline
-                    q_base (the tilt whose gravity is the u-weighted window mean of v_j, i.e. a
-                    boxcar complementary filter): q = q_base ⊗ δq; physics off: q = head output
+                    q_base (the tilt whose gravity is a pooled mean of the v_j: weights softmax of
+                    a per-token logit from the encoder, which starts as the plain mean, a boxcar
+                    complementary filter; without learned pooling, the u-weighted mean):
+                    q = q_base ⊗ δq; physics off: q = head output
 7. correction       yaw := 0 (the paper's attitude correction layer; the 6-D estimate is tilt)
 
 A window holds only samples up to t_K, so the estimate at t_K uses nothing after it (causal).
@@ -111,7 +115,8 @@ class TEPINN(nn.Module):
         super().__init__()
         self.config = c = config
         self.sensor = SensorModel(c.sensor_scale_max or None, c.sensor_gyro_bias_max_rad_s or None,
-                                  c.sensor_accel_bias_max_m_s2 or None)  # fmt: skip
+                                  c.sensor_accel_bias_max_m_s2 or None,
+                                  c.declip_max if c.declip and c.physics else None)  # fmt: skip
         self.body = RigidBody()
         self.inp = nn.Linear(c.n_inputs, c.d_model)
         self.pe = TimestampEncoding(c.d_model, c.pe_min_wavelength_s, c.pe_max_wavelength_s)
@@ -128,6 +133,10 @@ class TEPINN(nn.Module):
         self.head_sigma = nn.Linear(c.d_model, 1)
         self.head_bias = nn.Linear(c.d_model, 3)
         self.head_torque = nn.Linear(c.d_model, 3)
+        if c.physics and c.learned_pooling:  # baseline pooling logits; zero: the plain mean
+            self.head_pool = nn.Linear(c.d_model, 1)
+            nn.init.zeros_(self.head_pool.weight)
+            nn.init.zeros_(self.head_pool.bias)
         # the quaternion head starts near "level" so early training is stable
         with torch.no_grad():
             self.head_q.weight.mul_(0.1)
@@ -168,12 +177,12 @@ class TEPINN(nn.Module):
         """Token inputs (B, K, n_inputs) before normalisation, the corrected gyro and accel, and
         (physics on) the rotated specific forces ``v`` (B, K, 3) in g with their trust ``u`` (B, K)."""
         c = self.config
+        clip = torch.zeros_like(count) if clip is None else clip
         if c.physics:
-            w_c = self.sensor.gyro(gyr)
+            w_c = self.sensor.gyro(gyr, clip)
             a_c = self.sensor.accel(acc)
         else:
             w_c, a_c = gyr, acc
-        clip = torch.zeros_like(count) if clip is None else clip
         parts = [w_c, a_c / GRAVITY_M_S2, torch.log1p(count)[..., None], clip[..., None]]
         v = u = None
         if c.physics:
@@ -210,8 +219,11 @@ class TEPINN(nn.Module):
         last = h[:, -1]  # (B, d)
         q = quat_normalize(self.head_q(last))  # (B, 4)
         if v is not None:
-            wts = (u / u.sum(dim=1, keepdim=True))[..., None]  # (B, K, 1)
-            f_mean = (wts * v).sum(dim=1)  # trusted window-mean specific force in body(t_K), in g
+            if c.learned_pooling:  # learned weights (u is an input the logits can use)
+                wts = torch.softmax(self.head_pool(h)[..., 0], dim=1)[..., None]
+            else:
+                wts = (u / u.sum(dim=1, keepdim=True))[..., None]  # (B, K, 1)
+            f_mean = (wts * v).sum(dim=1)  # pooled specific force in body(t_K), in g
             q = quat_mul(gravity_tilt(-f_mean), q)  # correction of the physics baseline
         if c.correction_layer:
             q = zero_yaw(q)

@@ -8,6 +8,8 @@ Quaternion kinematics of a body→earth quaternion under body rate ω: ``q̇ = �
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 
@@ -74,8 +76,11 @@ class SensorModel(nn.Module):
     """
 
     def __init__(self, scale_max: float | None = None, gyro_bias_max_rad_s: float | None = None,
-                 accel_bias_max_m_s2: float | None = None):  # fmt: skip
+                 accel_bias_max_m_s2: float | None = None, declip_max: float | None = None):  # fmt: skip
         super().__init__()
+        if declip_max is not None:  # κ = declip_max·sigmoid(raw), starting at 1 (twice the range)
+            self.k_clip_raw = nn.Parameter(torch.tensor(-math.log(declip_max - 1.0)))
+        self.declip_max = declip_max
         self.b_g = nn.Parameter(torch.zeros(3))
         self.S_g = nn.Parameter(torch.zeros(3, 3))
         self.b_a = nn.Parameter(torch.zeros(3))
@@ -92,9 +97,18 @@ class SensorModel(nn.Module):
         return {"b_g": self._bounded(self.b_g, bg), "S_g": self._bounded(self.S_g, s),
                 "b_a": self._bounded(self.b_a, ba), "S_a": self._bounded(self.S_a, s)}  # fmt: skip
 
-    def gyro(self, w: torch.Tensor) -> torch.Tensor:
+    def clip_gain(self) -> torch.Tensor | None:
+        """κ: how much larger than its reading a saturated gyro's true rate is taken to be."""
+        return None if self.declip_max is None else self.declip_max * torch.sigmoid(self.k_clip_raw)
+
+    def gyro(self, w: torch.Tensor, clip: torch.Tensor | None = None) -> torch.Tensor:
+        """Corrected rate; with declipping and ``clip`` (the clipped fraction of each row,
+        shape ``w.shape[:-1]``), saturated rows are scaled by ``1 + κ·clip``."""
         s, bg, _ = self.limits
-        return w - self._bounded(self.b_g, bg) - w @ self._bounded(self.S_g, s).T
+        w_c = w - self._bounded(self.b_g, bg) - w @ self._bounded(self.S_g, s).T
+        if self.declip_max is not None and clip is not None:
+            w_c = w_c * (1 + self.clip_gain() * clip)[..., None]
+        return w_c
 
     def accel(self, a: torch.Tensor) -> torch.Tensor:
         s, _, ba = self.limits

@@ -348,6 +348,17 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
         table[f"{best.process_noise_rad2_s:g},nis={nis:g}"] = err
         if err < best_err:
             best, best_err, best_run = cand, err, (errs, sig)
+    # saturated gyro samples propagated at (1 + κ)× their reading with the model's learned κ, and
+    # then trusted more (a smaller σ added per clipped sample); only where the flights clip
+    kappa = model.sensor.clip_gain()
+    if kappa is not None and any(bool(np.any(r.clipped)) for r in recs):
+        for infl in (best.clip_inflation_rad, 0.15, 0.05):
+            cand = dataclasses.replace(best, clip_rate_gain=round(float(kappa), 4), clip_inflation_rad=infl)
+            errs, sig, _ = run(cand)
+            err = mean_rmse_deg(errs)
+            table[f"clip_rate_gain={cand.clip_rate_gain:g},inflation={infl:g}"] = err
+            if err < best_err:
+                best, best_err, best_run = cand, err, (errs, sig)
     metrics = {"fusion_val_tilt_rmse_geomean_deg": best_err, "fusion_grid": table, "fusion_val_flights": len(recs)}
     # the bias low-pass: the time constant with the lowest gyro-bias error (where truth exists),
     # kept only if the tilt error does not get worse
