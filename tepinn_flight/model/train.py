@@ -356,12 +356,10 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
     # then trusted more (a smaller σ added per clipped sample). Both settings act on clipped
     # samples only, so they are compared on the validation flights that clip (all of them)
     kappa = model.sensor.clip_gain()
-    clipping = [r for r in usable if bool(np.any(r.clipped))]
-    source = "validation"
-    if not clipping:  # in-sample windows look better than they are: a conservative choice
+    clipping, source = [r for r in usable if bool(np.any(r.clipped))], "validation"
+    if kappa is not None and not clipping:  # in-sample windows look better than they are: conservative
         clipping = [r for r in fallback_records if (r.meta.get("imu_rate_hz") or 0) >= 20 and bool(np.any(r.clipped))]
-        clipping = [clipping[i] for i in np.unique(np.linspace(0, len(clipping) - 1, min(6, len(clipping))).round().astype(int))] if clipping else []
-        source = "training"
+        clipping, source = clipping[:: max(1, -(-len(clipping) // 6))], "training"  # at most 6, spread
     if kappa is not None and clipping:
         cwins = [window_estimates(model, r) for r in clipping]
         base_err = mean_rmse_deg(run(best, clipping, cwins)[0])
