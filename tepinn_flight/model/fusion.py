@@ -16,6 +16,14 @@ network has not found yet, an unflagged saturation), so P is raised to e²/ν �
 update. With a good gyro this never fires; with a bad one the output falls back toward the
 network's window estimates instead of drifting away with the gyro.
 
+Bias states (``bias_states`` = True): instead of the low-pass, a 6-state error Kalman filter
+(tilt/heading error δθ in body axes, gyro-bias error δb) is updated at each window estimate. Its
+covariance is carried between estimates with the exact rotation of the interval
+(``δθ⁺ = ΔRᵀ δθ − J δb``, ``J = ∫₀ᵀ Exp(−φ u/T) du``, exact for a constant rate), so the tilt innovations themselves estimate
+the bias — as VQF and an EKF do — and the network's per-window bias is a second measurement of it
+(σ ``bias_sigma_rad_s``). A bias far outside what the network was trained on (an uncalibrated
+gyro: 15–20 °/s) is then found from the drift, not followed blindly.
+
 Pure numpy/float math, one sample at a time, so the offline estimator and the live bridge share it.
 """
 
@@ -38,6 +46,10 @@ class FusionConfig:
     output_sigma_scale: float = 1.0  # calibration of the reported σ (fitted on validation flights)
     adaptive_nis: float = 0.0  # > 0: innovation-adaptive P (see AttitudeFusion._update); 0: off
     yaw: str = "gyro"  # "gyro": heading from gyro integration; "zero": yaw := 0 on the output
+    bias_states: bool = False  # True: 6-state Kalman update with gyro-bias states (see module doc)
+    bias_sigma_rad_s: float = 0.02  # σ of the network's per-window bias as a measurement (bias_states)
+    bias_rw_rad_s_sqrt_s: float = 1e-3  # random walk of the gyro bias (bias_states)
+    bias_init_sigma_rad_s: float = 0.1  # σ of the first bias estimate (bias_states)
 
 
 def _qmul(a, b):
@@ -134,6 +146,9 @@ class AttitudeFusion:
         self.t = None
         self.w = None
         self.t_est = None
+        self.K = None  # bias_states: 6×6 covariance of (δθ, δb) at the last update
+        self.q_est = None  # bias_states: attitude right after the last update
+        self.Q_acc = 0.0  # bias_states: tilt variance added by the propagation since the update
 
     def step(self, t: float, w_rad_s, est=None, clipped: bool = False):
         """Advance to sample time ``t`` with gyro ``w`` and return (q or None, σ, bias) for it.
@@ -153,9 +168,11 @@ class AttitudeFusion:
                 b = self.bias
                 self.q = rk4(self.q, (self.w[0] - b[0], self.w[1] - b[1], self.w[2] - b[2]),
                              (w[0] - b[0], w[1] - b[1], w[2] - b[2]), dt)  # fmt: skip
-                self.P += c.process_noise_rad2_s * dt
+                dP = c.process_noise_rad2_s * dt
                 if clipped:  # a saturated sensor: the propagated attitude is no longer trusted
-                    self.P += c.clip_inflation_rad**2
+                    dP += c.clip_inflation_rad**2
+                self.P += dP
+                self.Q_acc += dP
         self.t, self.w = t, w
         if self.q is None:
             return None, float("nan"), self.bias
@@ -164,6 +181,8 @@ class AttitudeFusion:
 
     def _update(self, est) -> None:
         c = self.c
+        if c.bias_states and c.enabled:
+            return self._update_kf(est)
         q_m, sigma, b_m = est
         r = (c.sigma_scale * float(sigma)) ** 2
         t = self.t
@@ -183,6 +202,84 @@ class AttitudeFusion:
             elif not c.enabled:
                 self.bias = tuple(float(v) for v in b_m)
         self.t_est = t
+
+
+    def _update_kf(self, est) -> None:
+        c = self.c
+        q_m, sigma, b_m = est
+        r = (c.sigma_scale * float(sigma)) ** 2
+        b_m = np.asarray(b_m, dtype=float)
+        if self.q is None:
+            self.q = tuple(float(v) for v in q_m)
+            self.bias = tuple(float(v) for v in b_m)
+            self.K = np.diag([r] * 3 + [c.bias_init_sigma_rad_s**2] * 3)
+            self.P, self.q_est, self.t_est, self.Q_acc = r, self.q, self.t, 0.0
+            return
+        # covariance from the last update to now: δθ⁺ = ΔRᵀ δθ − J δb (ΔR = Exp φ over the interval)
+        dt = max(0.0, self.t - self.t_est)
+        w, x, y, z = _qmul((self.q_est[0], -self.q_est[1], -self.q_est[2], -self.q_est[3]), self.q)
+        dR = np.array([
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ])  # fmt: skip
+        F = np.eye(6)
+        F[:3, :3] = dR.T
+        F[:3, 3:] = -dt * _integral_of_exp(-_log_q((w, x, y, z)))
+        P = F @ self.K @ F.T
+        P[:3, :3] += self.Q_acc * np.eye(3)
+        P[3:, 3:] += c.bias_rw_rad_s_sqrt_s**2 * dt * np.eye(3)
+        # tilt measurement: the 2 components of the error rotation perpendicular to gravity
+        gp = np.array(gravity_body_f(self.q))
+        cx, s, ang = _tilt_axis_angle(self.q, q_m)
+        e1 = np.cross(gp, [1.0, 0.0, 0.0] if abs(gp[0]) < 0.9 else [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(gp, e1)
+        res = -ang / s * np.array(cx) if s > 1e-12 else np.zeros(3)  # δθ that moves gp onto gm
+        H = np.zeros((2, 6))
+        H[0, :3], H[1, :3] = e1, e2
+        zt = H[:, :3] @ res
+        if c.adaptive_nis > 0:  # innovation-adaptive: the propagation was worse than P says
+            p_tilt = 0.5 * (e1 @ P[:3, :3] @ e1 + e2 @ P[:3, :3] @ e2)
+            extra = ang * ang / c.adaptive_nis - r - p_tilt
+            if extra > 0:
+                P[:3, :3] += extra * np.eye(3)
+        dx, P = _kalman(P, H, zt, r)
+        if c.bias_sigma_rad_s > 0:  # the network's bias estimate, a direct measurement of b
+            Hb = np.zeros((3, 6))
+            Hb[:, 3:] = np.eye(3)
+            dxb, P = _kalman(P, Hb, b_m - (np.asarray(self.bias) + dx[3:]), c.bias_sigma_rad_s**2)
+            dx = dx + dxb  # sequential update: the innovation is taken after the tilt correction
+        self.q = _qnorm(_qmul(self.q, _exp(tuple(dx[:3]))))
+        self.bias = tuple(float(v) for v in np.asarray(self.bias) + dx[3:])
+        self.K = 0.5 * (P + P.T)
+        g = np.array(gravity_body_f(self.q))
+        self.P = 0.5 * (np.trace(self.K[:3, :3]) - g @ self.K[:3, :3] @ g)  # per-axis tilt variance
+        self.q_est, self.t_est, self.Q_acc = self.q, self.t, 0.0
+
+
+def _log_q(q):
+    """Rotation vector of a unit quaternion (w, x, y, z)."""
+    w, x, y, z = q if q[0] >= 0 else (-q[0], -q[1], -q[2], -q[3])
+    n = math.sqrt(x * x + y * y + z * z)
+    k = 2.0 * math.atan2(n, w) / n if n > 1e-12 else 2.0
+    return np.array([k * x, k * y, k * z])
+
+
+def _integral_of_exp(phi):
+    """∫₀¹ Exp(s φ) ds = I + (1 − cos θ)/θ² [φ×] + (θ − sin θ)/θ³ [φ×]² (θ = |φ|)."""
+    th = float(np.linalg.norm(phi))
+    X = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
+    if th < 1e-6:
+        return np.eye(3) + 0.5 * X + X @ X / 6.0
+    return np.eye(3) + (1 - math.cos(th)) / th**2 * X + (th - math.sin(th)) / th**3 * X @ X
+
+
+def _kalman(P, H, z, r):
+    """One linear Kalman update of the error state (measurement noise r·I); returns (dx, P⁺)."""
+    S = H @ P @ H.T + r * np.eye(len(z))
+    K = np.linalg.solve(S, H @ P).T
+    return K @ z, P - K @ H @ P
 
 
 def run_fusion(t_s, gyr, est_index, est_q, est_sigma, est_bias, config: FusionConfig, clipped=None):
