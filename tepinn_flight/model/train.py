@@ -96,6 +96,20 @@ def lr_factor(step: int, optim: OptimConfig) -> float:
 
 
 @dataclass(frozen=True)
+class CalibrationConfig:
+    """The fusion calibration at the end of training (:func:`calibrate_fusion`)."""
+
+    max_flights: int = 12  # validation flights it runs on (spread over the split)
+    bias_state_sweeps: int = 2  # coordinate-search sweeps over the bias-state settings (0: low-pass only)
+
+    def __post_init__(self):
+        if self.max_flights < 1:
+            raise ConfigError("'max_flights' must be >= 1")
+        if self.bias_state_sweeps < 0:
+            raise ConfigError("'bias_state_sweeps' must be >= 0")
+
+
+@dataclass(frozen=True)
 class TrainConfig:
     seed: int = 0
     model: ModelConfig = field(default_factory=ModelConfig)
@@ -103,6 +117,7 @@ class TrainConfig:
     data: DataConfig = field(default_factory=DataConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
 
 
 def load_train_config(path: str | os.PathLike, overrides=()) -> TrainConfig:
@@ -299,7 +314,8 @@ def validate(model: TEPINN, bank: TokenBank, ends: np.ndarray, cfg: TrainConfig)
 
 
 def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionConfig, max_records: int = 12,
-                     fallback_records: list[FlightRecord] = ()) -> tuple[FusionConfig, dict]:  # fmt: skip
+                     fallback_records: list[FlightRecord] = (), bias_state_sweeps: int = 2,
+                     ) -> tuple[FusionConfig, dict]:  # fmt: skip
     """Fit the fusion on validation flights, minimising the mean over flights of the per-flight
     tilt RMSE of the fused output (the figure the benchmark and ``evaluate`` report): the process
     noise of the low-pass fusion, then the bias-state Kalman fusion (``bias_states``) by a
@@ -357,13 +373,13 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
     # gyro-bias states: the tilt innovations estimate the bias too (an uncalibrated gyro)
     kf = dataclasses.replace(best, bias_states=True, adaptive_nis=0.0, sigma_scale=2.0, bias_sigma_rad_s=0.1,
                              bias_init_sigma_rad_s=0.3, bias_rw_rad_s_sqrt_s=1e-3)  # fmt: skip
-    kf_run = run(kf)
+    kf_run = run(kf) if bias_state_sweeps > 0 else ([], [], [])
     kf_err = mean_rmse_deg(kf_run[0])
     kf_table = {"start": kf_err}
     grid = (("sigma_scale", (1.0, 1.5, 2.0, 3.0, 4.0)), ("bias_sigma_rad_s", (0.03, 0.1, 0.3, 1.0)),
             ("process_noise_rad2_s", (1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 3e-4)),
             ("bias_rw_rad_s_sqrt_s", (1e-4, 3e-4, 1e-3, 3e-3)))  # fmt: skip
-    for sweep in range(2):  # coordinate search, two sweeps (each setting tried once)
+    for _ in range(bias_state_sweeps):  # coordinate search (each setting tried once)
         for name, values in grid:
             for v in values:
                 cand = dataclasses.replace(kf, **{name: v})
@@ -440,8 +456,9 @@ def recalibrate(run_dir: str | os.PathLike, cfg: TrainConfig, data_dirs=(), conf
     tr_idx, va_idx = split_by_flight(len(records), cfg.data.val_fraction, cfg.seed)
     val_recs = [records[i] for i in va_idx]
     best_model, _, ck = load_model(out / "best.pt")
-    fusion, fus_metrics = calibrate_fusion(best_model, val_recs, cfg.fusion,
-                                           fallback_records=[records[i] for i in tr_idx])
+    fusion, fus_metrics = calibrate_fusion(best_model, val_recs, cfg.fusion, cfg.calibration.max_flights,
+                                           fallback_records=[records[i] for i in tr_idx],
+                                           bias_state_sweeps=cfg.calibration.bias_state_sweeps)  # fmt: skip
     final_metrics = {**(ck.get("metrics") or {}), **fus_metrics}
     save_checkpoint(out / "model.pt", best_model, fusion, training=ck.get("training"), metrics=final_metrics,
                     loss_config=dataclasses.asdict(cfg.loss), tepinn_flight_version=__version__)  # fmt: skip
@@ -685,7 +702,9 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
         from .checkpoint import load_model
 
         best_model, _, ck = load_model(out / "best.pt") if (out / "best.pt").exists() else (model.cpu().eval(), None, {})
-        fusion, fus_metrics = calibrate_fusion(best_model, val_recs, cfg.fusion, fallback_records=train_recs)
+        fusion, fus_metrics = calibrate_fusion(best_model, val_recs, cfg.fusion, cfg.calibration.max_flights,
+                                               fallback_records=train_recs,
+                                               bias_state_sweeps=cfg.calibration.bias_state_sweeps)  # fmt: skip
         final_metrics = {**(ck.get("metrics") or {}), **fus_metrics}
         save_checkpoint(out / "model.pt", best_model, fusion, training=summary, metrics=final_metrics,
                         loss_config=dataclasses.asdict(cfg.loss),
