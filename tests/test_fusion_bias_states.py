@@ -38,13 +38,13 @@ def test_covariance_propagation_matches_the_error_dynamics(w):
             est = (f.q, 1e4, (0.0, 0.0, 0.0))  # at t = n/400: no information
         f.step(i / rate, w, est)
         if i == 1:
-            f.K = P0.copy()
+            f.cov6 = P0.copy()
     T = n / rate
     A = np.zeros((6, 6))
     A[:3, :3] = -_skew(np.array(w))
     A[:3, 3:] = -np.eye(3)
     Phi = expm(A * T)
-    np.testing.assert_allclose(f.K, Phi @ P0 @ Phi.T, rtol=1e-6, atol=1e-12)
+    np.testing.assert_allclose(f.cov6, Phi @ P0 @ Phi.T, rtol=1e-6, atol=1e-12)
 
 
 def _fuse(cfg, gyro_bias, seconds=40.0, sigma=0.05, net_bias=(0.0, 0.0, 0.0)):

@@ -19,8 +19,8 @@ network's window estimates instead of drifting away with the gyro.
 Bias states (``bias_states`` = True): instead of the low-pass, a 6-state error Kalman filter
 (tilt/heading error δθ in body axes, gyro-bias error δb) is updated at each window estimate. Its
 covariance is carried between estimates with the exact rotation of the interval
-(``δθ⁺ = ΔRᵀ δθ − J δb``, ``J = ∫₀ᵀ Exp(−φ u/T) du``, exact for a constant rate), so the tilt innovations themselves estimate
-the bias — as VQF and an EKF do — and the network's per-window bias is a second measurement of it
+(``δθ⁺ = ΔRᵀ δθ − J δb``, ``J = ∫₀ᵀ Exp(−φ u/T) du``, exact for a constant rate), so the tilt
+innovations themselves estimate the bias — as VQF and an EKF do — and the network's per-window bias is a second measurement of it
 (σ ``bias_sigma_rad_s``). A bias far outside what the network was trained on (an uncalibrated
 gyro: 15–20 °/s) is then found from the drift, not followed blindly.
 
@@ -33,6 +33,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from ..quat import quat_to_rotmat, quat_to_rotvec
 
 
 @dataclass(frozen=True)
@@ -146,7 +148,7 @@ class AttitudeFusion:
         self.t = None
         self.w = None
         self.t_est = None
-        self.K = None  # bias_states: 6×6 covariance of (δθ, δb) at the last update
+        self.cov6 = None  # bias_states: 6×6 covariance of (δθ, δb) at the last update
         self.q_est = None  # bias_states: attitude right after the last update
         self.Q_acc = 0.0  # bias_states: tilt variance added by the propagation since the update
 
@@ -203,7 +205,6 @@ class AttitudeFusion:
                 self.bias = tuple(float(v) for v in b_m)
         self.t_est = t
 
-
     def _update_kf(self, est) -> None:
         c = self.c
         q_m, sigma, b_m = est
@@ -212,21 +213,16 @@ class AttitudeFusion:
         if self.q is None:
             self.q = tuple(float(v) for v in q_m)
             self.bias = tuple(float(v) for v in b_m)
-            self.K = np.diag([r] * 3 + [c.bias_init_sigma_rad_s**2] * 3)
+            self.cov6 = np.diag([r] * 3 + [c.bias_init_sigma_rad_s**2] * 3)
             self.P, self.q_est, self.t_est, self.Q_acc = r, self.q, self.t, 0.0
             return
         # covariance from the last update to now: δθ⁺ = ΔRᵀ δθ − J δb (ΔR = Exp φ over the interval)
         dt = max(0.0, self.t - self.t_est)
-        w, x, y, z = _qmul((self.q_est[0], -self.q_est[1], -self.q_est[2], -self.q_est[3]), self.q)
-        dR = np.array([
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ])  # fmt: skip
+        q_rel = np.array(_qmul((self.q_est[0], -self.q_est[1], -self.q_est[2], -self.q_est[3]), self.q))
         F = np.eye(6)
-        F[:3, :3] = dR.T
-        F[:3, 3:] = -dt * _integral_of_exp(-_log_q((w, x, y, z)))
-        P = F @ self.K @ F.T
+        F[:3, :3] = quat_to_rotmat(q_rel).T
+        F[:3, 3:] = -dt * _integral_of_exp(-quat_to_rotvec(q_rel))
+        P = F @ self.cov6 @ F.T
         P[:3, :3] += self.Q_acc * np.eye(3)
         P[3:, 3:] += c.bias_rw_rad_s_sqrt_s**2 * dt * np.eye(3)
         # tilt measurement: the 2 components of the error rotation perpendicular to gravity
@@ -252,18 +248,10 @@ class AttitudeFusion:
             dx = dx + dxb  # sequential update: the innovation is taken after the tilt correction
         self.q = _qnorm(_qmul(self.q, _exp(tuple(dx[:3]))))
         self.bias = tuple(float(v) for v in np.asarray(self.bias) + dx[3:])
-        self.K = 0.5 * (P + P.T)
+        self.cov6 = 0.5 * (P + P.T)
         g = np.array(gravity_body_f(self.q))
-        self.P = 0.5 * (np.trace(self.K[:3, :3]) - g @ self.K[:3, :3] @ g)  # per-axis tilt variance
+        self.P = 0.5 * (np.trace(self.cov6[:3, :3]) - g @ self.cov6[:3, :3] @ g)  # per-axis tilt variance
         self.q_est, self.t_est, self.Q_acc = self.q, self.t, 0.0
-
-
-def _log_q(q):
-    """Rotation vector of a unit quaternion (w, x, y, z)."""
-    w, x, y, z = q if q[0] >= 0 else (-q[0], -q[1], -q[2], -q[3])
-    n = math.sqrt(x * x + y * y + z * z)
-    k = 2.0 * math.atan2(n, w) / n if n > 1e-12 else 2.0
-    return np.array([k * x, k * y, k * z])
 
 
 def _integral_of_exp(phi):
