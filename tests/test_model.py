@@ -273,13 +273,13 @@ def test_declipping_scales_saturated_rates_by_the_learned_gain():
     from tepinn_flight.model.physics import SensorModel
 
     s = SensorModel(declip_max=2.0)
-    assert abs(float(s.clip_gain()) - 1.0) < 1e-6  # starts at κ = 1: true rate twice the range
+    assert abs(float(s.clip_gain().detach()) - 1.0) < 1e-6  # starts at κ = 1: true rate twice the range
     w = torch.tensor([[7.0, -1.0, 0.5], [7.0, -1.0, 0.5]])
     out = s.gyro(w, torch.tensor([0.0, 0.6])).detach()
     torch.testing.assert_close(out, torch.tensor([[7.0, -1.0, 0.5], [7.0 * 1.6, -1.6, 0.8]]))
     with torch.no_grad():
         s.k_clip_raw.fill_(50.0)
-    assert abs(float(s.clip_gain()) - 2.0) < 1e-6  # bounded by declip_max
+    assert abs(float(s.clip_gain().detach()) - 2.0) < 1e-6  # bounded by declip_max
     # without declipping (or without clip information) the reading passes unchanged
     torch.testing.assert_close(SensorModel().gyro(w, torch.tensor([0.0, 0.6])), w)
     torch.testing.assert_close(s.gyro(w), w)
