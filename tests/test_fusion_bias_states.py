@@ -3,6 +3,8 @@ matrix exponential of the error dynamics, and a gyro bias found from the tilt in
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.linalg import expm
@@ -79,8 +81,8 @@ def test_bias_states_weigh_the_network_bias_by_its_sigma():
     bad = np.radians([6.0, 0.0, 0.0])
     base = FusionConfig(bias_states=True, process_noise_rad2_s=1e-6, bias_init_sigma_rad_s=0.3,
                         bias_rw_rad_s_sqrt_s=1e-4)  # fmt: skip
-    tight_tilt, tight = _fuse(FusionConfig(**{**base.__dict__, "bias_sigma_rad_s": 1e-4}), bad)
-    loose_tilt, loose = _fuse(FusionConfig(**{**base.__dict__, "bias_sigma_rad_s": 1.0}), bad)
+    tight_tilt, tight = _fuse(dataclasses.replace(base, bias_sigma_rad_s=1e-4), bad)
+    loose_tilt, loose = _fuse(dataclasses.replace(base, bias_sigma_rad_s=1.0), bad)
     assert abs(tight[0]) < 0.2 * bad[0] and abs(loose[0] - bad[0]) < 0.05 * bad[0]
     assert loose_tilt < tight_tilt
 

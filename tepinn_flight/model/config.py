@@ -37,8 +37,8 @@ class ModelConfig:
     # the physics baseline's tilt is a learned softmax pooling of the RK4-rotated specific forces
     # (logits from each token's encoding; starts as their plain mean) instead of their trusted mean
     learned_pooling: bool = False
-    # (both off by default: together they cut the error on flights whose gyro saturates through
-    # flips by a third, but cost fixed-wing accuracy and the bias estimate; see train/declip.toml)
+    # (both off here for old checkpoints and ablations; on in train/default.toml: together they cut
+    # the error on flights whose gyro saturates through flips by a third, at a cost on fixed wing)
     # plausible limits of the learned global sensor model (tanh-bounded; 0: unbounded): scale and
     # misalignment (fraction), gyro bias (rad/s), accelerometer bias (m/s²)
     sensor_scale_max: float = 0.05

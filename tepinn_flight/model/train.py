@@ -371,27 +371,29 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
         if err < best_err:
             best, best_err, best_run = cand, err, (errs, sig)
     # gyro-bias states: the tilt innovations estimate the bias too (an uncalibrated gyro)
-    kf = dataclasses.replace(best, bias_states=True, adaptive_nis=0.0, sigma_scale=2.0, bias_sigma_rad_s=0.1,
-                             bias_init_sigma_rad_s=0.3, bias_rw_rad_s_sqrt_s=1e-3)  # fmt: skip
-    kf_run = run(kf) if bias_state_sweeps > 0 else ([], [], [])
-    kf_err = mean_rmse_deg(kf_run[0])
-    kf_table = {"start": kf_err}
-    grid = (("sigma_scale", (1.0, 1.5, 2.0, 3.0, 4.0)), ("bias_sigma_rad_s", (0.03, 0.1, 0.3, 1.0)),
-            ("process_noise_rad2_s", (1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 3e-4)),
-            ("bias_rw_rad_s_sqrt_s", (1e-4, 3e-4, 1e-3, 3e-3)))  # fmt: skip
-    for _ in range(bias_state_sweeps):  # coordinate search (each setting tried once)
-        for name, values in grid:
-            for v in values:
-                cand = dataclasses.replace(kf, **{name: v})
-                key = f"{name}={v:g}," + ",".join(f"{k}={getattr(cand, k):g}" for k, _ in grid if k != name)
-                if cand == kf or key in kf_table:
-                    continue
-                errs, sig, _ = run(cand)
-                err = kf_table[key] = mean_rmse_deg(errs)
-                if err < kf_err:
-                    kf, kf_err, kf_run = cand, err, (errs, sig, None)
-    if kf_err < best_err:
-        best, best_err, best_run = kf, kf_err, kf_run[:2]
+    kf_table = {}
+    if bias_state_sweeps > 0:
+        kf = dataclasses.replace(best, bias_states=True, adaptive_nis=0.0, sigma_scale=2.0, bias_sigma_rad_s=0.1,
+                                 bias_init_sigma_rad_s=0.3, bias_rw_rad_s_sqrt_s=1e-3)  # fmt: skip
+        errs, sig, _ = run(kf)
+        kf_err, kf_run = mean_rmse_deg(errs), (errs, sig)
+        kf_table["start"] = kf_err
+        grid = (("sigma_scale", (1.0, 1.5, 2.0, 3.0, 4.0)), ("bias_sigma_rad_s", (0.03, 0.1, 0.3, 1.0)),
+                ("process_noise_rad2_s", (1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 3e-4)),
+                ("bias_rw_rad_s_sqrt_s", (1e-4, 3e-4, 1e-3, 3e-3)))  # fmt: skip
+        for _ in range(bias_state_sweeps):  # coordinate search (each setting tried once)
+            for name, values in grid:
+                for v in values:
+                    cand = dataclasses.replace(kf, **{name: v})
+                    key = f"{name}={v:g}," + ",".join(f"{k}={getattr(cand, k):g}" for k, _ in grid if k != name)
+                    if cand == kf or key in kf_table:
+                        continue
+                    errs, sig, _ = run(cand)
+                    err = kf_table[key] = mean_rmse_deg(errs)
+                    if err < kf_err:
+                        kf, kf_err, kf_run = cand, err, (errs, sig)
+        if kf_err < best_err:
+            best, best_err, best_run = kf, kf_err, kf_run
     metrics = {"fusion_val_tilt_rmse_mean_deg": best_err, "fusion_grid": table, "fusion_val_flights": len(recs),
                "fusion_bias_states_grid": kf_table, "fusion_bias_states": best.bias_states}  # fmt: skip
     # saturated gyro samples propagated at (1 + κ)× their reading with the model's learned κ, and
