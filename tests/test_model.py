@@ -269,6 +269,44 @@ def test_learned_pooling_starts_as_the_plain_mean_and_can_select_tokens():
     np.testing.assert_allclose(Q.gravity_body(q2.numpy())[0], -f2 / np.linalg.norm(f2), atol=1e-6)
 
 
+def test_centripetal_compensation_recovers_the_bank_of_a_coordinated_turn():
+    """Closed form: a level coordinated turn (bank φ, speed V, rate Ω = g·tanφ/V). The gyro reads
+    Ω(0, sinφ, cosφ) and the accelerometer −(g/cosφ)·e_z in body axes, so the specific force alone
+    says 'level' (error φ). With the body velocity (V, 0, 0) in the velocity head, the physics
+    baseline's gravity ω × v − f is the true one; a wrong speed leaves a proportional error."""
+    from tepinn_flight.model.network import VEL_SCALE_M_S
+
+    cfg = dataclasses.replace(SMALL, window_tokens=12, learned_pooling=True, centripetal=True)
+    m = TEPINN(cfg).double().eval()
+    with torch.no_grad():
+        m.head_q.weight.zero_()
+    g, phi, v = 9.80665, np.radians(40.0), 55.0
+    rate = g * np.tan(phi) / v
+    w_b = rate * np.array([0.0, np.sin(phi), np.cos(phi)])
+    f_b = np.cross(w_b, [v, 0.0, 0.0]) - g * np.array([0.0, np.sin(phi), np.cos(phi)])  # a − g
+    assert np.allclose(f_b, [0.0, 0.0, -g / np.cos(phi)])  # coordinated: no side force
+    k = cfg.window_tokens
+    gyr = torch.tensor(w_b).expand(1, k, 3).clone()
+    acc = torch.tensor(f_b).expand(1, k, 3).clone()
+    count = torch.full((1, k), 16.0, dtype=torch.float64)
+    dt = torch.full((1, k), 0.04, dtype=torch.float64)
+    t_rel = ((torch.arange(k, dtype=torch.float64) - (k - 1)) * 0.04)[None]
+    g_true = np.array([0.0, np.sin(phi), np.cos(phi)])
+
+    def tilt_error_deg(speed):
+        with torch.no_grad():
+            m.head_vel.bias.copy_(torch.tensor([speed / VEL_SCALE_M_S, 0.0, 0.0]))
+        out = m(gyr, acc, count, t_rel, dt)
+        np.testing.assert_allclose(out["vel"].detach().numpy()[0], [speed, 0, 0], atol=1e-9)
+        g_est = Q.gravity_body(out["q"].detach().numpy())[0]
+        return np.degrees(np.arccos(np.clip(g_est @ g_true, -1, 1)))
+
+    # uncompensated: the accelerometer says level (to the small turn of −f within the window)
+    assert abs(tilt_error_deg(0.0) - 40.0) < 0.05
+    assert tilt_error_deg(v) < 1e-5
+    assert 10.0 < tilt_error_deg(0.5 * v) < 30.0
+
+
 def test_declipping_scales_saturated_rates_by_the_learned_gain():
     from tepinn_flight.model.physics import SensorModel
 
@@ -408,3 +446,73 @@ def test_sensor_model_limits():
     torch.testing.assert_close(v["b_a"], torch.full((3,), 1e-4), rtol=1e-6, atol=0)  # ≈ raw near 0
     with pytest.raises(Exception, match="sensor limits"):
         ModelConfig(sensor_scale_max=-1.0)
+
+
+def test_baseline_gravity_loss_is_the_robust_angle_to_the_reference_gravity():
+    """L_base = mean log(1 + (θ/s)²), θ the angle between the physics baseline's gravity (−f_mean)
+    and the reference's: zero when the baseline is right, the closed form for a known tilt, and it
+    drives the baseline (here the pooled specific force) toward the reference gravity."""
+    s = 0.1
+    loss = TEPINNLoss(LossConfig(adaptive=False, base_cauchy_rad=s, lambda_acc=0.0, lambda_dyn=0.0),
+                      RigidBody().double())  # fmt: skip
+    roll = torch.tensor([0.0, 0.3, -1.2], dtype=torch.float64)
+    q_ref = Q.quat_from_euler_zyx(roll, torch.zeros(3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64))
+    g_ref = Q.gravity_body(q_ref)  # (3, 3) unit down in body axes
+    err = torch.tensor([0.0, 0.05, 0.4], dtype=torch.float64)  # baseline tilted by this about body x
+    g_base = torch.stack([torch.zeros(3, dtype=torch.float64), torch.cos(roll + err), torch.sin(roll + err)], -1)
+    g_base = torch.stack([g_base[:, 0], g_base[:, 2], g_base[:, 1]], -1)  # (0, sin φ, cos φ)
+    np.testing.assert_allclose(g_base[0].numpy(), g_ref[0].numpy(), atol=1e-12)
+    f_mean = (-1.3 * g_base).requires_grad_()  # any magnitude: only the direction counts
+    out = {"q": q_ref, "f_mean": f_mean, "f_spread": torch.zeros(3, dtype=torch.float64),
+           "w_c": torch.zeros(3, 4, 3, dtype=torch.float64), "torque": torch.zeros(3, 4, 3, dtype=torch.float64)}  # fmt: skip
+    batch = {"q_ref": q_ref, "dt": torch.full((3, 4), 0.04, dtype=torch.float64),
+             "has_bias": torch.zeros(3, dtype=torch.bool), "bias_true": torch.zeros(3, 3, dtype=torch.float64)}  # fmt: skip
+    total, logs = loss(out, batch)
+    expect = float(np.mean(np.log1p((err.numpy() / s) ** 2)))
+    assert abs(float(logs["L_base"]) - expect) < 1e-9
+    total.backward()
+    assert float(f_mean.grad[0].norm()) < 1e-6  # the right baseline is not pushed
+    # a small step against the gradient turns the wrong baselines toward the reference
+    from tepinn_flight.model.losses import vector_angle
+
+    new = -(f_mean - 1e-3 * f_mean.grad).detach()
+    before = vector_angle(-f_mean.detach(), g_ref)
+    after = vector_angle(new, g_ref)
+    assert bool((after[1:] < before[1:]).all())
+    off = TEPINNLoss(LossConfig(adaptive=False), RigidBody().double())
+    assert "L_base" not in off(out, batch)[1]  # off by default (old recipes unchanged)
+
+
+@pytest.mark.parametrize("bias_states", [False, True])
+def test_fusion_keeps_the_attitude_open_after_saturation_for_the_hold_time(bias_states):
+    """At rest, level estimates (σ 0.01 rad) until a burst of 20 clipped samples; estimates after it
+    say 30° of roll. With clip_hold_s the covariance stays open after the burst, so the first such
+    estimate inside the hold moves the state almost all the way (Kalman gain P/(P+r) ≈ 1); without
+    it, the burst's inflation was spent on the estimate made at its end and the gain is about ½.
+    With clip_skip_updates the estimates inside the hold are not applied at all."""
+    from tepinn_flight.model.fusion import AttitudeFusion
+
+    level = ((1.0, 0.0, 0.0, 0.0), 0.01, (0.0, 0.0, 0.0))
+    roll30 = (tuple(Q.quat_from_euler_zyx(np.radians(30.0), 0.0, 0.0)), 0.01, (0.0, 0.0, 0.0))
+
+    def roll_deg_at(t_end, **kw):
+        f = AttitudeFusion(FusionConfig(clip_inflation_rad=0.35, process_noise_rad2_s=1e-6, bias_states=bias_states, **kw))
+        dt, q = 0.0025, None
+        for i in range(int(round(t_end / dt)) + 1):
+            t = i * dt
+            clipped = 400 <= i < 416  # 16 samples, t = 1.0 … 1.0375 s
+            est = None
+            if i % 16 == 1:  # a window estimate every 40 ms (it belongs to the previous sample)
+                est = level if i <= 417 else roll30  # the last level one just after the burst
+            q, _, _ = f.step(t, (0.0, 0.0, 0.0), est, clipped)
+        return np.degrees(2 * np.arctan2(q[1], q[0]))
+
+    # the first 30° estimate is applied at t = 1.0825 s (45 ms after the burst)
+    without = roll_deg_at(1.085)
+    held = roll_deg_at(1.085, clip_hold_s=0.1)
+    assert without < 16.0  # the burst's covariance went into the last level estimate: gain ≈ ½
+    assert held > 29.0  # open: the new estimate is taken almost as it is
+    skipped = roll_deg_at(1.085, clip_hold_s=0.1, clip_skip_updates=True)
+    assert abs(skipped) < 1e-6  # inside the hold nothing is applied; the gyro (zero) holds level
+    after = roll_deg_at(1.3, clip_hold_s=0.1, clip_skip_updates=True)
+    assert after > 29.0  # the first estimate after the hold meets the open covariance

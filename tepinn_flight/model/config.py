@@ -39,6 +39,11 @@ class ModelConfig:
     learned_pooling: bool = False
     # (both off here for old checkpoints and ablations; on in train/default.toml: together they cut
     # the error on flights whose gyro saturates through flips by a third, at a cost on fixed wing)
+    # velocity-aided gravity (transport theorem): the specific force of token j is compensated by
+    # the centripetal acceleration ω_j × v of a body-frame velocity v the network estimates per
+    # window (an aircraft flies along its x axis at tens of m/s: in a turn or a loop, ω × v, not
+    # gravity, dominates what the accelerometer reads); inputs gain R_{K←j}(ω_j × e_k), k = x, y, z
+    centripetal: bool = False  # (off here for old checkpoints)
     # plausible limits of the learned global sensor model (tanh-bounded; 0: unbounded): scale and
     # misalignment (fraction), gyro bias (rad/s), accelerometer bias (m/s²)
     sensor_scale_max: float = 0.05
@@ -58,6 +63,8 @@ class ModelConfig:
             raise ConfigError("sensor limits must be >= 0 (0: unbounded)")
         if self.declip_max <= 1:
             raise ConfigError("declip_max must be > 1 (κ starts at 1)")
+        if self.centripetal and not self.physics:
+            raise ConfigError("centripetal needs physics = true (it compensates the RK4-rotated specific forces)")
         if not 0 <= self.dropout < 1:
             raise ConfigError("dropout must be in [0, 1)")
 
@@ -89,6 +96,8 @@ class ModelConfig:
             n += 3  # corrected specific force rotated into the window's last body frame (RK4)
             if self.clip_aware:
                 n += 1  # 1 where that rotation crosses no saturated sample, else 0
+            if self.centripetal:
+                n += 9  # ω_c × e_k (k = x, y, z) rotated into the last body frame, per m/s of v
         if self.use_mag:
             n += 3
         return n

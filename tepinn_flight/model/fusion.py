@@ -52,6 +52,13 @@ class FusionConfig:
     bias_sigma_rad_s: float = 0.02  # σ of the network's per-window bias as a measurement (bias_states)
     bias_rw_rad_s_sqrt_s: float = 1e-3  # random walk of the gyro bias (bias_states)
     bias_init_sigma_rad_s: float = 0.1  # σ of the first bias estimate (bias_states)
+    # after a saturated sample the attitude stays untrusted for this long (the inflation above goes
+    # on for every sample up to clip_hold_s after the last clipped one), and with clip_skip_updates
+    # the window estimates made in that time are not applied: a window that saw the saturation
+    # mid-flip is as wrong as the gyro (the network's σ rarely says so), while the first estimates
+    # after it, from tokens after the flip, are not — they should meet an open covariance
+    clip_hold_s: float = 0.0
+    clip_skip_updates: bool = False
 
 
 def _qmul(a, b):
@@ -151,6 +158,7 @@ class AttitudeFusion:
         self.cov6 = None  # bias_states: 6×6 covariance of (δθ, δb) at the last update
         self.q_est = None  # bias_states: attitude right after the last update
         self.Q_acc = 0.0  # bias_states: tilt variance added by the propagation since the update
+        self.t_clip = None  # time of the last saturated sample
 
     def step(self, t: float, w_rad_s, est=None, clipped: bool = False):
         """Advance to sample time ``t`` with gyro ``w`` and return (q or None, σ, bias) for it.
@@ -162,8 +170,11 @@ class AttitudeFusion:
         c = self.c
         k = 1.0 + c.clip_rate_gain if clipped else 1.0  # a saturated gyro reads less than the rate
         w = (k * float(w_rad_s[0]), k * float(w_rad_s[1]), k * float(w_rad_s[2]))
-        if est is not None:
-            self._update(est)
+        held = self.t_clip is not None and self.t is not None and self.t - self.t_clip <= c.clip_hold_s
+        if clipped:
+            self.t_clip = t
+        if est is not None and not (c.clip_skip_updates and held and self.q is not None):
+            self._update(est)  # (the estimate belongs to the previous sample: `held` is judged there)
         if self.q is not None and self.t is not None:
             dt = t - self.t
             if dt > 0:
@@ -171,8 +182,8 @@ class AttitudeFusion:
                 self.q = rk4(self.q, (self.w[0] - b[0], self.w[1] - b[1], self.w[2] - b[2]),
                              (w[0] - b[0], w[1] - b[1], w[2] - b[2]), dt)  # fmt: skip
                 dP = c.process_noise_rad2_s * dt
-                if clipped:  # a saturated sensor: the propagated attitude is no longer trusted
-                    dP += c.clip_inflation_rad**2
+                if clipped or (c.clip_hold_s > 0 and self.t_clip is not None and t - self.t_clip <= c.clip_hold_s):
+                    dP += c.clip_inflation_rad**2  # a saturated sensor: the attitude is no longer trusted
                 self.P += dP
                 self.Q_acc += dP
         self.t, self.w = t, w

@@ -17,7 +17,7 @@ from torch import nn
 from ..quat import gravity_body, quat_conj, quat_mul, quat_rotate
 from .physics import RigidBody, rk4_delta
 
-TERMS = ("data", "bias", "acc", "gyro", "dyn")
+TERMS = ("data", "bias", "acc", "gyro", "dyn", "base")
 
 
 @dataclass(frozen=True)
@@ -37,6 +37,12 @@ class LossConfig:
     # clipped gyro is not the motion). Off by default: on the held-out campaign it measured worse
     # (9.92° against 9.06°, same recipe and seed), so the shipped model trains without it.
     skip_clipped: bool = False
+    # L_base: the physics baseline's gravity (the pooled, RK4-rotated and — centripetal on —
+    # compensated specific force) against the reference gravity, Cauchy-robust with this scale
+    # (rad; 0: off). Without it the correction δq can absorb any baseline error and nothing asks
+    # the pooling or the velocity head to make the physics right.
+    base_cauchy_rad: float = 0.0
+    lambda_base: float = 1.0
 
 
 def sign_invariant_mse(q: torch.Tensor, q_ref: torch.Tensor) -> torch.Tensor:
@@ -126,6 +132,9 @@ class TEPINNLoss(nn.Module):
             # a saturated gyro does not measure ω: no dynamics residual across clipped tokens
             ok = unclipped(batch, 2, sliding=True) if c.skip_clipped else torch.ones_like(res[..., 0])  # (B, K-1)
             terms["dyn"] = ((res**2).sum(-1) * ok).sum() / ok.sum().clamp_min(1.0)
+        if "f_mean" in out and c.base_cauchy_rad > 0:
+            ang_b = vector_angle(-out["f_mean"], gravity_body(q_ref))
+            terms["base"] = torch.log1p((ang_b / c.base_cauchy_rad) ** 2).mean()
         if out_prev is not None and "f_mean" in out:
             # L_gyro: the estimate n tokens earlier, carried forward by RK4 of ω_c − b̂, must agree
             n = c.gyro_pair_tokens
@@ -136,7 +145,8 @@ class TEPINNLoss(nn.Module):
             err2 = vector_angle(gravity_body(q), g_prev_now) ** 2
             terms["gyro"] = (err2 * ok).sum() / ok.sum().clamp_min(1.0) * 1e3
         total = torch.zeros((), dtype=q.dtype, device=q.device)
-        lam = {"data": 1.0, "bias": c.lambda_bias, "acc": c.lambda_acc, "gyro": c.lambda_gyro, "dyn": c.lambda_dyn}
+        lam = {"data": 1.0, "bias": c.lambda_bias, "acc": c.lambda_acc, "gyro": c.lambda_gyro, "dyn": c.lambda_dyn,
+               "base": c.lambda_base}  # fmt: skip
         for i, name in enumerate(TERMS):
             if name not in terms:
                 continue

@@ -10,7 +10,9 @@ Forward pass for one window of K tokens ending at time t_K (B batch, K tokens, d
                     force seen in the *current* body frame. Unaccelerated, every v_j = −g_body(t_K).
                     A saturated gyro sample makes every rotation across it wrong: tokens j with
                     clipping in (t_{j-1}, t_K] get trust u_j = 0 (else 1; the last token always 1).
-3. tokens           x_j = [ω_c, a_c/g, log n, clipped fraction, v_j/g, u_j (, mag)]
+   centripetal on: c_jk = R_{K←j^mid}(ω_c,j × e_k)/g, k = x, y, z: the acceleration ω × v of a
+                    body-frame velocity v (per m/s of each component), seen in body(t_K)
+3. tokens           x_j = [ω_c, a_c/g, log n, clipped fraction, v_j/g, u_j (, c_j) (, mag)]
                     → Linear + PE(t_j − t_K, seconds)
 4. encoder          L post-LayerNorm transformer layers (multi-head self-attention + feed-forward)
 5. heads            last token → quaternion (normalised), σ (rad), gyro bias b̂ (rad/s), and a
@@ -19,7 +21,9 @@ Forward pass for one window of K tokens ending at time t_K (B batch, K tokens, d
                     q_base (the tilt whose gravity is a pooled mean of the v_j: weights softmax of
                     a per-token logit from the encoder, which starts as the plain mean, a boxcar
                     complementary filter; without learned pooling, the u-weighted mean):
-                    q = q_base ⊗ δq; physics off: q = head output
+                    q = q_base ⊗ δq; physics off: q = head output. Centripetal on: the pooled
+                    v_j are first compensated by Σ_k v̂_k c_jk with the window's body velocity v̂
+                    from a head (gravity = a − f, a ≈ ω × v: an aircraft's turn or loop)
 7. correction       yaw := 0 (the paper's attitude correction layer; the 6-D estimate is tilt)
 
 A window holds only samples up to t_K, so the estimate at t_K uses nothing after it (causal).
@@ -39,6 +43,8 @@ from .config import ModelConfig
 from .physics import RigidBody, SensorModel, prefix_products, rk4_delta
 
 BIAS_SCALE_RAD_S = 0.02  # bias head output units (≈ 1.1 °/s per unit)
+VEL_SCALE_M_S = 30.0  # velocity head output units (centripetal compensation)
+CEN_FEATURE_M_S = 30.0  # the c_jk inputs are given per this speed (≈ g at 0.3 rad/s)
 
 
 def zero_yaw(q: torch.Tensor) -> torch.Tensor:
@@ -133,6 +139,10 @@ class TEPINN(nn.Module):
         self.head_sigma = nn.Linear(c.d_model, 1)
         self.head_bias = nn.Linear(c.d_model, 3)
         self.head_torque = nn.Linear(c.d_model, 3)
+        if c.physics and c.centripetal:  # body velocity for the centripetal term; zero: none
+            self.head_vel = nn.Linear(c.d_model, 3)
+            nn.init.zeros_(self.head_vel.weight)
+            nn.init.zeros_(self.head_vel.bias)
         if c.physics and c.learned_pooling:  # baseline pooling logits; zero: the plain mean
             self.head_pool = nn.Linear(c.d_model, 1)
             nn.init.zeros_(self.head_pool.weight)
@@ -174,8 +184,10 @@ class TEPINN(nn.Module):
         return p_end, p_mid
 
     def features(self, gyr, acc, count, mag=None, dt=None, clip=None):
-        """Token inputs (B, K, n_inputs) before normalisation, the corrected gyro and accel, and
-        (physics on) the rotated specific forces ``v`` (B, K, 3) in g with their trust ``u`` (B, K)."""
+        """Token inputs (B, K, n_inputs) before normalisation, the corrected gyro and accel,
+        (physics on) the rotated specific forces ``v`` (B, K, 3) in g with their trust ``u`` (B, K),
+        and (centripetal on) ``cen`` (B, K, 3, 3): ``cen[:, j, k]`` = R_{K←j}(ω_c,j × e_k)/g, the
+        acceleration per m/s of body velocity along e_k, in g, seen in body(t_K)."""
         c = self.config
         clip = torch.zeros_like(count) if clip is None else clip
         if c.physics:
@@ -184,7 +196,7 @@ class TEPINN(nn.Module):
         else:
             w_c, a_c = gyr, acc
         parts = [w_c, a_c / GRAVITY_M_S2, torch.log1p(count)[..., None], clip[..., None]]
-        v = u = None
+        v = u = cen = None
         if c.physics:
             p_end, p_mid = self.frames(w_c, dt)
             to_last = quat_mul(quat_conj(p_end[:, -1:]), p_mid)  # body(t_j mid) → body(t_K)
@@ -194,9 +206,15 @@ class TEPINN(nn.Module):
             if c.clip_aware:
                 u = trust_after_clipping(clip)
                 parts.append(u[..., None])
+            if c.centripetal:
+                w3 = w_c[:, :, None, :].expand(-1, -1, 3, -1)  # (B, K, 3, 3): row k is ω_c,j
+                e3 = torch.eye(3, dtype=w_c.dtype, device=w_c.device).expand_as(w3)  # row k is e_k
+                wxe = torch.linalg.cross(w3, e3, dim=-1)
+                cen = quat_rotate(to_last[:, :, None, :], wxe) / GRAVITY_M_S2  # (B, K, 3, 3)
+                parts.append(CEN_FEATURE_M_S * cen.flatten(-2))
         if c.use_mag:
             parts.append(torch.nan_to_num(mag) / 50.0)
-        return torch.cat(parts, dim=-1), w_c, a_c, v, u
+        return torch.cat(parts, dim=-1), w_c, a_c, v, u, cen
 
     # ------------------------------------------------------------------ forward
 
@@ -210,7 +228,7 @@ class TEPINN(nn.Module):
         (physics on); and per token ``torque`` (B, K, 3), ``w_c``, ``a_c`` (B, K, 3).
         """
         c = self.config
-        x, w_c, a_c, v, u = self.features(gyr, acc, count, mag, dt, clip)
+        x, w_c, a_c, v, u, cen = self.features(gyr, acc, count, mag, dt, clip)
         h = self.inp((x - self.in_mean) / self.in_std) + self.pe(t_rel)  # (B, K, d)
         if c.encoder == "lstm":
             h, _ = self.encoder(h)
@@ -219,6 +237,9 @@ class TEPINN(nn.Module):
         last = h[:, -1]  # (B, d)
         q = quat_normalize(self.head_q(last))  # (B, 4)
         if v is not None:
+            if cen is not None:  # gravity = a − f with a ≈ ω × v̂: compensate each token
+                vel = VEL_SCALE_M_S * self.head_vel(last)  # (B, 3) m/s in body(t_K)
+                v = v - torch.einsum("bjkc,bk->bjc", cen, vel)
             if c.learned_pooling:  # learned weights (u is an input the logits can use)
                 wts = torch.softmax(self.head_pool(h)[..., 0], dim=1)[..., None]
             else:
@@ -235,7 +256,9 @@ class TEPINN(nn.Module):
             "a_c": a_c,
         }
         if v is not None:
-            out["f_mean"] = f_mean
+            out["f_mean"] = f_mean  # (compensated, centripetal on)
+            if cen is not None:
+                out["vel"] = vel
             out["f_spread"] = (wts[..., 0] * (v - f_mean[:, None]).pow(2).sum(-1)).sum(dim=1).sqrt()
         if c.uncertainty:
             # σ reads the representation but does not shape it (its NLL would swamp early training)

@@ -397,21 +397,31 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
     metrics = {"fusion_val_tilt_rmse_mean_deg": best_err, "fusion_grid": table, "fusion_val_flights": len(recs),
                "fusion_bias_states_grid": kf_table, "fusion_bias_states": best.bias_states}  # fmt: skip
     # saturated gyro samples propagated at (1 + κ)× their reading with the model's learned κ, and
-    # then trusted more (a smaller σ added per clipped sample). Both settings act on clipped
-    # samples only, so they are compared on the validation flights that clip (all of them)
+    # then trusted more (a smaller σ added per clipped sample), and for how long after the last
+    # saturated sample the attitude stays open to the window estimates (clip_hold_s). These
+    # settings act around clipped samples only, so they are compared on the validation flights
+    # that clip (all of them), or, where none does, on up to 6 training flights that do
     kappa = model.sensor.clip_gain()
+    gain = 0.0 if kappa is None else round(float(kappa.detach()), 4)
     clipping, source = [r for r in usable if bool(np.any(r.clipped))], "validation"
-    if kappa is not None and not clipping:  # in-sample windows look better than they are: conservative
+    if not clipping:  # in-sample windows look better than they are: conservative
         clipping = [r for r in fallback_records if (r.meta.get("imu_rate_hz") or 0) >= 20 and bool(np.any(r.clipped))]
         clipping, source = clipping[:: max(1, -(-len(clipping) // 6))], "training"  # at most 6, spread
-    if kappa is not None and clipping:
+    if clipping:
         cwins = [window_estimates(model, r) for r in clipping]
         base_err = mean_rmse_deg(run(best, clipping, cwins)[0])
         clip_table, pick_clip = {"off": base_err}, None
         for infl in (best.clip_inflation_rad, 0.15, 0.05):
-            cand = dataclasses.replace(best, clip_rate_gain=round(float(kappa.detach()), 4), clip_inflation_rad=infl)
+            cand = dataclasses.replace(best, clip_rate_gain=gain, clip_inflation_rad=infl)
             err = mean_rmse_deg(run(cand, clipping, cwins)[0])
             clip_table[f"gain={cand.clip_rate_gain:g},inflation={infl:g}"] = err
+            if err < base_err:
+                base_err, pick_clip = err, cand
+        start = pick_clip or dataclasses.replace(best, clip_rate_gain=gain)
+        for hold in (0.3, 1.0, 2.0):
+            cand = dataclasses.replace(start, clip_hold_s=hold)
+            err = mean_rmse_deg(run(cand, clipping, cwins)[0])
+            clip_table[f"gain={cand.clip_rate_gain:g},inflation={cand.clip_inflation_rad:g},hold={hold:g}"] = err
             if err < base_err:
                 base_err, pick_clip = err, cand
         metrics["fusion_clip_grid"] = clip_table
