@@ -90,7 +90,8 @@ def test_bias_states_weigh_the_network_bias_by_its_sigma():
 def test_calibration_picks_bias_states_for_a_gyro_bias_the_network_never_saw():
     """An untrained model (its physics baseline gives the windows) on flights whose gyro is 0.3 rad/s
     (17 °/s) off: the calibration must choose the bias-state fusion, and it must beat the best
-    low-pass setting on the same flights; the bias it then reports is near the truth."""
+    low-pass setting on the same flights; the bias it then reports is near the truth. Feeding that
+    bias back into the windows (their RK4 rotations are then nearly right) must win too."""
     import torch
 
     from tepinn_flight.model.config import ModelConfig
@@ -103,9 +104,13 @@ def test_calibration_picks_bias_states_for_a_gyro_bias_the_network_never_saw():
     model = TEPINN(ModelConfig(window_tokens=16, d_model=16, n_heads=2, n_layers=1, d_ff=32)).eval()
     recs = [synthetic_record(seed=s, duration_s=30.0, rate_hz=100.0, max_rate_rad_s=1.0, gyr_bias_rad_s=0.3)
             for s in (2, 4)]  # fmt: skip
-    fusion, metrics = calibrate_fusion(model, recs, FusionConfig(), max_records=2, bias_state_sweeps=1)
+    fusion, metrics = calibrate_fusion(model, recs, FusionConfig(), max_records=2, bias_state_sweeps=1,
+                                       feedback_deadzones_rad_s=(0.02,), feedback_windows=10)  # fmt: skip
     assert fusion.bias_states
     assert metrics["fusion_val_tilt_rmse_mean_deg"] < 0.8 * min(metrics["fusion_grid"].values())
+    fb = metrics["fusion_feedback_grid"]
+    assert fusion.bias_feedback_windows == 10 and fusion.bias_feedback_deadzone_rad_s == 0.02
+    assert fb["0.02"] < 0.9 * fb["off"]
     est = estimate_record(model, recs[0], fusion)
     b = est[["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]].to_numpy()[-100:]
     b_true = recs[0].data[["gyr_bias_x_rad_s", "gyr_bias_y_rad_s", "gyr_bias_z_rad_s"]].to_numpy()[-100:]

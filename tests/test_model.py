@@ -189,24 +189,62 @@ def test_fusion_tilt_update_moves_gravity_by_the_gain():
     assert abs(b - a / 2) < 1e-9
 
 
-def test_streaming_equals_offline():
-    """The live estimator (one sample at a time) reproduces the offline batched estimate."""
+FEEDBACK = FusionConfig(bias_states=True, bias_init_sigma_rad_s=0.3, bias_sigma_rad_s=0.3, bias_feedback_windows=3,
+                        bias_feedback_deadzone_rad_s=0.002, clip_hold_s=0.1)  # fmt: skip
+
+
+@pytest.mark.parametrize("fusion", [None, FEEDBACK], ids=["default", "bias-feedback"])
+def test_streaming_equals_offline(fusion):
+    """The live estimator (one sample at a time) reproduces the offline batched estimate — also with
+    bias feedback, where each block of windows sees the gyro minus the fusion's bias of that time
+    (a 0.2 rad/s gyro offset makes that bias move)."""
     from tepinn_flight.model.streaming import StreamingEstimator
 
     torch.manual_seed(1)
     m = TEPINN(SMALL).eval()
     rec = synthetic_record(seed=5, duration_s=4.0, rate_hz=160.0)
-    off = estimate_record(m, rec)[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
-    live = StreamingEstimator(m, threads=None)
+    if fusion is not None:
+        rec.data[["gyr_x_rad_s", "gyr_y_rad_s"]] += 0.2
+    est = estimate_record(m, rec, fusion)
+    off = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+    live = StreamingEstimator(m, fusion, threads=None)
     q_live = np.full_like(off, np.nan)
+    b_live = np.full((len(off), 3), np.nan)
     for i, (t, g, a) in enumerate(zip(rec.t_s, rec.gyr_rad_s, rec.acc_m_s2)):
         e = live.push(t, g, a)
         if e.q_nb_wxyz is not None:
             q_live[i] = e.q_nb_wxyz
+            b_live[i] = e.gyr_bias_rad_s
     np.testing.assert_array_equal(np.isnan(off[:, 0]), np.isnan(q_live[:, 0]))
     ok = np.isfinite(off[:, 0])
     assert ok.sum() > 100
     np.testing.assert_allclose(Q.quat_canonical(q_live[ok]), Q.quat_canonical(off[ok]), atol=1e-5)
+    b_off = est[["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]].to_numpy()
+    np.testing.assert_allclose(b_live[ok], b_off[ok], atol=1e-5)
+    if fusion is not None:  # the fusion's bias moved past the dead zone: later blocks saw a corrected gyro
+        assert max(abs(v) for v in live.feedback) > 0.001
+
+
+def test_bias_feedback_subtracts_the_offset_from_the_windows_and_adds_it_back():
+    """Windows made with a gyro offset b equal windows of a record whose gyro is b lower, with b
+    added to their bias output (the network's bias is a correction to the fed-back one)."""
+    from tepinn_flight.model.estimate import network_on_windows
+    from tepinn_flight.model.tokens import tokenize_record
+
+    torch.manual_seed(2)
+    m = TEPINN(SMALL).double().eval()
+    rec = synthetic_record(seed=6, duration_s=3.0, rate_hz=100.0)
+    tok = tokenize_record(rec, SMALL.token_rate_hz)
+    ends = tok.windows_ending(SMALL.window_tokens)
+    off = np.tile([0.05, -0.1, 0.3], (len(ends), 1))
+    q1, s1, b1 = network_on_windows(m, tok, ends, off)
+    shifted = synthetic_record(seed=6, duration_s=3.0, rate_hz=100.0)
+    shifted.data[["gyr_x_rad_s", "gyr_y_rad_s", "gyr_z_rad_s"]] -= off[0]
+    q2, s2, b2 = network_on_windows(m, tokenize_record(shifted, SMALL.token_rate_hz), ends)
+    np.testing.assert_allclose(q1, q2, atol=1e-9)
+    np.testing.assert_allclose(b1, b2 + off, atol=1e-9)
+    q0, _, _ = network_on_windows(m, tok, ends)
+    assert float(np.abs(q0 - q1).max()) > 1e-4  # the offset does reach the network
 
 
 def test_trust_after_clipping_closed_form():

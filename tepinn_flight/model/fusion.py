@@ -59,6 +59,16 @@ class FusionConfig:
     # after it, from tokens after the flip, are not — they should meet an open covariance
     clip_hold_s: float = 0.0
     clip_skip_updates: bool = False
+    # bias feedback (> 0): the network sees the gyro minus the fusion's current bias estimate, as
+    # an EKF propagates with its bias-corrected gyro; the estimate is refreshed every this many
+    # windows (one network batch: offline and live take the same values). The network's own bias
+    # output is then a correction to it. 0: the raw gyro (a turn-on bias of 15–20 °/s rotates the
+    # window's physics by tens of degrees and the network follows it)
+    bias_feedback_windows: int = 0
+    # only the part of each bias component beyond this is fed back (soft threshold): the network
+    # handles the small biases it was trained with, and a calibrated gyro's estimate, which wanders
+    # with the tilt errors of long turns, is then not fed back at all
+    bias_feedback_deadzone_rad_s: float = 0.0
 
 
 def _qmul(a, b):
@@ -281,24 +291,42 @@ def _kalman(P, H, z, r):
     return K @ z, P - K @ H @ P
 
 
-def run_fusion(t_s, gyr, est_index, est_q, est_sigma, est_bias, config: FusionConfig, clipped=None):
-    """Offline pass over one segment. ``est_index[k]`` is the sample index of window estimate k
-    (the window's last sample); it is applied when the next sample arrives, as live.
+def feedback_bias(config: FusionConfig, bias) -> tuple[float, float, float]:
+    """The gyro offset the network's windows get under bias feedback: the fusion's bias estimate,
+    soft-thresholded by ``bias_feedback_deadzone_rad_s`` per axis."""
+    d = config.bias_feedback_deadzone_rad_s
+    return tuple(math.copysign(max(abs(float(b)) - d, 0.0), float(b)) for b in bias)
 
-    Returns q (N, 4) with NaN until the sample after the first estimate, σ (N,), bias (N, 3).
-    """
-    n = len(t_s)
-    q_out = np.full((n, 4), np.nan)
-    s_out = np.full(n, np.nan)
-    b_out = np.full((n, 3), np.nan)
-    f = AttitudeFusion(config)
-    lookup = {int(i) + 1: k for k, i in enumerate(est_index)}
-    for i in range(n):
-        k = lookup.get(i)
-        est = None if k is None else (est_q[k], float(est_sigma[k]), est_bias[k])
-        q, s, b = f.step(float(t_s[i]), gyr[i], est, bool(clipped[i]) if clipped is not None else False)
-        if q is not None:
-            q_out[i] = q
-            s_out[i] = s
-            b_out[i] = b
-    return q_out, s_out, b_out
+
+class FusionRun:
+    """An offline pass over one segment, advanced in pieces: window estimates can be added while it
+    runs (the bias feedback needs the fusion's bias before it can make the next windows).
+    ``add`` takes window estimates by the sample index of their window's last sample (each one is
+    applied when the next sample arrives, as live); ``advance(stop)`` steps through samples up to
+    ``stop`` (exclusive)."""
+
+    def __init__(self, t_s, gyr, config: FusionConfig, clipped=None):
+        n = len(t_s)
+        self.t_s, self.gyr, self.clipped = t_s, gyr, clipped
+        self.q = np.full((n, 4), np.nan)
+        self.sigma = np.full(n, np.nan)
+        self.bias = np.full((n, 3), np.nan)
+        self.fusion = AttitudeFusion(config)
+        self.pending: dict[int, tuple] = {}
+        self.i = 0
+
+    def add(self, est_index, est_q, est_sigma, est_bias) -> None:
+        for k, i in enumerate(est_index):
+            self.pending[int(i) + 1] = (est_q[k], float(est_sigma[k]), est_bias[k])
+
+    def advance(self, stop: int) -> None:
+        f, clipped = self.fusion, self.clipped
+        for i in range(self.i, min(stop, len(self.t_s))):
+            est = self.pending.pop(i, None)
+            q, s, b = f.step(float(self.t_s[i]), self.gyr[i], est, bool(clipped[i]) if clipped is not None else False)
+            if q is not None:
+                self.q[i] = q
+                self.sigma[i] = s
+                self.bias[i] = b
+        self.i = max(self.i, min(stop, len(self.t_s)))
+

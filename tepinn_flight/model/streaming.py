@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from .fusion import AttitudeFusion, FusionConfig
+from .fusion import AttitudeFusion, FusionConfig, feedback_bias
 from .network import TEPINN
 
 GAP_PERIODS = 2.5
@@ -69,6 +69,8 @@ class StreamingEstimator:
         k = self.cfg.window_tokens
         self.win = deque(maxlen=k)  # finished tokens: (t, g(3), a(3), m(3), count)
         self.last_means = None
+        self.n_windows = 0  # windows run in this segment (bias feedback refreshes every L of them)
+        self.feedback = (0.0, 0.0, 0.0)  # the fusion's bias the current block of windows sees
 
     def _new_segment(self, t: float) -> bool:
         if self.t_prev is None:
@@ -135,7 +137,12 @@ class StreamingEstimator:
     def _run_model(self):
         w = list(self.win)
         t = np.array([x[0] for x in w])
-        g = torch.tensor([x[1] for x in w], dtype=self.dtype)[None]
+        fb_every = self.fusion_cfg.bias_feedback_windows
+        if fb_every > 0 and self.n_windows % fb_every == 0:
+            self.feedback = feedback_bias(self.fusion_cfg, self.fusion.bias)  # after the previous estimate
+        self.n_windows += 1
+        fb = self.feedback if fb_every > 0 else (0.0, 0.0, 0.0)
+        g = torch.tensor([[x[1][i] - fb[i] for i in range(3)] for x in w], dtype=self.dtype)[None]
         a = torch.tensor([x[2] for x in w], dtype=self.dtype)[None]
         m = torch.tensor(np.nan_to_num(np.array([x[3] for x in w])), dtype=self.dtype)[None]
         n = torch.tensor([x[4] for x in w], dtype=self.dtype)[None]
@@ -144,4 +151,5 @@ class StreamingEstimator:
         dt = torch.full_like(n, self.delta)
         out = self.model(g, a, n, t_rel, dt, m, cl)
         sigma = float(out["sigma"][0]) if "sigma" in out else math.radians(2.0)
-        return (out["q"][0].double().tolist(), sigma, out["bias"][0].double().tolist())
+        bias = [v + fb[i] for i, v in enumerate(out["bias"][0].double().tolist())]
+        return (out["q"][0].double().tolist(), sigma, bias)

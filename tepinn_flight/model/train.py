@@ -101,12 +101,17 @@ class CalibrationConfig:
 
     max_flights: int = 12  # validation flights it runs on (spread over the split)
     bias_state_sweeps: int = 2  # coordinate-search sweeps over the bias-state settings (0: low-pass only)
+    # bias feedback dead zones tried (°/s; empty: no feedback), refreshed every this many windows
+    feedback_deadzones_deg_s: tuple[float, ...] = ()
+    feedback_windows: int = 25
 
     def __post_init__(self):
         if self.max_flights < 1:
             raise ConfigError("'max_flights' must be >= 1")
         if self.bias_state_sweeps < 0:
             raise ConfigError("'bias_state_sweeps' must be >= 0")
+        if any(d < 0 for d in self.feedback_deadzones_deg_s) or self.feedback_windows < 1:
+            raise ConfigError("'feedback_deadzones_deg_s' must be >= 0 and 'feedback_windows' >= 1")
 
 
 @dataclass(frozen=True)
@@ -315,6 +320,7 @@ def validate(model: TEPINN, bank: TokenBank, ends: np.ndarray, cfg: TrainConfig)
 
 def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionConfig, max_records: int = 12,
                      fallback_records: list[FlightRecord] = (), bias_state_sweeps: int = 2,
+                     feedback_deadzones_rad_s: tuple[float, ...] = (), feedback_windows: int = 25,
                      ) -> tuple[FusionConfig, dict]:  # fmt: skip
     """Fit the fusion on validation flights, minimising the mean over flights of the per-flight
     tilt RMSE of the fused output (the figure the benchmark and ``evaluate`` report): the process
@@ -338,7 +344,7 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
     def run(cand, recs=recs, wins=wins):
         errs, sig, berr = [], [], []
         for r, w in zip(recs, wins):
-            est = estimate_record(model, r, cand, windows=w)
+            est = estimate_record(model, r, cand, windows=None if cand.bias_feedback_windows else w)
             q = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
             ok = np.all(np.isfinite(q), 1) & np.all(np.isfinite(r.q_ref_wxyz), 1) & (est["sigma_rad"].to_numpy() > 0)
             inc, _ = inclination_heading_split(quat_mul(q[ok], quat_conj(r.q_ref_wxyz[ok])))
@@ -432,6 +438,18 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
                 errs, sig, _ = run(best)
                 best_err, best_run = mean_rmse_deg(errs), (errs, sig)
                 metrics["fusion_val_tilt_rmse_mean_deg"] = best_err
+    # bias feedback: the network sees the gyro minus the fusion's bias beyond a dead zone (an
+    # uncalibrated gyro); its windows depend on the fusion, so each candidate reruns the network
+    fb_table = {"off": best_err} if feedback_deadzones_rad_s else {}
+    for dz in feedback_deadzones_rad_s:
+        cand = dataclasses.replace(best, bias_feedback_windows=feedback_windows, bias_feedback_deadzone_rad_s=dz)
+        errs, sig, _ = run(cand)
+        err = fb_table[f"{dz:g}"] = mean_rmse_deg(errs)
+        if err < best_err:
+            best, best_err, best_run = cand, err, (errs, sig)
+            metrics["fusion_val_tilt_rmse_mean_deg"] = best_err
+    if fb_table:
+        metrics["fusion_feedback_grid"] = fb_table
     # the bias low-pass: the time constant with the lowest gyro-bias error (where truth exists),
     # kept only if the tilt error does not get worse
     btable = {}
@@ -470,7 +488,9 @@ def recalibrate(run_dir: str | os.PathLike, cfg: TrainConfig, data_dirs=(), conf
     best_model, _, ck = load_model(out / "best.pt")
     fusion, fus_metrics = calibrate_fusion(best_model, val_recs, cfg.fusion, cfg.calibration.max_flights,
                                            fallback_records=[records[i] for i in tr_idx],
-                                           bias_state_sweeps=cfg.calibration.bias_state_sweeps)  # fmt: skip
+                                           bias_state_sweeps=cfg.calibration.bias_state_sweeps,
+                                           feedback_deadzones_rad_s=tuple(math.radians(d) for d in cfg.calibration.feedback_deadzones_deg_s),
+                                           feedback_windows=cfg.calibration.feedback_windows)  # fmt: skip
     final_metrics = {**(ck.get("metrics") or {}), **fus_metrics}
     save_checkpoint(out / "model.pt", best_model, fusion, training=ck.get("training"), metrics=final_metrics,
                     loss_config=dataclasses.asdict(cfg.loss), tepinn_flight_version=__version__)  # fmt: skip
@@ -716,7 +736,9 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
         best_model, _, ck = load_model(out / "best.pt") if (out / "best.pt").exists() else (model.cpu().eval(), None, {})
         fusion, fus_metrics = calibrate_fusion(best_model, val_recs, cfg.fusion, cfg.calibration.max_flights,
                                                fallback_records=train_recs,
-                                               bias_state_sweeps=cfg.calibration.bias_state_sweeps)  # fmt: skip
+                                               bias_state_sweeps=cfg.calibration.bias_state_sweeps,
+                                               feedback_deadzones_rad_s=tuple(math.radians(d) for d in cfg.calibration.feedback_deadzones_deg_s),
+                                               feedback_windows=cfg.calibration.feedback_windows)  # fmt: skip
         final_metrics = {**(ck.get("metrics") or {}), **fus_metrics}
         save_checkpoint(out / "model.pt", best_model, fusion, training=summary, metrics=final_metrics,
                         loss_config=dataclasses.asdict(cfg.loss),
