@@ -554,3 +554,60 @@ def test_fusion_keeps_the_attitude_open_after_saturation_for_the_hold_time(bias_
     assert abs(skipped) < 1e-6  # inside the hold nothing is applied; the gyro (zero) holds level
     after = roll_deg_at(1.3, clip_hold_s=0.1, clip_skip_updates=True)
     assert after > 29.0  # the first estimate after the hold meets the open covariance
+
+
+def test_process_noise_grows_with_the_angle_turned():
+    """P grows by q_t·T + q_r·|ω|·T between estimates (closed form for a constant rate): nothing
+    from q_r at rest, and the same growth for the same angle whatever the axis."""
+    from tepinn_flight.model.fusion import AttitudeFusion
+
+    def p_after(w, q_r, seconds=0.5):
+        f = AttitudeFusion(FusionConfig(process_noise_rad2_s=1e-5, process_noise_rate_rad=q_r))
+        for i in range(int(seconds * 400) + 1):
+            est = ((1.0, 0.0, 0.0, 0.0), 0.02, (0.0, 0.0, 0.0)) if i == 1 else None
+            f.step(i / 400.0, w, est)
+        return f.P - 0.02**2  # the estimate at t = 1/400 s left P = r; then 0.5 s of propagation
+
+    assert abs(p_after((0.0, 0.0, 0.0), 1e-3) - 1e-5 * 0.5) < 1e-12
+    w = np.array([1.0, -2.0, 2.0])  # |ω| = 3 rad/s: 1.5 rad in 0.5 s
+    assert abs(p_after(tuple(w), 1e-3) - (1e-5 * 0.5 + 1e-3 * 1.5)) < 1e-9
+    assert abs(p_after((0.0, 3.0, 0.0), 1e-3) - p_after(tuple(w), 1e-3)) < 1e-12
+    assert abs(p_after(tuple(w), 0.0) - 1e-5 * 0.5) < 1e-12
+
+
+def test_centripetal_rate_compensates_a_speed_change_in_a_pull_up():
+    """Closed form: a pull-up at pitch rate q with the body velocity (V + â_x·(t − t_K), 0, 0). The
+    kinematic acceleration in body axes is ω × v + v̇ = (â_x, 0, −q·v_x); the specific force is that
+    minus gravity. With v̂ = (V(t_K), 0, 0) and â = (â_x, 0, 0) in the heads the baseline's gravity
+    is exact; the constant-velocity compensation alone leaves an error (the speed change)."""
+    from tepinn_flight.model.network import ACC_SCALE_M_S2, VEL_SCALE_M_S
+
+    cfg = dataclasses.replace(SMALL, window_tokens=20, learned_pooling=True, centripetal=True, centripetal_rate=True)
+    m = TEPINN(cfg).double().eval()
+    with torch.no_grad():
+        m.head_q.weight.zero_()
+    g, q_rate, v_end, a_x = 9.80665, 0.3, 60.0, -4.0  # decelerating while the nose comes up
+    k, dt = cfg.window_tokens, 0.04
+    t_end = (np.arange(k) - (k - 1)) * dt  # token ends relative to t_K
+    t_mid = t_end - 0.5 * dt
+    theta_k = 0.4  # pitch at t_K; pitch(t) = θ_K + q·(t − t_K)
+    theta = theta_k + q_rate * t_mid
+    vx = v_end + a_x * t_mid
+    grav_body = np.stack([-np.sin(theta), np.zeros(k), np.cos(theta)], -1) * g  # gravity in body, per token
+    f = np.stack([np.full(k, a_x), np.zeros(k), -q_rate * vx], -1) - grav_body  # specific force
+    gyr = torch.tensor(np.tile([0.0, q_rate, 0.0], (1, k, 1)))
+    acc = torch.tensor(f[None])
+    count = torch.full((1, k), 16.0, dtype=torch.float64)
+    dts = torch.full((1, k), dt, dtype=torch.float64)
+    t_rel = torch.tensor(t_end[None])
+    g_true = np.array([-np.sin(theta_k), 0.0, np.cos(theta_k)])
+
+    def tilt_error_deg(a_head):
+        with torch.no_grad():
+            m.head_vel.bias.copy_(torch.tensor([v_end / VEL_SCALE_M_S, 0, 0, a_head / ACC_SCALE_M_S2, 0, 0]))
+        out = m(gyr, acc, count, t_rel, dts)
+        g_est = Q.gravity_body(out["q"].detach().numpy())[0]
+        return np.degrees(np.arccos(np.clip(g_est @ g_true, -1, 1)))
+
+    assert tilt_error_deg(a_x) < 0.05  # (token means at token midpoints: not exact, but close)
+    assert tilt_error_deg(0.0) > 10.0  # |â|/g ≈ 0.4: the speed change alone tilts it by ~20°

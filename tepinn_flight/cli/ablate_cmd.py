@@ -12,12 +12,12 @@ DESCRIPTION = (
 
 VARIANTS = {
     "full": ({}, {}),
-    "no-physics": ({"physics": False}, {}),
+    "no-physics": ({"physics": False, "centripetal": False, "centripetal_rate": False}, {}),
     "no-transformer": ({"encoder": "mlp"}, {}),
     "no-correction-layer": ({"correction_layer": False}, {}),
     "no-adaptive-weighting": ({}, {"adaptive": False}),
     "no-uncertainty": ({"uncertainty": False}, {}),
-    "lstm-baseline": ({"encoder": "lstm", "physics": False}, {}),
+    "lstm-baseline": ({"encoder": "lstm", "physics": False, "centripetal": False, "centripetal_rate": False}, {}),
 }
 
 

@@ -44,6 +44,9 @@ class ModelConfig:
     # window (an aircraft flies along its x axis at tens of m/s: in a turn or a loop, ω × v, not
     # gravity, dominates what the accelerometer reads); inputs gain R_{K←j}(ω_j × e_k), k = x, y, z
     centripetal: bool = False  # (off here for old checkpoints)
+    # ... and the body velocity may change linearly over the window, v(t) = v̂ + (t − t_K)·â (a dive
+    # or a pull-up changes the speed by tens of m/s in seconds): the compensation adds ω × â·(t − t_K) + â
+    centripetal_rate: bool = False
     # plausible limits of the learned global sensor model (tanh-bounded; 0: unbounded): scale and
     # misalignment (fraction), gyro bias (rad/s), accelerometer bias (m/s²)
     sensor_scale_max: float = 0.05
@@ -63,6 +66,8 @@ class ModelConfig:
             raise ConfigError("sensor limits must be >= 0 (0: unbounded)")
         if self.declip_max <= 1:
             raise ConfigError("declip_max must be > 1 (κ starts at 1)")
+        if self.centripetal_rate and not self.centripetal:
+            raise ConfigError("centripetal_rate needs centripetal = true")
         if self.centripetal and not self.physics:
             raise ConfigError("centripetal needs physics = true (it compensates the RK4-rotated specific forces)")
         if not 0 <= self.dropout < 1:

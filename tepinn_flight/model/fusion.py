@@ -41,6 +41,10 @@ from ..quat import quat_to_rotmat, quat_to_rotvec
 class FusionConfig:
     enabled: bool = True  # False: take each window estimate as is (then propagate to the next)
     process_noise_rad2_s: float = 1e-4  # tilt variance growth of the propagation (gyro noise + bias)
+    # ... plus this much per radian turned (rad²/rad): a gyro's scale-factor and misalignment errors
+    # grow the attitude error with the angle rotated, not with time (a 1 % scale error is 3.6° per
+    # aileron roll and nothing in level flight)
+    process_noise_rate_rad: float = 0.0
     bias_time_constant_s: float = 10.0  # low-pass of the network's per-window bias estimates
     sigma_scale: float = 1.0  # calibration factor applied to the network's σ
     clip_inflation_rad: float = 0.35  # a saturated gyro/accel sample adds this σ to the propagation
@@ -192,6 +196,9 @@ class AttitudeFusion:
                 self.q = rk4(self.q, (self.w[0] - b[0], self.w[1] - b[1], self.w[2] - b[2]),
                              (w[0] - b[0], w[1] - b[1], w[2] - b[2]), dt)  # fmt: skip
                 dP = c.process_noise_rad2_s * dt
+                if c.process_noise_rate_rad > 0:
+                    wm = (0.5 * (self.w[0] + w[0]) - b[0], 0.5 * (self.w[1] + w[1]) - b[1], 0.5 * (self.w[2] + w[2]) - b[2])
+                    dP += c.process_noise_rate_rad * math.sqrt(wm[0] * wm[0] + wm[1] * wm[1] + wm[2] * wm[2]) * dt
                 if clipped or (c.clip_hold_s > 0 and self.t_clip is not None and t - self.t_clip <= c.clip_hold_s):
                     dP += c.clip_inflation_rad**2  # a saturated sensor: the attitude is no longer trusted
                 self.P += dP

@@ -11,7 +11,9 @@ Forward pass for one window of K tokens ending at time t_K (B batch, K tokens, d
                     A saturated gyro sample makes every rotation across it wrong: tokens j with
                     clipping in (t_{j-1}, t_K] get trust u_j = 0 (else 1; the last token always 1).
    centripetal on: c_jk = R_{K←j^mid}(ω_c,j × e_k)/g, k = x, y, z: the acceleration ω × v of a
-                    body-frame velocity v (per m/s of each component), seen in body(t_K)
+                    body-frame velocity v (per m/s of each component), seen in body(t_K);
+                    with centripetal_rate also c'_jk = R_{K←j}((t_j − t_K)·ω_c,j × e_k + e_k)/g
+                    for a velocity changing linearly, v(t) = v̂ + (t − t_K)·â (dives, pull-ups)
 3. tokens           x_j = [ω_c, a_c/g, log n, clipped fraction, v_j/g, u_j (, c_j) (, mag)]
                     → Linear + PE(t_j − t_K, seconds)
 4. encoder          L post-LayerNorm transformer layers (multi-head self-attention + feed-forward)
@@ -22,8 +24,9 @@ Forward pass for one window of K tokens ending at time t_K (B batch, K tokens, d
                     a per-token logit from the encoder, which starts as the plain mean, a boxcar
                     complementary filter; without learned pooling, the u-weighted mean):
                     q = q_base ⊗ δq; physics off: q = head output. Centripetal on: the pooled
-                    v_j are first compensated by Σ_k v̂_k c_jk with the window's body velocity v̂
-                    from a head (gravity = a − f, a ≈ ω × v: an aircraft's turn or loop)
+                    v_j are first compensated by Σ_k v̂_k c_jk (+ Σ_k â_k c'_jk) with the window's
+                    body velocity v̂ (and its rate â) from a head (gravity = a − f, a ≈ ω × v + v̇:
+                    an aircraft's turn, loop or dive)
 7. correction       yaw := 0 (the paper's attitude correction layer; the 6-D estimate is tilt)
 
 A window holds only samples up to t_K, so the estimate at t_K uses nothing after it (causal).
@@ -44,6 +47,7 @@ from .physics import RigidBody, SensorModel, prefix_products, rk4_delta
 
 BIAS_SCALE_RAD_S = 0.02  # bias head output units (≈ 1.1 °/s per unit)
 VEL_SCALE_M_S = 30.0  # velocity head output units (centripetal compensation)
+ACC_SCALE_M_S2 = 5.0  # velocity-change head output units (centripetal_rate)
 CEN_FEATURE_M_S = 30.0  # the c_jk inputs are given per this speed (≈ g at 0.3 rad/s)
 
 
@@ -139,8 +143,8 @@ class TEPINN(nn.Module):
         self.head_sigma = nn.Linear(c.d_model, 1)
         self.head_bias = nn.Linear(c.d_model, 3)
         self.head_torque = nn.Linear(c.d_model, 3)
-        if c.physics and c.centripetal:  # body velocity for the centripetal term; zero: none
-            self.head_vel = nn.Linear(c.d_model, 3)
+        if c.physics and c.centripetal:  # body velocity (and its rate) for the centripetal term; zero: none
+            self.head_vel = nn.Linear(c.d_model, 6 if c.centripetal_rate else 3)
             nn.init.zeros_(self.head_vel.weight)
             nn.init.zeros_(self.head_vel.bias)
         if c.physics and c.learned_pooling:  # baseline pooling logits; zero: the plain mean
@@ -183,11 +187,12 @@ class TEPINN(nn.Module):
         p_mid = torch.cat([p_end[:, :1], quat_mul(p_end[:, :-1], half)], dim=1)
         return p_end, p_mid
 
-    def features(self, gyr, acc, count, mag=None, dt=None, clip=None):
+    def features(self, gyr, acc, count, mag=None, dt=None, clip=None, t_rel=None):
         """Token inputs (B, K, n_inputs) before normalisation, the corrected gyro and accel,
         (physics on) the rotated specific forces ``v`` (B, K, 3) in g with their trust ``u`` (B, K),
         and (centripetal on) ``cen`` (B, K, 3, 3): ``cen[:, j, k]`` = R_{K←j}(ω_c,j × e_k)/g, the
-        acceleration per m/s of body velocity along e_k, in g, seen in body(t_K)."""
+        acceleration per m/s of body velocity along e_k, in g, seen in body(t_K); with
+        ``centripetal_rate`` (and ``t_rel``) the pair (cen, cen_rate), cen_rate per m/s² of â."""
         c = self.config
         clip = torch.zeros_like(count) if clip is None else clip
         if c.physics:
@@ -212,6 +217,11 @@ class TEPINN(nn.Module):
                 wxe = torch.linalg.cross(w3, e3, dim=-1)
                 cen = quat_rotate(to_last[:, :, None, :], wxe) / GRAVITY_M_S2  # (B, K, 3, 3)
                 parts.append(CEN_FEATURE_M_S * cen.flatten(-2))
+                if c.centripetal_rate and t_rel is not None:  # c'_jk = R_{K←j}((t_j − t_K)·ω_c,j × e_k + e_k)/g, per m/s² of â
+                    t_mid = torch.cat([t_rel[:, :1], t_rel[:, 1:] - 0.5 * dt[:, 1:]], dim=1)  # as frames()
+                    t_mid = t_mid[..., None, None]  # (B, K, 1, 1)
+                    rot_e = quat_rotate(to_last[:, :, None, :], e3) / GRAVITY_M_S2
+                    cen = (cen, t_mid * cen + rot_e)
         if c.use_mag:
             parts.append(torch.nan_to_num(mag) / 50.0)
         return torch.cat(parts, dim=-1), w_c, a_c, v, u, cen
@@ -228,7 +238,7 @@ class TEPINN(nn.Module):
         (physics on); and per token ``torque`` (B, K, 3), ``w_c``, ``a_c`` (B, K, 3).
         """
         c = self.config
-        x, w_c, a_c, v, u, cen = self.features(gyr, acc, count, mag, dt, clip)
+        x, w_c, a_c, v, u, cen = self.features(gyr, acc, count, mag, dt, clip, t_rel)
         h = self.inp((x - self.in_mean) / self.in_std) + self.pe(t_rel)  # (B, K, d)
         if c.encoder == "lstm":
             h, _ = self.encoder(h)
@@ -238,7 +248,12 @@ class TEPINN(nn.Module):
         q = quat_normalize(self.head_q(last))  # (B, 4)
         if v is not None:
             if cen is not None:  # gravity = a − f with a ≈ ω × v̂: compensate each token
-                vel = VEL_SCALE_M_S * self.head_vel(last)  # (B, 3) m/s in body(t_K)
+                hv = self.head_vel(last)
+                vel = VEL_SCALE_M_S * hv[:, :3]  # (B, 3) m/s in body(t_K)
+                if c.centripetal_rate:  # v(t) = v̂ + (t − t_K)·â: a = ω × v̂ + (t − t_K)·ω × â + â
+                    cen, cen_rate = cen
+                    acc_v = ACC_SCALE_M_S2 * hv[:, 3:]  # (B, 3) m/s² in body(t_K)
+                    v = v - torch.einsum("bjkc,bk->bjc", cen_rate, acc_v)
                 v = v - torch.einsum("bjkc,bk->bjc", cen, vel)
             if c.learned_pooling:  # learned weights (u is an input the logits can use)
                 wts = torch.softmax(self.head_pool(h)[..., 0], dim=1)[..., None]

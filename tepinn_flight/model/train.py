@@ -325,12 +325,13 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
     """Fit the fusion on validation flights, minimising the mean over flights of the per-flight
     tilt RMSE of the fused output (the figure the benchmark and ``evaluate`` report): the process
     noise of the low-pass fusion, then the bias-state Kalman fusion (``bias_states``) by a
-    coordinate search over its σ scale, bias σ, process noise and bias random walk — the better
-    of the two is kept; for the low-pass, the bias time constant. Then the σ scale that makes the
-    reported σ calibrated on the typical sample (median |e|²/σ² = 2 ln 2, the median of a 2-D
-    Gaussian tilt error). The settings for saturated gyro samples are compared on the validation
-    flights that clip, or, where none does, on up to 6 of ``fallback_records`` (training flights)
-    that do."""
+    coordinate search over its σ scale, bias σ, process noise (per second and per radian turned)
+    and bias random walk — the better of the two is kept; for the low-pass, the bias time constant.
+    The settings for saturated gyro samples are compared on the validation flights that clip, or,
+    where none does, on up to 6 of ``fallback_records`` (training flights) that do; then bias
+    feedback with each of ``feedback_deadzones_rad_s`` (kept where it helps). Last, the σ scale that
+    makes the reported σ calibrated on the typical sample (median |e|²/σ² = 2 ln 2, the median of a
+    2-D Gaussian tilt error)."""
     from ..quat import inclination_heading_split, quat_conj, quat_mul
     from .estimate import window_estimates
 
@@ -386,7 +387,8 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
         kf_table["start"] = kf_err
         grid = (("sigma_scale", (1.0, 1.5, 2.0, 3.0, 4.0)), ("bias_sigma_rad_s", (0.03, 0.1, 0.3, 1.0)),
                 ("process_noise_rad2_s", (1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 3e-4)),
-                ("bias_rw_rad_s_sqrt_s", (1e-4, 3e-4, 1e-3, 3e-3)))  # fmt: skip
+                ("bias_rw_rad_s_sqrt_s", (1e-4, 3e-4, 1e-3, 3e-3)),
+                ("process_noise_rate_rad", (0.0, 1e-4, 3e-4, 1e-3)))  # fmt: skip
         for _ in range(bias_state_sweeps):  # coordinate search (each setting tried once)
             for name, values in grid:
                 for v in values:
@@ -476,6 +478,14 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
     return best, metrics
 
 
+def calibrate_with(cfg: TrainConfig, model: TEPINN, val_recs, train_recs) -> tuple[FusionConfig, dict]:
+    """:func:`calibrate_fusion` with the recipe's ``[calibration]`` settings."""
+    c = cfg.calibration
+    return calibrate_fusion(model, val_recs, cfg.fusion, c.max_flights, fallback_records=train_recs,
+                            bias_state_sweeps=c.bias_state_sweeps, feedback_windows=c.feedback_windows,
+                            feedback_deadzones_rad_s=tuple(math.radians(d) for d in c.feedback_deadzones_deg_s))  # fmt: skip
+
+
 def recalibrate(run_dir: str | os.PathLike, cfg: TrainConfig, data_dirs=(), config_base: Path = Path(".")) -> dict:
     """Re-run the end of :func:`train` on a finished run: rebuild the validation split, fit the
     fusion to ``best.pt`` and rewrite ``model.pt`` (used when the calibration code improves)."""
@@ -486,11 +496,7 @@ def recalibrate(run_dir: str | os.PathLike, cfg: TrainConfig, data_dirs=(), conf
     tr_idx, va_idx = split_by_flight(len(records), cfg.data.val_fraction, cfg.seed)
     val_recs = [records[i] for i in va_idx]
     best_model, _, ck = load_model(out / "best.pt")
-    fusion, fus_metrics = calibrate_fusion(best_model, val_recs, cfg.fusion, cfg.calibration.max_flights,
-                                           fallback_records=[records[i] for i in tr_idx],
-                                           bias_state_sweeps=cfg.calibration.bias_state_sweeps,
-                                           feedback_deadzones_rad_s=tuple(math.radians(d) for d in cfg.calibration.feedback_deadzones_deg_s),
-                                           feedback_windows=cfg.calibration.feedback_windows)  # fmt: skip
+    fusion, fus_metrics = calibrate_with(cfg, best_model, val_recs, [records[i] for i in tr_idx])
     final_metrics = {**(ck.get("metrics") or {}), **fus_metrics}
     save_checkpoint(out / "model.pt", best_model, fusion, training=ck.get("training"), metrics=final_metrics,
                     loss_config=dataclasses.asdict(cfg.loss), tepinn_flight_version=__version__)  # fmt: skip
@@ -734,11 +740,7 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
         from .checkpoint import load_model
 
         best_model, _, ck = load_model(out / "best.pt") if (out / "best.pt").exists() else (model.cpu().eval(), None, {})
-        fusion, fus_metrics = calibrate_fusion(best_model, val_recs, cfg.fusion, cfg.calibration.max_flights,
-                                               fallback_records=train_recs,
-                                               bias_state_sweeps=cfg.calibration.bias_state_sweeps,
-                                               feedback_deadzones_rad_s=tuple(math.radians(d) for d in cfg.calibration.feedback_deadzones_deg_s),
-                                               feedback_windows=cfg.calibration.feedback_windows)  # fmt: skip
+        fusion, fus_metrics = calibrate_with(cfg, best_model, val_recs, train_recs)
         final_metrics = {**(ck.get("metrics") or {}), **fus_metrics}
         save_checkpoint(out / "model.pt", best_model, fusion, training=summary, metrics=final_metrics,
                         loss_config=dataclasses.asdict(cfg.loss),
