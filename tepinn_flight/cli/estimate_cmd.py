@@ -41,7 +41,7 @@ def run(args) -> int:
     if not args.model and not ckpt_path.exists():
         raise TepinnError("the shipped default model is missing from this installation; pass --model CKPT")
     model, fusion, _ = load_model(ckpt_path)
-    if args.yaw:
+    if args.yaw and hasattr(fusion, "yaw"):  # the network-centred fusion only (the anchored one has VQF's heading)
         fusion = dataclasses.replace(fusion, yaw=args.yaw)
     paths = [Path(p) for p in args.records]
     outs = output_paths(paths, args.output)

@@ -21,6 +21,7 @@ from .. import conventions
 from ..errors import TepinnError
 from ..record import atomic_write
 from .config import ModelConfig
+from .anchor import AnchorConfig
 from .fusion import FusionConfig
 from .network import TEPINN
 
@@ -32,12 +33,16 @@ class CheckpointError(TepinnError):
     """A checkpoint that cannot be used (corrupt, foreign, or from an unknown version)."""
 
 
-def save_checkpoint(path: str | os.PathLike, model: TEPINN, fusion: FusionConfig, **extra) -> None:
+def save_checkpoint(path: str | os.PathLike, model: TEPINN, fusion: FusionConfig, anchor: AnchorConfig | None = None,
+                    **extra) -> None:  # fmt: skip
+    """``anchor``: the filter-anchored estimator's settings (``anchor_config``); without it the
+    checkpoint runs the network-centred fusion ``fusion``."""
     ckpt = {
         "format": FORMAT,
         "version": VERSION,
         "model_config": dataclasses.asdict(model.config),
         "fusion_config": dataclasses.asdict(fusion),
+        **({"anchor_config": dataclasses.asdict(anchor)} if anchor is not None else {}),
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
         "conventions": conventions.describe(),
         **extra,
@@ -61,8 +66,10 @@ def read_checkpoint(path: str | os.PathLike) -> dict:
     return ckpt
 
 
-def load_model(path: str | os.PathLike) -> tuple[TEPINN, FusionConfig, dict]:
-    """Rebuild the model (eval mode, float32) and its fusion settings from a checkpoint."""
+def load_model(path: str | os.PathLike) -> tuple[TEPINN, FusionConfig | AnchorConfig, dict]:
+    """Rebuild the model (eval mode, float32) and the settings of the estimator it runs in: an
+    :class:`AnchorConfig` (filter-anchored VQF, the shipped model) where the checkpoint has an
+    enabled ``anchor_config``, else its :class:`FusionConfig` (network-centred fusion)."""
     ckpt = read_checkpoint(path)
     try:
         # version-1 checkpoints written before `clip_aware`, the sensor limits, `declip` and
@@ -72,6 +79,10 @@ def load_model(path: str | os.PathLike) -> tuple[TEPINN, FusionConfig, dict]:
         model = TEPINN(ModelConfig(**{**before, **ckpt["model_config"]}))
         model.load_state_dict(ckpt["state_dict"])
         fusion = FusionConfig(**ckpt.get("fusion_config", {}))
+        if ckpt.get("anchor_config") is not None:
+            anchor = AnchorConfig(**ckpt["anchor_config"])
+            if anchor.enabled:
+                fusion = anchor
     except (TypeError, KeyError, RuntimeError) as exc:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
         raise CheckpointError(f"checkpoint does not match this model ({first})", path) from None

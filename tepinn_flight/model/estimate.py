@@ -1,4 +1,6 @@
-"""Offline estimation over whole records: batched sliding windows, then the causal fusion pass."""
+"""Offline estimation over whole records: batched sliding windows, then the causal pass — the
+filter-anchored VQF (:func:`estimate_anchored`, the shipped model) or the older network-centred
+fusion (:func:`estimate_record` with a :class:`FusionConfig`)."""
 
 from __future__ import annotations
 
@@ -7,22 +9,33 @@ import pandas as pd
 import torch
 
 from ..record import FlightRecord
+from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows
 from .fusion import FusionConfig, FusionRun, feedback_bias
 from .network import TEPINN
-from .tokens import tokenize_record
+from .streaming import TS_STEPS
+from .tokens import tokenize, tokenize_record
 
 EST_Q_COLS = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
 EST_BIAS_COLS = ["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]
 
 
-@torch.inference_mode()
 def network_on_windows(model: TEPINN, tok, ends: np.ndarray, gyr_offset: np.ndarray | None = None,
                        batch_size: int = 256):  # fmt: skip
     """(q (W, 4), sigma (W,), bias (W, 3)) of the windows ending at token indices ``ends``;
     ``gyr_offset`` (W, 3) rad/s is subtracted from every gyro token of each window (bias feedback)
     and added back to its bias output."""
+    out = network_outputs(model, tok, ends, gyr_offset, batch_size)
+    return out["q"], out["sigma"], out["bias"]
+
+
+@torch.inference_mode()
+def network_outputs(model: TEPINN, tok, ends: np.ndarray, gyr_offset: np.ndarray | None = None,
+                    batch_size: int = 256) -> dict:  # fmt: skip
+    """The network's outputs for the windows ending at token indices ``ends``: ``q`` (W, 4),
+    ``sigma`` (W,), ``bias`` (W, 3) and the transport-theorem head's body velocity ``vel`` and its
+    rate ``acc_v`` (W, 3; zeros for a model without that head)."""
     c = model.config
-    qs, ss, bs = [], [], []
+    qs, ss, bs, vs, avs = [], [], [], [], []
     dtype = next(model.parameters()).dtype
     gyr = np.nan_to_num(tok.gyr)
     acc = np.nan_to_num(tok.acc)
@@ -41,12 +54,16 @@ def network_on_windows(model: TEPINN, tok, ends: np.ndarray, gyr_offset: np.ndar
         qs.append(out["q"].double().numpy())
         ss.append(out["sigma"].double().numpy() if "sigma" in out else np.full(len(e), np.radians(2.0)))
         bs.append(out["bias"].double().numpy())
+        vs.append(out["vel"].double().numpy() if "vel" in out else np.zeros((len(e), 3)))
+        avs.append(out["acc_v"].double().numpy() if "acc_v" in out else np.zeros((len(e), 3)))
     if not qs:
-        return np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3))
+        z3 = np.zeros((0, 3))
+        return {"q": np.zeros((0, 4)), "sigma": np.zeros(0), "bias": z3, "vel": z3, "acc_v": z3}
     bias = np.concatenate(bs)
     if gyr_offset is not None:
         bias = bias + gyr_offset
-    return np.concatenate(qs), np.concatenate(ss), bias
+    return {"q": np.concatenate(qs), "sigma": np.concatenate(ss), "bias": bias, "vel": np.concatenate(vs),
+            "acc_v": np.concatenate(avs)}  # fmt: skip
 
 
 def window_estimates(model: TEPINN, rec: FlightRecord, batch_size: int = 256):
@@ -61,10 +78,11 @@ def window_estimates(model: TEPINN, rec: FlightRecord, batch_size: int = 256):
     return tok.last_index[ends], q, s, b
 
 
-def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | None = None,
+def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | AnchorConfig | None = None,
                     batch_size: int = 256, windows=None) -> pd.DataFrame:  # fmt: skip
     """One output row per record row: ``t_s``, ``q_est_*`` (body→NED), ``sigma_rad``,
-    ``gyr_bias_est_*``; NaN until the first window of a segment is full. ``windows`` takes the
+    ``gyr_bias_est_*``. An :class:`AnchorConfig` runs :func:`estimate_anchored`; with a
+    :class:`FusionConfig`, NaN until the first window of a segment is full. ``windows`` takes the
     result of :func:`window_estimates` when it is already at hand (fusion tuning; not with bias
     feedback, whose windows depend on the fusion).
 
@@ -72,6 +90,8 @@ def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | Non
     in blocks of L: block b sees the gyro minus the fusion's bias right after the last estimate of
     block b − 1 was applied (soft-thresholded, :func:`~.fusion.feedback_bias`) — what the live
     estimator has at hand when it makes them."""
+    if isinstance(fusion, AnchorConfig):
+        return estimate_anchored(model, rec, fusion, batch_size)
     fusion = fusion or FusionConfig()
     feedback = fusion.bias_feedback_windows
     if feedback > 0 and windows is not None:
@@ -111,4 +131,79 @@ def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | Non
     df["sigma_rad"] = s_out
     for i, c in enumerate(EST_BIAS_COLS):
         df[c] = b_out[:, i]
+    return df
+
+
+def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256):
+    """(sample_index (W,), outputs dict) of every full window: what :func:`estimate_anchored` needs.
+    Non-finite IMU samples are holes: the tokens see the last finite sample in their place."""
+    gyr, acc = rec.gyr_rad_s, rec.acc_m_s2
+    bad = ~(np.all(np.isfinite(gyr), 1) & np.all(np.isfinite(acc), 1))
+    if bad.any():
+        gyr, acc = gyr.copy(), acc.copy()
+        gyr[bad] = np.nan
+        acc[bad] = np.nan
+        ffill_rows(gyr, np.zeros(3))
+        ffill_rows(acc, np.zeros(3))
+    tok = tokenize(rec.t_s, rec.segment, gyr, acc, rec.mag_ut, model.config.token_rate_hz, rec.clipped)
+    ends = tok.windows_ending(model.config.window_tokens)
+    return tok.last_index[ends], network_outputs(model, tok, ends, batch_size=batch_size)
+
+
+def wants_mag(anchor: AnchorConfig, rec: FlightRecord) -> bool:
+    """9-D for ``mode = 9d``, and for ``auto`` when the record carries a magnetometer."""
+    if anchor.mode == "6d":
+        return False
+    has = bool(np.any(np.all(np.isfinite(rec.mag_ut), axis=1)))
+    if anchor.mode == "9d" and not has:
+        raise ValueError("9-D mode needs a magnetometer and this record has none")
+    return has
+
+
+def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | None = None,
+                      batch_size: int = 256, windows=None) -> pd.DataFrame:  # fmt: skip
+    """The filter-anchored estimate (:mod:`.anchor`): one row per record row, ``t_s``, ``q_est_*``
+    (body→NED; 9-D heading where ``wants_mag``), ``sigma_rad``, ``gyr_bias_est_*``. Estimates start
+    at a segment's first sample (VQF); the network's windows apply from the sample after their last
+    one. ``windows`` takes :func:`anchored_windows`' result when already at hand."""
+    anchor = anchor or AnchorConfig()
+    idx, out = windows if windows is not None else anchored_windows(model, rec, batch_size)
+    use_mag = wants_mag(anchor, rec)
+    n = len(rec)
+    q_out = np.full((n, 4), np.nan)
+    s_out = np.full(n, np.nan)
+    b_out = np.full((n, 3), np.nan)
+    t, gyr, acc, mag, clipped = rec.t_s, rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut, rec.clipped
+    seg = rec.segment
+    bounds = np.flatnonzero(np.diff(seg)) + 1
+    for a, b in zip(np.r_[0, bounds], np.r_[bounds, n]):
+        dt = np.diff(t[a : min(b, a + TS_STEPS + 1)])  # as the live estimator: its first steps
+        flt = AnchoredVQF(anchor, float(np.median(dt)) if dt.size else 0.01, use_mag)
+        cur = a
+        for j in np.flatnonzero((idx >= a) & (idx < b)):
+            i = int(idx[j]) + 1
+            if i > cur:
+                _put(flt, rec, cur, i, q_out, s_out, b_out, use_mag)
+                cur = i
+            flt.correct(WindowOutput(out["q"][j], float(out["sigma"][j]), out["bias"][j], out["vel"][j], out["acc_v"][j]))
+        if cur < b:
+            _put(flt, rec, cur, b, q_out, s_out, b_out, use_mag)
+    return _frame(t, q_out, s_out, b_out)
+
+
+def _put(flt, rec, a, b, q_out, s_out, b_out, use_mag):
+    q6, q9, s, bias = flt.update(rec.t_s[a:b], rec.gyr_rad_s[a:b], rec.acc_m_s2[a:b],
+                                 rec.mag_ut[a:b] if use_mag else None, rec.clipped[a:b])  # fmt: skip
+    q_out[a:b] = q9 if use_mag else q6
+    s_out[a:b] = s
+    b_out[a:b] = bias
+
+
+def _frame(t, q, s, b) -> pd.DataFrame:
+    df = pd.DataFrame({"t_s": t})
+    for i, c in enumerate(EST_Q_COLS):
+        df[c] = q[:, i]
+    df["sigma_rad"] = s
+    for i, c in enumerate(EST_BIAS_COLS):
+        df[c] = b[:, i]
     return df

@@ -254,6 +254,8 @@ class TEPINN(nn.Module):
                     cen, cen_rate = cen
                     acc_v = ACC_SCALE_M_S2 * hv[:, 3:]  # (B, 3) m/s² in body(t_K)
                     v = v - torch.einsum("bjkc,bk->bjc", cen_rate, acc_v)
+                else:
+                    acc_v = torch.zeros_like(vel)
                 v = v - torch.einsum("bjkc,bk->bjc", cen, vel)
             if c.learned_pooling:  # learned weights (u is an input the logits can use)
                 wts = torch.softmax(self.head_pool(h)[..., 0], dim=1)[..., None]
@@ -274,6 +276,7 @@ class TEPINN(nn.Module):
             out["f_mean"] = f_mean  # (compensated, centripetal on)
             if cen is not None:
                 out["vel"] = vel
+                out["acc_v"] = acc_v
             out["f_spread"] = (wts[..., 0] * (v - f_mean[:, None]).pow(2).sum(-1)).sum(dim=1).sqrt()
         if c.uncertainty:
             # σ reads the representation but does not shape it (its NLL would swamp early training)

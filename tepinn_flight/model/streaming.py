@@ -17,10 +17,13 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from .anchor import AnchorConfig, AnchoredVQF, WindowOutput
 from .fusion import AttitudeFusion, FusionConfig, feedback_bias
 from .network import TEPINN
 
 GAP_PERIODS = 2.5
+#: the anchored filter's sample period is the median of a segment's first steps (offline the same)
+TS_STEPS = 51
 
 
 @dataclass
@@ -47,10 +50,11 @@ class _Token:
 
 
 class StreamingEstimator:
-    def __init__(self, model: TEPINN, fusion: FusionConfig | None = None, threads: int | None = 1):
+    def __init__(self, model: TEPINN, fusion: FusionConfig | AnchorConfig | None = None, threads: int | None = 1):
         self.model = model.eval()
         self.cfg = model.config
-        self.fusion_cfg = fusion or FusionConfig()
+        self.anchor_cfg = fusion if isinstance(fusion, AnchorConfig) else None
+        self.fusion_cfg = FusionConfig() if self.anchor_cfg is not None else (fusion or FusionConfig())
         self.delta = 1.0 / self.cfg.token_rate_hz
         self.dtype = next(model.parameters()).dtype
         if threads:
@@ -60,6 +64,8 @@ class StreamingEstimator:
     def reset(self) -> None:
         """Forget everything (a new segment: reboot, time jump, dropout)."""
         self.fusion = AttitudeFusion(self.fusion_cfg)
+        self.anchored = None  # AnchoredVQF, made once the segment's sample period is known
+        self.pending: list = []  # the segment's first samples (and windows) until then
         self.t0 = None
         self.t_prev = None
         self.period = None  # nominal sample period, running median of the first steps
@@ -115,9 +121,35 @@ class StreamingEstimator:
         tok.n += 1
         tok.clip += bool(clipped)
         tok.t_last = t
-        q, sigma, bias = self.fusion.step(t, gyr_rad_s, est, bool(clipped))
+        if self.anchor_cfg is not None:
+            q, sigma, bias = self._anchored_step(t, gyr_rad_s, acc_m_s2, mag_ut, bool(clipped), est)
+        else:
+            q, sigma, bias = self.fusion.step(t, gyr_rad_s, est, bool(clipped))
         self.t_prev = t
         return Estimate(t, q, sigma, bias, ran, time.perf_counter() - t0c)
+
+    def _anchored_step(self, t, gyr, acc, mag, clipped, est):
+        """The filter-anchored estimate of this sample; ``est`` (the network's window at the
+        previous sample, or None) is applied first."""
+        if self.anchored is None:
+            self.pending.append((t, gyr, acc, mag, clipped, est))
+            if len(self.pending) <= TS_STEPS:
+                return None, float("nan"), (float("nan"),) * 3
+            dts = np.diff([p[0] for p in self.pending])
+            self.anchored = AnchoredVQF(self.anchor_cfg, float(np.median(dts)), use_mag=self.anchor_cfg.mode == "9d")
+            pending, self.pending = self.pending, []
+        else:
+            pending = [(t, gyr, acc, mag, clipped, est)]
+        out = None
+        for t_i, g_i, a_i, m_i, c_i, e_i in pending:
+            if e_i is not None:
+                self.anchored.correct(e_i)
+            out = self.anchored.update([t_i], [g_i], [a_i], None if m_i is None else [m_i], [c_i])
+        q6, q9, sig, bias = out
+        q = (q9 if q9 is not None else q6)[0]
+        if not np.all(np.isfinite(q)):
+            return None, float(sig[0]), tuple(bias[0])
+        return tuple(float(v) for v in q), float(sig[0]), tuple(float(v) for v in bias[0])
 
     def _close_token(self):
         tok = self.cur
@@ -152,4 +184,9 @@ class StreamingEstimator:
         out = self.model(g, a, n, t_rel, dt, m, cl)
         sigma = float(out["sigma"][0]) if "sigma" in out else math.radians(2.0)
         bias = [v + fb[i] for i, v in enumerate(out["bias"][0].double().tolist())]
+        if self.anchor_cfg is not None:
+            z = np.zeros(3)
+            return WindowOutput(out["q"][0].double().numpy(), sigma, np.array(bias),
+                                out["vel"][0].double().numpy() if "vel" in out else z,
+                                out["acc_v"][0].double().numpy() if "acc_v" in out else z)  # fmt: skip
         return (out["q"][0].double().tolist(), sigma, bias)
