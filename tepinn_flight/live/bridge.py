@@ -12,6 +12,12 @@ One thread runs a ``select`` loop over the master link (the autopilot), the ``--
   autopilot (the first seen, or ``sysid``); its IMU messages become samples for the worker
   (HIGHRES_IMU preferred, then RAW_IMU, then SCALED_IMU, one instance), its ATTITUDE_QUATERNION
   (else ATTITUDE) feeds the comparison, COMMAND_ACKs of our rate requests are noted.
+* **order**: IMU samples (and EKF attitudes) whose own time is not newer than the newest one taken
+  (duplicates, stale copies from a redundant link, reordered UDP) are forwarded like every frame
+  but dropped before the estimator and counted (``imu.duplicates``/``imu.out_of_order`` in the
+  summary); a reboot is told apart by :class:`~tepinn_flight.live.sample_order.SampleOrder`
+  (frames counting up from the new time after the old stream fell silent), so a stale frame never
+  resets the estimator.
 * **estimates** (from the worker, decimated to ``rate_hz`` on the autopilot's clock) go out as
   ATTITUDE + ATTITUDE_QUATERNION from (autopilot sysid, 191), stamped with the IMU sample's
   ``time_boot_ms``; diagnostics (NAMED_VALUE_FLOAT, DEBUG_VECT) at ``diag_rate_hz``; a HEARTBEAT
@@ -44,6 +50,7 @@ from . import MAV_COMP_ID_AUTOPILOT1, MAV_COMP_ID_ONBOARD_COMPUTER, dialect
 from .inputs import EkfComparator, ekf_attitude, imu_preference, imu_sample, imu_scale_known
 from .messages import Encoder, diagnostic_msgs, estimate_msgs, heartbeat_onboard_msg, set_message_interval_msg
 from .router import Link
+from .sample_order import DUPLICATE, REBOOT, STALE, SampleOrder
 from .status import RateMeter, StatusPrinter, angle_histogram, format_summary, latency_histogram
 from .worker import COUNTERS, ProcessWorker, ThreadWorker, pack_sample, reset_record, unpack_estimate
 
@@ -178,6 +185,8 @@ class Bridge:
         self.imu_span = 0.0
         self.imu_intervals = 0
         self.time_jumps = 0
+        self.imu_order = SampleOrder()  # duplicates / out-of-order frames dropped, reboots told apart
+        self.ekf_order = SampleOrder()
         self.unknown_scale_noted = False
         self.ekf_src_seen: dict[str, float] = {}
         self.cmp = EkfComparator()
@@ -490,8 +499,15 @@ class Bridge:
             if cur is not None and self.worker is not None:
                 self.worker.submit(reset_record())
             self.imu_last_t = None
+            self.imu_order.reset()  # another message: its own clock
         if s.message != self.imu_msg:
             return
+        verdict = self.imu_order.accept(s.t_s, t_in)
+        if verdict in (DUPLICATE, STALE):
+            return  # forwarded already; never to the estimator (it would reset on the time reversal)
+        if verdict == REBOOT:
+            self.status.note(f"tepinn-flight bridge: {s.message} clock restarted at {s.t_s:.3f} s "
+                             "(autopilot reboot?): estimator reset")  # fmt: skip
         self.imu_rate.tick(t_in)
         self.imu_samples += 1
         if self.imu_last_t is not None:
@@ -524,6 +540,8 @@ class Bridge:
             return  # ATTITUDE_QUATERNION is there: use it alone
         a = ekf_attitude(m)
         if a is None:
+            return
+        if self.ekf_order.accept(a[0], t_in) in (DUPLICATE, STALE):
             return
         for d in self.cmp.add_ekf(a[0], a[2]):
             self._diff(d)
@@ -649,6 +667,8 @@ class Bridge:
         drops = self.wc[1] + self.wc_done[1] + self.dropped_queue
         bad = sum(link.bad_frames for link in self.links)
         line = f"{ap} | {imu} | {est} | {diff} | fwd {self.fwd_rate.rate(now):.0f} msg/s | bad {bad} | stale {drops}"
+        if self.imu_order.dropped:
+            line += f" | IMU dup {self.imu_order.counts[DUPLICATE]} old {self.imu_order.counts[STALE]}"
         if self.imu_warning:
             line += " | IMU RATE LOW"
         return line
@@ -676,6 +696,10 @@ class Bridge:
                 "rate_hz": round(self.imu_intervals / self.imu_span, 2) if self.imu_span > 0 else None,
                 "samples": self.imu_samples,
                 "time_jumps": self.time_jumps,
+                "duplicates": self.imu_order.counts[DUPLICATE],
+                "out_of_order": self.imu_order.counts[STALE],
+                "reboots": self.imu_order.counts[REBOOT],
+                "ekf_dropped": self.ekf_order.dropped,
                 "requested": self.req_attempts,
                 "request_ack": self.req_ack,
                 "warning": self.imu_warning,
