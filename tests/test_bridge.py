@@ -359,6 +359,8 @@ def test_faults_do_not_stop_forwarding():
     assert msg["internal_errors"] == 0
     assert s["autopilot"]["lost"] == 1
     assert s["imu"]["time_jumps"] >= 2 and est["resets"] >= 2 and est["errors"] == 0
+    assert s["imu"]["reboots"] == 1 and s["imu"]["out_of_order"] >= 4  # the reboot, told apart after 5 frames
+    assert msg["unknown_dropped"] == 0  # the unknown id came from the autopilot (1, 1): forwarded
 
 
 class FlakyEstimator:
@@ -663,3 +665,36 @@ def test_duplicate_stale_and_reordered_imu_frames_are_dropped_and_the_estimate_d
     assert imu["samples"] == len(accepted) and imu["time_jumps"] == 0
     assert est["resets"] == 0 and est["errors"] == 0 and est["dropped_stale"] == est["dropped_queue_full"] == 0
     assert "dropped duplicates 9, out of order 9" in b.format_summary(s)
+
+
+# ---------------------------------------------------------------------------- unknown message ids
+def _unknown(sysid: int, compid: int, seq: int = 9) -> bytes:
+    """A MAVLink 2 frame of message id 12345 (unknown to the dialect: its CRC cannot be checked)."""
+    return bytes([0xFD, 4, 0, 0, seq, sysid, compid, 0x39, 0x30, 0, 1, 2, 3, 4, 0x55, 0xAA])
+
+
+def test_unknown_message_ids_pass_only_from_sources_seen_with_checked_frames():
+    gcs = UdpListener()
+    b, stop, th, box = _bridge(gcs.port, min_imu_rate_hz=0)
+    ap = FakeAutopilot(b.master.local_port())
+    try:
+        items = list(record_stream(synthetic_record(seed=9, duration_s=0.3, rate_hz=200.0)))
+        ap.put(_unknown(1, 1), good=False)  # before anything from (1, 1): garbage as far as we know
+        ap.play(items, time.monotonic())
+        ap.put(_unknown(1, 1))  # the autopilot's own custom message: forwarded
+        ap.put(_unknown(77, 33), good=False)  # a source never seen with a CRC-checked frame: dropped
+        time.sleep(0.1)
+        gcs.send(_unknown(255, 190))  # the ground station, before any checked frame from it: dropped
+        cmd = Encoder(255, 190).pack(M.MAVLink_command_long_message(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))
+        gcs.send(cmd)
+        gcs.send(_unknown(255, 190, seq=10))  # now vouched for: forwarded to the autopilot
+        time.sleep(0.3)
+    finally:
+        s = _finish(stop, th, box)
+        gcs.close()
+        ap.close()
+    assert [d for _, d in gcs.datagrams if _compid(d) != 191] == ap.sent
+    back = [d for _, d in ap.datagrams if _compid(d) != 191]
+    assert back == [cmd, _unknown(255, 190, seq=10)]
+    assert s["messages"]["unknown_dropped"] == 3
+    assert "unknown ids 3" in b.format_summary(s)

@@ -7,7 +7,11 @@ One thread runs a ``select`` loop over the master link (the autopilot), the ``--
   (``get_msgbuf()``: ids, sequence, signature kept); the frames of one read go out together.
 * **outs → master**: every good frame from a ground station goes to the autopilot unchanged.
 * frames from our own (sysid, 191) are dropped wherever they come in (echoes in some topologies);
-  garbage and CRC failures are counted and dropped; unknown message ids are forwarded.
+  garbage and CRC failures are counted and dropped. A message id the dialect does not know cannot
+  be CRC-checked (no CRC_EXTRA), so garbage often parses as one: such a frame is forwarded only
+  when its (system, component) has sent a CRC-checked frame on the same link before (custom-dialect
+  messages of a real autopilot, gimbal or companion keep flowing), else dropped and counted
+  (``messages.unknown_dropped``).
 * **inspection** (after forwarding): the autopilot is the component 1 whose HEARTBEAT names a real
   autopilot (the first seen, or ``sysid``); its IMU messages become samples for the worker
   (HIGHRES_IMU preferred, then RAW_IMU, then SCALED_IMU, one instance), its ATTITUDE_QUATERNION
@@ -203,7 +207,8 @@ class Bridge:
         self.next_diag_k = None
         self.seq = 0
         self.n = dict(from_master=0, forwarded_to_outs=0, from_outs=0, forwarded_to_master=0, sent_own=0,
-                      own_echoes=0, other_sources=0)  # fmt: skip
+                      own_echoes=0, other_sources=0, unknown_dropped=0)  # fmt: skip
+        self.known_sources: dict[int, set] = {}  # id(link) -> (sysid, compid) seen with CRC-checked frames
         self.fwd_rate = RateMeter(2.0)
         # worker
         self.worker = None
@@ -356,6 +361,21 @@ class Bridge:
     def _own(self, m) -> bool:
         return self.enc is not None and m.get_srcComponent() == self.cfg.compid and m.get_srcSystem() == self.enc.sysid
 
+    def _vouched(self, link: Link, m) -> bool:
+        """False for a frame of an unknown message id from a source not seen with a CRC-checked
+        frame on this link (garbage that happens to parse); True otherwise, noting known sources."""
+        known = self.known_sources.setdefault(id(link), set())
+        buf = m.get_msgbuf()
+        src = (buf[5], buf[6]) if buf[0] == 0xFD else (buf[3], buf[4])
+        if m.get_type().startswith("UNKNOWN"):
+            if src in known:
+                return True
+            self.n["unknown_dropped"] += 1
+            return False
+        if len(known) < 4096:
+            known.add(src)
+        return True
+
     def _on_master(self) -> None:
         data = self.master.read()
         t_in = self.clock()
@@ -366,7 +386,7 @@ class Bridge:
         for m in msgs:
             if self._own(m):
                 self.n["own_echoes"] += 1
-            else:
+            elif self._vouched(self.master, m):
                 keep.append(m)
         if not keep:
             return
@@ -394,7 +414,7 @@ class Bridge:
         for m in link.parse(data):
             if self._own(m):
                 self.n["own_echoes"] += 1
-            else:
+            elif self._vouched(link, m):
                 msgs.append(m)
         if not msgs:
             return

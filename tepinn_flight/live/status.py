@@ -182,7 +182,7 @@ def format_summary(s: dict) -> str:
     )
     lines.append(
         f"  dropped        : garbled frames {msg.get('bad_frames', 0)} ({msg.get('bad_bytes', 0)} bytes), "
-        f"own echoes {msg.get('own_echoes', 0)}, write errors {msg.get('write_errors', 0)}, "
+        f"own echoes {msg.get('own_echoes', 0)}, unknown ids {msg.get('unknown_dropped', 0)}, write errors {msg.get('write_errors', 0)}, "
         f"stale samples {est.get('dropped_stale', 0)} + queue full {est.get('dropped_queue_full', 0)}"
     )
     lines.append(
