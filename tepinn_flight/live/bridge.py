@@ -53,7 +53,7 @@ from ..ingest.tlog import MAV_AUTOPILOT_ARDUPILOTMEGA
 from . import MAV_COMP_ID_AUTOPILOT1, MAV_COMP_ID_ONBOARD_COMPUTER, dialect
 from .inputs import EkfComparator, ekf_attitude, imu_preference, imu_sample, imu_scale_known
 from .messages import Encoder, diagnostic_msgs, estimate_msgs, heartbeat_onboard_msg, set_message_interval_msg
-from .router import Link
+from .router import SOCKET_BUFFER_BYTES, Link
 from .sample_order import DUPLICATE, REBOOT, STALE, SampleOrder
 from .status import RateMeter, StatusPrinter, angle_histogram, format_summary, latency_histogram
 from .worker import COUNTERS, ProcessWorker, ThreadWorker, pack_sample, reset_record, unpack_estimate
@@ -168,6 +168,11 @@ class Bridge:
         self.m = dialect()
         self.ready = threading.Event()
         self._reset_state()
+        got = self.master.rcvbuf_bytes
+        if got is not None and got < SOCKET_BUFFER_BYTES:  # Linux reports twice what was set when granted
+            self.status.note(f"tepinn-flight bridge: master UDP receive buffer {got >> 10} KiB (asked "
+                             f"{SOCKET_BUFFER_BYTES >> 20} MiB, capped by net.core.rmem_max): a burst may be lost "
+                             f"in the kernel; sysctl -w net.core.rmem_max={2 * SOCKET_BUFFER_BYTES} to raise it")  # fmt: skip
 
     # ------------------------------------------------------------------ state
     def _reset_state(self) -> None:
@@ -725,7 +730,7 @@ class Bridge:
                 "warning": self.imu_warning,
             },
             "messages": {**n, "bad_frames": bad, "bad_bytes": bad_bytes, "write_errors": werr,
-                         "internal_errors": self.internal_errors},
+                         "internal_errors": self.internal_errors, "master_rcvbuf_bytes": self.master.rcvbuf_bytes},
             "estimates": {
                 "count": self.est_count,
                 "rate_hz": round(self.est_intervals / self.est_span, 2) if self.est_span > 0 else None,
