@@ -471,8 +471,8 @@ class Bridge:
             return  # wait for its HEARTBEAT (RAW_IMU units depend on the autopilot)
         self._seen(t_in)
         tb = getattr(m, "time_boot_ms", None)
-        if tb is not None:
-            self.last_boot = (int(tb), t_in)
+        if tb is not None and (self.last_boot is None or int(tb) >= self.last_boot[0] or t_in - self.last_boot[1] > 1.0):
+            self.last_boot = (int(tb), t_in)  # a stale copy does not set the clock back; a reboot does within 1 s
         if name in ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3"):
             self._on_imu(m, t_in)
         elif name in ("ATTITUDE_QUATERNION", "ATTITUDE"):
