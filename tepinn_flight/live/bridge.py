@@ -7,11 +7,21 @@ One thread runs a ``select`` loop over the master link (the autopilot), the ``--
   (``get_msgbuf()``: ids, sequence, signature kept); the frames of one read go out together.
 * **outs → master**: every good frame from a ground station goes to the autopilot unchanged.
 * frames from our own (sysid, 191) are dropped wherever they come in (echoes in some topologies);
-  garbage and CRC failures are counted and dropped; unknown message ids are forwarded.
+  garbage and CRC failures are counted and dropped. A message id the dialect does not know cannot
+  be CRC-checked (no CRC_EXTRA), so garbage often parses as one: such a frame is forwarded only
+  when its (system, component) has sent a CRC-checked frame on the same link before (custom-dialect
+  messages of a real autopilot, gimbal or companion keep flowing), else dropped and counted
+  (``messages.unknown_dropped``).
 * **inspection** (after forwarding): the autopilot is the component 1 whose HEARTBEAT names a real
   autopilot (the first seen, or ``sysid``); its IMU messages become samples for the worker
   (HIGHRES_IMU preferred, then RAW_IMU, then SCALED_IMU, one instance), its ATTITUDE_QUATERNION
   (else ATTITUDE) feeds the comparison, COMMAND_ACKs of our rate requests are noted.
+* **order**: IMU samples (and EKF attitudes) whose own time is not newer than the newest one taken
+  (duplicates, stale copies from a redundant link, reordered UDP) are forwarded like every frame
+  but dropped before the estimator and counted (``imu.duplicates``/``imu.out_of_order`` in the
+  summary); a reboot is told apart by :class:`~tepinn_flight.live.sample_order.SampleOrder`
+  (frames counting up from the new time after the old stream fell silent), so a stale frame never
+  resets the estimator.
 * **estimates** (from the worker, decimated to ``rate_hz`` on the autopilot's clock) go out as
   ATTITUDE + ATTITUDE_QUATERNION from (autopilot sysid, 191), stamped with the IMU sample's
   ``time_boot_ms``; diagnostics (NAMED_VALUE_FLOAT, DEBUG_VECT) at ``diag_rate_hz``; a HEARTBEAT
@@ -43,7 +53,8 @@ from ..ingest.tlog import MAV_AUTOPILOT_ARDUPILOTMEGA
 from . import MAV_COMP_ID_AUTOPILOT1, MAV_COMP_ID_ONBOARD_COMPUTER, dialect
 from .inputs import EkfComparator, ekf_attitude, imu_preference, imu_sample, imu_scale_known
 from .messages import Encoder, diagnostic_msgs, estimate_msgs, heartbeat_onboard_msg, set_message_interval_msg
-from .router import Link
+from .router import SOCKET_BUFFER_BYTES, Link
+from .sample_order import DUPLICATE, REBOOT, STALE, SampleOrder
 from .status import RateMeter, StatusPrinter, angle_histogram, format_summary, latency_histogram
 from .worker import COUNTERS, ProcessWorker, ThreadWorker, pack_sample, reset_record, unpack_estimate
 
@@ -157,6 +168,11 @@ class Bridge:
         self.m = dialect()
         self.ready = threading.Event()
         self._reset_state()
+        got = self.master.rcvbuf_bytes
+        if got is not None and got < SOCKET_BUFFER_BYTES:  # Linux reports twice what was set when granted
+            self.status.note(f"tepinn-flight bridge: master UDP receive buffer {got >> 10} KiB (asked "
+                             f"{SOCKET_BUFFER_BYTES >> 20} MiB, capped by net.core.rmem_max): a burst may be lost "
+                             f"in the kernel; sysctl -w net.core.rmem_max={2 * SOCKET_BUFFER_BYTES} to raise it")  # fmt: skip
 
     # ------------------------------------------------------------------ state
     def _reset_state(self) -> None:
@@ -178,6 +194,8 @@ class Bridge:
         self.imu_span = 0.0
         self.imu_intervals = 0
         self.time_jumps = 0
+        self.imu_order = SampleOrder()  # duplicates / out-of-order frames dropped, reboots told apart
+        self.ekf_order = SampleOrder()
         self.unknown_scale_noted = False
         self.ekf_src_seen: dict[str, float] = {}
         self.cmp = EkfComparator()
@@ -194,7 +212,8 @@ class Bridge:
         self.next_diag_k = None
         self.seq = 0
         self.n = dict(from_master=0, forwarded_to_outs=0, from_outs=0, forwarded_to_master=0, sent_own=0,
-                      own_echoes=0, other_sources=0)  # fmt: skip
+                      own_echoes=0, other_sources=0, unknown_dropped=0)  # fmt: skip
+        self.known_sources: dict[int, set] = {}  # id(link) -> (sysid, compid) seen with CRC-checked frames
         self.fwd_rate = RateMeter(2.0)
         # worker
         self.worker = None
@@ -347,6 +366,21 @@ class Bridge:
     def _own(self, m) -> bool:
         return self.enc is not None and m.get_srcComponent() == self.cfg.compid and m.get_srcSystem() == self.enc.sysid
 
+    def _vouched(self, link: Link, m) -> bool:
+        """False for a frame of an unknown message id from a source not seen with a CRC-checked
+        frame on this link (garbage that happens to parse); True otherwise, noting known sources."""
+        known = self.known_sources.setdefault(id(link), set())
+        buf = m.get_msgbuf()
+        src = (buf[5], buf[6]) if buf[0] == 0xFD else (buf[3], buf[4])
+        if m.get_type().startswith("UNKNOWN"):
+            if src in known:
+                return True
+            self.n["unknown_dropped"] += 1
+            return False
+        if len(known) < 4096:
+            known.add(src)
+        return True
+
     def _on_master(self) -> None:
         data = self.master.read()
         t_in = self.clock()
@@ -357,7 +391,7 @@ class Bridge:
         for m in msgs:
             if self._own(m):
                 self.n["own_echoes"] += 1
-            else:
+            elif self._vouched(self.master, m):
                 keep.append(m)
         if not keep:
             return
@@ -385,7 +419,7 @@ class Bridge:
         for m in link.parse(data):
             if self._own(m):
                 self.n["own_echoes"] += 1
-            else:
+            elif self._vouched(link, m):
                 msgs.append(m)
         if not msgs:
             return
@@ -437,8 +471,8 @@ class Bridge:
             return  # wait for its HEARTBEAT (RAW_IMU units depend on the autopilot)
         self._seen(t_in)
         tb = getattr(m, "time_boot_ms", None)
-        if tb is not None:
-            self.last_boot = (int(tb), t_in)
+        if tb is not None and (self.last_boot is None or int(tb) >= self.last_boot[0] or t_in - self.last_boot[1] > 1.0):
+            self.last_boot = (int(tb), t_in)  # a stale copy does not set the clock back; a reboot does within 1 s
         if name in ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3"):
             self._on_imu(m, t_in)
         elif name in ("ATTITUDE_QUATERNION", "ATTITUDE"):
@@ -490,8 +524,15 @@ class Bridge:
             if cur is not None and self.worker is not None:
                 self.worker.submit(reset_record())
             self.imu_last_t = None
+            self.imu_order.reset()  # another message: its own clock
         if s.message != self.imu_msg:
             return
+        verdict = self.imu_order.accept(s.t_s, t_in)
+        if verdict in (DUPLICATE, STALE):
+            return  # forwarded already; never to the estimator (it would reset on the time reversal)
+        if verdict == REBOOT:
+            self.status.note(f"tepinn-flight bridge: {s.message} clock restarted at {s.t_s:.3f} s "
+                             "(autopilot reboot?): estimator reset")  # fmt: skip
         self.imu_rate.tick(t_in)
         self.imu_samples += 1
         if self.imu_last_t is not None:
@@ -524,6 +565,8 @@ class Bridge:
             return  # ATTITUDE_QUATERNION is there: use it alone
         a = ekf_attitude(m)
         if a is None:
+            return
+        if self.ekf_order.accept(a[0], t_in) in (DUPLICATE, STALE):
             return
         for d in self.cmp.add_ekf(a[0], a[2]):
             self._diff(d)
@@ -649,6 +692,8 @@ class Bridge:
         drops = self.wc[1] + self.wc_done[1] + self.dropped_queue
         bad = sum(link.bad_frames for link in self.links)
         line = f"{ap} | {imu} | {est} | {diff} | fwd {self.fwd_rate.rate(now):.0f} msg/s | bad {bad} | stale {drops}"
+        if self.imu_order.dropped:
+            line += f" | IMU dup {self.imu_order.counts[DUPLICATE]} old {self.imu_order.counts[STALE]}"
         if self.imu_warning:
             line += " | IMU RATE LOW"
         return line
@@ -676,12 +721,16 @@ class Bridge:
                 "rate_hz": round(self.imu_intervals / self.imu_span, 2) if self.imu_span > 0 else None,
                 "samples": self.imu_samples,
                 "time_jumps": self.time_jumps,
+                "duplicates": self.imu_order.counts[DUPLICATE],
+                "out_of_order": self.imu_order.counts[STALE],
+                "reboots": self.imu_order.counts[REBOOT],
+                "ekf_dropped": self.ekf_order.dropped,
                 "requested": self.req_attempts,
                 "request_ack": self.req_ack,
                 "warning": self.imu_warning,
             },
             "messages": {**n, "bad_frames": bad, "bad_bytes": bad_bytes, "write_errors": werr,
-                         "internal_errors": self.internal_errors},
+                         "internal_errors": self.internal_errors, "master_rcvbuf_bytes": self.master.rcvbuf_bytes},
             "estimates": {
                 "count": self.est_count,
                 "rate_hz": round(self.est_intervals / self.est_span, 2) if self.est_span > 0 else None,

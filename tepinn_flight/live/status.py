@@ -168,6 +168,11 @@ def format_summary(s: dict) -> str:
         f"  IMU            : {imu.get('message') or 'none'} at {_f(imu.get('rate_hz'), '.1f')} Hz, "
         f"{imu.get('samples', 0)} samples; time jumps/reboots {imu.get('time_jumps', 0)}"
     )
+    if imu.get("duplicates") or imu.get("out_of_order") or imu.get("reboots") or imu.get("ekf_dropped"):
+        lines.append(
+            f"  IMU order      : dropped duplicates {imu.get('duplicates', 0)}, out of order {imu.get('out_of_order', 0)} "
+            f"(not estimated); reboots {imu.get('reboots', 0)}; EKF attitudes dropped {imu.get('ekf_dropped', 0)}"
+        )
     if imu.get("warning"):
         lines.append(f"  IMU warning    : {imu['warning']}")
     lines.append(
@@ -177,7 +182,7 @@ def format_summary(s: dict) -> str:
     )
     lines.append(
         f"  dropped        : garbled frames {msg.get('bad_frames', 0)} ({msg.get('bad_bytes', 0)} bytes), "
-        f"own echoes {msg.get('own_echoes', 0)}, write errors {msg.get('write_errors', 0)}, "
+        f"own echoes {msg.get('own_echoes', 0)}, unknown ids {msg.get('unknown_dropped', 0)}, write errors {msg.get('write_errors', 0)}, "
         f"stale samples {est.get('dropped_stale', 0)} + queue full {est.get('dropped_queue_full', 0)}"
     )
     lines.append(
