@@ -52,7 +52,7 @@ def _is_png(path) -> bool:
 
 
 def test_report_renders_with_all_figures(records_dir, tiny_checkpoint, tmp_path, monkeypatch, capsys):
-    monkeypatch.setitem(sys.modules, "riann", None)  # pretend the optional extra is missing
+    monkeypatch.setitem(sys.modules, "riann", None)  # pretend a peer's package is missing: graceful fallback
     out = tmp_path / "report"
     code = main(["evaluate", str(records_dir), "--report", str(out), "--model", str(tiny_checkpoint),
                  "--noise-sweep", "--noise-levels", "0,4", "--warmup-s", "3", "-q"])  # fmt: skip
@@ -61,7 +61,7 @@ def test_report_renders_with_all_figures(records_dir, tiny_checkpoint, tmp_path,
     for key, name in FIGURES.items():
         assert _is_png(out / name), key
         assert f"]({name})" in md, key
-    assert "riann skipped: optional package 'riann' is not installed" in md
+    assert "riann skipped: package 'riann' is not installed" in md
     data = json.loads((out / "metrics.json").read_text())
     names = {e["name"]: e for e in data["estimators"]}
     assert names["tepinn"]["kind"] == "learned" and {"complementary", "madgwick", "ekf", "vqf"} <= set(names)

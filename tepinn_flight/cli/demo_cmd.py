@@ -2,7 +2,7 @@
 
 Simulates one short high-dynamic flight per default vehicle (F450 flips and rolls, the agile quad,
 c172x aerobatics), estimates attitude with the shipped TE-PINN model, the shipped LSTM baseline and
-every baseline filter / installed peer, and writes the report to ``./tepinn-demo/``.
+every baseline filter and published peer, and writes the report to ``./tepinn-demo/``.
 """
 
 from __future__ import annotations

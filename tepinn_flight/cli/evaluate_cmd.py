@@ -8,7 +8,7 @@ from pathlib import Path
 HELP = "compare TE-PINN with baseline filters and published peers on flight records; write a report"
 DESCRIPTION = (
     "Run every estimator (TE-PINN from a checkpoint, the complementary filter, Madgwick, a "
-    "bias-estimating EKF, and VQF / offline VQF / RIANN / Fusion when installed) on the same records "
+    "bias-estimating EKF, and VQF / offline VQF / RIANN / Fusion) on the same records "
     "with the same scoring mask and warm-up, and write report.md with tables and PNG figures plus "
     "metrics.json. RECORDS are flight records (.parquet) or logs (ingested on the fly); a folder "
     "stands for the records in it."

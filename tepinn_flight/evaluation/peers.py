@@ -1,7 +1,7 @@
-"""Published peer estimators through optional extras: VQF, offline VQF, RIANN, x-io Fusion.
+"""Published peer estimators: VQF, offline VQF, RIANN, x-io Fusion (regular dependencies).
 
-Each peer is imported only when used; a missing package gives ``None`` plus a one-line note, never a
-crash. Frame conventions are resolved once here (never per record):
+Each peer is imported only when used; a missing or broken package still gives ``None`` plus a
+one-line note, never a crash. Frame conventions are resolved once here (never per record):
 
 - The peers expect a **z-up sensor frame** in which the accelerometer at rest reads +g along z. Our
   body frame is FRD (at rest, level: acc z ≈ −9.81), so we feed them the sensor frame
@@ -186,7 +186,7 @@ def make_peer(name: str, notes: list | None = None):
     try:
         return ctor()
     except ImportError as exc:
-        msg = (f"{name} skipped: optional package '{package}' is not installed "
+        msg = (f"{name} skipped: package '{package}' is not installed "
                f"(pip install {package}) [{type(exc).__name__}: {exc}]")  # fmt: skip
     except Exception as exc:  # a broken install must not stop the evaluation
         msg = f"{name} skipped: '{package}' failed to load ({type(exc).__name__}: {exc})"
