@@ -193,9 +193,9 @@ def test_missing_peer_package_is_skipped_with_a_message(monkeypatch):
     monkeypatch.setitem(sys.modules, "imufusion", None)
     notes: list[str] = []
     assert make_peer("riann", notes) is None
-    assert "riann skipped: package 'riann' is not installed" in notes[0]
+    assert "RIANN skipped: package 'riann' is not installed" in notes[0]
     notes.clear()
     peers = peer_estimators(notes=notes)
     assert {p.name for p in peers} == {"vqf", "offline-vqf"}
-    assert any("fusion skipped" in n for n in notes) and any("riann skipped" in n for n in notes)
+    assert any("Fusion skipped" in n for n in notes) and any("RIANN skipped" in n for n in notes)
 

@@ -67,6 +67,7 @@ def run(args) -> int:
     from ..errors import ConfigError, TepinnError
     from ..evaluation.estimators import learned_estimators
     from ..evaluation.harness import HarnessConfig, evaluate, noise_sweep, record_name
+    from ..evaluation.names import display_name
     from ..evaluation.report import write_report
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
 
@@ -119,6 +120,6 @@ def run(args) -> int:
             sys.stderr.write(f"note: {n}\n")
     best = sorted((d["inclination_rmse_deg"], k) for k, d in result.dataset.items() if d["inclination_rmse_deg"] is not None)
     print(f"{len(records)} record(s), {len(estimators)} estimator(s); inclination RMSE (mean over records): "
-          + ", ".join(f"{k} {v:.2f}°" for v, k in best))
+          + ", ".join(f"{display_name(k)} {v:.2f}°" for v, k in best))
     print(f"report: {files[-1]}")
     return 0
