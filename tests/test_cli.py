@@ -85,3 +85,69 @@ def test_main_returns_2_on_tepinn_error(tmp_path, capsys):
     assert main(["info", str(bad)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1
+
+
+# ----------------------------------------------------------------------------- parser hygiene
+
+VERBS = [c for c, _ in __import__("tepinn_flight.cli.main", fromlist=["COMMANDS"]).COMMANDS]
+
+
+def test_every_command_module_imports_and_every_verb_is_in_the_parser():
+    """A command whose module fails to import must fail here, not vanish from the CLI."""
+    import importlib
+
+    from tepinn_flight.cli import main as cli_main
+
+    for _, module in cli_main.COMMANDS:
+        importlib.import_module(f"tepinn_flight.cli.{module}")  # an ImportError fails the test loudly
+    parser = cli_main.build_parser()
+    assert cli_main.UNAVAILABLE == {}
+    assert cli_main.command_names(parser) == VERBS
+
+
+@pytest.mark.parametrize("verb", VERBS)
+def test_every_verb_has_working_help(verb, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([verb, "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"usage: tepinn-flight {verb}") and "UNAVAILABLE" not in out
+
+
+def test_help_via_the_module_entry_point():
+    code, out, err = run_cli("estimate", "--help")
+    assert code == 0 and out.startswith("usage: tepinn-flight estimate") and "--model" in out, err
+
+
+@pytest.mark.parametrize(
+    "argv, bad",
+    [
+        (["estimate", "rec.parquet", "-o", "x.parquet", "--mode", "9d"], "--mode"),  # was taken as --model 9d
+        (["evaluate", "rec.parquet", "--report", "r", "--warm", "3"], "--warm"),  # --warmup-s
+        (["benchmark", "broad", "dir", "--no-mod"], "--no-mod"),  # nested sub-parser: --no-model
+        (["--vers"], "--vers"),  # the main parser: --version
+    ],
+    ids=["estimate", "evaluate", "benchmark-broad", "main"],
+)
+def test_abbreviated_options_are_refused(argv, bad, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "unrecognized arguments" in err and bad in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_command_whose_module_fails_to_import_stays_listed_and_fails_loudly(monkeypatch, capsys):
+    from tepinn_flight.cli import main as cli_main
+
+    monkeypatch.setattr(cli_main, "COMMANDS", cli_main.COMMANDS + [("ghost", "ghost_cmd_does_not_exist")])
+    monkeypatch.delenv("TEPINN_DEBUG", raising=False)
+    parser = cli_main.build_parser()
+    assert "ghost" in cli_main.command_names(parser) and "ghost" in cli_main.UNAVAILABLE
+    assert "ghost" in parser.format_help() and "UNAVAILABLE" in parser.format_help()
+    assert main(["ghost", "anything", "--at-all"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "tepinn-flight ghost: error: command unavailable" in err and "ModuleNotFoundError" in err
+    monkeypatch.setenv("TEPINN_DEBUG", "1")
+    with pytest.raises(ImportError):
+        cli_main.build_parser()
