@@ -52,6 +52,7 @@ def _is_png(path) -> bool:
     return img.ndim == 3 and img.shape[0] > 100 and img.shape[1] > 100 and float(np.std(img)) > 0.01
 
 
+@pytest.mark.slow
 def test_report_renders_with_all_figures(records_dir, tiny_checkpoint, tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "riann", None)  # pretend a peer's package is missing: graceful fallback
     out = tmp_path / "report"
