@@ -151,3 +151,22 @@ def test_a_command_whose_module_fails_to_import_stays_listed_and_fails_loudly(mo
     monkeypatch.setenv("TEPINN_DEBUG", "1")
     with pytest.raises(ImportError):
         cli_main.build_parser()
+
+
+def test_estimate_warns_once_when_the_imu_is_too_slow(tmp_path, capsys):
+    pytest.importorskip("torch")
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    rec = synthetic_record(seed=1, duration_s=12.0, rate_hz=100.0)
+    write_record(rec, tmp_path / "ok.parquet")
+    rec.meta.update(estimation_ok=False, imu_rate_hz=10.0)
+    write_record(rec, tmp_path / "slow.parquet")
+    for name, warned in (("ok", False), ("slow", True)):
+        code = main(["estimate", str(tmp_path / f"{name}.parquet"), "-o", str(tmp_path / f"{name}-est.parquet"), "-q"])
+        err = capsys.readouterr().err
+        assert code == 0 and (tmp_path / f"{name}-est.parquet").exists(), err
+        lines = [ln for ln in err.splitlines() if "warning" in ln]
+        assert len(lines) == (1 if warned else 0), err
+        if warned:
+            assert "slow.parquet" in lines[0] and "10.0 Hz" in lines[0] and "too slow" in lines[0]
