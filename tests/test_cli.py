@@ -170,3 +170,19 @@ def test_estimate_warns_once_when_the_imu_is_too_slow(tmp_path, capsys):
         assert len(lines) == (1 if warned else 0), err
         if warned:
             assert "slow.parquet" in lines[0] and "10.0 Hz" in lines[0] and "too slow" in lines[0]
+
+
+def test_info_accepts_a_folder_like_evaluate(tmp_path, capsys):
+    import json
+
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    for seed in (1, 2):
+        write_record(synthetic_record(seed=seed, duration_s=5.0, rate_hz=100.0), tmp_path / f"syn{seed}.parquet")
+    (tmp_path / "notes.txt").write_text("not a record")
+    assert main(["info", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert str(tmp_path / "syn1.parquet") in out and str(tmp_path / "syn2.parquet") in out and "notes.txt" not in out
+    assert main(["info", str(tmp_path), "--json"]) == 0
+    assert sorted(json.loads(capsys.readouterr().out)) == [str(tmp_path / "syn1.parquet"), str(tmp_path / "syn2.parquet")]
