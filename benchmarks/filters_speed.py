@@ -21,6 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tepinn_flight.evaluation.estimators import FilterEstimator  # noqa: E402
 from tepinn_flight.evaluation.filters import Complementary, Ekf, Madgwick, MadgwickParams  # noqa: E402
+from tepinn_flight.evaluation.names import display_name  # noqa: E402
 from tepinn_flight.evaluation.peers import make_peer  # noqa: E402
 from tepinn_flight.quat import gravity_body, quat_from_rotvec, quat_mul, quat_normalize  # noqa: E402
 from tepinn_flight.record import FlightRecord, make_frame  # noqa: E402
@@ -73,7 +74,7 @@ def main() -> int:
     print(f"{'estimator':24s} {'':5s} {'cpu µs':>9s} {'wall µs':>9s} {'samples/s':>11s} {'× VQF':>8s}")
     for name, who, cpu, wall in rows:
         ratio = f"{cpu / ref[2]:8.1f}" if ref else "     n/a"
-        print(f"{name:24s} {who:5s} {cpu:9.2f} {wall:9.2f} {1e6 / cpu:11.0f} {ratio}")
+        print(f"{display_name(name):24s} {who:5s} {cpu:9.2f} {wall:9.2f} {1e6 / cpu:11.0f} {ratio}")
     for n in notes:
         print(f"skipped: {n}")
     return 0

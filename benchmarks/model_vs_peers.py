@@ -38,6 +38,7 @@ def main() -> int:
 
     from tepinn_flight.evaluation.estimators import TepinnEstimator
     from tepinn_flight.evaluation.harness import HarnessConfig, evaluate
+    from tepinn_flight.evaluation.names import display_name
     from tepinn_flight.evaluation.suite import peer_estimators
     from tepinn_flight.model.checkpoint import default_lstm_path, default_model_path
     from tepinn_flight.record import read_record
@@ -70,7 +71,7 @@ def main() -> int:
     print(f"{'estimator':<10} {'incl RMSE °':>12} {'median °':>9} {'bias RMSE °/s':>14} {'µs/sample':>10}")
     for e in ests:
         n = e.name
-        print(f"{n:<10} {get(n, 'inclination_rmse_deg') or float('nan'):>12.3f} {get(n, 'inclination_rmse_median_deg') or float('nan'):>9.3f}"
+        print(f"{display_name(n):<10} {get(n, 'inclination_rmse_deg') or float('nan'):>12.3f} {get(n, 'inclination_rmse_median_deg') or float('nan'):>9.3f}"
               f" {get(n, 'gyr_bias_rms_deg_s') or float('nan'):>14.3f} {get(n, 'us_per_sample') or float('nan'):>10.1f}")
     inc_tp = get("tepinn", "inclination_rmse_deg")
     print()
@@ -83,8 +84,9 @@ def main() -> int:
         r = inc_tp / get("lstm", "inclination_rmse_deg")
         print(f"TE-PINN / LSTM  inclination RMSE ratio {r:.3f}  (target ≤ 0.85: {'PASS' if r <= 0.85 else 'FAIL'})")
     for c in res.comparisons or []:
-        print(f"paired Wilcoxon (per-flight inclination RMSE): {c['a']} vs {c['b']}, n={c['n']}, "
-              f"{c['a']} better in {c['wins_a']}, p two-sided {c['pvalue_two_sided']:.3g}, p ({c['a']} < {c['b']}) {c['pvalue_a_less']:.3g}")
+        a, b = display_name(c["a"]), display_name(c["b"])
+        print(f"paired Wilcoxon (per-flight inclination RMSE): {a} vs {b}, n={c['n']}, "
+              f"{a} better in {c['wins_a']}, p two-sided {c['pvalue_two_sided']:.3g}, p ({a} < {b}) {c['pvalue_a_less']:.3g}")
     for n in notes:
         print("note:", n)
     speed(tp.model, tp.fusion, args.speed_seconds)

@@ -254,6 +254,7 @@ def test_replay_bridge_listener_end_to_end(tmp_path, model_path):
     assert sum(_compid(fr) == 191 and _parse(fr)[0].get_type() == "ATTITUDE_QUATERNION" for fr in rec2) == len(aq)
 
 
+@pytest.mark.slow
 @pytest.mark.mavproxy
 @pytest.mark.skipif(shutil.which("mavproxy.py") is None, reason="MAVProxy not installed (pip install --no-deps MAVProxy)")
 def test_replay_bridge_mavproxy_listener(tmp_path, model_path):
@@ -312,6 +313,7 @@ def _finish(stop, th, box):
     return box["summary"]
 
 
+@pytest.mark.slow
 def test_faults_do_not_stop_forwarding():
     gcs = UdpListener()
     b, stop, th, box = _bridge(gcs.port, autopilot_timeout_s=0.5, min_imu_rate_hz=0)
@@ -506,6 +508,7 @@ def _cli(*args, timeout=60):
     return subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=timeout)
 
 
+@pytest.mark.slow
 def test_cli_errors_are_one_line(tmp_path, model_path):
     model, _ = model_path
     junk = tmp_path / "junk.pt"

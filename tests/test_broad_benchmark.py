@@ -115,7 +115,7 @@ def test_benchmark_gate_marks_learned_numbers_untrusted_when_the_check_fails(tmp
     assert not bad["trusted"] and bad["check"]["error_deg"] == pytest.approx(0.2, abs=0.01)
     text = B.format_broad(bad)
     assert "FAILED" in text
-    line = [ln for ln in text.splitlines() if ln.startswith("tepinn ")][0]
+    line = [ln for ln in text.splitlines() if ln.startswith("TE-PINN ")][0]  # the table shows display names
     assert line.rstrip().endswith("UNTRUSTED")
 
 

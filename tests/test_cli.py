@@ -85,3 +85,104 @@ def test_main_returns_2_on_tepinn_error(tmp_path, capsys):
     assert main(["info", str(bad)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1
+
+
+# ----------------------------------------------------------------------------- parser hygiene
+
+VERBS = [c for c, _ in __import__("tepinn_flight.cli.main", fromlist=["COMMANDS"]).COMMANDS]
+
+
+def test_every_command_module_imports_and_every_verb_is_in_the_parser():
+    """A command whose module fails to import must fail here, not vanish from the CLI."""
+    import importlib
+
+    from tepinn_flight.cli import main as cli_main
+
+    for _, module in cli_main.COMMANDS:
+        importlib.import_module(f"tepinn_flight.cli.{module}")  # an ImportError fails the test loudly
+    parser = cli_main.build_parser()
+    assert cli_main.UNAVAILABLE == {}
+    assert cli_main.command_names(parser) == VERBS
+
+
+@pytest.mark.parametrize("verb", VERBS)
+def test_every_verb_has_working_help(verb, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([verb, "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"usage: tepinn-flight {verb}") and "UNAVAILABLE" not in out
+
+
+def test_help_via_the_module_entry_point():
+    code, out, err = run_cli("estimate", "--help")
+    assert code == 0 and out.startswith("usage: tepinn-flight estimate") and "--model" in out, err
+
+
+@pytest.mark.parametrize(
+    "argv, bad",
+    [
+        (["estimate", "rec.parquet", "-o", "x.parquet", "--mode", "9d"], "--mode"),  # was taken as --model 9d
+        (["evaluate", "rec.parquet", "--report", "r", "--warm", "3"], "--warm"),  # --warmup-s
+        (["benchmark", "broad", "dir", "--no-mod"], "--no-mod"),  # nested sub-parser: --no-model
+        (["--vers"], "--vers"),  # the main parser: --version
+    ],
+    ids=["estimate", "evaluate", "benchmark-broad", "main"],
+)
+def test_abbreviated_options_are_refused(argv, bad, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "unrecognized arguments" in err and bad in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_command_whose_module_fails_to_import_stays_listed_and_fails_loudly(monkeypatch, capsys):
+    from tepinn_flight.cli import main as cli_main
+
+    monkeypatch.setattr(cli_main, "COMMANDS", cli_main.COMMANDS + [("ghost", "ghost_cmd_does_not_exist")])
+    monkeypatch.delenv("TEPINN_DEBUG", raising=False)
+    parser = cli_main.build_parser()
+    assert "ghost" in cli_main.command_names(parser) and "ghost" in cli_main.UNAVAILABLE
+    assert "ghost" in parser.format_help() and "UNAVAILABLE" in parser.format_help()
+    assert main(["ghost", "anything", "--at-all"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "tepinn-flight ghost: error: command unavailable" in err and "ModuleNotFoundError" in err
+    monkeypatch.setenv("TEPINN_DEBUG", "1")
+    with pytest.raises(ImportError):
+        cli_main.build_parser()
+
+
+def test_estimate_warns_once_when_the_imu_is_too_slow(tmp_path, capsys):
+    pytest.importorskip("torch")
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    rec = synthetic_record(seed=1, duration_s=12.0, rate_hz=100.0)
+    write_record(rec, tmp_path / "ok.parquet")
+    rec.meta.update(estimation_ok=False, imu_rate_hz=10.0)
+    write_record(rec, tmp_path / "slow.parquet")
+    for name, warned in (("ok", False), ("slow", True)):
+        code = main(["estimate", str(tmp_path / f"{name}.parquet"), "-o", str(tmp_path / f"{name}-est.parquet"), "-q"])
+        err = capsys.readouterr().err
+        assert code == 0 and (tmp_path / f"{name}-est.parquet").exists(), err
+        lines = [ln for ln in err.splitlines() if "warning" in ln]
+        assert len(lines) == (1 if warned else 0), err
+        if warned:
+            assert "slow.parquet" in lines[0] and "10.0 Hz" in lines[0] and "too slow" in lines[0]
+
+
+def test_info_accepts_a_folder_like_evaluate(tmp_path, capsys):
+    import json
+
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    for seed in (1, 2):
+        write_record(synthetic_record(seed=seed, duration_s=5.0, rate_hz=100.0), tmp_path / f"syn{seed}.parquet")
+    (tmp_path / "notes.txt").write_text("not a record")
+    assert main(["info", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert str(tmp_path / "syn1.parquet") in out and str(tmp_path / "syn2.parquet") in out and "notes.txt" not in out
+    assert main(["info", str(tmp_path), "--json"]) == 0
+    assert sorted(json.loads(capsys.readouterr().out)) == [str(tmp_path / "syn1.parquet"), str(tmp_path / "syn2.parquet")]

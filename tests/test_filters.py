@@ -160,10 +160,9 @@ def test_initial_attitude_from_acc_and_mag():
 def test_peer_frame_conversion_tracks_closed_form_motion(peer):
     """A wrong frame convention gives tens of degrees; right ones give well under 2°."""
     from tepinn_flight.evaluation.estimators import EST_Q_COLS
-    from tepinn_flight.evaluation.peers import PEERS, make_peer
+    from tepinn_flight.evaluation.peers import make_peer
     from tepinn_flight.record import FlightRecord, make_frame
 
-    pytest.importorskip(PEERS[peer][0])
     t, gyr, acc, q = coning(duration_s=30.0)
     rec = FlightRecord(make_frame(t, np.zeros(len(t), int), gyr, acc, None, q), {"source_kind": "synthetic"})
     est = make_peer(peer)
@@ -171,7 +170,22 @@ def test_peer_frame_conversion_tracks_closed_form_motion(peer):
     assert incl_rmse_deg(out, q, t > 10) < (3.0 if peer == "riann" else 1.0)
 
 
-def test_missing_extra_is_skipped_with_a_message(monkeypatch):
+def test_peers_are_regular_dependencies_and_run_out_of_the_box():
+    """VQF, RIANN and x-io Fusion are declared dependencies, so the default suite runs all of them."""
+    import tomllib
+    from pathlib import Path
+
+    from tepinn_flight.evaluation.suite import peer_estimators
+
+    pyproject = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
+    deps = {d.split(">")[0].split("=")[0].split("<")[0].strip().lower() for d in pyproject["project"]["dependencies"]}
+    assert {"vqf", "riann", "imufusion"} <= deps
+    notes: list[str] = []
+    peers = peer_estimators(notes=notes)
+    assert [p.name for p in peers] == ["vqf", "offline-vqf", "riann", "fusion"] and notes == []
+
+
+def test_missing_peer_package_is_skipped_with_a_message(monkeypatch):
     from tepinn_flight.evaluation.peers import make_peer
     from tepinn_flight.evaluation.suite import peer_estimators
 
@@ -179,14 +193,9 @@ def test_missing_extra_is_skipped_with_a_message(monkeypatch):
     monkeypatch.setitem(sys.modules, "imufusion", None)
     notes: list[str] = []
     assert make_peer("riann", notes) is None
-    assert "riann skipped: optional package 'riann' is not installed" in notes[0]
+    assert "RIANN skipped: package 'riann' is not installed" in notes[0]
     notes.clear()
     peers = peer_estimators(notes=notes)
-    assert {p.name for p in peers} == ({"vqf", "offline-vqf"} if "vqf" in sys.modules or _has("vqf") else set())
-    assert any("fusion skipped" in n for n in notes) and any("riann skipped" in n for n in notes)
+    assert {p.name for p in peers} == {"vqf", "offline-vqf"}
+    assert any("Fusion skipped" in n for n in notes) and any("RIANN skipped" in n for n in notes)
 
-
-def _has(mod):
-    import importlib.util
-
-    return importlib.util.find_spec(mod) is not None

@@ -87,6 +87,7 @@ def test_bias_states_weigh_the_network_bias_by_its_sigma():
     assert loose_tilt < tight_tilt
 
 
+@pytest.mark.slow
 def test_calibration_picks_bias_states_for_a_gyro_bias_the_network_never_saw():
     """An untrained model (its physics baseline gives the windows) on flights whose gyro is 0.3 rad/s
     (17 °/s) off: the calibration must choose the bias-state fusion, and it must beat the best

@@ -146,6 +146,7 @@ def _train_steps(cfg, loss_cfg, recs, steps, lr=3e-3, seed=0):
     return m, first, last
 
 
+@pytest.mark.slow
 def test_tiny_overfit_drives_loss_down_and_inertia_stays_positive_definite():
     recs = [synthetic_record(seed=0, duration_s=10.0, rate_hz=100.0, max_rate_rad_s=2.0)]
     m, first, last = _train_steps(SMALL, LossConfig(), recs, steps=100)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from tepinn_flight.cli.main import main
+from tepinn_flight.evaluation.names import display_name
 from tepinn_flight.evaluation.report import FIGURES, colour_map
 
 
@@ -51,8 +52,9 @@ def _is_png(path) -> bool:
     return img.ndim == 3 and img.shape[0] > 100 and img.shape[1] > 100 and float(np.std(img)) > 0.01
 
 
+@pytest.mark.slow
 def test_report_renders_with_all_figures(records_dir, tiny_checkpoint, tmp_path, monkeypatch, capsys):
-    monkeypatch.setitem(sys.modules, "riann", None)  # pretend the optional extra is missing
+    monkeypatch.setitem(sys.modules, "riann", None)  # pretend a peer's package is missing: graceful fallback
     out = tmp_path / "report"
     code = main(["evaluate", str(records_dir), "--report", str(out), "--model", str(tiny_checkpoint),
                  "--noise-sweep", "--noise-levels", "0,4", "--warmup-s", "3", "-q"])  # fmt: skip
@@ -61,7 +63,7 @@ def test_report_renders_with_all_figures(records_dir, tiny_checkpoint, tmp_path,
     for key, name in FIGURES.items():
         assert _is_png(out / name), key
         assert f"]({name})" in md, key
-    assert "riann skipped: optional package 'riann' is not installed" in md
+    assert "RIANN skipped: package 'riann' is not installed" in md
     data = json.loads((out / "metrics.json").read_text())
     names = {e["name"]: e for e in data["estimators"]}
     assert names["tepinn"]["kind"] == "learned" and {"complementary", "madgwick", "ekf", "vqf"} <= set(names)
@@ -79,10 +81,38 @@ def test_report_renders_with_all_figures(records_dir, tiny_checkpoint, tmp_path,
     assert data["noise_sweep"]["levels"] == [0.0, 4.0]
     for n in names:
         assert data["noise_sweep"]["inclination_rmse_deg"][n][0] == pytest.approx(data["dataset"][n]["inclination_rmse_deg"])
-    # the summary table lists every estimator once
+    # the summary table lists every estimator once, by the name people write, never by its bare id
     table = md.split("## Summary")[1].split("##")[0]
     for n in names:
-        assert len(re.findall(rf"^\| {re.escape(n)} \|", table, flags=re.M)) == 1
+        assert len(re.findall(rf"^\| {re.escape(display_name(n))} \|", table, flags=re.M)) == 1
+    row_labels = {m.group(1) for m in re.finditer(r"^\| ([^|]+?) \|", md, flags=re.M)}
+    assert {"TE-PINN", "VQF", "offline VQF", "EKF", "Madgwick"} <= row_labels
+    assert not {"tepinn", "vqf", "offline-vqf", "ekf", "madgwick"} & row_labels
+    assert "| A | B (best other) |" in md and re.search(r"^\| TE-PINN \| \S", md.split("## Paired")[1], flags=re.M)
+
+
+@pytest.mark.parametrize("name, shown", [
+    ("tepinn", "TE-PINN"), ("lstm", "LSTM"), ("vqf", "VQF"), ("vqf-9d", "VQF 9-D"), ("offline-vqf", "offline VQF"),
+    ("offline-vqf-9d", "offline VQF 9-D"), ("ekf", "EKF"), ("ekf-9d", "EKF 9-D"), ("madgwick", "Madgwick"),
+    ("riann", "RIANN"), ("fusion", "Fusion"), ("fusion-9d", "Fusion 9-D"), ("complementary", "complementary"),
+    ("complementary-9d", "complementary 9-D"), ("madgwick-original-9d-beta0.12", "Madgwick (original) 9-D, β = 0.12"),
+    ("tepinn-nophysics", "TE-PINN without physics"), ("tepinn-noadaptive", "TE-PINN without adaptive weighting"),
+    ("tepinn-run2", "TE-PINN (run2)"), ("no-physics", "no physics"), ("something-else", "something-else"),
+])  # fmt: skip
+def test_display_names(name, shown):
+    assert display_name(name) == shown
+
+
+def test_broad_table_uses_display_names():
+    from tepinn_flight.evaluation.broad import format_broad
+
+    row = {"mode": "6-D", "causal": True, "kind": "peer", "total_rmse_deg": 2.0, "heading_rmse_deg": 1.5,
+           "inclination_rmse_deg": 1.0, "us_per_sample": 3.0}  # fmt: skip
+    text = format_broad({"check": {"reason": "none"}, "trials": ["t1"], "folder": "x", "trusted": True, "notes": [],
+                         "summary": {"offline-vqf": row, "tepinn": dict(row, kind="learned")}})  # fmt: skip
+    lines = text.splitlines()
+    assert any(ln.startswith("offline VQF ") for ln in lines) and any(ln.startswith("TE-PINN ") for ln in lines)
+    assert not any(ln.startswith(("offline-vqf ", "tepinn ")) for ln in lines)
 
 
 def test_paper_colours():

@@ -114,6 +114,7 @@ def ref_run(tmp_path_factory) -> Path:
 # ---------------------------------------------------------------------- 1. CLI end to end
 
 
+@pytest.mark.slow
 def test_cli_train_then_estimate_end_to_end(tmp_path):
     exe = shutil.which("tepinn-flight", path=str(Path(sys.executable).parent)) or shutil.which("tepinn-flight")
     assert exe, "console script tepinn-flight not installed"
@@ -206,6 +207,7 @@ def test_bad_data_folder_is_a_one_line_error(tmp_path, capsys):
 # ---------------------------------------------------------------------- 3. determinism, 6. split
 
 
+@pytest.mark.slow
 def test_same_seed_same_weights_bitwise(ref_run, tmp_path):
     again = tmp_path / "again"
     quiet_train(small_cfg(f"optim.epochs={N_EPOCHS}", "optim.early_stop_patience=100"), again)
@@ -238,6 +240,7 @@ def test_validation_split_is_by_flight(ref_run):
 # ---------------------------------------------------------------------- 4. resume
 
 
+@pytest.mark.slow
 def test_resume_after_stop_equals_uninterrupted(ref_run, tmp_path, capsys):
     run = tmp_path / "run"
     quiet_train(small_cfg("optim.epochs=2", "optim.early_stop_patience=100"), run)
@@ -255,6 +258,7 @@ def test_resume_after_stop_equals_uninterrupted(ref_run, tmp_path, capsys):
     assert metric_epochs(run) == list(range(1, N_EPOCHS + 1))
 
 
+@pytest.mark.slow
 def test_crash_while_writing_a_checkpoint_keeps_the_last_one(ref_run, tmp_path, monkeypatch):
     """A crash inside the 3rd write of last.pt (a half-written file): last.pt still holds epoch 2."""
     run = tmp_path / "run"
@@ -284,6 +288,7 @@ def test_crash_while_writing_a_checkpoint_keeps_the_last_one(ref_run, tmp_path, 
     assert metric_epochs(run) == list(range(1, N_EPOCHS + 1))
 
 
+@pytest.mark.slow
 def test_sigkill_then_resume_equals_uninterrupted(ref_run, tmp_path, capsys):
     run = tmp_path / "run"
     args = ["train", "--config", str(TINY), "-o", str(run), "-q", "--threads", "1",
@@ -319,6 +324,7 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_ddp_two_processes_match_one(tmp_path):
     """torchrun, gloo, 2 CPU processes vs 1 process with the same global batch. The data mixes
     flights with a known gyro bias (synthetic) and one without (like a real log), so L_bias is a
@@ -440,6 +446,7 @@ def test_early_stop_on_a_run_that_cannot_improve(tmp_path, capsys):
     assert read_checkpoint(run / "last.pt")["stale"] == 1
 
 
+@pytest.mark.slow
 def test_time_limit_stops_at_an_epoch_end(tmp_path):
     res = quiet_train(small_cfg("optim.epochs=50", "optim.max_minutes=1e-5", "optim.early_stop_patience=100"), tmp_path / "run")
     assert res["stop_reason"] == "time_limit" and res["epochs"] == 1

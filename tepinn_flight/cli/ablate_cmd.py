@@ -41,6 +41,7 @@ def run(args) -> int:
     from ..errors import ConfigError
     from ..evaluation.estimators import TepinnEstimator
     from ..evaluation.harness import HarnessConfig, evaluate
+    from ..evaluation.names import display_name
     from ..evaluation.suite import peer_estimators
     from ..model.train import load_train_config, train
     from ..record import atomic_write, read_record
@@ -98,7 +99,7 @@ def run(args) -> int:
              "|---|---:|---:|---:|---:|---:|"]  # fmt: skip
     f = lambda x, nd=2: "–" if x is None else f"{x:.{nd}f}"  # noqa: E731
     for r in rows:
-        table.append(f"| {r['variant']} | {f(r['inclination_rmse_deg'])} | {f(r['inclination_rmse_median_deg'])} | "
+        table.append(f"| {display_name(r['variant'])} | {f(r['inclination_rmse_deg'])} | {f(r['inclination_rmse_median_deg'])} | "
                      f"{f(r['gyr_bias_rms_deg_s'], 3)} | {f(r['nees'])} | {f(r['vs_full'])} |")  # fmt: skip
     md = (f"# TE-PINN ablation\n\nRecipe `{args.config}`, same data, budget and seed for every variant; "
           f"evaluated on {len(records)} held-out flights (5 s warm-up).\n\n" + "\n".join(table) + "\n")

@@ -2,7 +2,7 @@
 
 Simulates one short high-dynamic flight per default vehicle (F450 flips and rolls, the agile quad,
 c172x aerobatics), estimates attitude with the shipped TE-PINN model, the shipped LSTM baseline and
-every baseline filter / installed peer, and writes the report to ``./tepinn-demo/``.
+every baseline filter and published peer, and writes the report to ``./tepinn-demo/``.
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ def run(args) -> int:
     from ..errors import ConfigError
     from ..evaluation.estimators import TepinnEstimator, default_learned
     from ..evaluation.harness import HarnessConfig, evaluate
+    from ..evaluation.names import display_name
     from ..evaluation.report import write_report
     from ..evaluation.suite import baseline_estimators, peer_estimators
     from ..record import write_record
@@ -58,6 +59,6 @@ def run(args) -> int:
     for n in result.notes:
         say(f"note: {n}")
     rows = sorted((d["inclination_rmse_deg"], k) for k, d in result.dataset.items() if d["inclination_rmse_deg"] is not None)
-    print("inclination RMSE (mean over the demo flights): " + ", ".join(f"{k} {v:.2f}°" for v, k in rows))
+    print("inclination RMSE (mean over the demo flights): " + ", ".join(f"{display_name(k)} {v:.2f}°" for v, k in rows))
     print(f"report: {files[-1]}")
     return 0

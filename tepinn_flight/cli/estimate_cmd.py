@@ -51,6 +51,11 @@ def run(args) -> int:
     for src, dst in tqdm(list(zip(paths, outs)), unit="record", file=sys.stderr, disable=args.quiet or len(paths) < 2):
         try:
             rec = read_record(src)
+            if not rec.meta.get("estimation_ok", True):
+                rate = rec.meta.get("imu_rate_hz")
+                sys.stderr.write(f"tepinn-flight estimate: warning: {src}: IMU "
+                                 f"{'rate unknown' if rate is None else f'at {rate:.1f} Hz'} is too slow for windowed "
+                                 "estimation (estimation_ok is false); estimating anyway, expect poor attitude\n")  # fmt: skip
             df = estimate_record(model, rec, fusion)
         except TepinnError as exc:
             failures += 1

@@ -8,7 +8,7 @@ from pathlib import Path
 HELP = "compare TE-PINN with baseline filters and published peers on flight records; write a report"
 DESCRIPTION = (
     "Run every estimator (TE-PINN from a checkpoint, the complementary filter, Madgwick, a "
-    "bias-estimating EKF, and VQF / offline VQF / RIANN / Fusion when installed) on the same records "
+    "bias-estimating EKF, and VQF / offline VQF / RIANN / Fusion) on the same records "
     "with the same scoring mask and warm-up, and write report.md with tables and PNG figures plus "
     "metrics.json. RECORDS are flight records (.parquet) or logs (ingested on the fly); a folder "
     "stands for the records in it."
@@ -67,6 +67,7 @@ def run(args) -> int:
     from ..errors import ConfigError, TepinnError
     from ..evaluation.estimators import learned_estimators
     from ..evaluation.harness import HarnessConfig, evaluate, noise_sweep, record_name
+    from ..evaluation.names import display_name
     from ..evaluation.report import write_report
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
 
@@ -119,6 +120,6 @@ def run(args) -> int:
             sys.stderr.write(f"note: {n}\n")
     best = sorted((d["inclination_rmse_deg"], k) for k, d in result.dataset.items() if d["inclination_rmse_deg"] is not None)
     print(f"{len(records)} record(s), {len(estimators)} estimator(s); inclination RMSE (mean over records): "
-          + ", ".join(f"{k} {v:.2f}°" for v, k in best))
+          + ", ".join(f"{display_name(k)} {v:.2f}°" for v, k in best))
     print(f"report: {files[-1]}")
     return 0

@@ -1,14 +1,15 @@
-"""``tepinn-flight info FILE...``: what is in a raw log or a flight record."""
+"""``tepinn-flight info FILE|DIR...``: what is in a raw log or a flight record (a folder: each record in it)."""
 
 from __future__ import annotations
 
 import json
 
-HELP = "describe a raw log or a flight record (format, rates, reference, segments, clipping)"
+HELP = "describe raw logs or flight records, or every record in a folder (format, rates, reference, segments, clipping)"
 
 
 def add_arguments(p) -> None:
-    p.add_argument("files", nargs="+", metavar="FILE", help="raw log or flight record (.parquet)")
+    p.add_argument("files", nargs="+", metavar="FILE",
+                   help="raw log or flight record (.parquet); a folder stands for the records (*.parquet) in it")
     p.add_argument("--imu", type=int, default=None, metavar="N", help="IMU instance (raw logs)")
     p.add_argument("--reference", default=None, metavar="SOURCE", help="reference source (raw logs)")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
@@ -16,6 +17,7 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     import sys
+    from pathlib import Path
 
     from ..errors import TepinnError
     from ..ingest import ingest_log
@@ -26,7 +28,18 @@ def run(args) -> int:
 
     failures = 0
     results = {}
-    for path in args.files:
+    files = []
+    for item in args.files:
+        p = Path(item)
+        if p.is_dir():
+            found = sorted(p.glob("*.parquet"))
+            if not found:
+                failures += 1
+                sys.stderr.write(f"tepinn-flight info: error: {TepinnError('directory holds no flight records (*.parquet)', p)}\n")
+            files += [str(f) for f in found]
+        else:
+            files.append(item)
+    for path in files:
         try:
             fmt = sniff(path)
             if fmt == "parquet":

@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.util
 import os
 import sys
 
 from .. import __version__
 from ..errors import TepinnError
 
-#: (command, module) in the order ``--help`` lists them; a command shows up once its module exists.
+#: (command, module) in the order ``--help`` lists them. Every one is always listed: a module that
+#: fails to import leaves its command in place, marked unavailable (see :func:`build_parser`).
 COMMANDS = [
     ("demo", "demo_cmd"),
     ("ingest", "ingest_cmd"),
@@ -34,32 +34,77 @@ COMMANDS = [
 
 
 class _Parser(argparse.ArgumentParser):
+    """No abbreviated options (``--mode`` must not be taken for ``--model``); usage errors in one line.
+
+    Nested sub-parsers (``add_subparsers`` without ``parser_class``) are of this class too."""
+
+    def __init__(self, *args, allow_abbrev: bool = False, **kwargs):
+        super().__init__(*args, allow_abbrev=allow_abbrev, **kwargs)
+
     def error(self, message):  # argparse's usage errors: one line, exit 2
         sys.stderr.write(f"{self.prog}: error: {message}\n")
         sys.exit(2)
 
 
-def available_commands() -> list[tuple[str, str]]:
-    return [(c, m) for c, m in COMMANDS if importlib.util.find_spec(f"{__package__}.{m}") is not None]
+#: command -> "ExcType: message" for command modules that failed to import in :func:`build_parser`.
+UNAVAILABLE: dict[str, str] = {}
+
+
+def _unavailable_run(reason: str):
+    def run(args) -> int:
+        raise TepinnError(_unavailable_message(reason))
+
+    return run
+
+
+def _unavailable_message(reason: str) -> str:
+    return f"command unavailable: its module failed to import ({reason}); set TEPINN_DEBUG=1 for the traceback"
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The parser with every command of :data:`COMMANDS`.
+
+    A command module that fails to import stays listed, its help saying why, and running it fails
+    with that reason (exit 2); with ``TEPINN_DEBUG=1`` the import error is raised instead."""
     parser = _Parser(
         prog="tepinn-flight",
         description="Attitude estimation for drones and aircraft with TE-PINN, checked against the autopilot.",
     )
     parser.add_argument("--version", action="version", version=f"tepinn-flight {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for name, module in available_commands():
-        mod = importlib.import_module(f"{__package__}.{module}")
+    UNAVAILABLE.clear()
+    for name, module in COMMANDS:
+        try:
+            mod = importlib.import_module(f"{__package__}.{module}")
+        except Exception as exc:
+            if os.environ.get("TEPINN_DEBUG") not in (None, "", "0"):
+                raise
+            first = (str(exc).strip().splitlines() or [""])[0]
+            reason = f"{type(exc).__name__}: {first}"
+            UNAVAILABLE[name] = reason
+            p = sub.add_parser(name, help=f"UNAVAILABLE ({reason})", description=f"UNAVAILABLE: {reason}")
+            p.set_defaults(_run=_unavailable_run(reason))
+            continue
         p = sub.add_parser(name, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP))
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
     return parser
 
 
+def command_names(parser: argparse.ArgumentParser) -> list[str]:
+    """The commands ``parser`` (from :func:`build_parser`) accepts, in order."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return list(action.choices)
+    return []
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] in UNAVAILABLE and not {"-h", "--help"} & set(argv[1:]):  # whatever its arguments
+        sys.stderr.write(f"tepinn-flight {argv[0]}: error: {_unavailable_message(UNAVAILABLE[argv[0]])}\n")
+        return 2
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
         parser.print_help()

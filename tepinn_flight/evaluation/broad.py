@@ -38,6 +38,7 @@ from ..record import FlightRecord
 from . import metrics as M
 from .estimators import EST_Q_COLS, FilterEstimator
 from .filters.madgwick import Madgwick, MadgwickParams
+from .names import display_name
 
 REPRO_TOLERANCE_DEG = 0.05
 PUBLISHED_MADGWICK = "published_madgwick_average_rmse.json"
@@ -202,7 +203,7 @@ def run_broad_benchmark(folder, estimators: list, published_path=None, pattern: 
             mv = rec.valid
             for est in all_est:
                 if bar is not None:
-                    bar.set_postfix_str(f"{name[:12]} {est.name}", refresh=False)
+                    bar.set_postfix_str(f"{name[:12]} {display_name(est.name)}", refresh=False)
                 t0 = time.perf_counter()
                 df = est.estimate(rec)
                 el = time.perf_counter() - t0
@@ -247,7 +248,7 @@ def format_broad(result: dict) -> str:
     L.append(f"BROAD benchmark: {n} trial(s) from {result['folder']}")
     if c.get("error_deg") is not None:
         mo, mp = c["mean_ours"], c["mean_published"]
-        L.append(f"Harness check — {result['check_estimator']} vs BROAD's published values on the same {c['n_trials']} trial(s):")
+        L.append(f"Harness check — {display_name(result['check_estimator'])} vs BROAD's published values on the same {c['n_trials']} trial(s):")
         L.append("  total / heading / inclination RMSE, mean over trials [deg]: "
                  f"ours {mo['total_rmse_deg']:.3f} / {mo['heading_rmse_deg']:.3f} / {mo['inclination_rmse_deg']:.3f}, "
                  f"published {mp['total_rmse_deg']:.3f} / {mp['heading_rmse_deg']:.3f} / {mp['inclination_rmse_deg']:.3f}")  # fmt: skip
@@ -263,7 +264,7 @@ def format_broad(result: dict) -> str:
     for name, d in rows:
         untrusted = d["kind"] == "learned" and not result["trusted"]
         mode = "9-D" if d["mode"].startswith("9") else "6-D"
-        L.append(f"{name:30s} {mode:8s} {'yes' if d['causal'] else 'no':6s} "
+        L.append(f"{display_name(name):30s} {mode:8s} {'yes' if d['causal'] else 'no':6s} "
                  f"{d['total_rmse_deg']:7.2f} {d['heading_rmse_deg']:8.2f} {d['inclination_rmse_deg']:7.2f} "
                  f"{d['us_per_sample']:10.2f}" + ("   UNTRUSTED" if untrusted else ""))  # fmt: skip
     L.append("")

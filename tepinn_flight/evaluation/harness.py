@@ -30,6 +30,7 @@ from ..errors import ConfigError, TepinnError
 from ..record import GYR_BIAS_COLS, FlightRecord
 from . import metrics as M
 from .estimators import EST_BIAS_COLS, EST_Q_COLS
+from .names import display_name
 
 SIMULATED_KINDS = ("jsbsim", "synthetic")
 
@@ -119,7 +120,7 @@ def run_estimators(records, estimators, progress: bool = True, desc: str = "eval
             runs = {}
             for est in estimators:
                 if bar is not None:
-                    bar.set_postfix_str(est.name, refresh=False)
+                    bar.set_postfix_str(display_name(est.name), refresh=False)
                 t0 = time.perf_counter()
                 df = est.estimate(rec)
                 el = time.perf_counter() - t0

@@ -1,7 +1,7 @@
-"""Published peer estimators through optional extras: VQF, offline VQF, RIANN, x-io Fusion.
+"""Published peer estimators: VQF, offline VQF, RIANN, x-io Fusion (regular dependencies).
 
-Each peer is imported only when used; a missing package gives ``None`` plus a one-line note, never a
-crash. Frame conventions are resolved once here (never per record):
+Each peer is imported only when used; a missing or broken package still gives ``None`` plus a
+one-line note, never a crash. Frame conventions are resolved once here (never per record):
 
 - The peers expect a **z-up sensor frame** in which the accelerometer at rest reads +g along z. Our
   body frame is FRD (at rest, level: acc z ≈ −9.81), so we feed them the sensor frame
@@ -25,6 +25,7 @@ from ..conventions import GRAVITY_M_S2, Q_ENU_FROM_NED_WXYZ
 from ..quat import quat_conj, quat_mul, quat_normalize
 from ..record import FlightRecord
 from .estimators import estimate_frame, record_mag, segment_slices
+from .names import display_name
 
 Q_SENSOR_BODY = np.array([0.0, 1.0, 0.0, 0.0])  # q_SB: 180° about x
 Q_NED_ENU = quat_conj(Q_ENU_FROM_NED_WXYZ)  # q_NE (its own inverse up to sign)
@@ -186,10 +187,10 @@ def make_peer(name: str, notes: list | None = None):
     try:
         return ctor()
     except ImportError as exc:
-        msg = (f"{name} skipped: optional package '{package}' is not installed "
+        msg = (f"{display_name(name)} skipped: package '{package}' is not installed "
                f"(pip install {package}) [{type(exc).__name__}: {exc}]")  # fmt: skip
     except Exception as exc:  # a broken install must not stop the evaluation
-        msg = f"{name} skipped: '{package}' failed to load ({type(exc).__name__}: {exc})"
+        msg = f"{display_name(name)} skipped: '{package}' failed to load ({type(exc).__name__}: {exc})"
     if notes is not None:
         notes.append(msg)
     return None

@@ -23,6 +23,7 @@ import numpy as np
 from .. import __version__
 from ..record import atomic_write
 from .harness import EvalResult
+from .names import display_name
 
 PAPER_COLOURS = {"truth": "black", "complementary": "red", "lstm": "blue", "tepinn": "green"}
 OTHER_COLOURS = ["tab:orange", "tab:purple", "tab:brown", "tab:pink", "tab:gray", "tab:olive", "tab:cyan",
@@ -96,7 +97,7 @@ def fig_quaternion(result, colours, path):
             q = e["q"][::k]
             q = np.where(np.sum(q * ref, axis=1, keepdims=True) < 0, -q, q)
             for i in range(4):
-                axes[i].plot(t, q[:, i], color=colours[name], lw=0.8, label=name)
+                axes[i].plot(t, q[:, i], color=colours[name], lw=0.8, label=display_name(name))
         for i, c in enumerate("wxyz"):
             axes[i].plot(t, ref[:, i], color=PAPER_COLOURS["truth"], lw=1.2, label="reference")
             axes[i].set_ylabel(f"q_{c}")
@@ -119,7 +120,8 @@ def fig_euler(result, colours, path):
             eul = quat_to_euler_zyx(e["q"][::k])
             col = PAPER_COLOURS["truth"] if name == "reference" else colours[name]
             for i in range(3):
-                axes[i].plot(t, np.degrees(eul[i]), color=col, lw=1.2 if name == "reference" else 0.8, label=name)
+                axes[i].plot(t, np.degrees(eul[i]), color=col, lw=1.2 if name == "reference" else 0.8,
+                             label=name if name == "reference" else display_name(name))
         for i, lab in enumerate(("roll", "pitch", "yaw")):
             axes[i].set_ylabel(f"{lab} [°]")
         axes[0].set_title(f"Roll, pitch, yaw, {s['name']} (6-D yaw after one constant alignment)")
@@ -139,7 +141,7 @@ def fig_inclination_error(result, colours, path):
         for name, e in s["est"].items():
             y = np.degrees(e["incl"][::k]).copy()
             y[~m] = np.nan
-            ax.plot(t, y, color=colours[name], lw=0.8, label=name)
+            ax.plot(t, y, color=colours[name], lw=0.8, label=display_name(name))
         ax.set_title(f"Inclination error over scored samples, {s['name']}")
         ax.legend(fontsize=7, ncol=4)
     ax.set_xlabel("t [s]")
@@ -156,7 +158,7 @@ def fig_error_vs_rate(result, colours, path):
     x = np.arange(len(labels))
     for name, d in result.dataset.items():
         y = np.array([np.nan if v is None else v for v in d["dynamic_error_deg"]], np.float64)
-        ax.plot(x, y, "o-", color=colours[name], label=name)
+        ax.plot(x, y, "o-", color=colours[name], label=display_name(name))
     ax.set_xticks(x, labels)
     ax.set_xlabel("angular rate |ω| [°/s]")
     ax.set_ylabel("inclination RMSE [°]")
@@ -176,7 +178,7 @@ def fig_per_record(result, colours, path):
         ax.scatter(i + jitter, vals, color=colours[name], s=14)
         if np.isfinite(vals).any():
             ax.hlines(np.nanmean(vals), i - 0.3, i + 0.3, color=colours[name], lw=2)
-    ax.set_xticks(range(len(names)), names, rotation=30, ha="right")
+    ax.set_xticks(range(len(names)), [display_name(n) for n in names], rotation=30, ha="right")
     ax.set_ylabel("inclination RMSE per record [°]")
     ax.set_title("Per-record inclination RMSE (bar: mean over records)")
     _save(fig, path)
@@ -208,7 +210,7 @@ def fig_uncertainty(result, colours, path):
             if sel.sum() >= 5:
                 xs.append(np.degrees(np.sqrt(np.mean(sig[sel] ** 2))))
                 ys.append(np.degrees(np.sqrt(np.mean(err[sel]) / 2.0)))  # RMS per-axis tilt error
-        ax.plot(xs, ys, "o-", color=colours[name], label=name)
+        ax.plot(xs, ys, "o-", color=colours[name], label=display_name(name))
         top = max(top, max(xs + ys) if xs else 0.0)
     if any_sigma:
         ax.plot([0, top * 1.05], [0, top * 1.05], "k--", lw=1, label="calibrated")
@@ -227,7 +229,7 @@ def fig_error_vs_noise(result, colours, path):
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for name, ys in sw["inclination_rmse_deg"].items():
         y = np.array([np.nan if v is None else v for v in ys], np.float64)
-        ax.plot(sw["levels"], y, "o-", color=colours.get(name, "gray"), label=name)
+        ax.plot(sw["levels"], y, "o-", color=colours.get(name, "gray"), label=display_name(name))
     ax.set_xlabel(f"added white noise, multiples of σ_gyr = {sw['base_gyr_sigma_rad_s']:.3g} rad/s, "
                   f"σ_acc = {sw['base_acc_sigma_m_s2']:.3g} m/s² per sample")  # fmt: skip
     ax.set_ylabel("inclination RMSE [°]")
@@ -291,13 +293,15 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     info = {e["name"]: e for e in result.estimators}
     for name, d in sorted(result.dataset.items(), key=lambda kv: (kv[1]["inclination_rmse_deg"] is None, kv[1]["inclination_rmse_deg"] or 0)):
         e = info[name]
-        L.append(f"| {name} | {e['kind']} | {'yes' if e['causal'] else 'no'} | {'9-D' if e['uses_mag'] else '6-D'} | "
+        L.append(f"| {display_name(name)} | {e['kind']} | {'yes' if e['causal'] else 'no'} | {'9-D' if e['uses_mag'] else '6-D'} | "
                  f"**{_f(d['inclination_rmse_deg'])}** | {_f(d['inclination_rmse_median_deg'])} | {_f(d['inclination_rmse_p95_deg'])} | "
                  f"{_f(d['roll_rmse_deg'])} | {_f(d['pitch_rmse_deg'])} | {_f(d['heading_rmse_deg'])} | {_f(d['total_rmse_deg'])} | "
                  f"{_f(d['heading_drift_abs_deg_per_min'])} | {_f(d['mean_quat_distance'], 4)} | {_f(d['mean_quat_angle_deg'])} | "
                  f"{_f(d['gyr_bias_rms_deg_s'], 3)} | {_f(d['us_per_sample'], 2)} |")  # fmt: skip
     L.append("")
-    low = [f"{k} ({_pct(v['coverage_min'])})" for k, v in result.dataset.items()
+    L.append("Estimator ids in metrics.json: " + ", ".join(f"{display_name(n)} = `{n}`" for n in result.dataset) + ".")
+    L.append("")
+    low = [f"{display_name(k)} ({_pct(v['coverage_min'])})" for k, v in result.dataset.items()
            if v.get("coverage_min") is not None and v["coverage_min"] < c.min_coverage]  # fmt: skip
     if low:
         L.append(f"Scored on their own finite samples (coverage below {100 * c.min_coverage:.0f} %): {', '.join(low)}.")
@@ -311,7 +315,7 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     L.append("## Per record: inclination RMSE [°]")
     L.append("")
     names = list(result.dataset)
-    L.append("| record | " + " | ".join(names) + " |")
+    L.append("| record | " + " | ".join(display_name(n) for n in names) + " |")
     L.append("|---|" + "---:|" * len(names))
     for r in result.records:
         L.append(f"| {r['name']} | " + " | ".join(_f(r["results"][n].get("inclination_rmse_deg")) for n in names) + " |")
@@ -325,7 +329,7 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     L.append("| estimator | " + " | ".join(labels) + " |")
     L.append("|---|" + "---:|" * len(labels))
     for name, d in result.dataset.items():
-        L.append(f"| {name} | " + " | ".join(_f(v) for v in d["dynamic_error_deg"]) + " |")
+        L.append(f"| {display_name(name)} | " + " | ".join(_f(v) for v in d["dynamic_error_deg"]) + " |")
     first = next(iter(result.dataset.values()))
     L.append("| samples | " + " | ".join(str(n) for n in first["dynamic_error_n"]) + " |")
     L.append("")
@@ -343,7 +347,7 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
         u = d.get("uncertainty")
         if u:
             rows += 1
-            L.append(f"| {name} | {_pct(u['coverage_1sigma'])} | {_pct(u['coverage_2sigma'])} | {_pct(u['coverage_3sigma'])} | "
+            L.append(f"| {display_name(name)} | {_pct(u['coverage_1sigma'])} | {_pct(u['coverage_2sigma'])} | {_pct(u['coverage_3sigma'])} | "
                      f"{_f(u['nees'])} | {_f(u['spearman_mean'])} |")  # fmt: skip
     if not rows:
         L.append("| (none) | | | | | |")
@@ -357,7 +361,7 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
         L.append("|---|---|---:|---:|---:|---:|---:|---:|---:|")
         for cmp_ in result.comparisons:
             ch = cmp_["relative_change"]
-            L.append(f"| {cmp_['a']} | {cmp_['b']} | {cmp_['n']} | {_f(cmp_['mean_a'])} | {_f(cmp_['mean_b'])} | "
+            L.append(f"| {display_name(cmp_['a'])} | {display_name(cmp_['b'])} | {cmp_['n']} | {_f(cmp_['mean_a'])} | {_f(cmp_['mean_b'])} | "
                      f"{'–' if ch is None else f'{100 * ch:+.1f} %'} | {cmp_['wins_a']}/{len(result.records)} | "
                      f"{_f(cmp_['pvalue_two_sided'], 4)} | {_f(cmp_['pvalue_a_less'], 4)} |")  # fmt: skip
         if not any(e["kind"] == "learned" for e in result.estimators):
@@ -377,7 +381,7 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
         L.append("| estimator | " + " | ".join(f"×{lv:g}" for lv in sw["levels"]) + " |")
         L.append("|---|" + "---:|" * len(sw["levels"]))
         for name, ys in sw["inclination_rmse_deg"].items():
-            L.append(f"| {name} | " + " | ".join(_f(v) for v in ys) + " |")
+            L.append(f"| {display_name(name)} | " + " | ".join(_f(v) for v in ys) + " |")
         L.append("")
         L.append(f"![error vs noise]({figures['error_vs_noise']})")
     else:

@@ -1,7 +1,7 @@
 """The standard set of estimators the harness compares, and its TOML configuration.
 
 ``[madgwick]``, ``[complementary]`` and ``[ekf]`` tables hold the filters' parameters (unknown
-keys are refused); ``peers`` lists the optional published peers to try.
+keys are refused); ``peers`` lists the published peers to run.
 """
 
 from __future__ import annotations

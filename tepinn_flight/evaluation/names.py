@@ -1,0 +1,74 @@
+"""How estimators are named for people: ``display_name("tepinn") == "TE-PINN"``.
+
+Internal ids (``tepinn``, ``vqf-9d``, ``offline-vqf``, ...) stay the keys of every dictionary and of
+``metrics.json``; everything a person reads (Markdown tables, figure legends, console summaries,
+notes) goes through :func:`display_name`, the one mapping.
+"""
+
+from __future__ import annotations
+
+import re
+
+#: ids as people write the methods (without the "-9d" suffix, added as " 9-D").
+_BASE = {
+    "tepinn": "TE-PINN",
+    "lstm": "LSTM",
+    "mlp": "MLP",
+    "vqf": "VQF",
+    "offline-vqf": "offline VQF",
+    "riann": "RIANN",
+    "fusion": "Fusion",
+    "ekf": "EKF",
+    "madgwick": "Madgwick",
+    "madgwick-original": "Madgwick (original)",
+    "complementary": "complementary",
+    # TE-PINN variants (``ModelConfig.variant``)
+    "tepinn-nophysics": "TE-PINN without physics",
+    "tepinn-notransformer": "TE-PINN without transformer",
+    "lstm-physics": "LSTM with physics",
+    # ablation variants (``tepinn-flight ablate``)
+    "full": "full TE-PINN",
+    "no-physics": "no physics",
+    "no-transformer": "no transformer",
+    "no-correction-layer": "no correction layer",
+    "no-adaptive-weighting": "no adaptive weighting",
+    "no-uncertainty": "no uncertainty",
+    "lstm-baseline": "LSTM baseline",
+}
+
+#: suffixes that model variants append to their id.
+_VARIANT_SUFFIXES = {
+    "-nocorrection": "without correction layer",
+    "-nouncertainty": "without uncertainty",
+    "-noadaptive": "without adaptive weighting",
+}
+
+
+def display_name(name: str) -> str:
+    """The method as people write it; unknown ids come back unchanged."""
+    name = str(name)
+    if name in _BASE:
+        return _BASE[name]
+    m = re.fullmatch(r"(.+)-9d(?:-beta([0-9.eE+-]+))?", name)
+    if m and m.group(1) in _BASE:
+        out = f"{_BASE[m.group(1)]} 9-D"
+        return out + (f", β = {m.group(2)}" if m.group(2) else "")
+    # model variants with ablation suffixes: tepinn-nocorrection-nouncertainty, ...
+    rest, extra = name, []
+    while True:
+        for suf, text in _VARIANT_SUFFIXES.items():
+            if rest.endswith(suf) and rest != suf:
+                rest, extra = rest[: -len(suf)], [text] + extra
+                break
+        else:
+            break
+    if extra and rest in _BASE:
+        return f"{_BASE[rest]} " + ", ".join(extra)
+    # a learned estimator made unique with its checkpoint's folder: tepinn-run3 -> TE-PINN (run3)
+    for base in sorted(_BASE, key=len, reverse=True):
+        if name.startswith(base + "-"):
+            return f"{display_name(base)} ({name[len(base) + 1:]})"
+    return name
+
+
+__all__ = ["display_name"]
