@@ -1,0 +1,120 @@
+"""TE-PINN vs VQF vs the LSTM vs our EKF on real files by kind and on held-out simulations, in one run.
+
+Real files: the shared real drone logs that `ingest` can estimate (reference: the autopilot's own
+estimate), by vehicle and IMU rate, and the shared BROAD trials (optical truth) by motion class.
+The split is `train/real_split.toml`: which files are held out (never trained, selected or
+calibrated on) and which the shipped network saw — the table says which is which. Simulated: the
+held-out campaign `flight_sims/campaigns/heldout.toml` (seed 77; every `--sim-every`-th flight).
+
+Inclination RMSE per file (5 s warm-up, the same samples for every estimator), the mean per kind,
+ratios to VQF side by side, the per-file check of the issue (TE-PINN ≤ max(1.5× VQF, VQF + 0.5°)),
+and TE-PINN's σ calibration on the real files (mean NEES, share within 3σ, per file averaged).
+
+    python benchmarks/real_vs_peers.py [--shared ../shared] [--sim-every 4] [--model CKPT]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
+    ap.add_argument("--shared", default=str(REPO.parent / "shared"))
+    ap.add_argument("--sim", default=str(REPO / "runs/heldout"), help="folder of the held-out campaign")
+    ap.add_argument("--sim-every", type=int, default=4, help="every N-th held-out flight (0: none)")
+    ap.add_argument("--model", default=None, help="TE-PINN checkpoint (default: shipped)")
+    args = ap.parse_args()
+
+    import torch
+
+    from tepinn_flight.evaluation.estimators import FilterEstimator, TepinnEstimator
+    from tepinn_flight.evaluation.filters import Ekf
+    from tepinn_flight.evaluation.harness import scoring_mask
+    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad, tilt_error_vector_rad, uncertainty_metrics
+    from tepinn_flight.evaluation.names import display_name
+    from tepinn_flight.evaluation.peers import VqfEstimator
+    from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.model.checkpoint import default_lstm_path, default_model_path
+    from tepinn_flight.record import read_record
+    from tepinn_flight.sim.campaign import run_campaign
+
+    torch.set_num_threads(1)
+    split = tomllib.loads((REPO / "train/real_split.toml").read_text())
+    shared = Path(args.shared)
+    files = []  # (kind, group, name, record, held_out)
+    for name in split["heldout"]["real_logs"] + split["seen"].get("real_logs", []):
+        p = shared / "real-logs" / name
+        if p.exists():
+            rec = ingest_log(p)
+            rate = float(rec.meta.get("imu_rate_hz") or 0)
+            grp = f"{rec.meta.get('autopilot', '?')} {rec.meta.get('vehicle_type', '?')} {rate:.0f} Hz"
+            files.append(("drone log", grp, name, rec, name in split["heldout"]["real_logs"]))
+    for name in split["heldout"].get("broad", []) + split["seen"]["broad"]:
+        p = shared / "broad" / name
+        if p.exists():
+            grp = "_".join(name.split("_")[2:4]).replace("_", " ")
+            files.append(("BROAD", grp, name, ingest_log(p), name in split["heldout"].get("broad", [])))
+    if args.sim_every:
+        run_campaign(REPO / "flight_sims/campaigns/heldout.toml", Path(args.sim), progress=True)
+        for p in sorted(Path(args.sim).glob("*.parquet"))[:: args.sim_every]:
+            grp = p.stem.split("-")[1]
+            files.append(("simulated", grp, p.stem, read_record(p), True))
+    if not files:
+        print(f"no files found (shared folder {shared}, simulations {args.sim})")
+        return 2
+
+    ests = [TepinnEstimator.from_checkpoint(args.model or default_model_path(), "tepinn"), VqfEstimator(),
+            TepinnEstimator.from_checkpoint(default_lstm_path(), "lstm"), FilterEstimator(Ekf(), name="ekf")]  # fmt: skip
+    names = [e.name for e in ests]
+    rows = []
+    t0 = time.perf_counter()
+    for kind, grp, name, rec, held in files:
+        m = scoring_mask(rec, 5.0)
+        r = {"kind": kind, "group": grp, "name": name, "held": held}
+        for e in ests:
+            df = e.estimate(rec)
+            q = df[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+            mm = m & np.all(np.isfinite(q), 1)
+            qe = error_quat_earth(q[mm], rec.q_ref_wxyz[mm])
+            r[e.name] = float(np.degrees(np.sqrt(np.mean(inclination_error_rad(qe) ** 2)))) if mm.any() else np.nan
+            if e.name == "tepinn" and kind != "simulated" and "sigma_rad" in df:
+                u = uncertainty_metrics(tilt_error_vector_rad(qe), df["sigma_rad"].to_numpy()[mm])
+                r["nees"], r["in3"] = u["nees"], u["coverage_3sigma"]
+        rows.append(r)
+    print(f"\n{len(files)} files, {time.perf_counter() - t0:.0f} s; inclination RMSE (deg), 5 s warm-up\n")
+    head = f"{'kind':<10} {'group':<26} {'file':<44} {'split':<9}" + "".join(f"{display_name(n):>9}" for n in names)
+    print(head + f"{'TP/VQF':>8}  per-file check")
+    for r in rows:
+        ok = r["tepinn"] <= max(1.5 * r["vqf"], r["vqf"] + 0.5)
+        print(f"{r['kind']:<10} {r['group'][:26]:<26} {r['name'][:44]:<44} {'held-out' if r['held'] else 'seen':<9}"
+              + "".join(f"{r[n]:>9.2f}" for n in names) + f"{r['tepinn'] / r['vqf']:>8.2f}  {'ok' if ok else 'FAIL'}")
+    print()
+    for kind in ("drone log", "BROAD", "simulated"):
+        for held in (True, False):
+            sel = [r for r in rows if r["kind"] == kind and r["held"] == held]
+            if not sel:
+                continue
+            means = {n: float(np.nanmean([r[n] for r in sel])) for n in names}
+            fails = sum(r["tepinn"] > max(1.5 * r["vqf"], r["vqf"] + 0.5) for r in sel)
+            line = f"{kind:<10} {'held-out' if held else 'seen in training':<17} n={len(sel):<3}" + "".join(
+                f" {display_name(n)} {means[n]:.2f}" for n in names)
+            print(line + f" | TE-PINN/VQF {means['tepinn'] / means['vqf']:.3f}, /LSTM {means['tepinn'] / means['lstm']:.3f}"
+                         f", /EKF {means['tepinn'] / means['ekf']:.3f}; files failing the per-file check: {fails}")  # fmt: skip
+            nees = [r["nees"] for r in sel if "nees" in r and np.isfinite(r["nees"])]
+            if nees:
+                print(f"{'':<10} σ: mean NEES {np.mean(nees):.2f} (target 1.5–2.5), within 3σ "
+                      f"{100 * np.mean([r['in3'] for r in sel if 'in3' in r]):.1f} % (target ≥ 97 %), per file averaged")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
