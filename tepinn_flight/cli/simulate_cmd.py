@@ -6,8 +6,6 @@ import sys
 import time
 from pathlib import Path
 
-from .argtypes import int_at_least
-
 HELP = "simulate flights in JSBSim with a realistic IMU error model (one flight or a campaign)"
 DESCRIPTION = (
     "Fly an aircraft in JSBSim (noise-free truth), apply a sensor error model (noise, biases, bias "
@@ -39,7 +37,7 @@ def add_arguments(p) -> None:
                    help="none, light, moderate or severe (default: drawn from the seed)")
     p.add_argument("--tlog", default=None, metavar="FILE",
                    help="also write the flight as a MAVLink 2 tlog (ArduPilot-style, attitude = truth)")
-    p.add_argument("--workers", type=int_at_least(1), default=None, metavar="N",
+    p.add_argument("--workers", type=int, default=None, metavar="N",
                    help="parallel worker processes for --campaign (default: CPU count)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors (no progress bar)")
 
