@@ -289,3 +289,47 @@ def test_fuzz_ingest_estimate_exit_0_or_2_and_plausible_records(tmp_path, capsys
                 q = q[np.all(np.isfinite(q), axis=1)]
                 assert q.size == 0 or np.abs(np.linalg.norm(q, axis=1) - 1).max() < 1e-3, case
     assert cases >= len(logs) and ok > 0, (cases, ok)
+
+
+# ---------------------------------------------------------------------- smaller items
+
+
+def test_checkpoint_with_python_objects_is_refused_without_torchs_unsafe_advice(tmp_path, capsys, record):
+    import torch
+
+    from tepinn_flight.model.checkpoint import CheckpointError, read_checkpoint
+
+    bad = tmp_path / "objects.pt"
+    torch.save({"thing": _Unsafe()}, bad)  # a pickled object of a class: loading it runs code
+    with pytest.raises(CheckpointError) as e:
+        read_checkpoint(bad)
+    msg = str(e.value)
+    assert "weights_only" not in msg and "\x1b[" not in msg and "\n" not in msg
+    assert "not a readable checkpoint" in msg and "Python objects" in msg and "_Unsafe" in msg
+    line = one_line_error(capsys, cli(["estimate", "-q", str(record), "-o", str(tmp_path / "e.parquet"),
+                                       "--model", str(bad)]), "estimate")  # fmt: skip
+    assert "weights_only" not in line
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_bytes(record.read_bytes())  # a parquet file, not a checkpoint
+    with pytest.raises(CheckpointError, match="not a readable checkpoint") as e:
+        read_checkpoint(garbage)
+    assert "weights_only" not in str(e.value)
+
+
+class _Unsafe:
+    pass
+
+
+def test_truncated_ulog_gets_a_truncation_note(tmp_path):
+    from tepinn_flight.ingest import ingest_log
+    from tests.conftest import real_log
+
+    src = real_log("pyulog_sample_px4_events.ulg")
+    full = ingest_log(src)
+    assert not any("truncated" in n for n in full.meta["notes"])
+    b = src.read_bytes()
+    cut = tmp_path / "cut.ulg"
+    cut.write_bytes(b[: int(len(b) * 0.77)])
+    rec = ingest_log(cut)
+    assert any("truncated" in n for n in rec.meta["notes"]), rec.meta["notes"]
+    assert 0 < len(rec) < len(full)
