@@ -35,7 +35,7 @@ T = TypeVar("T")
 
 __all__ = [
     "load_toml", "from_dict", "load_config", "to_dict", "apply_overrides", "parse_override", "check",
-    "finite_nonneg",
+    "finite_nonneg", "check_range",
 ]
 
 
@@ -240,3 +240,30 @@ def finite_nonneg(name: str, value: float, allow_inf: bool = False) -> None:
     ok = value >= 0 and (math.isfinite(value) or (allow_inf and value == math.inf))
     check(ok, f"'{name}' must be {'>= 0' if allow_inf else 'finite and >= 0'}, got {value!r}")
 
+
+
+def _fmt(v: float) -> str:
+    return repr(int(v)) if float(v).is_integer() and abs(v) < 1e15 else repr(float(v))
+
+
+def check_range(name: str, value: float, lo: float | None = None, hi: float | None = None, *,
+                lo_open: bool = False, hi_open: bool = False) -> None:
+    """Range check for ``__post_init__``: ``value`` must be finite and within ``lo``..``hi``
+    (``None``: unbounded on that side; ``*_open``: that bound is excluded). The ConfigError names
+    the key and the allowed range, e.g. ``'batch_size' must be >= 1, got 0``."""
+    if lo is not None and hi is not None:
+        allowed = f"in {'(' if lo_open else '['}{_fmt(lo)}, {_fmt(hi)}{')' if hi_open else ']'}"
+    elif lo is not None:
+        allowed = f"{'>' if lo_open else '>='} {_fmt(lo)}"
+    elif hi is not None:
+        allowed = f"{'<' if hi_open else '<='} {_fmt(hi)}"
+    else:
+        allowed = "finite"
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if ok and lo is not None:
+        ok = value > lo if lo_open else value >= lo
+    if ok and hi is not None:
+        ok = value < hi if hi_open else value <= hi
+    if not ok:
+        finite = "" if allowed == "finite" or isinstance(value, int) else "finite and "
+        raise ConfigError(f"'{name}' must be {finite}{allowed}, got {value!r}")

@@ -32,3 +32,8 @@ class RecordFormatError(TepinnError):
 
 class ConfigError(TepinnError):
     """A TOML configuration with unknown keys, wrong types or bad values."""
+
+
+class OutputError(TepinnError, OSError):
+    """An output path that cannot be written (read-only place, a file where a folder is needed).
+    Also an ``OSError``, as the failure it replaces, for callers that catch those."""

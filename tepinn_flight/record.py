@@ -27,6 +27,8 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import time
+from glob import escape as glob_escape
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,7 +36,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .errors import RecordFormatError
+from .errors import OutputError, RecordFormatError
 
 FORMAT_VERSION = 1
 
@@ -173,22 +175,98 @@ def make_frame(
 # --------------------------------------------------------------------------- I/O
 
 
-def atomic_write(path: str | os.PathLike, write_fn) -> None:
-    """Call ``write_fn(tmp_path)`` then rename onto ``path``; no partial file survives a crash."""
+def _why(exc: OSError) -> str:
+    return exc.strerror or type(exc).__name__
+
+
+def check_output(path: str | os.PathLike, folder: bool = False) -> Path:
+    """Refuse, before any work, an output that cannot be written: an :class:`OutputError` (one
+    line, exit code 2) when ``path`` (a file, or a folder with ``folder``) is the wrong kind of
+    thing, or when the nearest existing folder above it is a file or not writable (probed with a
+    temporary file). Creates nothing that stays."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    if folder and path.exists() and not path.is_dir():
+        raise OutputError("exists and is not a folder", path)
+    if not folder and path.is_dir():
+        raise OutputError("is a folder; give a file name", path)
+    base = path if folder else path.parent
+    anc = base
+    while not anc.exists() and anc != anc.parent:
+        anc = anc.parent
+    if not anc.is_dir():
+        raise OutputError(f"cannot create it: {anc} is a file, not a folder", path)
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".tepinn-write-test.", suffix=".tmp", dir=anc)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise OutputError(f"cannot write in {anc} ({_why(exc)})", path) from None
+    return path
+
+
+def atomic_write(path: str | os.PathLike, write_fn) -> None:
+    """Call ``write_fn(tmp_path)`` then rename onto ``path``; no partial file survives a crash.
+
+    A place that cannot be written is an :class:`OutputError` (one line, exit code 2), as is an
+    ``OSError`` while writing (disk full, ...). Temporaries of the same output left by a killed
+    writer (its process gone) are removed first."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        check_output(path)  # names the file in the way, if that is what it is
+        raise OutputError(f"cannot create its folder ({_why(exc)})", path) from None
+    _remove_stale_temporaries(path)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        raise OutputError(f"cannot write here ({_why(exc)})", path) from None
     os.close(fd)
     try:
         write_fn(tmp)
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; outputs get the usual permissions
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         try:
             os.unlink(tmp)
         except FileNotFoundError:
             pass
+        if isinstance(exc, OSError):
+            raise OutputError(f"cannot write ({_why(exc)})", path) from None
         raise
+
+
+def _remove_stale_temporaries(path: Path) -> None:
+    """Remove ``.NAME.PID.*.tmp`` files of this output whose writer process no longer runs (and
+    older-style ``.NAME.*.tmp`` ones untouched for an hour): left behind by a killed write."""
+    try:
+        candidates = list(path.parent.glob(f".{glob_escape(path.name)}.*.tmp"))
+    except OSError:
+        return
+    for tmp in candidates:
+        rest = tmp.name[len(path.name) + 2:]
+        pid_text = rest.split(".", 1)[0]
+        try:
+            if pid_text.isdigit() and "." in rest:
+                if _pid_alive(int(pid_text)):
+                    continue
+            elif time.time() - tmp.stat().st_mtime < 3600:
+                continue
+            tmp.unlink()
+        except OSError:
+            pass
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True  # another write of ours may be under way in this process (threads)
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OSError):
+        return True
+    return True
 
 
 def _umask() -> int:

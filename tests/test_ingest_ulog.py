@@ -359,7 +359,9 @@ def test_truncated_or_damaged_data_still_ingests_with_notes(tmp_path):
     assert 1000 < len(rec) < 7783
     p.write_bytes(src[:400_000] + np.random.default_rng(3).bytes(20_000) + src[420_000:])
     rec = ingest_log(p)
-    assert rec.meta["corrupt_frames"] == 1 and any("corruption" in n for n in rec.meta["notes"])
+    # one corrupt region, plus the IMU rows in it that passed the parser with impossible values
+    assert rec.meta["corrupt_frames"] == 1 + rec.meta["implausible_samples_dropped"]
+    assert any("corruption" in n for n in rec.meta["notes"])
     assert 7000 < len(rec) < 7783
 
 

@@ -204,6 +204,59 @@ def test_bad_data_folder_is_a_one_line_error(tmp_path, capsys):
     assert "no usable windows" in line
 
 
+@pytest.mark.parametrize(
+    "override, key, allowed",
+    [
+        ("optim.batch_size=0", "batch_size", "[1,"),  # trained NaN losses and wrote model.pt
+        ("optim.epochs=-1", "epochs", "[1,"),  # wrote an untrained model.pt
+        ("data.synthetic_duration_s=-12", "synthetic_duration_s", "(0,"),  # internal error + empty folder
+        ("optim.steps_per_epoch=0", "steps_per_epoch", "[1,"),
+        ("optim.lr=-0.1", "lr", "[0,"),
+        ("optim.grad_clip=0", "grad_clip", "> 0"),
+        ("optim.early_stop_patience=0", "early_stop_patience", "[1,"),
+        ("optim.max_minutes=-1", "max_minutes", ">= 0"),
+        ("optim.warmup_steps=-5", "warmup_steps", "[0,"),
+        ("optim.weight_decay=nan", "weight_decay", "finite"),
+        ("data.val_fraction=1.0", "val_fraction", "[0, 1)"),
+        ("data.rate_factors=[1, 0]", "rate_factors[1]", "[1,"),
+        ("data.max_val_windows=0", "max_val_windows", "[1,"),
+        ("data.synthetic_flights=-1", "synthetic_flights", "[0,"),
+        ("data.campaign_workers=-2", "campaign_workers", "[0,"),
+        ("model.token_rate_hz=inf", "token_rate_hz", "finite"),
+        ("model.n_heads=0", "n_heads", "[1,"),
+        ("model.pe_min_wavelength_s=0", "pe_min_wavelength_s", "> 0"),
+        ("model.pe_max_wavelength_s=0.01", "pe_max_wavelength_s", ">= 0.04"),
+        ("loss.lambda_acc=-1", "lambda_acc", "[0,"),
+        ("loss.acc_cauchy_rad=0", "acc_cauchy_rad", "(0,"),
+        ("loss.gyro_pair_tokens=0", "gyro_pair_tokens", "[1,"),
+        ("loss.gyro_pair_tokens=24", "gyro_pair_tokens", "< model.window_tokens"),
+        ("calibration.feedback_windows=0", "feedback_windows", "[1,"),
+        ("calibration.feedback_deadzones_deg_s=[-1.0]", "feedback_deadzones_deg_s[0]", "[0,"),
+        ("fusion.bias_time_constant_s=0", "bias_time_constant_s", "> 0"),
+        ("fusion.process_noise_rad2_s=-1e-4", "process_noise_rad2_s", ">= 0"),
+        ("seed=-1", "seed", "[0,"),
+    ],
+)
+def test_out_of_range_config_is_a_one_line_error(tmp_path, capsys, override, key, allowed):
+    out = tmp_path / "run"
+    line = one_line_error(capsys, main(["train", "--config", str(TINY), "-o", str(out), "-q", "--set", override]))
+    assert f"'{key}'" in line and allowed in line, line
+    assert not out.exists(), "nothing may be written on a config error"
+
+
+def test_recipes_in_range():
+    for recipe in sorted((REPO / "train").glob("*.toml")):
+        T.load_train_config(recipe)  # every shipped recipe stays valid
+
+
+def test_no_windows_leaves_no_run_folder(tmp_path, capsys):
+    out = tmp_path / "run"  # flights shorter than one window: found after the folder was made
+    line = one_line_error(capsys, main(["train", "--config", str(TINY), "-o", str(out), "-q",
+                                        "--set", "data.synthetic_duration_s=0.3"]))  # fmt: skip
+    assert "no usable windows" in line
+    assert not out.exists(), sorted(p.name for p in out.iterdir())
+
+
 # ---------------------------------------------------------------------- 3. determinism, 6. split
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from .argtypes import threads
+
 HELP = "estimate attitude over flight records with TE-PINN (the shipped model by default)"
 DESCRIPTION = (
     "Runs causally over whole records (batched sliding windows, then RK4 propagation fused with the "
@@ -16,7 +18,7 @@ def add_arguments(p) -> None:
     p.add_argument("--model", default=None, metavar="CKPT", help="checkpoint (default: the shipped model)")
     p.add_argument("--yaw", choices=["gyro", "zero"], default=None,
                    help="heading of the output: integrated gyro (default) or 0 (the paper's 6-D correction)")
-    p.add_argument("--threads", type=int, default=0, help="torch CPU threads (default: torch's choice)")
+    p.add_argument("--threads", type=threads, default=0, help="torch CPU threads (default: torch's choice)")
     p.add_argument("-q", "--quiet", action="store_true")
 
 
@@ -32,7 +34,7 @@ def run(args) -> int:
     from ..errors import TepinnError
     from ..model.checkpoint import default_model_path, load_model
     from ..model.estimate import estimate_record
-    from ..record import atomic_write, read_record
+    from ..record import atomic_write, check_output, read_record
     from .ingest_cmd import output_paths
 
     if args.threads:
@@ -45,6 +47,8 @@ def run(args) -> int:
         fusion = dataclasses.replace(fusion, yaw=args.yaw)
     paths = [Path(p) for p in args.records]
     outs = output_paths(paths, args.output)
+    for dst in outs:  # before any work: an output that cannot be written is a one-line error
+        check_output(dst)
     failures = 0
     from tqdm import tqdm
 

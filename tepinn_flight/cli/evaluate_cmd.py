@@ -71,6 +71,9 @@ def run(args) -> int:
     from ..evaluation.report import write_report
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
 
+    from ..record import check_output
+
+    check_output(args.report, folder=True)  # before the (long) evaluation
     cfg = load_suite_config(args.config, args.set)
     try:
         levels = tuple(float(v) for v in args.noise_levels.split(",") if v.strip())

@@ -67,7 +67,7 @@ def run(args) -> int:
 
 def _single(args) -> int:
     from ..errors import ConfigError
-    from ..record import write_record
+    from ..record import check_output, write_record
     from ..sim.sensors import DEFAULT_PRESET, load_sensor_config
     from ..sim.simulate import check_flight_args, simulate_record
 
@@ -84,6 +84,9 @@ def _single(args) -> int:
     out = Path(args.output) if args.output else Path(f"{args.aircraft}_seed{seed}.parquet")
     if out.is_dir():
         raise ConfigError("is a folder; give a record file name for one flight", out)
+    check_output(out)  # before the flight: a place that cannot be written is a one-line error
+    if args.tlog:
+        check_output(args.tlog)
     t0 = time.perf_counter()
     rec = simulate_record(args.aircraft, duration, rate, seed, sensor=sensor, sensor_overrides=(),
                           maneuvers=maneuvers, turbulence=args.turbulence)  # fmt: skip
@@ -104,8 +107,10 @@ def _single(args) -> int:
 
 
 def _campaign(args) -> int:
+    from ..record import check_output
     from ..sim.campaign import run_campaign
 
+    check_output(args.output, folder=True)
     res = run_campaign(args.campaign, args.output, workers=args.workers, progress=not args.quiet)
     if not args.quiet or res.failed:
         print(f"campaign {args.campaign}: {res.total} flights, {res.computed} computed, {res.skipped} already done, "

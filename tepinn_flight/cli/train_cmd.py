@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from .argtypes import threads
+
 HELP = "train TE-PINN (or an ablation/LSTM baseline) from a TOML recipe"
 DESCRIPTION = (
     "Train from a strict TOML recipe (unknown keys are refused). Writes RUN_DIR/metrics.jsonl every "
@@ -19,7 +21,7 @@ def add_arguments(p) -> None:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a recipe value, e.g. optim.epochs=5")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
                    help="where to train: auto (a CUDA GPU when torch sees one, else the CPU), cpu, cuda")
-    p.add_argument("--threads", type=int, default=0, help="torch CPU threads per process (default: torch's choice)")
+    p.add_argument("--threads", type=threads, default=0, help="torch CPU threads per process (default: torch's choice)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
 
@@ -29,11 +31,14 @@ def run(args) -> int:
     import torch
 
     from ..model.train import load_train_config, train
+    from ..record import check_output
 
     if args.threads:
         torch.set_num_threads(args.threads)
     cfg = load_train_config(args.config, args.set)
-    out = Path(args.output)  # train() refuses a folder holding a run (last.pt) without --resume
+    # a place that cannot be written is a one-line error before any work (creates nothing);
+    # train() refuses a folder holding a run (last.pt) without --resume
+    out = check_output(args.output, folder=True)
     train(cfg, out, data_dirs=args.data, resume=args.resume, config_base=Path(args.config).resolve().parent,
           progress=not args.quiet, device=args.device)  # fmt: skip
     return 0

@@ -11,10 +11,154 @@ from .. import __version__, conventions
 from ..errors import NoImuData
 from ..quat import quat_canonical, slerp
 from ..record import FORMAT_VERSION, MIN_ESTIMATION_RATE_HZ, FlightRecord, make_frame
-from .streams import RawLog, nominal_period_s
+from .streams import ImuStream, MagStream, RawLog, RefStream, nominal_period_s
 
 #: A new segment starts where the IMU step exceeds this many nominal periods.
 GAP_PERIODS = 2.5
+
+
+# --------------------------------------------------------------------------- plausibility
+# Physical limits, beyond the range of any sensor a drone or aircraft carries: a sample outside
+# them is a corrupt row (DataFlash has no checksums; a flipped byte makes 1e27 rad/s), dropped and
+# counted with the reader's corrupt frames. The one place these limits live: every reader's
+# streams pass through :func:`drop_implausible` on their way into a record.
+
+#: |gyro| per axis (rad/s): ±4000 °/s, the widest MEMS range, is 70 rad/s
+MAX_GYRO_RAD_S = 100.0
+#: |specific force| per axis (m/s²): about 200 g (high-g accelerometers reach ±200 g)
+MAX_ACC_M_S2 = 2000.0
+#: |magnetic field| per axis (µT): the Earth's is 25–65 µT; a motor or magnet next to the sensor
+#: saturates magnetometers at a few thousand µT
+MAX_MAG_UT = 5000.0
+#: |sample time| (s): boot times and UNIX times (1.7e9 s) alike are below this
+MAX_ABS_TIME_S = 1e10
+#: a sample whose time lies this far from both its neighbours' and from the median of the
+#: samples around it (in file order) is a corrupt time stamp, not a gap or a reboot:
+#: max(SPIKE_MIN_S, SPIKE_PERIODS nominal periods)
+SPIKE_MIN_S = 1.0
+SPIKE_PERIODS = 50.0
+#: quaternion norm tolerance for the reference: |‖q‖ − 1| above this is a corrupt row
+MAX_QUAT_NORM_ERR = 0.1
+
+
+def _time_spikes(t: np.ndarray) -> np.ndarray:
+    """Samples whose time stamp is a corrupt spike (see ``SPIKE_*``), in file order."""
+    n = len(t)
+    if n < 3:
+        return np.zeros(n, bool)
+    p = nominal_period_s(t)
+    jump = max(SPIKE_MIN_S, SPIKE_PERIODS * p) if np.isfinite(p) else SPIKE_MIN_S
+    prev = np.abs(np.diff(t, prepend=t[1]))  # the first/last sample's missing neighbour: the other one
+    nxt = np.abs(np.diff(t, append=t[-2]))
+    lonely = (prev > jump) & (nxt > jump)
+    if not lonely.any():
+        return lonely
+    half = 4  # the median of 9 samples is undisturbed by up to 4 corrupt ones among them
+    idx = np.flatnonzero(lonely)
+    lo = np.clip(idx - half, 0, n)
+    hi = np.clip(idx + half + 1, 0, n)
+    med = np.array([np.median(t[a:b]) for a, b in zip(lo, hi)])
+    out = np.zeros(n, bool)
+    out[idx] = np.abs(t[idx] - med) > jump
+    return out
+
+
+def _renumber_epochs(t: np.ndarray, ep: np.ndarray, keep: np.ndarray, period: float):
+    """Epoch boundaries made by dropped corrupt time stamps (time goes on forward across them once
+    the spikes are gone) are joined; returns the IMU's new epochs and a map for other streams."""
+    t_k, ep_k = t[keep], ep[keep]
+    u = np.unique(ep_k)
+    if len(u) < 2:
+        return ep_k, (lambda e: np.zeros_like(np.asarray(e)) if len(u) else np.asarray(e))
+    jump = max(SPIKE_MIN_S, SPIKE_PERIODS * period) if np.isfinite(period) else SPIKE_MIN_S
+    first = np.searchsorted(ep_k, u, side="left") if np.all(np.diff(ep_k) >= 0) else None
+    if first is None:  # epochs not in file order: leave them as they are
+        return ep_k, (lambda e: np.asarray(e))
+    step = t_k[first[1:]] - t_k[first[1:] - 1]
+    joined = (step > 0) & (step <= jump)
+    new_id = np.concatenate([[0], np.cumsum(~joined)]).astype(np.int64)
+
+    def remap(e):
+        e = np.asarray(e, np.int64)
+        i = np.clip(np.searchsorted(u, e, side="right") - 1, 0, len(u) - 1)
+        return new_id[i]
+
+    return remap(ep_k), remap
+
+
+def drop_implausible(raw: RawLog, source_path: str | os.PathLike) -> tuple[RawLog, int, list[str]]:
+    """``raw`` without its physically impossible rows (the limits above): non-finite or
+    out-of-range IMU, magnetometer and reference samples and corrupt time stamps (spikes far from
+    their neighbours, which readers take for reboots). Returns the cleaned log, the number of
+    IMU rows dropped and notes. No plausible IMU sample left: :class:`NoImuData`."""
+    imu = raw.imu
+    t = np.asarray(imu.t_s, np.float64)
+    gyr = np.asarray(imu.gyr_rad_s, np.float64)
+    acc = np.asarray(imu.acc_m_s2, np.float64)
+    n = len(t)
+    ep = _epoch(n, imu.epoch)
+    with np.errstate(invalid="ignore"):
+        ok_val = (np.isfinite(t) & (np.abs(t) <= MAX_ABS_TIME_S)
+                  & np.all(np.abs(gyr) <= MAX_GYRO_RAD_S, axis=1) & np.all(np.abs(acc) <= MAX_ACC_M_S2, axis=1))  # fmt: skip
+    spikes = np.zeros(n, bool)
+    idx = np.flatnonzero(ok_val)
+    spikes[idx] = _time_spikes(t[idx])
+    keep = ok_val & ~spikes
+    notes: list[str] = []
+    n_val, n_spk = int((~ok_val).sum()), int(spikes.sum())
+    if n and not keep.any():
+        raise NoImuData(
+            f"no plausible IMU samples: all {n} rows are corrupt (non-finite, |gyro| > {MAX_GYRO_RAD_S:g} rad/s, "
+            f"|acc| > {MAX_ACC_M_S2:g} m/s² or impossible times)", source_path)  # fmt: skip
+    if n_val:
+        notes.append(f"{n_val} IMU row(s) with impossible values (non-finite, |gyro| > {MAX_GYRO_RAD_S:g} rad/s, "
+                     f"|acc| > {MAX_ACC_M_S2:g} m/s² or |t| > {MAX_ABS_TIME_S:g} s) dropped as corrupt")  # fmt: skip
+    if n_spk:
+        notes.append(f"{n_spk} IMU row(s) with corrupt time stamps (far from their neighbours') dropped")
+    if keep.all():
+        new_ep, remap = ep, None
+    else:
+        new_ep, remap = _renumber_epochs(t, ep, keep, nominal_period_s(t[keep], ep[keep]))
+    if remap is not None and imu.epoch is not None and len(np.unique(new_ep)) < len(np.unique(ep[keep])):
+        joined = len(np.unique(ep[keep])) - len(np.unique(new_ep))
+        notes.append(f"{joined} boot epoch boundary(ies) made by corrupt time stamps joined")
+    new_imu = ImuStream(
+        t[keep], gyr[keep], acc[keep], None if imu.clipped is None else np.asarray(imu.clipped, bool)[keep],
+        None if imu.epoch is None else new_ep,
+    )  # fmt: skip
+
+    mag = raw.mag
+    if mag is not None and len(mag.t_s):
+        mt = np.asarray(mag.t_s, np.float64)
+        mv = np.asarray(mag.mag_ut, np.float64)
+        with np.errstate(invalid="ignore"):
+            bad = np.isfinite(mt) & (np.abs(mt) <= MAX_ABS_TIME_S)
+            bad = ~bad | np.any(np.abs(mv) > MAX_MAG_UT, axis=1)  # NaN values stay: holes, not corruption
+        m_ep = mag.epoch if mag.epoch is None or remap is None else remap(mag.epoch)
+        if bad.any():
+            notes.append(f"{int(bad.sum())} magnetometer sample(s) beyond {MAX_MAG_UT:g} µT or at impossible times dropped")
+            mag = MagStream(mt[~bad], mv[~bad], None if m_ep is None else np.asarray(m_ep)[~bad])
+        elif m_ep is not mag.epoch:
+            mag = MagStream(mt, mv, m_ep)
+    ref = raw.ref
+    if ref is not None and len(ref.t_s):
+        rt = np.asarray(ref.t_s, np.float64)
+        rq = np.asarray(ref.q_nb_wxyz, np.float64)
+        with np.errstate(invalid="ignore"):
+            norm_err = np.abs(np.linalg.norm(rq, axis=1) - 1.0)
+            bad = ~(np.isfinite(rt) & (np.abs(rt) <= MAX_ABS_TIME_S)) | (norm_err > MAX_QUAT_NORM_ERR)
+        r_ep = ref.epoch if ref.epoch is None or remap is None else remap(ref.epoch)
+        if bad.any():
+            notes.append(f"{int(bad.sum())} reference sample(s) with impossible values (quaternion norm off by "
+                         f"> {MAX_QUAT_NORM_ERR:g}, non-finite) or times dropped")  # fmt: skip
+            ref = RefStream(rt[~bad], rq[~bad], ref.source, None if r_ep is None else np.asarray(r_ep)[~bad])
+        elif r_ep is not ref.epoch:
+            ref = RefStream(rt, rq, ref.source, r_ep)
+    if keep.all() and mag is raw.mag and ref is raw.ref:
+        return raw, 0, notes
+    valid = None if raw.valid is None else np.asarray(raw.valid, bool)[keep]
+    extra = {k: np.asarray(v)[keep] for k, v in raw.extra.items()}
+    return RawLog(new_imu, mag, ref, raw.meta, valid, extra), int((~keep).sum()), notes
 
 
 def _epoch(arr_len: int, epoch: np.ndarray | None) -> np.ndarray:
@@ -82,10 +226,11 @@ def _on_imu_times(t_imu, ep_imu, t_src, ep_src, values, period_src, quaternion):
 
 def build_record(raw: RawLog, source_path: str | os.PathLike) -> FlightRecord:
     """Assemble a validated :class:`FlightRecord` from a reader's :class:`RawLog`."""
+    if len(raw.imu.t_s) == 0:
+        raise NoImuData("no IMU samples in the log", source_path)
+    raw, n_implausible, plaus_notes = drop_implausible(raw, source_path)
     imu = raw.imu
     n = len(imu.t_s)
-    if n == 0:
-        raise NoImuData("no IMU samples in the log", source_path)
     t_src = np.asarray(imu.t_s, np.float64)
     ep = _epoch(n, imu.epoch)
 
@@ -151,7 +296,8 @@ def build_record(raw: RawLog, source_path: str | os.PathLike) -> FlightRecord:
         "reference_source": raw.ref.source if raw.ref is not None else "none",
         "reference_rate_hz": ref_rate,
         "reference_coverage": ref_cover,
-        "corrupt_frames": int(raw.meta.get("corrupt_frames", 0)),
+        "corrupt_frames": int(raw.meta.get("corrupt_frames", 0)) + n_implausible,
+        "implausible_samples_dropped": n_implausible,
         "skipped_frames": int(raw.meta.get("skipped_frames", 0)),
         "duplicate_samples_dropped": n_dup,
         "segments": int(seg[-1]) + 1 if len(seg) else 0,
@@ -162,7 +308,7 @@ def build_record(raw: RawLog, source_path: str | os.PathLike) -> FlightRecord:
     }
     for k, v in raw.meta.items():
         meta.setdefault(k, v)
-    notes = list(raw.meta.get("notes", []))
+    notes = list(raw.meta.get("notes", [])) + plaus_notes
     usable = rate is not None and rate >= MIN_ESTIMATION_RATE_HZ
     meta["estimation_ok"] = bool(usable)
     if not usable:

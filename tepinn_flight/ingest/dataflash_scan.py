@@ -333,7 +333,8 @@ def decode_column(buf: np.ndarray, mf: MsgFormat, offsets: np.ndarray, col: str)
 
 def scaled(values: np.ndarray, mult: float | None) -> np.ndarray:
     """float64 values with pymavlink's multiplier applied exactly as pymavlink does."""
-    v = np.asarray(values).astype(np.float64)
+    with np.errstate(invalid="ignore"):  # a corrupt row's bytes may be NaN/inf: dropped later, not a warning
+        v = np.asarray(values).astype(np.float64)
     if mult is None:
         return v
     if 0.0 < mult < 1.0:

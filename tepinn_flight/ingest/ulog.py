@@ -214,12 +214,21 @@ class _GuardedFile:
     def __init__(self, path: str | os.PathLike):
         self._f = open(path, "rb")
         self._budget = 4 * os.fstat(self._f.fileno()).st_size + 10_000
+        self.short_reads = 0  # reads that got fewer bytes than asked for, not at a message boundary
 
     def read(self, n: int = -1) -> bytes:
         self._budget -= 1
         if self._budget < 0:
             raise _ParseStalled("parser stopped advancing through the file")
-        return self._f.read(n)
+        data = self._f.read(n)
+        if 0 <= len(data) < n and not (n == 3 and not data):
+            self.short_reads += 1  # only a clean end of the file ends on an empty 3-byte header read
+        return data
+
+    @property
+    def truncated(self) -> bool:
+        """Some read ended inside a message (fewer bytes than asked for): the file is cut."""
+        return self.short_reads > 0
 
     def seek(self, *args):
         return self._f.seek(*args)
@@ -253,6 +262,7 @@ def _parse(path: str | os.PathLike):
         raise CorruptLog(f"not a readable ULog ({type(exc).__name__}: {_first_line(exc)})", path) from None
     finally:
         fh.close()
+    ulog._tepinn_truncated = fh.truncated
     n_subscribed = len(getattr(ulog, "_subscriptions", {})) + len(getattr(ulog, "_filtered_message_ids", ()))
     if not ulog.data_list and n_subscribed == 0:
         raise CorruptLog("ULog without any logged data (truncated inside the definitions, or garbled)", path)
@@ -545,6 +555,9 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     if not keep.all():
         imu_stream = ImuStream(imu_stream.t_s[keep], imu_stream.gyr_rad_s[keep], imu_stream.acc_m_s2[keep],
                                None if imu_stream.clipped is None else imu_stream.clipped[keep])  # fmt: skip
+    if getattr(ulog, "_tepinn_truncated", False):
+        notes.append("the log is truncated (it ends inside a message: the logger stopped mid-write or the "
+                     "file was cut); the samples up to the cut are kept")  # fmt: skip
     corrupt = bool(getattr(ulog, "file_corruption", False)) or "corruption" in printed.lower()
     if corrupt:
         notes.append("pyulog detected file corruption and resynchronised: some messages were lost")

@@ -57,13 +57,31 @@ def read_checkpoint(path: str | os.PathLike) -> dict:
     try:
         ckpt = torch.load(p, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types on corrupt files
-        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
-        raise CheckpointError(f"not a readable checkpoint ({first})", p) from None
+        raise CheckpointError(_load_failure(exc), p) from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise CheckpointError("not a tepinn-flight checkpoint", p)
     if ckpt.get("version") != VERSION:
         raise CheckpointError(f"unknown checkpoint version {ckpt.get('version')!r} (this tepinn-flight reads {VERSION})", p)
     return ckpt
+
+
+def _load_failure(exc: Exception) -> str:
+    """One line for a failed ``torch.load``. torch's own message for a file holding Python objects
+    advises loading it with ``weights_only=False`` (running whatever code the file names): that
+    advice is not repeated; the checkpoint is refused as not ours."""
+    import re
+
+    text = re.sub(r"\x1b\[[0-9;]*m", "", str(exc))  # torch bolds parts of its messages
+    if "Weights only load failed" in text or "WeightsUnpickler" in text:
+        m = re.search(r"Unsupported global: GLOBAL ([\w.]+)", text)
+        if m:
+            return (f"not a readable checkpoint: it holds Python objects ({m.group(1)}); tepinn-flight reads "
+                    "checkpoints as tensors and plain data only")  # fmt: skip
+        detail = text.split("WeightsUnpickler error:", 1)[-1] if "WeightsUnpickler error:" in text else ""
+        first = next((ln.strip() for ln in detail.splitlines() if ln.strip()), "")[:200]
+        return f"not a readable checkpoint (not a torch checkpoint file{': ' + first if first else ''})"
+    first = (text.strip().splitlines() or [type(exc).__name__])[0][:200]
+    return f"not a readable checkpoint ({first})"
 
 
 def load_model(path: str | os.PathLike) -> tuple[TEPINN, FusionConfig | AnchorConfig, dict]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+from ..config import check_range
 from ..errors import ConfigError
 
 
@@ -54,24 +55,26 @@ class ModelConfig:
     sensor_accel_bias_max_m_s2: float = 0.5
 
     def __post_init__(self):
-        if self.token_rate_hz <= 0:
-            raise ConfigError("token_rate_hz must be > 0")
-        if self.window_tokens < 2:
-            raise ConfigError("window_tokens must be >= 2")
+        # every numeric field within its range (finite): one line naming the key and the range
+        check_range("token_rate_hz", self.token_rate_hz, 0, 10000, lo_open=True)
+        check_range("window_tokens", self.window_tokens, 2, 100000)
+        for name in ("d_model", "n_heads", "n_layers", "d_ff"):
+            check_range(name, getattr(self, name), 1, 100000)
+        check_range("dropout", self.dropout, 0, 1, hi_open=True)
+        check_range("pe_min_wavelength_s", self.pe_min_wavelength_s, 0, None, lo_open=True)
+        check_range("pe_max_wavelength_s", self.pe_max_wavelength_s, self.pe_min_wavelength_s, None)
+        check_range("declip_max", self.declip_max, 1, 1000, lo_open=True)  # κ starts at 1
         if self.encoder == "transformer" and self.d_model % self.n_heads:
             raise ConfigError("d_model must be a multiple of n_heads")
-        if min(self.d_model, self.n_layers, self.d_ff) <= 0:
-            raise ConfigError("d_model, n_layers and d_ff must be > 0")
         if min(self.sensor_scale_max, self.sensor_gyro_bias_max_rad_s, self.sensor_accel_bias_max_m_s2) < 0:
             raise ConfigError("sensor limits must be >= 0 (0: unbounded)")
-        if self.declip_max <= 1:
-            raise ConfigError("declip_max must be > 1 (κ starts at 1)")
         if self.centripetal_rate and not self.centripetal:
             raise ConfigError("centripetal_rate needs centripetal = true")
         if self.centripetal and not self.physics:
             raise ConfigError("centripetal needs physics = true (it compensates the RK4-rotated specific forces)")
-        if not 0 <= self.dropout < 1:
-            raise ConfigError("dropout must be in [0, 1)")
+        check_range("sensor_scale_max", self.sensor_scale_max, 0, 1)
+        check_range("sensor_gyro_bias_max_rad_s", self.sensor_gyro_bias_max_rad_s, 0, 100)
+        check_range("sensor_accel_bias_max_m_s2", self.sensor_accel_bias_max_m_s2, 0, 1000)
 
     @property
     def variant(self) -> str:

@@ -91,7 +91,7 @@ def build_bank(records: list[FlightRecord], model: ModelConfig, rate_factors=(1,
             prev_ok.append(p_ok)
             rec_of.append(np.full(len(e), ri))
             offset += len(tok)
-    if not ends:
+    if not sum(len(e) for e in ends):  # no records, or none long enough for one full window
         raise ValueError("no usable windows: records too short, too slow (< 20 Hz) or without reference")
     cat = {n: np.concatenate(v) for n, v in cols.items()}
     for n in ("gyr", "acc"):

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
+from ..config import check_range
 from ..quat import gravity_body, quat_conj, quat_mul, quat_rotate
 from .physics import RigidBody, rk4_delta
 
@@ -43,6 +44,14 @@ class LossConfig:
     # the pooling or the velocity head to make the physics right.
     base_cauchy_rad: float = 0.0
     lambda_base: float = 1.0
+
+    def __post_init__(self):
+        for name in ("lambda_bias", "lambda_acc", "lambda_gyro", "lambda_dyn", "lambda_base"):
+            check_range(name, getattr(self, name), 0, 1e6)
+        check_range("gyro_pair_tokens", self.gyro_pair_tokens, 1, 100000)
+        for name in ("acc_cauchy_rad", "acc_norm_tol_g", "acc_spread_tol_g", "bias_scale_rad_s", "dyn_scale_rad_s2"):
+            check_range(name, getattr(self, name), 0, 1e6, lo_open=True)
+        check_range("base_cauchy_rad", self.base_cauchy_rad, 0, 10)
 
 
 def sign_invariant_mse(q: torch.Tensor, q_ref: torch.Tensor) -> torch.Tensor:

@@ -32,7 +32,7 @@ import torch
 from torch import nn
 
 from .. import __version__
-from ..config import to_dict
+from ..config import check_range, to_dict
 from ..errors import ConfigError, TepinnError
 from ..record import GYR_BIAS_COLS, FlightRecord, atomic_write, read_record
 from .checkpoint import CheckpointError, read_checkpoint, save_checkpoint
@@ -64,10 +64,17 @@ class DataConfig:
     gyro_bias_aug_prob: float = 0.5
 
     def __post_init__(self):
-        if self.gyro_bias_aug_deg_s < 0:
-            raise ConfigError("'gyro_bias_aug_deg_s' must be >= 0")
-        if not 0 <= self.gyro_bias_aug_prob <= 1:
-            raise ConfigError("'gyro_bias_aug_prob' must be in [0, 1]")
+        check_range("campaign_workers", self.campaign_workers, 0, 4096)
+        check_range("synthetic_flights", self.synthetic_flights, 0, 100000)
+        check_range("synthetic_duration_s", self.synthetic_duration_s, 0, 1e6, lo_open=True)
+        check_range("val_fraction", self.val_fraction, 0, 1, hi_open=True)
+        if not self.rate_factors:
+            raise ConfigError("'rate_factors' must list at least one factor (1: the log's own rate)")
+        for i, f in enumerate(self.rate_factors):
+            check_range(f"rate_factors[{i}]", f, 1, 10000)
+        check_range("max_val_windows", self.max_val_windows, 1, 10**9)
+        check_range("gyro_bias_aug_deg_s", self.gyro_bias_aug_deg_s, 0, 1000)
+        check_range("gyro_bias_aug_prob", self.gyro_bias_aug_prob, 0, 1)
 
 
 @dataclass(frozen=True)
@@ -83,6 +90,18 @@ class OptimConfig:
     max_minutes: float = 0.0  # stop after this wall time (0: no limit)
     warmup_steps: int = 0  # linear learning-rate warm-up (post-LayerNorm transformers need it)
     cosine_decay: bool = False  # cosine decay to 10 % of the learning rate at the last epoch
+
+    def __post_init__(self):
+        check_range("batch_size", self.batch_size, 1, 10**6)
+        check_range("epochs", self.epochs, 1, 10**6)
+        check_range("steps_per_epoch", self.steps_per_epoch, 1, 10**7)
+        check_range("lr", self.lr, 0, 10)  # 0: frozen (tests use it)
+        check_range("lr_physics", self.lr_physics, 0, 10)
+        check_range("weight_decay", self.weight_decay, 0, 10)
+        check_range("grad_clip", self.grad_clip, 0, None, lo_open=True)
+        check_range("early_stop_patience", self.early_stop_patience, 1, 10**6)
+        check_range("max_minutes", self.max_minutes, 0, None)  # 0: no limit
+        check_range("warmup_steps", self.warmup_steps, 0, 10**9)
 
 
 def lr_factor(step: int, optim: OptimConfig) -> float:
@@ -106,12 +125,11 @@ class CalibrationConfig:
     feedback_windows: int = 25
 
     def __post_init__(self):
-        if self.max_flights < 1:
-            raise ConfigError("'max_flights' must be >= 1")
-        if self.bias_state_sweeps < 0:
-            raise ConfigError("'bias_state_sweeps' must be >= 0")
-        if any(d < 0 for d in self.feedback_deadzones_deg_s) or self.feedback_windows < 1:
-            raise ConfigError("'feedback_deadzones_deg_s' must be >= 0 and 'feedback_windows' >= 1")
+        check_range("max_flights", self.max_flights, 1, 100000)
+        check_range("bias_state_sweeps", self.bias_state_sweeps, 0, 1000)
+        for i, d in enumerate(self.feedback_deadzones_deg_s):
+            check_range(f"feedback_deadzones_deg_s[{i}]", d, 0, 1000)
+        check_range("feedback_windows", self.feedback_windows, 1, 10**6)
 
 
 @dataclass(frozen=True)
@@ -123,6 +141,28 @@ class TrainConfig:
     optim: OptimConfig = field(default_factory=OptimConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
+
+    def __post_init__(self):
+        check_range("seed", self.seed, 0, 2**31 - 1)  # numpy's seeds are non-negative
+        if self.loss.gyro_pair_tokens >= self.model.window_tokens:
+            raise ConfigError(f"loss: 'gyro_pair_tokens' must be < model.window_tokens ({self.model.window_tokens}), "
+                              f"got {self.loss.gyro_pair_tokens}")  # fmt: skip
+        # the fusion's numbers (FusionConfig has no checks of its own): ranges for a training recipe
+        f = self.fusion
+        for name in ("process_noise_rad2_s", "process_noise_rate_rad", "clip_inflation_rad", "clip_rate_gain",
+                     "adaptive_nis", "bias_sigma_rad_s", "bias_rw_rad_s_sqrt_s", "bias_init_sigma_rad_s",
+                     "clip_hold_s", "bias_feedback_deadzone_rad_s"):  # fmt: skip
+            _fusion_range(name, getattr(f, name), 0, None)
+        for name in ("bias_time_constant_s", "sigma_scale", "output_sigma_scale"):
+            _fusion_range(name, getattr(f, name), 0, None, lo_open=True)
+        _fusion_range("bias_feedback_windows", f.bias_feedback_windows, 0, 10**6)
+
+
+def _fusion_range(name: str, value, lo, hi, lo_open: bool = False) -> None:
+    try:
+        check_range(name, value, lo, hi, lo_open=lo_open)
+    except ConfigError as exc:
+        raise ConfigError(f"fusion: {exc.reason}") from None
 
 
 def load_train_config(path: str | os.PathLike, overrides=()) -> TrainConfig:
@@ -543,11 +583,33 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
         if dev.type == "cuda":
             torch.cuda.set_device(dev)
         torch.distributed.init_process_group("cpu:gloo,cuda:nccl" if dev.type == "cuda" else "gloo")
+    created = not out.exists()
     try:
         return _train(cfg, out, data_dirs, resume, config_base, progress, log, rank, world, dev)
+    except TepinnError:
+        # bad input found before the first checkpoint: leave no half-made run folder behind (one
+        # this invocation created and that holds nothing but its config and empty metrics)
+        if created and rank == 0 and not (out / "last.pt").exists():
+            _remove_unstarted_run(out)
+        raise
     finally:
         if own_group and torch.distributed.is_initialized():
             torch.distributed.destroy_process_group()
+
+
+def _remove_unstarted_run(out: Path) -> None:
+    """Remove a run folder that holds only what :func:`_train` writes before training starts."""
+    try:
+        names = {p.name for p in out.iterdir()}
+    except OSError:
+        return
+    if names <= {"config.json", "metrics.jsonl"}:
+        for n in names:
+            (out / n).unlink(missing_ok=True)
+        try:
+            out.rmdir()
+        except OSError:
+            pass
 
 
 def gyro_bias_augmentation(rng: np.random.Generator, n: int, sigma_deg_s: float, prob: float) -> np.ndarray:

@@ -1,0 +1,25 @@
+"""argparse ``type=`` helpers: a bad value is argparse's one-line usage error (exit code 2)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def int_at_least(lo: int, what: str = ""):
+    """An integer ``>= lo`` (``what`` says what 0 means, for the message)."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if v < lo:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {lo}{what}, got {v}")
+        return v
+
+    parse.__name__ = "integer"
+    return parse
+
+
+#: ``--threads``: 0 lets torch choose
+threads = int_at_least(0, " (0: torch's choice)")
