@@ -2,7 +2,7 @@
 
 Real files: the shared real drone logs that `ingest` can estimate (reference: the autopilot's own
 estimate), by vehicle and IMU rate, and the shared BROAD trials (optical truth) by motion class.
-The split is `train/real_split.toml`: which files are held out (never trained, selected or
+The split is `train/splits/real.toml`: which files are held out (never trained, selected or
 calibrated on) and which the shipped network saw — the table says which is which. Simulated: the
 held-out campaign `flight_sims/campaigns/heldout.toml` (seed 77; every `--sim-every`-th flight).
 
@@ -48,7 +48,7 @@ def main() -> int:
     from tepinn_flight.sim.campaign import run_campaign
 
     torch.set_num_threads(1)
-    split = tomllib.loads((REPO / "train/real_split.toml").read_text())
+    split = tomllib.loads((REPO / "train/splits/real.toml").read_text())
     shared = Path(args.shared)
     files = []  # (kind, group, name, record, held_out)
     for name in split["heldout"]["real_logs"] + split["seen"].get("real_logs", []):
