@@ -125,13 +125,7 @@ def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | Anc
             run.add(idx[m] - a, q[m], sigma[m], bias[m])
         run.advance(b - a)
         q_out[a:b], s_out[a:b], b_out[a:b] = run.q, run.sigma, run.bias
-    df = pd.DataFrame({"t_s": t})
-    for i, c in enumerate(EST_Q_COLS):
-        df[c] = q_out[:, i]
-    df["sigma_rad"] = s_out
-    for i, c in enumerate(EST_BIAS_COLS):
-        df[c] = b_out[:, i]
-    return df
+    return _frame(t, q_out, s_out, b_out)
 
 
 def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256):
