@@ -67,8 +67,8 @@ class AnchorConfig:
     clip_hold_s: float = 2.0  # gyro-saturation gate stays on this long after the last clipped sample
     bias_gate_weight: float = 0.6  # pull weight while the uncalibrated-gyro gate is on (0: never)
     bias_deadzone_deg_s: float = 2.0  # the network's bias beyond this is removed from the gyro
-    sigma_floor_deg: float = 0.5  # σ₀
-    sigma_acc_gain: float = 0.3  # c
+    sigma_floor_deg: float = 0.45  # σ₀ (fitted on the 17 BROAD trials the network was trained or validated on)
+    sigma_acc_gain: float = 0.025  # c
     sigma_net_scale: float = 1.0  # s
     sigma_acc_tau_s: float = 1.0
 
