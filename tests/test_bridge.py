@@ -149,7 +149,7 @@ def _run_chain(tmp_path, model, tlog, speed, mavproxy=False):
         bridge = subprocess.Popen(
             [*CLI, "bridge", "--master", f"udpin:127.0.0.1:{bridge_port}", "--out", f"udpout:127.0.0.1:{out_port}",
              "--model", str(model), "--max-age", "5", "--tlog", str(tmp_path / "session.tlog"),
-             "--summary-json", str(summary_path), "--status-interval", "1"],
+             "--summary-json", str(summary_path), "--status-interval", "1", "--estimate-as", "attitude_quaternion"],
             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )  # fmt: skip
         procs.append(bridge)
@@ -296,6 +296,7 @@ class FakeAutopilot(UdpListener):
 
 
 def _bridge(lis_port, make_estimator=None, **kw):
+    kw.setdefault("estimate_as", "attitude_quaternion")  # these tests read the estimate from ATTITUDE_QUATERNION
     cfg = BridgeConfig(master="udpin:127.0.0.1:0", outs=(f"udpout:127.0.0.1:{lis_port}",), worker="thread", **kw)
     b = Bridge(cfg, make_estimator=make_estimator or (lambda: StreamingEstimator(_small_model(), FusionConfig())))
     stop = threading.Event()
@@ -744,3 +745,55 @@ def test_a_flood_of_garbage_loses_no_valid_frame():
         rmem_max = int(f.read())
     if os.geteuid() == 0 or rmem_max >= SOCKET_BUFFER_BYTES:
         assert granted >= SOCKET_BUFFER_BYTES
+
+
+@pytest.mark.parametrize("kind", ["named_value", "debug_vect", "attitude_quaternion"])
+def test_estimate_as_chooses_the_estimate_messages(kind):
+    """``--estimate-as``: the bridge sends the estimate as NAMED_VALUE_FLOAT tp_roll/pitch/yaw, DEBUG_VECT
+    TP_RPY or ATTITUDE + ATTITUDE_QUATERNION (only then), from 1/191, at --rate, with the estimate's
+    values: the same degrees as the diagnostic TP_RPY (or, for debug_vect, as the offline estimator)."""
+    from tepinn_flight.live.messages import euler_zyx
+
+    rec = synthetic_record(seed=9, duration_s=2.5, rate_hz=200.0)
+    items = list(record_stream(rec))
+    gcs = UdpListener()
+    b, stop, th, box = _bridge(gcs.port, estimate_as=kind, max_sample_age_s=5.0, queue_samples=4096, min_imu_rate_hz=0)
+    ap = FakeAutopilot(b.master.local_port())
+    try:
+        ap.play(items, time.monotonic())
+        time.sleep(0.5)
+    finally:
+        _finish(stop, th, box)
+        gcs.close()
+        ap.close()
+    own = [m for _, d in gcs.datagrams if _compid(d) == 191 for m in _parse(d)]
+    assert all((m.get_srcSystem(), m.get_srcComponent()) == (1, 191) for m in own)
+    types = {m.get_type() for m in own}
+    assert bool(types & {"ATTITUDE", "ATTITUDE_QUATERNION"}) == (kind == "attitude_quaternion"), types
+    diag = {m.time_usec // 1000: m for m in own if m.get_type() == "DEBUG_VECT" and m.name == "TP_RPY"}
+    if kind == "named_value":
+        nv = [m for m in own if m.get_type() == "NAMED_VALUE_FLOAT" and m.name in ("tp_roll", "tp_pitch", "tp_yaw")]
+        by_ms = {}
+        for m in nv:
+            by_ms.setdefault(m.time_boot_ms, {})[m.name] = m.value
+        assert len(by_ms) > 30 and all(len(v) == 3 for v in by_ms.values())  # 50 Hz once the first window is full
+        common = [k for k in by_ms if k in diag]
+        assert common
+        for k in common:
+            v = by_ms[k]
+            np.testing.assert_allclose([v["tp_roll"], v["tp_pitch"], v["tp_yaw"]], [diag[k].x, diag[k].y, diag[k].z], atol=1e-4)
+    elif kind == "attitude_quaternion":
+        att = {m.time_boot_ms: m for m in own if m.get_type() == "ATTITUDE"}
+        assert len(att) > 30
+        common = [k for k in att if k in diag]
+        assert common
+        for k in common:
+            a = att[k]
+            np.testing.assert_allclose(np.degrees([a.roll, a.pitch, a.yaw]), [diag[k].x, diag[k].y, diag[k].z], atol=1e-3)
+    else:  # TP_RPY is now the estimate itself, at --rate (not --diag-rate), and matches the offline estimator
+        assert len(diag) > 30
+        assert not any(m.get_type() == "NAMED_VALUE_FLOAT" and m.name.startswith("tp_r") for m in own)
+        imu = [fr for _, fr in items if _imu_us(fr) is not None]
+        ref = _offline_by_ms(imu)
+        for k, m in diag.items():
+            np.testing.assert_allclose([m.x, m.y, m.z], np.degrees(euler_zyx(ref[int(k)])), atol=1e-3)

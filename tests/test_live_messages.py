@@ -15,7 +15,9 @@ from scipy.spatial.transform import Rotation
 from tepinn_flight.live import dialect
 from tepinn_flight.live.inputs import EkfComparator, ekf_attitude, imu_sample, tilt_difference
 from tepinn_flight.live.messages import (
+    DEFAULT_ESTIMATE_AS,
     DIAG_NAMES,
+    ESTIMATE_AS,
     Encoder,
     attitude_msg,
     attitude_quaternion_msg,
@@ -80,6 +82,44 @@ def test_estimate_msgs_stamps_and_wraps_time_boot_ms():
     msgs = _decode(b"".join(enc.pack(m) for m in estimate_msgs(2**32 + 5, q, (0, 0, 0))))
     assert [m.get_type() for m in msgs] == ["ATTITUDE", "ATTITUDE_QUATERNION"]
     assert all(m.time_boot_ms == 5 for m in msgs)  # uint32 wraps like the autopilot's own counter
+
+
+@pytest.mark.parametrize("kind", ESTIMATE_AS)
+def test_estimate_as_each_kind_carries_the_estimate(kind):
+    """``--estimate-as``: each kind is its own message type, from 1/191, with the estimate's values."""
+    r = Rotation.from_euler("ZYX", [2.5, -0.4, 0.3])  # yaw, pitch, roll
+    x, y, z, w = r.as_quat()
+    q, rates, ms, us = (w, x, y, z), (0.1, -0.2, 0.3), 123_456, 123_456_789
+    enc = Encoder(1, 191)
+    msgs = _decode(b"".join(enc.pack(m) for m in estimate_msgs(ms, q, rates, kind, us)))
+    assert all((m.get_srcSystem(), m.get_srcComponent()) == (1, 191) for m in msgs)
+    deg = np.degrees([0.3, -0.4, 2.5])  # roll, pitch, yaw
+    types = [m.get_type() for m in msgs]
+    if kind == "attitude_quaternion":
+        assert types == ["ATTITUDE", "ATTITUDE_QUATERNION"]
+        np.testing.assert_allclose([msgs[0].roll, msgs[0].pitch, msgs[0].yaw], [0.3, -0.4, 2.5], atol=2e-6)
+        np.testing.assert_allclose([msgs[1].q1, msgs[1].q2, msgs[1].q3, msgs[1].q4], q, atol=1e-7)
+        assert all(m.time_boot_ms == ms for m in msgs)
+    elif kind == "named_value":
+        assert types == ["NAMED_VALUE_FLOAT"] * 3
+        assert [m.name for m in msgs] == ["tp_roll", "tp_pitch", "tp_yaw"]
+        np.testing.assert_allclose([m.value for m in msgs], deg, atol=1e-4)
+        assert all(m.time_boot_ms == ms for m in msgs)
+    else:
+        assert types == ["DEBUG_VECT"] and msgs[0].name == "TP_RPY" and msgs[0].time_usec == us
+        np.testing.assert_allclose([msgs[0].x, msgs[0].y, msgs[0].z], deg, atol=1e-4)
+    # no kind but attitude_quaternion sends a message a ground station could put on its HUD
+    assert (kind == "attitude_quaternion") == bool({"ATTITUDE", "ATTITUDE_QUATERNION"} & set(types))
+
+
+def test_estimate_as_default_and_unknown_kind():
+    assert DEFAULT_ESTIMATE_AS in ("named_value", "debug_vect")
+    with pytest.raises(ValueError, match="named_value"):
+        estimate_msgs(0, (1.0, 0, 0, 0), (0, 0, 0), "hud")
+    # diagnostics leave out TP_RPY when the estimate itself is that DEBUG_VECT
+    kw = dict(sigma_rad=0.01, latency_s=0.002, imu_rate_hz=200.0, bias_rad_s=(0, 0, 0))
+    names = lambda rpy: [m.name for m in diagnostic_msgs(0, 0, (1.0, 0, 0, 0), rpy=rpy, **kw) if m.get_type() == "DEBUG_VECT"]  # noqa: E731
+    assert "TP_RPY" in names(True) and "TP_RPY" not in names(False)
 
 
 def test_heartbeats():

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from ..live.messages import DEFAULT_ESTIMATE_AS, ESTIMATE_AS
+
 HELP = "live MAVLink bridge: route autopilot <-> ground stations and add TE-PINN attitude estimates"
 DESCRIPTION = (
     "A transparent MAVLink router (every autopilot message reaches every --out unchanged, every ground "
     "station message reaches the autopilot unchanged) that runs TE-PINN on the autopilot's IMU stream "
     "(HIGHRES_IMU, or ArduPilot's RAW_IMU / SCALED_IMU) and sends, as component 191 of the autopilot's "
-    "system: HEARTBEAT (onboard controller, 1 Hz), ATTITUDE and ATTITUDE_QUATERNION with the estimate "
-    "stamped with the IMU sample's time_boot_ms (--rate, default 50 Hz), and NAMED_VALUE_FLOAT "
+    "system: HEARTBEAT (onboard controller, 1 Hz), the estimate stamped with the IMU sample's time_boot_ms "
+    "(--rate, default 50 Hz; as NAMED_VALUE_FLOAT tp_roll/tp_pitch/tp_yaw by default, see --estimate-as), and NAMED_VALUE_FLOAT "
     "(tp_dincl, tp_sigma, tp_lat_ms, tp_imu_hz) / DEBUG_VECT (TP_RPY, TP_DIFF, TP_BIAS) diagnostics "
     "comparing it with the autopilot's EKF (see them in the ground station's MAVLink inspector). "
     "Stops on Ctrl-C, SIGTERM or --duration and prints a summary."
@@ -30,6 +32,11 @@ def add_arguments(p) -> None:
     p.add_argument("--request-imu-rate", type=float, default=200.0, metavar="HZ", help="IMU rate to ask for (default 200)")
     p.add_argument("--sysid", type=int, default=None, metavar="N", help="the autopilot's system id (default: the first seen)")
     p.add_argument("--compid", type=int, default=191, metavar="N", help="our component id (default 191, MAV_COMP_ID_ONBOARD_COMPUTER)")
+    p.add_argument("--estimate-as", choices=list(ESTIMATE_AS), default=DEFAULT_ESTIMATE_AS,
+                   help="how the estimate is sent: named_value (default; NAMED_VALUE_FLOAT tp_roll, tp_pitch, tp_yaw in deg: "
+                        "never drives a ground station's HUD), debug_vect (DEBUG_VECT TP_RPY, deg) or attitude_quaternion "
+                        "(ATTITUDE + ATTITUDE_QUATERNION: some QGroundControl versions may then switch the HUD between "
+                        "the autopilot and this component)")
     p.add_argument("--estimates-to-master", action="store_true",
                    help="also send estimates to the autopilot (it may route them to its other links)")
     p.add_argument("--worker", choices=["process", "thread"], default="process",
@@ -72,7 +79,7 @@ def run(args) -> int:
         master=args.master, outs=tuple(args.out), model_path=str(model), tlog_path=args.tlog, rate_hz=args.rate,
         diag_rate_hz=args.diag_rate, imu_instance=args.imu, min_imu_rate_hz=args.min_imu_rate,
         request_imu_rate_hz=args.request_imu_rate, sysid=args.sysid, compid=args.compid,
-        estimates_to_master=args.estimates_to_master, worker=args.worker, max_sample_age_s=args.max_age,
+        estimates_to_master=args.estimates_to_master, estimate_as=args.estimate_as, worker=args.worker, max_sample_age_s=args.max_age,
         duration_s=args.duration,
     )  # fmt: skip
     status = StatusPrinter(sys.stderr, quiet=args.quiet, interval_s=args.status_interval)

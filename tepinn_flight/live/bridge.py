@@ -52,7 +52,15 @@ from ..errors import ConfigError, TepinnError
 from ..ingest.tlog import MAV_AUTOPILOT_ARDUPILOTMEGA
 from . import MAV_COMP_ID_AUTOPILOT1, MAV_COMP_ID_ONBOARD_COMPUTER, dialect
 from .inputs import EkfComparator, ekf_attitude, imu_preference, imu_sample, imu_scale_known
-from .messages import Encoder, diagnostic_msgs, estimate_msgs, heartbeat_onboard_msg, set_message_interval_msg
+from .messages import (
+    DEFAULT_ESTIMATE_AS,
+    ESTIMATE_AS,
+    Encoder,
+    diagnostic_msgs,
+    estimate_msgs,
+    heartbeat_onboard_msg,
+    set_message_interval_msg,
+)
 from .router import SOCKET_BUFFER_BYTES, Link
 from .sample_order import DUPLICATE, REBOOT, STALE, SampleOrder
 from .status import RateMeter, StatusPrinter, angle_histogram, format_summary, latency_histogram
@@ -79,6 +87,7 @@ class BridgeConfig:
     sysid: int | None = None  # the autopilot's system id (None: the first one seen)
     compid: int = MAV_COMP_ID_ONBOARD_COMPUTER
     estimates_to_master: bool = False
+    estimate_as: str = DEFAULT_ESTIMATE_AS  # one of messages.ESTIMATE_AS
     worker: str = "process"  # "process" or "thread"
     max_sample_age_s: float = 0.2
     queue_samples: int = 256
@@ -90,6 +99,8 @@ class BridgeConfig:
     def __post_init__(self):
         if not self.rate_hz > 0 or not self.diag_rate_hz >= 0:
             raise ConfigError("--rate must be > 0 and --diag-rate >= 0")
+        if self.estimate_as not in ESTIMATE_AS:
+            raise ConfigError(f"--estimate-as must be one of {', '.join(ESTIMATE_AS)}, not {self.estimate_as!r}")
         if self.worker not in ("process", "thread"):
             raise ConfigError(f"worker must be 'process' or 'thread', not {self.worker!r}")
         if self.sysid is not None and not 1 <= self.sysid <= 255:
@@ -582,10 +593,10 @@ class Bridge:
         q, bias, gyr = est["q"], est["bias"], est["gyr"]
         rates = tuple(gyr[i] - bias[i] for i in range(3))
         ms = est["time_boot_ms"] if est["time_boot_ms"] is not None else 0
-        msgs = estimate_msgs(ms, q, rates)
+        c = self.cfg
+        msgs = estimate_msgs(ms, q, rates, c.estimate_as, est["time_usec"])
         for d in self.cmp.add_estimate(est["t_s"], q):
             self._diff(d)
-        c = self.cfg
         if c.diag_rate_hz > 0:
             k = math.floor(est["t_s"] * c.diag_rate_hz + 1e-9)
             if k != self.next_diag_k:
@@ -593,7 +604,8 @@ class Bridge:
                 diff = self.last_diff[1:] if self.last_diff is not None and abs(self.last_diff[0] - est["t_s"]) < 0.5 else None
                 lat = self.clock() - est["arrival"]
                 msgs += diagnostic_msgs(ms, est["time_usec"], q, sigma_rad=est["sigma"], latency_s=lat,
-                                        imu_rate_hz=self.imu_rate.rate(self.clock()), bias_rad_s=bias, diff=diff)  # fmt: skip
+                                        imu_rate_hz=self.imu_rate.rate(self.clock()), bias_rad_s=bias, diff=diff,
+                                        rpy=c.estimate_as != "debug_vect")  # fmt: skip
         self._send_own(msgs, to_outs=True, to_master=c.estimates_to_master)
         now = self.clock()
         lat = now - est["arrival"]

@@ -9,11 +9,12 @@ What the bridge sends, from (autopilot sysid, 191 = ``MAV_COMP_ID_ONBOARD_COMPUT
 
 =====================  =================================================================================
 HEARTBEAT              ``MAV_TYPE_ONBOARD_CONTROLLER``, ``MAV_AUTOPILOT_INVALID``, ``MAV_STATE_ACTIVE``, 1 Hz
-ATTITUDE               the estimate as roll/pitch/yaw (Z-Y-X, rad); rates = gyro − estimated bias (rad/s);
-                       ``time_boot_ms`` = the autopilot's time of the IMU sample it belongs to
-ATTITUDE_QUATERNION    the same estimate, q1..q4 = w, x, y, z
+the estimate           one of (``--estimate-as``, :func:`estimate_msgs`; ``time_boot_ms`` = the autopilot's
+                       time of the IMU sample it belongs to): NAMED_VALUE_FLOAT ``tp_roll/tp_pitch/tp_yaw``
+                       (deg, the default), DEBUG_VECT ``TP_RPY`` (deg), or ATTITUDE (Z-Y-X, rad; rates =
+                       gyro − estimated bias) plus ATTITUDE_QUATERNION (q1..q4 = w, x, y, z)
 NAMED_VALUE_FLOAT      diagnostics (names ≤ 10 characters, see :data:`DIAG_NAMES`)
-DEBUG_VECT             ``TP_RPY`` estimate roll/pitch/yaw (deg), ``TP_DIFF`` estimate − EKF roll/pitch (deg)
+DEBUG_VECT             ``TP_RPY`` estimate roll/pitch/yaw (deg; here only when it is not the estimate), ``TP_DIFF`` estimate − EKF roll/pitch (deg)
                        and the inclination difference (deg), ``TP_BIAS`` gyro bias (rad/s)
 COMMAND_LONG           ``MAV_CMD_SET_MESSAGE_INTERVAL`` asking the autopilot for an IMU stream
 =====================  =================================================================================
@@ -118,23 +119,55 @@ def set_message_interval_msg(target_system: int, target_component: int, message_
     )  # fmt: skip
 
 
-def estimate_msgs(time_boot_ms: int, q_nb_wxyz, rates_rad_s) -> list:
-    """ATTITUDE and ATTITUDE_QUATERNION for one estimate."""
-    return [attitude_msg(time_boot_ms, q_nb_wxyz, rates_rad_s), attitude_quaternion_msg(time_boot_ms, q_nb_wxyz, rates_rad_s)]
+#: How the estimate itself can be sent (``bridge --estimate-as``; see :func:`estimate_msgs`).
+ESTIMATE_AS = ("named_value", "debug_vect", "attitude_quaternion")
+#: The default never drives a ground station's HUD: QGroundControl versions that accept ATTITUDE /
+#: ATTITUDE_QUATERNION from any component of the vehicle's system may flip the HUD between the
+#: autopilot and us; NAMED_VALUE_FLOAT is only ever shown as a named value (QGC's MAVLink
+#: Inspector; Mission Planner's Quick/Status view with its ``propagateNamedFloats`` option).
+DEFAULT_ESTIMATE_AS = "named_value"
+#: NAMED_VALUE_FLOAT names of ``named_value`` (degrees, Z-Y-X Euler angles of the estimate).
+ESTIMATE_VALUE_NAMES = ("tp_roll", "tp_pitch", "tp_yaw")
+#: DEBUG_VECT name of ``debug_vect`` (x, y, z = roll, pitch, yaw in degrees).
+ESTIMATE_VECT_NAME = "TP_RPY"
+
+
+def estimate_msgs(time_boot_ms: int, q_nb_wxyz, rates_rad_s, kind: str = "attitude_quaternion",
+                  time_usec: int | None = None) -> list:  # fmt: skip
+    """The messages that carry one estimate, by ``kind`` (one of :data:`ESTIMATE_AS`):
+
+    ``attitude_quaternion``  ATTITUDE (rad) and ATTITUDE_QUATERNION (w, x, y, z), the standard pair
+    ``named_value``          NAMED_VALUE_FLOAT ``tp_roll``, ``tp_pitch``, ``tp_yaw`` (deg)
+    ``debug_vect``           DEBUG_VECT ``TP_RPY``: x, y, z = roll, pitch, yaw (deg)
+
+    ``time_usec`` (DEBUG_VECT) defaults to ``time_boot_ms`` × 1000.
+    """
+    if kind == "attitude_quaternion":
+        return [attitude_msg(time_boot_ms, q_nb_wxyz, rates_rad_s),
+                attitude_quaternion_msg(time_boot_ms, q_nb_wxyz, rates_rad_s)]  # fmt: skip
+    rpy = [math.degrees(a) for a in euler_zyx(q_nb_wxyz)]
+    if kind == "named_value":
+        return [named_value_float_msg(time_boot_ms, n, v) for n, v in zip(ESTIMATE_VALUE_NAMES, rpy)]
+    if kind == "debug_vect":
+        us = int(time_usec) if time_usec is not None else int(time_boot_ms) * 1000
+        return [debug_vect_msg(ESTIMATE_VECT_NAME, us, *rpy)]
+    raise ValueError(f"estimate kind must be one of {', '.join(ESTIMATE_AS)}, not {kind!r}")
 
 
 def diagnostic_msgs(time_boot_ms: int, time_usec: int, q_nb_wxyz, *, sigma_rad: float, latency_s: float,
-                    imu_rate_hz: float, bias_rad_s, diff=None) -> list:  # fmt: skip
-    """NAMED_VALUE_FLOATs and DEBUG_VECTs of one estimate. ``diff`` = (droll, dpitch, dincl) in rad or None."""
+                    imu_rate_hz: float, bias_rad_s, diff=None, rpy: bool = True) -> list:  # fmt: skip
+    """NAMED_VALUE_FLOATs and DEBUG_VECTs of one estimate. ``diff`` = (droll, dpitch, dincl) in rad or None;
+    ``rpy=False`` leaves out ``TP_RPY`` (when the estimate itself is sent as that DEBUG_VECT)."""
     roll, pitch, yaw = euler_zyx(q_nb_wxyz)
     d = math.degrees
     out = [
         named_value_float_msg(time_boot_ms, "tp_sigma", d(sigma_rad) if math.isfinite(sigma_rad) else float("nan")),
         named_value_float_msg(time_boot_ms, "tp_lat_ms", latency_s * 1e3),
         named_value_float_msg(time_boot_ms, "tp_imu_hz", imu_rate_hz),
-        debug_vect_msg("TP_RPY", time_usec, d(roll), d(pitch), d(yaw)),
         debug_vect_msg("TP_BIAS", time_usec, *bias_rad_s),
     ]
+    if rpy:
+        out.insert(3, debug_vect_msg(ESTIMATE_VECT_NAME, time_usec, d(roll), d(pitch), d(yaw)))
     if diff is not None:
         out.insert(0, named_value_float_msg(time_boot_ms, "tp_dincl", d(diff[2])))
         out.append(debug_vect_msg("TP_DIFF", time_usec, d(diff[0]), d(diff[1]), d(diff[2])))
