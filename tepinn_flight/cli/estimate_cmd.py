@@ -19,6 +19,16 @@ def add_arguments(p) -> None:
     p.add_argument("--yaw", choices=["gyro", "zero"], default=None,
                    help="heading of the output: integrated gyro (default) or 0 (the paper's 6-D correction)")
     p.add_argument("--threads", type=threads, default=0, help="torch CPU threads (default: torch's choice)")
+    p.add_argument("--tlog", default=None, metavar="OUT",
+                   help="also write a tlog (file for one record, folder for several): the source tlog's messages (or, for "
+                        "other sources, the record's IMU and reference attitude) plus the estimate from component 191, "
+                        "for MAVExplorer, UAV Log Viewer, QGroundControl or PlotJuggler")
+    p.add_argument("--source-log", default=None, metavar="TLOG",
+                   help="the .tlog the record was ingested from (default: the record's source_file next to the record)")
+    p.add_argument("--tlog-messages", default="attitude_quaternion,debug_vect", metavar="KINDS",
+                   help="estimate messages in the tlog, comma-separated: attitude_quaternion, attitude, debug_vect "
+                        "(TP_RPY, deg), named_value (tp_roll/tp_pitch/tp_yaw, deg); default attitude_quaternion,debug_vect")
+    p.add_argument("--tlog-rate", type=float, default=50.0, metavar="HZ", help="estimates per second of log time in the tlog (default 50)")
     p.add_argument("-q", "--quiet", action="store_true")
 
 
@@ -47,7 +57,8 @@ def run(args) -> int:
         fusion = dataclasses.replace(fusion, yaw=args.yaw)
     paths = [Path(p) for p in args.records]
     outs = output_paths(paths, args.output)
-    for dst in outs:  # before any work: an output that cannot be written is a one-line error
+    tlogs = _tlog_paths(args, paths)
+    for dst in [*outs, *tlogs]:  # before any work: an output that cannot be written is a one-line error
         check_output(dst)
     failures = 0
     from tqdm import tqdm
@@ -71,4 +82,56 @@ def run(args) -> int:
         if not args.quiet:
             ok = df["q_est_w"].notna().mean()
             print(f"{src} -> {dst}: {len(df)} rows, {100 * ok:.1f}% estimated")
+        if tlogs:
+            try:
+                _write_tlog(args, src, rec, df, tlogs[paths.index(src)])
+            except TepinnError as exc:
+                failures += 1
+                sys.stderr.write(f"tepinn-flight estimate: error: {src}: {exc}\n")
     return 2 if failures else 0
+
+
+def _tlog_paths(args, paths) -> list:
+    """``--tlog``: one file for one record, else a folder of RECORD.tlog (checked before any work)."""
+    from pathlib import Path
+
+    from ..errors import ConfigError
+    from ..estimate_tlog import parse_messages
+    from .ingest_cmd import output_paths
+
+    if args.tlog is None:
+        if args.source_log:
+            raise ConfigError("--source-log goes with --tlog")
+        return []
+    if args.source_log and len(paths) > 1:
+        raise ConfigError("--source-log names the source of one record; give one record")
+    if args.source_log and not Path(args.source_log).is_file():
+        raise ConfigError(f"--source-log {args.source_log}: no such file")
+    try:
+        parse_messages(args.tlog_messages)
+    except ValueError as exc:
+        raise ConfigError(f"--tlog-messages: {exc}") from None
+    if not args.tlog_rate >= 0:
+        raise ConfigError("--tlog-rate must be >= 0 (0: every sample)")
+    return [p.with_suffix(".tlog") if len(paths) > 1 else p for p in output_paths(paths, args.tlog)]
+
+
+def _write_tlog(args, src, rec, df, dst) -> None:
+    import sys
+    from pathlib import Path
+
+    from ..estimate_tlog import parse_messages, write_estimate_tlog
+
+    source = Path(args.source_log) if args.source_log else None
+    if source is None and rec.meta.get("source_kind") == "tlog":
+        cand = Path(src).parent / str(rec.meta.get("source_file", ""))
+        if cand.suffix.lower() == ".tlog" and cand.is_file():
+            source = cand
+        else:
+            sys.stderr.write(f"tepinn-flight estimate: warning: {src}: source tlog {cand.name} not found next to the "
+                             "record (pass --source-log); the tlog gets the record's IMU and reference instead\n")  # fmt: skip
+    counts = write_estimate_tlog(dst, rec, df, source=source, messages=parse_messages(args.tlog_messages),
+                                 rate_hz=args.tlog_rate)  # fmt: skip
+    if not args.quiet:
+        what = ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
+        print(f"{src} -> {dst}: {source.name if source else 'record IMU + reference'} + component 191: {what}")

@@ -1,0 +1,135 @@
+"""``estimate --tlog``: the source tlog's messages plus the estimate from component 191, read back by pymavlink."""
+
+from __future__ import annotations
+
+import os
+
+os.environ["MAVLINK20"] = "1"  # before pymavlink (mavlink.md §2)
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from tepinn_flight.cli.main import main
+from tepinn_flight.record import write_record
+from tepinn_flight.tlog_writer import DEFAULT_BOOT_OFFSET_S, write_tlog
+
+torch = pytest.importorskip("torch")
+
+EST = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
+
+
+def _read(path):
+    from pymavlink import mavutil
+
+    conn = mavutil.mavlink_connection(str(path))
+    out = []
+    while (m := conn.recv_match()) is not None:
+        if m.get_type() != "BAD_DATA":
+            out.append(m)
+    return out
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory):
+    """A simulated flight as an ArduPilot tlog, ingested into a record next to it."""
+    from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    d = tmp_path_factory.mktemp("flight")
+    write_tlog(d / "flight.tlog", synthetic_record(seed=3, duration_s=10.0, rate_hz=100.0))
+    rec = ingest_log(d / "flight.tlog")
+    write_record(rec, d / "flight.parquet")
+    return d
+
+
+def _check(msgs, est, t_boot_of_row):
+    """Every 191 estimate message sits right after the IMU message it belongs to (same receive time,
+    same boot time) and carries that row's estimate."""
+    t_rows = t_boot_of_row(est["t_s"].to_numpy())
+    q_rows = est[EST].to_numpy()
+    aq_seen = 0
+    last_imu = None
+    for m in msgs:
+        src = (m.get_srcSystem(), m.get_srcComponent())
+        if src == (1, 1) and m.get_type() == "HIGHRES_IMU":
+            last_imu = m
+        if src != (1, 191) or m.get_type() == "HEARTBEAT":
+            continue
+        assert last_imu is not None
+        assert m._timestamp == pytest.approx(last_imu._timestamp, abs=1e-6)  # on the log's clock
+        if m.get_type() == "ATTITUDE_QUATERNION":
+            assert m.time_boot_ms == round(last_imu.time_usec / 1000)
+            i = int(np.argmin(np.abs(t_rows - m.time_boot_ms / 1e3)))
+            assert abs(t_rows[i] - m.time_boot_ms / 1e3) < 1e-3
+            np.testing.assert_allclose([m.q1, m.q2, m.q3, m.q4], q_rows[i], atol=1e-6)
+            aq_seen += 1
+        elif m.get_type() == "DEBUG_VECT":
+            assert m.name == "TP_RPY" and m.time_usec == last_imu.time_usec
+    return aq_seen
+
+
+def test_estimate_tlog_from_a_tlog_source(flight, capsys):
+    out = flight / "est.parquet"
+    code = main(["estimate", str(flight / "flight.parquet"), "-o", str(out), "--tlog", str(flight / "est.tlog")])
+    assert code == 0, capsys.readouterr().err
+    est = pd.read_parquet(out)
+    src, msgs = _read(flight / "flight.tlog"), _read(flight / "est.tlog")
+    # the source log's own messages, all of them, unchanged and in order
+    own = [m for m in msgs if m.get_srcComponent() != 191]
+    assert [m.get_msgbuf() for m in own] == [m.get_msgbuf() for m in src]
+    assert [m._timestamp for m in own] == [m._timestamp for m in src]
+    ts = [m._timestamp for m in msgs]
+    assert ts == sorted(ts)  # the estimate interleaves in time
+    types = {m.get_type() for m in msgs if m.get_srcComponent() == 191}
+    assert types == {"HEARTBEAT", "ATTITUDE_QUATERNION", "DEBUG_VECT"}  # no second ATTITUDE stream by default
+    # boot time of a record row: the tlog writer's boot offset, one boot epoch
+    n = _check(msgs, est, lambda t: t + DEFAULT_BOOT_OFFSET_S)
+    ok = est["q_est_w"].notna()
+    span = est["t_s"][ok].iloc[-1] - est["t_s"][ok].iloc[0]
+    assert abs(n - (span * 50 + 1)) <= 2  # 50 Hz of log time while the estimate exists
+
+
+def test_estimate_tlog_other_sources_and_options(tmp_path, capsys):
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    rec = synthetic_record(seed=4, duration_s=10.0, rate_hz=100.0)  # source_kind "synthetic": no tlog
+    write_record(rec, tmp_path / "syn.parquet")
+    code = main(["estimate", str(tmp_path / "syn.parquet"), "-o", str(tmp_path / "syn-est.parquet"), "-q",
+                 "--tlog", str(tmp_path / "syn.tlog"), "--tlog-messages", "attitude,named_value", "--tlog-rate", "10"])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    est = pd.read_parquet(tmp_path / "syn-est.parquet")
+    msgs = _read(tmp_path / "syn.tlog")
+    by = {}
+    for m in msgs:
+        by.setdefault((m.get_srcComponent(), m.get_type()), []).append(m)
+    assert len(by[(1, "HIGHRES_IMU")]) == len(rec)  # the record's IMU as standard messages
+    assert (1, "ATTITUDE_QUATERNION") in by  # and its reference attitude
+    att = by[(191, "ATTITUDE")]
+    nv = by[(191, "NAMED_VALUE_FLOAT")]
+    assert (191, "ATTITUDE_QUATERNION") not in by and (191, "DEBUG_VECT") not in by
+    assert len(nv) == 3 * len(att) and {m.name for m in nv} == {"tp_roll", "tp_pitch", "tp_yaw"}
+    t0 = est["t_s"].iloc[0]
+    t_rows = est["t_s"].to_numpy() - t0 + DEFAULT_BOOT_OFFSET_S
+    q = est[EST].to_numpy()
+    from tepinn_flight.quat import quat_to_euler_zyx
+
+    for a in att:
+        i = int(np.argmin(np.abs(t_rows - a.time_boot_ms / 1e3)))
+        r, p, y = (float(v[0]) for v in quat_to_euler_zyx(q[i : i + 1]))
+        np.testing.assert_allclose([a.roll, a.pitch, a.yaw], [r, p, y], atol=1e-5)
+    ms = np.array([a.time_boot_ms for a in att])
+    assert np.all(np.abs(np.diff(ms) - 100) <= 10)  # --tlog-rate 10 Hz of log time
+
+
+def test_estimate_tlog_bad_options_are_one_line_errors(flight, capsys):
+    rec = str(flight / "flight.parquet")
+    for extra, words in (
+        (["--tlog", str(flight / "x.tlog"), "--tlog-messages", "hud"], "--tlog-messages"),
+        (["--source-log", str(flight / "flight.tlog")], "--source-log goes with --tlog"),
+        (["--tlog", str(flight / "x.tlog"), "--source-log", str(flight / "nope.tlog")], "no such file"),
+    ):
+        code = main(["estimate", rec, "-o", str(flight / "x.parquet"), *extra])
+        err = capsys.readouterr().err
+        assert code == 2 and words in err and err.count("\n") == 1, err
+        assert not (flight / "x.parquet").exists() and not (flight / "x.tlog").exists()
