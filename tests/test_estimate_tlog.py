@@ -133,3 +133,29 @@ def test_estimate_tlog_bad_options_are_one_line_errors(flight, capsys):
         err = capsys.readouterr().err
         assert code == 2 and words in err and err.count("\n") == 1, err
         assert not (flight / "x.parquet").exists() and not (flight / "x.tlog").exists()
+
+
+def test_mavexplorer_graphs_evaluate_on_the_written_tlog(flight):
+    """tools/mavexplorer_tepinn.xml: well-formed, and every expression evaluates (pymavlink's own
+    evaluator, as MAVExplorer's grapher uses it) once the tlog's messages are seen."""
+    import xml.etree.ElementTree as ET
+    from pathlib import Path
+
+    from pymavlink import mavutil
+
+    from tepinn_flight.estimate_tlog import write_estimate_tlog  # noqa: F401 - the writer the graphs are for
+
+    xml = Path(__file__).resolve().parents[1] / "tools" / "mavexplorer_tepinn.xml"
+    graphs = ET.parse(xml).getroot().findall("graph")
+    assert len(graphs) >= 2 and all(g.get("name", "").startswith("TE-PINN/") for g in graphs)
+    tlog = flight / "est.tlog"
+    if not tlog.exists():
+        assert main(["estimate", str(flight / "flight.parquet"), "-o", str(flight / "est.parquet"), "-q", "--tlog", str(tlog)]) == 0
+    latest = {}
+    for m in _read(tlog):
+        latest[m.get_type()] = m
+    for g in graphs:
+        for expr in g.findall("expression"):
+            for field in expr.text.split():
+                v = mavutil.evaluate_expression(field, latest)
+                assert v is not None and np.isfinite(v), (g.get("name"), field)
