@@ -134,3 +134,19 @@ def test_tuning_refuses_test_records(records_dir, tmp_path, capsys):
     rec = str(records_dir / "syn1.parquet")
     code = main(["evaluate", rec, "--report", str(tmp_path / "r"), "--tune-ekf-on", rec, "-q", "--no-model"])
     assert code == 2 and "never tune on test data" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flag", ["-o", "--output", "--report"])
+def test_evaluate_output_option_and_alias(flag):
+    from tepinn_flight.cli.main import build_parser
+
+    args = build_parser().parse_args(["evaluate", "rec.parquet", flag, "outdir"])
+    assert args.output == "outdir"
+
+
+def test_evaluate_writes_into_o_dir(records_dir, tmp_path, capsys):
+    out = tmp_path / "o"
+    code = main(["evaluate", str(records_dir / "syn1.parquet"), "-o", str(out), "-q", "--no-model", "--no-peers",
+                 "--warmup-s", "2"])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    assert (out / "report.md").exists() and (out / "metrics.json").exists()

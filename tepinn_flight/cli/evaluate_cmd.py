@@ -1,4 +1,4 @@
-"""``tepinn-flight evaluate RECORDS... --report DIR [--model CKPT ...] [--noise-sweep]``."""
+"""``tepinn-flight evaluate RECORDS... -o DIR [--model CKPT ...] [--noise-sweep]`` (``--report DIR`` is an alias of ``-o``)."""
 
 from __future__ import annotations
 
@@ -17,7 +17,8 @@ DESCRIPTION = (
 
 def add_arguments(p) -> None:
     p.add_argument("records", nargs="+", metavar="RECORD", help="flight records, logs or folders of records")
-    p.add_argument("--report", required=True, metavar="DIR", help="output folder for report.md, figures, metrics.json")
+    p.add_argument("-o", "--output", "--report", dest="output", required=True, metavar="DIR",
+                   help="output folder for report.md, report.html, figures, metrics.json (--report DIR: the same)")
     p.add_argument("--model", action="append", default=[], metavar="CKPT",
                    help="TE-PINN checkpoint (repeatable); default: the shipped model if there is one")
     p.add_argument("--no-model", action="store_true", help="evaluate the baselines only")
@@ -73,7 +74,7 @@ def run(args) -> int:
 
     from ..record import check_output
 
-    check_output(args.report, folder=True)  # before the (long) evaluation
+    check_output(args.output, folder=True)  # before the (long) evaluation
     cfg = load_suite_config(args.config, args.set)
     try:
         levels = tuple(float(v) for v in args.noise_levels.split(",") if v.strip())
@@ -117,7 +118,7 @@ def run(args) -> int:
     result = evaluate(records, estimators, hcfg, progress=not args.quiet, notes=notes)
     if args.noise_sweep:
         result.noise_sweep = noise_sweep(records, estimators, hcfg, progress=not args.quiet, notes=result.notes)
-    files = write_report(result, args.report)
+    files = write_report(result, args.output)
     if not args.quiet:
         for n in result.notes:
             sys.stderr.write(f"note: {n}\n")
