@@ -10,7 +10,7 @@ DESCRIPTION = (
     "Run every estimator (TE-PINN from a checkpoint, the complementary filter, Madgwick, a "
     "bias-estimating EKF, and VQF / offline VQF / RIANN / Fusion) on the same records "
     "with the same scoring mask and warm-up, and write report.md with tables and PNG figures plus "
-    "metrics.json. RECORDS are flight records (.parquet) or logs (ingested on the fly); a folder "
+    "metrics.json, and report.html, the same results to zoom into in a browser. RECORDS are flight records (.parquet) or logs (ingested on the fly); a folder "
     "stands for the records in it."
 )
 
@@ -125,5 +125,5 @@ def run(args) -> int:
     best = sorted((d["inclination_rmse_deg"], k) for k, d in result.dataset.items() if d["inclination_rmse_deg"] is not None)
     print(f"{len(records)} record(s), {len(estimators)} estimator(s); inclination RMSE (mean over records): "
           + ", ".join(f"{display_name(k)} {v:.2f}°" for v, k in best))
-    print(f"report: {files[-1]}")
+    print(f"report: {files[-1]} (interactive: {files[-1].with_name('report.html')})")
     return 0

@@ -1,7 +1,8 @@
-"""Evaluation report: ``report.md`` (tables), PNG figures and ``metrics.json``, written atomically.
+"""Evaluation report: ``report.md`` (tables), PNG figures, ``metrics.json`` and ``report.html`` (the
+interactive version, :mod:`.report_html`), written atomically.
 
 Colours follow the TE-PINN paper: ground truth black, the analytical (complementary) filter red,
-the LSTM blue, TE-PINN green; every other estimator gets its own colour. 6-D estimates are shown
+the LSTM blue, TE-PINN green; every other method has its own fixed colour (:mod:`.plotdata`). 6-D estimates are shown
 after their one constant heading alignment per run (the same one the metrics use) and on the
 reference's quaternion hemisphere (q ≡ −q), so curves are comparable.
 
@@ -23,11 +24,9 @@ import numpy as np
 from .. import __version__
 from ..record import atomic_write
 from .harness import EvalResult
+from .report_html import write_html
 from .names import display_name
-
-PAPER_COLOURS = {"truth": "black", "complementary": "red", "lstm": "blue", "tepinn": "green"}
-OTHER_COLOURS = ["tab:orange", "tab:purple", "tab:brown", "tab:pink", "tab:gray", "tab:olive", "tab:cyan",
-                 "goldenrod", "navy", "teal", "magenta", "darkred"]  # fmt: skip
+from .plotdata import PAPER_COLOURS, break_wraps, colour_map, is_9d, showcase_records
 
 FIGURES = {
     "quaternion": "fig_quaternion.png",
@@ -38,20 +37,7 @@ FIGURES = {
     "uncertainty": "fig_uncertainty.png",
     "error_vs_noise": "fig_error_vs_noise.png",
 }
-
-
-def colour_map(names: list[str]) -> dict[str, str]:
-    out, k = {}, 0
-    for n in names:
-        base = n.lower()
-        for key in ("complementary", "lstm", "tepinn"):
-            if base.startswith(key) or base.startswith(key.replace("tepinn", "te-pinn")):
-                out[n] = PAPER_COLOURS[key]
-                break
-        else:
-            out[n] = OTHER_COLOURS[k % len(OTHER_COLOURS)]
-            k += 1
-    return out
+HTML_REPORT = "report.html"
 
 
 def _plt():
@@ -254,7 +240,7 @@ def _pct(v):
 
 
 def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "Attitude estimation report") -> str:
-    L = [f"# {title}", ""]
+    L = [f"# {title}", "", f"Interactive version, every record zoomable: [{HTML_REPORT}]({HTML_REPORT}).", ""]
     L.append(f"tepinn-flight {__version__}, {datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}. "
              f"{len(result.records)} record(s), {len(result.estimators)} estimator(s).")  # fmt: skip
     L.append("")
@@ -387,7 +373,8 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     else:
         L.append("Not run (use `--noise-sweep` with simulated records).")
     L.append("")
-    L.append("Machine-readable results: [metrics.json](metrics.json).")
+    L.append("Machine-readable results: [metrics.json](metrics.json). Interactive version (zoom into every record; "
+             f"opens offline in a browser): [{HTML_REPORT}]({HTML_REPORT}).")
     L.append("")
     return "\n".join(L)
 
@@ -411,10 +398,11 @@ def write_report(result: EvalResult, out_dir: str | os.PathLike, title: str = "A
     js = json.dumps(result.to_json(), indent=1, allow_nan=False)
     atomic_write(out / "metrics.json", lambda tmp: Path(tmp).write_text(js, encoding="utf-8"))
     written.append(out / "metrics.json")
+    written.append(write_html(result, out / HTML_REPORT, title))
     md = render_markdown(result, FIGURES, title)
     atomic_write(out / "report.md", lambda tmp: Path(tmp).write_text(md, encoding="utf-8"))
     written.append(out / "report.md")
     return written
 
 
-__all__ = ["write_report", "render_markdown", "colour_map", "FIGURES", "PAPER_COLOURS"]
+__all__ = ["write_report", "render_markdown", "colour_map", "FIGURES", "HTML_REPORT", "PAPER_COLOURS"]
