@@ -298,3 +298,69 @@ def test_html_report_renders_in_a_browser(baseline_result, tmp_path):
     assert {"reference", "EKF", "offline VQF", "VQF"} <= legend
     assert dom.count('class="scatterlayer') >= len(baseline_result.series)
     assert len(re.findall(r'class="js-line" d="M', dom)) > 10  # the curves themselves were drawn
+
+
+# ----------------------------------------------------------------------------- PNG figures
+
+
+def _fake_result(rmse):
+    """A minimal EvalResult-like object: records with TE-PINN and VQF inclination RMSEs."""
+    from types import SimpleNamespace
+
+    series = [{"name": n, "t_s": np.arange(5.0), "mask": np.ones(5, bool), "q_ref": np.tile([1.0, 0, 0, 0], (5, 1)), "est": {}}
+              for n in rmse]  # fmt: skip
+    records = [{"name": n, "results": {"tepinn": {"inclination_rmse_deg": a}, "vqf": {"inclination_rmse_deg": b}}}
+               for n, (a, b) in rmse.items()]  # fmt: skip
+    ds = {k: {"inclination_rmse_deg": float(np.mean([v[i] for v in rmse.values()]))} for i, k in enumerate(("tepinn", "vqf"))}
+    est = [{"name": "tepinn", "kind": "learned"}, {"name": "vqf", "kind": "peer"}]
+    return SimpleNamespace(series=series, records=records, dataset=ds, estimators=est)
+
+
+def test_time_series_show_best_and_worst_record_relative_to_vqf():
+    from tepinn_flight.evaluation.plotdata import showcase_records
+
+    # alphabetically first "a" and the smallest absolute error "b" are neither best nor worst relative to VQF
+    res = _fake_result({"a": (2.0, 2.0), "b": (0.5, 0.4), "c": (3.0, 6.0), "d": (4.0, 2.0), "e": (1.0, 1.0)})
+    shown = showcase_records(res)
+    assert [s["name"] for s, _ in shown] == ["c", "d"]
+    assert "best" in shown[0][1] and "0.50× VQF" in shown[0][1] and "worst" in shown[1][1] and "2.00× VQF" in shown[1][1]
+    few = showcase_records(_fake_result({"a": (2.0, 2.0), "b": (0.5, 0.4)}))
+    assert [s["name"] for s, _ in few] == ["a", "b"]  # few records: every one
+
+
+def test_euler_figure_every_record_and_no_wrap_jumps(baseline_result):
+    from tepinn_flight.evaluation.report import fig_euler
+
+    fig = fig_euler(baseline_result, colour_map(list(baseline_result.dataset)))
+    axes = np.array(fig.axes).reshape(3, -1)
+    assert axes.shape[1] == 3  # 3 records: one column each
+    assert {ax.get_title().split("\n")[0] for ax in axes[0]} == {s["name"] for s in baseline_result.series}
+    breaks = 0
+    for ax in list(axes[0]) + list(axes[2]):  # roll, yaw
+        for line in ax.get_lines():
+            y = np.asarray(line.get_ydata(), np.float64)
+            breaks += int(np.isnan(y).sum())
+            fin = np.isfinite(y[1:]) & np.isfinite(y[:-1])
+            assert np.all(np.abs(np.diff(y))[fin] < 180), line.get_label()
+    assert breaks > 0  # these flights do wrap: the lines are broken there
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+
+
+def test_per_record_dots_labelled_and_rate_bins_counted(baseline_result):
+    import matplotlib.pyplot as plt
+
+    from tepinn_flight.evaluation.report import fig_error_vs_rate, fig_per_record
+
+    colours = colour_map(list(baseline_result.dataset))
+    fig = fig_per_record(baseline_result, colours)
+    texts = [t.get_text() for t in fig.axes[0].texts]
+    for r in baseline_result.records:
+        assert texts.count(r["name"]) == len(baseline_result.dataset)
+    plt.close(fig)
+    fig = fig_error_vs_rate(baseline_result, colours)
+    ticks = [t.get_text() for t in fig.axes[0].get_xticklabels()]
+    counts = baseline_result.dataset["ekf"]["dynamic_error_n"]
+    assert sum(counts) > 0 and ticks and all(f"n = {n}" in tk for tk, n in zip(ticks, counts))
+    plt.close(fig)
