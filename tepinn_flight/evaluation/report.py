@@ -24,9 +24,9 @@ import numpy as np
 from .. import __version__
 from ..record import atomic_write
 from .harness import EvalResult
-from .report_html import rate_labels, write_html
 from .names import display_name
 from .plotdata import PAPER_COLOURS, break_wraps, colour_map, is_9d, minmax_indices, showcase_records
+from .report_html import rate_labels, write_html
 
 FIGURES = {
     "quaternion": "fig_quaternion.png",
