@@ -64,6 +64,8 @@ def test_report_renders_with_all_figures(records_dir, tiny_checkpoint, tmp_path,
         assert _is_png(out / name), key
         assert f"]({name})" in md, key
     assert "RIANN skipped: package 'riann' is not installed" in md
+    page = (out / "report.html").read_text()
+    assert "](report.html)" in md and "Plotly.newPlot" in page and '"name":"TE-PINN"' in page
     data = json.loads((out / "metrics.json").read_text())
     names = {e["name"]: e for e in data["estimators"]}
     assert names["tepinn"]["kind"] == "learned" and {"complementary", "madgwick", "ekf", "vqf"} <= set(names)
@@ -134,3 +136,231 @@ def test_tuning_refuses_test_records(records_dir, tmp_path, capsys):
     rec = str(records_dir / "syn1.parquet")
     code = main(["evaluate", rec, "--report", str(tmp_path / "r"), "--tune-ekf-on", rec, "-q", "--no-model"])
     assert code == 2 and "never tune on test data" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("flag", ["-o", "--output", "--report"])
+def test_evaluate_output_option_and_alias(flag):
+    from tepinn_flight.cli.main import build_parser
+
+    args = build_parser().parse_args(["evaluate", "rec.parquet", flag, "outdir"])
+    assert args.output == "outdir"
+
+
+def test_evaluate_writes_into_o_dir(records_dir, tmp_path, capsys):
+    out = tmp_path / "o"
+    code = main(["evaluate", str(records_dir / "syn1.parquet"), "-o", str(out), "-q", "--no-model", "--no-peers",
+                 "--warmup-s", "2"])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    assert (out / "report.md").exists() and (out / "metrics.json").exists()
+
+
+# ----------------------------------------------------------------------------- interactive report, figure data
+
+
+def _minmax_reference(y, max_points):
+    """Slow and obvious: per bucket, the first smallest and first largest finite value and the first NaN."""
+    n = len(y)
+    if n <= max_points:
+        return list(range(n))
+    nb = max_points // 3
+    keep = set()
+    for b in range(nb):
+        lo, hi = n * b // nb, n * (b + 1) // nb
+        finite = [i for i in range(lo, hi) if not np.isnan(y[i])]
+        nans = [i for i in range(lo, hi) if np.isnan(y[i])]
+        if finite:
+            keep.add(min(finite, key=lambda i: (y[i], i)))
+            keep.add(min(finite, key=lambda i: (-y[i], i)))
+        if nans:
+            keep.add(nans[0])
+    return sorted(keep)
+
+
+@pytest.mark.parametrize("n, max_points, seed", [(10, 30, 0), (1000, 30, 1), (1001, 31, 2), (5000, 400, 3), (4001, 4000, 4),
+                                                  (777, 9, 5), (20000, 4000, 6)])  # fmt: skip
+def test_minmax_indices_against_reference(n, max_points, seed):
+    from tepinn_flight.evaluation.plotdata import minmax_indices
+
+    rng = np.random.default_rng(seed)
+    y = np.cumsum(rng.normal(size=n))
+    y[rng.integers(0, n, size=n // 50)] = 5e3  # spikes that must survive
+    y[rng.integers(0, n, size=n // 40)] = np.nan  # scattered gaps
+    if n > 200:
+        y[n // 3 : n // 3 + n // 10] = np.nan  # a long gap: whole NaN buckets
+    y[rng.integers(0, n, size=n // 30)] = 0.0  # ties
+    got = minmax_indices(y, max_points)
+    assert got.tolist() == _minmax_reference(y, max_points)
+    assert len(got) <= max(n if n <= max_points else 0, max_points)
+    assert np.nanmax(y[got]) == np.nanmax(y) and np.nanmin(y[got]) == np.nanmin(y)
+
+
+def test_break_wraps():
+    from tepinn_flight.evaluation.plotdata import break_wraps
+
+    t = np.arange(6.0)
+    y = np.array([170.0, 178.0, -178.0, -170.0, -179.0, 179.0])
+    t2, y2 = break_wraps(t, y)
+    assert len(y2) == 8 and np.isnan(y2[2]) and np.isnan(y2[6]) and t2[2] == 1.5 and t2[6] == 4.5
+    seg = np.split(y2, np.flatnonzero(np.isnan(y2)))
+    assert all(np.all(np.abs(np.diff(s[np.isfinite(s)])) < 180) for s in seg)
+
+
+def test_fixed_colours_per_method():
+    import matplotlib.colors as mc
+
+    a = colour_map(["tepinn", "madgwick", "ekf", "vqf", "offline-vqf", "riann", "fusion", "complementary"])
+    b = colour_map(["offline-vqf", "ekf"])  # the same colour whatever else was evaluated
+    assert a["ekf"] == b["ekf"] and a["offline-vqf"] == b["offline-vqf"]
+    rgb = {k: np.array(mc.to_rgb(v)) for k, v in a.items()}
+    keys = list(rgb)
+    for i, k in enumerate(keys):
+        for j in keys[i + 1 :]:
+            assert np.abs(rgb[k] - rgb[j]).sum() > 0.35, (k, j)
+    two = colour_map(["tepinn", "tepinn-run2", "ekf", "ekf-9d"])
+    assert two["tepinn"] == "green" and two["tepinn-run2"] != "green" and two["ekf-9d"] == two["ekf"]
+
+
+@pytest.fixture(scope="module")
+def baseline_result(records_dir):
+    from tepinn_flight.evaluation.harness import HarnessConfig, evaluate
+    from tepinn_flight.evaluation.suite import baseline_estimators, peer_estimators
+    from tepinn_flight.record import read_record
+
+    recs = [read_record(p) for p in sorted(records_dir.glob("*.parquet"))]
+    ests = baseline_estimators() + [e for e in peer_estimators(notes=[]) if e.name in ("vqf", "offline-vqf")]
+    return evaluate(recs, ests, HarnessConfig(warmup_s=2.0), progress=False)
+
+
+def _plotly_figures(text):
+    """The (data, layout) of every Plotly.newPlot call in an HTML page."""
+    dec = json.JSONDecoder()
+    out = []
+    for m in re.finditer(r'Plotly\.newPlot\(\s*"[^"]+",\s*', text):
+        data, end = dec.raw_decode(text, m.end())
+        layout, _ = dec.raw_decode(text, end + text[end:].index("{"))
+        out.append((data, layout))
+    return out
+
+
+def test_html_report_holds_every_record_trace_and_peak(baseline_result):
+    from tepinn_flight.evaluation.report_html import render_html
+    from tepinn_flight.quat import quat_to_euler_zyx
+
+    text = render_html(baseline_result, max_points=300)
+    assert '<script src="http' not in text and "plotly.js" in text.lower()  # plotly.js embedded: works offline
+    figs = _plotly_figures(text)
+    assert len(figs) == len(baseline_result.series) == 3
+    want = {"reference"} | {display_name(n) for n in baseline_result.dataset}
+    assert {"EKF", "offline VQF", "VQF", "Madgwick", "complementary"} <= want
+    for (data, _), s in zip(figs, baseline_result.series):
+        assert {tr["name"] for tr in data} == want
+        assert all(len(tr["x"]) == len(tr["y"]) <= 300 + 3 for tr in data)  # decimated (wrap breaks add a few)
+        assert len(s["t_s"]) > 300
+        ref = [tr for tr in data if tr["name"] == "reference"]
+        assert len(ref) == 3  # roll, pitch, heading
+        pitch = np.degrees(quat_to_euler_zyx(s["q_ref"])[1])
+        ys = np.array([np.nan if v is None else v for v in ref[1]["y"]])
+        assert np.nanmax(ys) == pytest.approx(pitch.max(), abs=1e-3) and np.nanmin(ys) == pytest.approx(pitch.min(), abs=1e-3)
+        # the inclination error of every estimator is there (4th panel)
+        assert sum(tr["yaxis"] == "y4" for tr in data) == len(baseline_result.dataset)
+    for r in baseline_result.records:
+        assert f"<td>{r['name']}</td>" in text
+    assert "<td>samples</td>" in text
+
+
+def _browser():
+    import shutil
+
+    for exe in ("chromium", "chromium-browser", "google-chrome", "chrome"):
+        if shutil.which(exe):
+            return shutil.which(exe)
+    pytest.skip("no headless browser installed (chromium / google-chrome not on PATH); "
+                "`apt-get install chromium` to run the browser test of report.html")  # fmt: skip
+
+
+def test_html_report_renders_in_a_browser(baseline_result, tmp_path):
+    import subprocess
+
+    from tepinn_flight.evaluation.report_html import write_html
+
+    exe = _browser()
+    page = write_html(baseline_result, tmp_path / "report.html", max_points=1000)
+    cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--virtual-time-budget=20000",
+           f"--user-data-dir={tmp_path / 'profile'}", "--dump-dom", page.resolve().as_uri()]  # fmt: skip
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
+    dom = proc.stdout
+    assert proc.returncode == 0 and dom, proc.stderr[-2000:]
+    # plotly drew every figure: its SVG layers and the legend with the names people write
+    assert dom.count('class="main-svg"') >= len(baseline_result.series)
+    for i in range(len(baseline_result.series)):
+        assert f'id="fig{i}"' in dom
+    legend = set(re.findall(r'class="legendtext"[^>]*>([^<]+)<', dom))
+    assert {"reference", "EKF", "offline VQF", "VQF"} <= legend
+    assert dom.count('class="scatterlayer') >= len(baseline_result.series)
+    assert len(re.findall(r'class="js-line" d="M', dom)) > 10  # the curves themselves were drawn
+
+
+# ----------------------------------------------------------------------------- PNG figures
+
+
+def _fake_result(rmse):
+    """A minimal EvalResult-like object: records with TE-PINN and VQF inclination RMSEs."""
+    from types import SimpleNamespace
+
+    series = [{"name": n, "t_s": np.arange(5.0), "mask": np.ones(5, bool), "q_ref": np.tile([1.0, 0, 0, 0], (5, 1)), "est": {}}
+              for n in rmse]  # fmt: skip
+    records = [{"name": n, "results": {"tepinn": {"inclination_rmse_deg": a}, "vqf": {"inclination_rmse_deg": b}}}
+               for n, (a, b) in rmse.items()]  # fmt: skip
+    ds = {k: {"inclination_rmse_deg": float(np.mean([v[i] for v in rmse.values()]))} for i, k in enumerate(("tepinn", "vqf"))}
+    est = [{"name": "tepinn", "kind": "learned"}, {"name": "vqf", "kind": "peer"}]
+    return SimpleNamespace(series=series, records=records, dataset=ds, estimators=est)
+
+
+def test_time_series_show_best_and_worst_record_relative_to_vqf():
+    from tepinn_flight.evaluation.plotdata import showcase_records
+
+    # alphabetically first "a" and the smallest absolute error "b" are neither best nor worst relative to VQF
+    res = _fake_result({"a": (2.0, 2.0), "b": (0.5, 0.4), "c": (3.0, 6.0), "d": (4.0, 2.0), "e": (1.0, 1.0)})
+    shown = showcase_records(res)
+    assert [s["name"] for s, _ in shown] == ["c", "d"]
+    assert "best" in shown[0][1] and "0.50× VQF" in shown[0][1] and "worst" in shown[1][1] and "2.00× VQF" in shown[1][1]
+    few = showcase_records(_fake_result({"a": (2.0, 2.0), "b": (0.5, 0.4)}))
+    assert [s["name"] for s, _ in few] == ["a", "b"]  # few records: every one
+
+
+def test_euler_figure_every_record_and_no_wrap_jumps(baseline_result):
+    from tepinn_flight.evaluation.report import fig_euler
+
+    fig = fig_euler(baseline_result, colour_map(list(baseline_result.dataset)))
+    axes = np.array(fig.axes).reshape(3, -1)
+    assert axes.shape[1] == 3  # 3 records: one column each
+    assert {ax.get_title().split("\n")[0] for ax in axes[0]} == {s["name"] for s in baseline_result.series}
+    breaks = 0
+    for ax in list(axes[0]) + list(axes[2]):  # roll, yaw
+        for line in ax.get_lines():
+            y = np.asarray(line.get_ydata(), np.float64)
+            breaks += int(np.isnan(y).sum())
+            fin = np.isfinite(y[1:]) & np.isfinite(y[:-1])
+            assert np.all(np.abs(np.diff(y))[fin] < 180), line.get_label()
+    assert breaks > 0  # these flights do wrap: the lines are broken there
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+
+
+def test_per_record_dots_labelled_and_rate_bins_counted(baseline_result):
+    import matplotlib.pyplot as plt
+
+    from tepinn_flight.evaluation.report import fig_error_vs_rate, fig_per_record
+
+    colours = colour_map(list(baseline_result.dataset))
+    fig = fig_per_record(baseline_result, colours)
+    texts = [t.get_text() for t in fig.axes[0].texts]
+    for r in baseline_result.records:
+        assert texts.count(r["name"]) == len(baseline_result.dataset)
+    plt.close(fig)
+    fig = fig_error_vs_rate(baseline_result, colours)
+    ticks = [t.get_text() for t in fig.axes[0].get_xticklabels()]
+    counts = baseline_result.dataset["ekf"]["dynamic_error_n"]
+    assert sum(counts) > 0 and ticks and all(f"n = {n}" in tk for tk, n in zip(ticks, counts))
+    plt.close(fig)

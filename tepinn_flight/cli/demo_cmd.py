@@ -60,5 +60,5 @@ def run(args) -> int:
         say(f"note: {n}")
     rows = sorted((d["inclination_rmse_deg"], k) for k, d in result.dataset.items() if d["inclination_rmse_deg"] is not None)
     print("inclination RMSE (mean over the demo flights): " + ", ".join(f"{display_name(k)} {v:.2f}°" for v, k in rows))
-    print(f"report: {files[-1]}")
+    print(f"report: {files[-1]} (interactive: {files[-1].with_name('report.html')})")
     return 0

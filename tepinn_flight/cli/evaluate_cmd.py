@@ -1,4 +1,4 @@
-"""``tepinn-flight evaluate RECORDS... --report DIR [--model CKPT ...] [--noise-sweep]``."""
+"""``tepinn-flight evaluate RECORDS... -o DIR [--model CKPT ...] [--noise-sweep]`` (``--report DIR`` is an alias of ``-o``)."""
 
 from __future__ import annotations
 
@@ -10,14 +10,15 @@ DESCRIPTION = (
     "Run every estimator (TE-PINN from a checkpoint, the complementary filter, Madgwick, a "
     "bias-estimating EKF, and VQF / offline VQF / RIANN / Fusion) on the same records "
     "with the same scoring mask and warm-up, and write report.md with tables and PNG figures plus "
-    "metrics.json. RECORDS are flight records (.parquet) or logs (ingested on the fly); a folder "
+    "metrics.json, and report.html, the same results to zoom into in a browser. RECORDS are flight records (.parquet) or logs (ingested on the fly); a folder "
     "stands for the records in it."
 )
 
 
 def add_arguments(p) -> None:
     p.add_argument("records", nargs="+", metavar="RECORD", help="flight records, logs or folders of records")
-    p.add_argument("--report", required=True, metavar="DIR", help="output folder for report.md, figures, metrics.json")
+    p.add_argument("-o", "--output", "--report", dest="output", required=True, metavar="DIR",
+                   help="output folder for report.md, report.html, figures, metrics.json (--report DIR: the same)")
     p.add_argument("--model", action="append", default=[], metavar="CKPT",
                    help="TE-PINN checkpoint (repeatable); default: the shipped model if there is one")
     p.add_argument("--no-model", action="store_true", help="evaluate the baselines only")
@@ -73,7 +74,7 @@ def run(args) -> int:
 
     from ..record import check_output
 
-    check_output(args.report, folder=True)  # before the (long) evaluation
+    check_output(args.output, folder=True)  # before the (long) evaluation
     cfg = load_suite_config(args.config, args.set)
     try:
         levels = tuple(float(v) for v in args.noise_levels.split(",") if v.strip())
@@ -117,12 +118,12 @@ def run(args) -> int:
     result = evaluate(records, estimators, hcfg, progress=not args.quiet, notes=notes)
     if args.noise_sweep:
         result.noise_sweep = noise_sweep(records, estimators, hcfg, progress=not args.quiet, notes=result.notes)
-    files = write_report(result, args.report)
+    files = write_report(result, args.output)
     if not args.quiet:
         for n in result.notes:
             sys.stderr.write(f"note: {n}\n")
     best = sorted((d["inclination_rmse_deg"], k) for k, d in result.dataset.items() if d["inclination_rmse_deg"] is not None)
     print(f"{len(records)} record(s), {len(estimators)} estimator(s); inclination RMSE (mean over records): "
           + ", ".join(f"{display_name(k)} {v:.2f}°" for v, k in best))
-    print(f"report: {files[-1]}")
+    print(f"report: {files[-1]} (interactive: {files[-1].with_name('report.html')})")
     return 0

@@ -1,7 +1,8 @@
-"""Evaluation report: ``report.md`` (tables), PNG figures and ``metrics.json``, written atomically.
+"""Evaluation report: ``report.md`` (tables), PNG figures, ``metrics.json`` and ``report.html`` (the
+interactive version, :mod:`.report_html`), written atomically.
 
 Colours follow the TE-PINN paper: ground truth black, the analytical (complementary) filter red,
-the LSTM blue, TE-PINN green; every other estimator gets its own colour. 6-D estimates are shown
+the LSTM blue, TE-PINN green; every other method has its own fixed colour (:mod:`.plotdata`). 6-D estimates are shown
 after their one constant heading alignment per run (the same one the metrics use) and on the
 reference's quaternion hemisphere (q ≡ −q), so curves are comparable.
 
@@ -24,10 +25,8 @@ from .. import __version__
 from ..record import atomic_write
 from .harness import EvalResult
 from .names import display_name
-
-PAPER_COLOURS = {"truth": "black", "complementary": "red", "lstm": "blue", "tepinn": "green"}
-OTHER_COLOURS = ["tab:orange", "tab:purple", "tab:brown", "tab:pink", "tab:gray", "tab:olive", "tab:cyan",
-                 "goldenrod", "navy", "teal", "magenta", "darkred"]  # fmt: skip
+from .plotdata import PAPER_COLOURS, break_wraps, colour_map, is_9d, minmax_indices, showcase_records
+from .report_html import rate_labels, write_html
 
 FIGURES = {
     "quaternion": "fig_quaternion.png",
@@ -38,20 +37,7 @@ FIGURES = {
     "uncertainty": "fig_uncertainty.png",
     "error_vs_noise": "fig_error_vs_noise.png",
 }
-
-
-def colour_map(names: list[str]) -> dict[str, str]:
-    out, k = {}, 0
-    for n in names:
-        base = n.lower()
-        for key in ("complementary", "lstm", "tepinn"):
-            if base.startswith(key) or base.startswith(key.replace("tepinn", "te-pinn")):
-                out[n] = PAPER_COLOURS[key]
-                break
-        else:
-            out[n] = OTHER_COLOURS[k % len(OTHER_COLOURS)]
-            k += 1
-    return out
+HTML_REPORT = "report.html"
 
 
 def _plt():
@@ -75,21 +61,35 @@ def _stride(n: int, max_points: int = 6000) -> int:
     return max(1, int(math.ceil(n / max_points)))
 
 
-def _showcase(result: EvalResult) -> dict | None:
-    """The record the time-series figures show: the one with most scored samples."""
-    if not result.series:
-        return None
-    return max(result.series, key=lambda s: int(np.sum(s["mask"])))
+def _finish(fig, path):
+    """Save and close the figure, or (``path`` None, for tests) hand it back."""
+    if path is None:
+        return fig
+    _save(fig, path)
+    return None
+
+
+def _ls(name: str) -> str:
+    return "--" if is_9d(name) else "-"
+
+
+def _grid(plt, rows: int, shown: list, height: float):
+    nc = max(1, len(shown))
+    return plt.subplots(rows, nc, figsize=(10 if nc == 1 else 6.5 * nc, height), sharex="col", squeeze=False)
+
+
+def _caption(s: dict, cap: str) -> str:
+    return f"{s['name']}\n{cap}" if cap else s["name"]
 
 
 # ----------------------------------------------------------------------------- figures
 
 
-def fig_quaternion(result, colours, path):
+def fig_quaternion(result, colours, path=None):
     plt = _plt()
-    s = _showcase(result)
-    fig, axes = plt.subplots(4, 1, figsize=(10, 8), sharex=True)
-    if s is not None:
+    shown = showcase_records(result)
+    fig, axes = _grid(plt, 4, shown, 8)
+    for c, (s, cap) in enumerate(shown):
         k = _stride(len(s["t_s"]))
         t = s["t_s"][::k]
         ref = s["q_ref"][::k]
@@ -97,94 +97,126 @@ def fig_quaternion(result, colours, path):
             q = e["q"][::k]
             q = np.where(np.sum(q * ref, axis=1, keepdims=True) < 0, -q, q)
             for i in range(4):
-                axes[i].plot(t, q[:, i], color=colours[name], lw=0.8, label=display_name(name))
-        for i, c in enumerate("wxyz"):
-            axes[i].plot(t, ref[:, i], color=PAPER_COLOURS["truth"], lw=1.2, label="reference")
-            axes[i].set_ylabel(f"q_{c}")
-        axes[0].set_title(f"Quaternion components, {s['name']} (6-D estimates heading-aligned)")
-        axes[0].legend(fontsize=7, ncol=4, loc="upper right")
-    axes[-1].set_xlabel("t [s]")
-    _save(fig, path)
+                axes[i][c].plot(t, q[:, i], color=colours[name], ls=_ls(name), lw=0.8, label=display_name(name))
+        for i, comp in enumerate("wxyz"):
+            axes[i][c].plot(t, ref[:, i], color=PAPER_COLOURS["truth"], lw=1.2, label="reference")
+            axes[i][0].set_ylabel(f"q_{comp}")
+        axes[0][c].set_title(_caption(s, cap), fontsize=9)
+        axes[-1][c].set_xlabel("t [s]")
+    if shown:
+        axes[0][0].legend(fontsize=7, ncol=4, loc="upper right")
+    fig.suptitle("Quaternion components (6-D estimates heading-aligned)")
+    return _finish(fig, path)
 
 
-def fig_euler(result, colours, path):
+def fig_euler(result, colours, path=None):
+    """Roll, pitch, yaw; roll and yaw broken at their ±180° wraps (no vertical jump lines)."""
+    from ..quat import quat_to_euler_zyx
+
     plt = _plt()
-    s = _showcase(result)
-    fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
-    if s is not None:
-        from ..quat import quat_to_euler_zyx
-
-        k = _stride(len(s["t_s"]))
-        t = s["t_s"][::k]
+    shown = showcase_records(result)
+    fig, axes = _grid(plt, 3, shown, 7)
+    for c, (s, cap) in enumerate(shown):
+        t = s["t_s"]
         for name, e in list(s["est"].items()) + [("reference", {"q": s["q_ref"]})]:
-            eul = quat_to_euler_zyx(e["q"][::k])
-            col = PAPER_COLOURS["truth"] if name == "reference" else colours[name]
+            ref = name == "reference"
+            eul = quat_to_euler_zyx(e["q"])
             for i in range(3):
-                axes[i].plot(t, np.degrees(eul[i]), color=col, lw=1.2 if name == "reference" else 0.8,
-                             label=name if name == "reference" else display_name(name))
-        for i, lab in enumerate(("roll", "pitch", "yaw")):
-            axes[i].set_ylabel(f"{lab} [°]")
-        axes[0].set_title(f"Roll, pitch, yaw, {s['name']} (6-D yaw after one constant alignment)")
-        axes[0].legend(fontsize=7, ncol=4, loc="upper right")
-    axes[-1].set_xlabel("t [s]")
-    _save(fig, path)
+                y = np.degrees(eul[i])
+                idx = minmax_indices(y, 6000)
+                tt, yy = t[idx], y[idx]
+                if i != 1:
+                    tt, yy = break_wraps(tt, yy)
+                axes[i][c].plot(tt, yy, color=PAPER_COLOURS["truth"] if ref else colours[name], ls="-" if ref else _ls(name),
+                                lw=1.2 if ref else 0.8, label=name if ref else display_name(name))  # fmt: skip
+        for i in (0, 2):
+            axes[i][c].set_ylim(-185, 185)
+            axes[i][c].set_yticks([-180, -90, 0, 90, 180])
+        axes[0][c].set_title(_caption(s, cap), fontsize=9)
+        axes[-1][c].set_xlabel("t [s]")
+    for i, lab in enumerate(("roll", "pitch", "yaw")):
+        axes[i][0].set_ylabel(f"{lab} [°]")
+    if shown:
+        axes[0][0].legend(fontsize=7, ncol=4, loc="upper right")
+    fig.suptitle("Roll, pitch, yaw (6-D yaw after one constant alignment; lines break at ±180°)")
+    return _finish(fig, path)
 
 
-def fig_inclination_error(result, colours, path):
+def fig_inclination_error(result, colours, path=None):
     plt = _plt()
-    s = _showcase(result)
-    fig, ax = plt.subplots(figsize=(10, 4))
-    if s is not None:
-        k = _stride(len(s["t_s"]))
-        t = s["t_s"][::k]
-        m = s["mask"][::k]
+    shown = showcase_records(result)
+    fig, axes = _grid(plt, 1, shown, 4)
+    for c, (s, cap) in enumerate(shown):
+        ax = axes[0][c]
+        t, m = s["t_s"], s["mask"]
         for name, e in s["est"].items():
-            y = np.degrees(e["incl"][::k]).copy()
+            y = np.degrees(e["incl"]).copy()
             y[~m] = np.nan
-            ax.plot(t, y, color=colours[name], lw=0.8, label=display_name(name))
-        ax.set_title(f"Inclination error over scored samples, {s['name']}")
-        ax.legend(fontsize=7, ncol=4)
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("inclination error [°]")
-    _save(fig, path)
+            idx = minmax_indices(y, 6000)
+            ax.plot(t[idx], y[idx], color=colours[name], ls=_ls(name), lw=0.8, label=display_name(name))
+        ax.set_title(_caption(s, cap), fontsize=9)
+        ax.set_xlabel("t [s]")
+    axes[0][0].set_ylabel("inclination error [°]")
+    if shown:
+        axes[0][0].legend(fontsize=7, ncol=4)
+    fig.suptitle("Inclination error over scored samples")
+    return _finish(fig, path)
 
 
-def fig_error_vs_rate(result, colours, path):
+def _rate_counts(result) -> list[int]:
+    """Samples per rate bin: those of the common scoring mask (an estimator scored on it)."""
+    ds = result.dataset
+    common = [d for d in ds.values() if d.get("coverage_min") is None or d["coverage_min"] >= result.config.min_coverage]
+    d = (common or list(ds.values()))[0]
+    return list(d["dynamic_error_n"])
+
+
+def fig_error_vs_rate(result, colours, path=None):
     plt = _plt()
-    edges = list(result.config.rate_bins_deg_s)
-    labels = [f"{edges[i]:g}–{edges[i + 1]:g}" if math.isfinite(edges[i + 1]) else f">{edges[i]:g}"
-              for i in range(len(edges) - 1)]  # fmt: skip
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    labels = rate_labels(result.config.rate_bins_deg_s)
+    counts = _rate_counts(result) if result.dataset else [0] * len(labels)
+    fig, ax = plt.subplots(figsize=(8, 4.8))
     x = np.arange(len(labels))
     for name, d in result.dataset.items():
         y = np.array([np.nan if v is None else v for v in d["dynamic_error_deg"]], np.float64)
-        ax.plot(x, y, "o-", color=colours[name], label=display_name(name))
-    ax.set_xticks(x, labels)
-    ax.set_xlabel("angular rate |ω| [°/s]")
+        ax.plot(x, y, "o", ls=_ls(name), color=colours[name], label=display_name(name))
+    ax.set_xticks(x, [f"{lab}\nn = {n}" for lab, n in zip(labels, counts)])
+    ax.set_xlabel("angular rate |ω| [°/s] (n: scored samples in the bin)")
     ax.set_ylabel("inclination RMSE [°]")
     ax.set_title("Dynamic error: inclination RMSE by angular rate (pooled over records)")
     ax.legend(fontsize=7, ncol=3)
-    _save(fig, path)
+    return _finish(fig, path)
 
 
-def fig_per_record(result, colours, path):
+#: label every per-record dot up to this many records; above, only each estimator's best and worst
+LABEL_ALL_RECORDS = 12
+
+
+def fig_per_record(result, colours, path=None):
     plt = _plt()
     names = list(result.dataset)
-    fig, ax = plt.subplots(figsize=(max(6, 0.9 * len(names) + 2), 4.5))
+    rec_names = [r["name"] for r in result.records]
+    fig, ax = plt.subplots(figsize=(max(6, 1.3 * len(names) + 2), 5))
     for i, name in enumerate(names):
         vals = [r["results"][name].get("inclination_rmse_deg") for r in result.records]
         vals = np.array([np.nan if v is None else v for v in vals], np.float64)
         jitter = np.linspace(-0.15, 0.15, len(vals)) if len(vals) > 1 else np.zeros(1)
         ax.scatter(i + jitter, vals, color=colours[name], s=14)
-        if np.isfinite(vals).any():
+        fin = np.flatnonzero(np.isfinite(vals))
+        if fin.size:
             ax.hlines(np.nanmean(vals), i - 0.3, i + 0.3, color=colours[name], lw=2)
+            label = fin if len(vals) <= LABEL_ALL_RECORDS else np.unique([fin[np.argmin(vals[fin])], fin[np.argmax(vals[fin])]])
+            for j in label:
+                ax.annotate(rec_names[j], (i + jitter[j], vals[j]), xytext=(4, 0), textcoords="offset points",
+                            fontsize=6, va="center", color="#333333")  # fmt: skip
     ax.set_xticks(range(len(names)), [display_name(n) for n in names], rotation=30, ha="right")
     ax.set_ylabel("inclination RMSE per record [°]")
-    ax.set_title("Per-record inclination RMSE (bar: mean over records)")
-    _save(fig, path)
+    shown = "dots labelled with the record" if len(rec_names) <= LABEL_ALL_RECORDS else "best and worst record labelled"
+    ax.set_title(f"Per-record inclination RMSE (bar: mean over records; {shown})")
+    return _finish(fig, path)
 
 
-def fig_uncertainty(result, colours, path):
+def fig_uncertainty(result, colours, path=None):
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6, 5.5))
     any_sigma = False
@@ -220,10 +252,10 @@ def fig_uncertainty(result, colours, path):
     ax.set_xlabel("predicted σ per tilt axis [°] (decile bins)")
     ax.set_ylabel("actual RMS tilt error per axis [°]")
     ax.set_title("Uncertainty calibration")
-    _save(fig, path)
+    return _finish(fig, path)
 
 
-def fig_error_vs_noise(result, colours, path):
+def fig_error_vs_noise(result, colours, path=None):
     plt = _plt()
     sw = result.noise_sweep
     fig, ax = plt.subplots(figsize=(7, 4.5))
@@ -235,7 +267,7 @@ def fig_error_vs_noise(result, colours, path):
     ax.set_ylabel("inclination RMSE [°]")
     ax.set_title(f"Error vs added sensor noise ({sw['n_records']} simulated records)")
     ax.legend(fontsize=7, ncol=3)
-    _save(fig, path)
+    return _finish(fig, path)
 
 
 # ----------------------------------------------------------------------------- markdown
@@ -254,7 +286,7 @@ def _pct(v):
 
 
 def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "Attitude estimation report") -> str:
-    L = [f"# {title}", ""]
+    L = [f"# {title}", "", f"Interactive version, every record zoomable: [{HTML_REPORT}]({HTML_REPORT}).", ""]
     L.append(f"tepinn-flight {__version__}, {datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}. "
              f"{len(result.records)} record(s), {len(result.estimators)} estimator(s).")  # fmt: skip
     L.append("")
@@ -330,8 +362,7 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     L.append("|---|" + "---:|" * len(labels))
     for name, d in result.dataset.items():
         L.append(f"| {display_name(name)} | " + " | ".join(_f(v) for v in d["dynamic_error_deg"]) + " |")
-    first = next(iter(result.dataset.values()))
-    L.append("| samples | " + " | ".join(str(n) for n in first["dynamic_error_n"]) + " |")
+    L.append("| samples | " + " | ".join(str(n) for n in _rate_counts(result)) + " |")
     L.append("")
     L.append(f"![error vs angular rate]({figures['error_vs_rate']})")
     L.append("")
@@ -387,7 +418,8 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     else:
         L.append("Not run (use `--noise-sweep` with simulated records).")
     L.append("")
-    L.append("Machine-readable results: [metrics.json](metrics.json).")
+    L.append("Machine-readable results: [metrics.json](metrics.json). Interactive version (zoom into every record; "
+             f"opens offline in a browser): [{HTML_REPORT}]({HTML_REPORT}).")
     L.append("")
     return "\n".join(L)
 
@@ -411,10 +443,11 @@ def write_report(result: EvalResult, out_dir: str | os.PathLike, title: str = "A
     js = json.dumps(result.to_json(), indent=1, allow_nan=False)
     atomic_write(out / "metrics.json", lambda tmp: Path(tmp).write_text(js, encoding="utf-8"))
     written.append(out / "metrics.json")
+    written.append(write_html(result, out / HTML_REPORT, title))
     md = render_markdown(result, FIGURES, title)
     atomic_write(out / "report.md", lambda tmp: Path(tmp).write_text(md, encoding="utf-8"))
     written.append(out / "report.md")
     return written
 
 
-__all__ = ["write_report", "render_markdown", "colour_map", "FIGURES", "PAPER_COLOURS"]
+__all__ = ["write_report", "render_markdown", "colour_map", "FIGURES", "HTML_REPORT", "PAPER_COLOURS"]
