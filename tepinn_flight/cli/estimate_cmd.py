@@ -6,9 +6,10 @@ from .argtypes import threads
 
 HELP = "estimate attitude over flight records with TE-PINN (the shipped model by default)"
 DESCRIPTION = (
-    "Runs causally over whole records (batched sliding windows, then RK4 propagation fused with the "
-    "window estimates) and writes one row per input row: t_s, q_est_w..z (body->NED), sigma_rad, "
-    "gyr_bias_est_*_rad_s; NaN until the first window of a segment is full."
+    "Runs causally over whole records: the network on every window (batched), then the VQF filter it "
+    "corrects where the evidence says so (flight speed, gyro saturation, an uncalibrated gyro), and writes "
+    "one row per input row: t_s, q_est_w..z (body->NED), sigma_rad, gyr_bias_est_*_rad_s. "
+    "Example: tepinn-flight estimate flight.parquet -o flight_est.parquet --mode auto"
 )
 
 
@@ -18,6 +19,10 @@ def add_arguments(p) -> None:
     p.add_argument("--model", default=None, metavar="CKPT", help="checkpoint (default: the shipped model)")
     p.add_argument("--yaw", choices=["gyro", "zero"], default=None,
                    help="heading of the output: integrated gyro (default) or 0 (the paper's 6-D correction)")
+    p.add_argument("--mode", choices=["6d", "9d", "auto"], default=None,
+                   help="6d: gyro + accelerometer, heading relative; 9d: with the magnetometer, heading from magnetic "
+                        "north (no declination applied); auto: 9d where the record has a magnetometer "
+                        "(default: the model's, 6d for the shipped one)")
     p.add_argument("--threads", type=threads, default=0, help="torch CPU threads (default: torch's choice)")
     p.add_argument("--tlog", default=None, metavar="OUT",
                    help="also write a tlog (file for one record, folder for several): the source tlog's messages (or, for "
@@ -53,6 +58,10 @@ def run(args) -> int:
     if not args.model and not ckpt_path.exists():
         raise TepinnError("the shipped default model is missing from this installation; pass --model CKPT")
     model, fusion, _ = load_model(ckpt_path)
+    if args.mode:
+        if not hasattr(fusion, "mode"):
+            raise TepinnError(f"--mode {args.mode}: {ckpt_path.name} runs the older network-centred fusion, 6-D only")
+        fusion = dataclasses.replace(fusion, mode=args.mode)
     if args.yaw and hasattr(fusion, "yaw"):  # the network-centred fusion only (the anchored one has VQF's heading)
         fusion = dataclasses.replace(fusion, yaw=args.yaw)
     paths = [Path(p) for p in args.records]

@@ -28,7 +28,7 @@ def add_arguments(p) -> None:
                    help="noise-sweep levels, multiples of the base σ (gyro 0.01 rad/s, acc 0.2 m/s² per sample; default 0,1,2,4,8)")
     p.add_argument("--warmup-s", type=float, default=5.0, metavar="S",
                    help="seconds skipped at the start of every segment, for every estimator (default 5)")
-    p.add_argument("--with-mag", action="store_true", help="add 9-D variants (magnetometer) of the filters and peers")
+    p.add_argument("--with-mag", action="store_true", help="add 9-D variants (magnetometer) of TE-PINN, the filters and the peers: scored without the heading alignment")
     p.add_argument("--no-peers", action="store_true", help="skip the published peers (VQF, RIANN, Fusion)")
     p.add_argument("--config", metavar="TOML", help="filter parameters: [madgwick], [complementary], [ekf] tables, peers = [...]")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config value, e.g. ekf.acc_noise_m_s2=2")
@@ -107,6 +107,8 @@ def run(args) -> int:
     estimators = []
     if not args.no_model:
         estimators += learned_estimators(args.model, notes)
+        if args.with_mag:  # TE-PINN 9-D beside VQF 9-D (anchored checkpoints)
+            estimators += [e9 for e in list(estimators) if hasattr(e, "nine_d") and (e9 := e.nine_d()) is not None]
     else:
         notes.append("TE-PINN not evaluated (--no-model)")
     estimators += baseline_estimators(cfg, with_mag=args.with_mag)

@@ -91,10 +91,25 @@ class TepinnEstimator:
 
     kind = "learned"
     causal = True
-    uses_mag = False
 
     def __init__(self, model, fusion, name: str = "tepinn", checkpoint: str | None = None):
         self.model, self.fusion, self.name, self.checkpoint = model, fusion, name, checkpoint
+
+    @property
+    def uses_mag(self) -> bool:
+        """9-D: the anchored estimator in mode 9d/auto (absolute heading from the magnetometer)."""
+        return getattr(self.fusion, "mode", "6d") != "6d"
+
+    def nine_d(self) -> TepinnEstimator | None:
+        """The same model in 9-D (``name-9d``: the magnetometer's heading where a record has one,
+        else 6-D), or None for a checkpoint that runs the older network-centred fusion."""
+        import dataclasses
+
+        from ..model.anchor import AnchorConfig
+
+        if not isinstance(self.fusion, AnchorConfig):
+            return None
+        return TepinnEstimator(self.model, dataclasses.replace(self.fusion, mode="auto"), self.name + "-9d", self.checkpoint)
 
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike, name: str | None = None) -> TepinnEstimator:

@@ -59,6 +59,9 @@ class AnchorConfig:
     enabled: bool = True  # False: the checkpoint's older network-centred fusion (FusionConfig)
     mode: str = "6d"  # "6d", "9d" (magnetometer heading), "auto" (9-D when the record has a magnetometer)
     tau_acc_s: float = 3.0  # VQF's accelerometer low-pass (its default)
+    # ... while the flight-speed gate is on (> ½): the accelerometer then holds ω × v residuals, so VQF
+    # leans on the gyro and the pulls (0: tau_acc_s)
+    tau_acc_flight_s: float = 10.0
     bias_clip_deg_s: float = 2.0  # VQF's bias limit (its default)
     pull_gain: float = 0.5  # fraction of the tilt difference removed per window at gate 1
     speed_lo_m_s: float = 20.0  # flight-speed gate: 0 below, 1 above speed_hi_m_s
@@ -75,6 +78,8 @@ class AnchorConfig:
     def __post_init__(self):
         if self.mode not in ("6d", "9d", "auto"):
             raise ConfigError(f"anchor mode must be 6d, 9d or auto, not {self.mode!r}")
+        if self.tau_acc_flight_s < 0:
+            raise ConfigError("tau_acc_flight_s must be >= 0 (0: tau_acc_s)")
         if self.tau_acc_s <= 0 or self.bias_clip_deg_s <= 0 or self.sigma_acc_tau_s <= 0:
             raise ConfigError("tau_acc_s, bias_clip_deg_s and sigma_acc_tau_s must be > 0")
         if not 0 <= self.pull_gain <= 1 or not 0 <= self.bias_gate_weight <= 1:
@@ -152,6 +157,7 @@ class AnchoredVQF:
         self.acc_v = np.zeros(3)
         self.gyr_corr = np.zeros(3)  # body axes, removed from the gyro
         self.bias_latched = False
+        self.tau_acc = c.tau_acc_s
         self.t_clip = -math.inf  # time of the last saturated sample
         self.t = 0.0
         self.gate = 0.0
@@ -227,6 +233,11 @@ class AnchoredVQF:
             self.bias_latched = bool(np.max(np.abs(b)) >= 0.95 * math.radians(c.bias_clip_deg_s))
         g_bias = c.bias_gate_weight if self.bias_latched else 0.0
         self.gate = max(g_flight, g_clip, g_bias)
+        if c.tau_acc_flight_s > 0:
+            tau = c.tau_acc_flight_s if g_flight > 0.5 else c.tau_acc_s
+            if tau != self.tau_acc:
+                self.f.setTauAcc(tau)
+                self.tau_acc = tau
         self.sigma_net = float(w.sigma_rad)
         if c.centripetal:
             self.vel = g_flight * np.asarray(w.vel_m_s, np.float64)

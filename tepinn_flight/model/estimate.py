@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 import torch
 
+from ..errors import TepinnError
 from ..record import FlightRecord
 from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows
 from .fusion import FusionConfig, FusionRun, feedback_bias
@@ -144,13 +145,17 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256):
     return tok.last_index[ends], network_outputs(model, tok, ends, batch_size=batch_size)
 
 
+class MissingMagnetometer(TepinnError):
+    """9-D asked for on a record without a magnetometer."""
+
+
 def wants_mag(anchor: AnchorConfig, rec: FlightRecord) -> bool:
     """9-D for ``mode = 9d``, and for ``auto`` when the record carries a magnetometer."""
     if anchor.mode == "6d":
         return False
     has = bool(np.any(np.all(np.isfinite(rec.mag_ut), axis=1)))
     if anchor.mode == "9d" and not has:
-        raise ValueError("9-D mode needs a magnetometer and this record has none")
+        raise MissingMagnetometer("9-D mode needs a magnetometer and this record has none (use --mode 6d or auto)")
     return has
 
 
