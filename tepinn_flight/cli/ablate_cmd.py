@@ -43,7 +43,8 @@ def run(args) -> int:
     from ..evaluation.harness import HarnessConfig, evaluate
     from ..evaluation.names import display_name
     from ..evaluation.suite import peer_estimators
-    from ..model.train import load_train_config, train
+    from ..model.train import train
+    from ..model.train_config import load_train_config
     from ..record import atomic_write, read_record
     from .evaluate_cmd import collect_records
 
