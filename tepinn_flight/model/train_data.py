@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, TepinnError
-from ..record import FlightRecord, read_record
+from ..ingest import load_record
+from ..record import FlightRecord
 from .train_config import TrainConfig
 
 
@@ -56,13 +57,7 @@ def load_records(cfg: TrainConfig, extra_dirs=(), base: Path = Path("."), run_di
             paths += [p for p in resolve_records([pat], base) if p not in paths]
         except ConfigError as exc:
             print(f"note: optional training data skipped ({exc})", file=sys.stderr)
-    for p in paths:
-        if p.suffix == ".parquet":
-            recs.append(read_record(p))
-        else:
-            from ..ingest import ingest_log
-
-            recs.append(ingest_log(p))
+    recs += [load_record(p) for p in paths]  # records are read, logs (optional real data) ingested
     if cfg.data.synthetic_flights:
         from .synthetic import synthetic_record
 
