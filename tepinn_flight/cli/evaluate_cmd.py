@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 HELP = "compare TE-PINN with baseline filters and published peers on flight records; write a report"
 DESCRIPTION = (
@@ -36,24 +35,6 @@ def add_arguments(p) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
 
-def collect_records(items: list[str]) -> list[Path]:
-    from ..errors import TepinnError
-
-    out: list[Path] = []
-    for it in items:
-        p = Path(it)
-        if p.is_dir():
-            found = sorted(p.glob("*.parquet"))
-            if not found:
-                raise TepinnError("folder holds no flight records (*.parquet)", p)
-            out += found
-        elif p.exists():
-            out.append(p)
-        else:
-            raise TepinnError("no such file", p)
-    return out
-
-
 def run(args) -> int:
     import dataclasses
 
@@ -65,6 +46,7 @@ def run(args) -> int:
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
     from ..ingest import load_record
     from ..record import check_output
+    from .paths import collect_records
 
     check_output(args.report, folder=True)  # before the (long) evaluation
     cfg = load_suite_config(args.config, args.set)
