@@ -22,7 +22,7 @@ def run(args) -> int:
     from ..errors import TepinnError
     from ..ingest import load_record
     from ..ingest.sniff import sniff
-    from ..summary import summarize
+    from ..record_stats import summarize
     from .summary import render_info
 
     failures = 0
