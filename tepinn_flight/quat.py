@@ -331,14 +331,24 @@ def quat_about_z(angle: Array) -> Array:
 # --------------------------------------------------------------------------- derived quantities
 
 
+def _down_in_body(w, x, y, z):
+    """The formula of :func:`gravity_body` (unit down, body axes) on components: arrays or floats."""
+    return 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+
+
 def gravity_body(q_nb: Array, g: float = 1.0) -> Array:
     """Earth 'down' (0, 0, g) expressed in body axes: ``R_nbᵀ (0, 0, g)``.
 
     The accelerometer of a vehicle at rest reads the negative of ``gravity_body(q, 9.81)``.
     """
     o = _ops(q_nb)
-    w, x, y, z = _split(q_nb)
-    return g * o.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)])
+    return g * o.stack(list(_down_in_body(*_split(q_nb))))
+
+
+def gravity_body_f(q) -> tuple[float, float, float]:
+    """:func:`gravity_body` (g = 1) for one (w, x, y, z) tuple of floats, without numpy: the
+    per-sample loops (fusion, live inputs, baseline filters) use it."""
+    return _down_in_body(*q)
 
 
 def inclination_heading_split(q_err: Array) -> tuple[Array, Array]:

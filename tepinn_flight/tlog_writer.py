@@ -22,8 +22,8 @@ Time: the autopilot booted ``boot_offset_s`` before the record's ``t_s = 0``; ``
 ``time_boot_ms`` are ``t_s + boot_offset_s`` (µs / ms since boot). Every record of the file is
 ``[uint64 big-endian UNIX µs][frame]``, with the receive time ``start_unix_s + t_s + latency``
 (a fixed, plausible UNIX time by default, so the same record gives the same bytes). Sequence
-numbers count 0..255 over all messages. ``MAVLINK20=1`` is set before pymavlink is imported
-(``mavlink.md`` §2); encoding uses the ``ardupilotmega`` v2 dialect.
+numbers count 0..255 over all messages. Encoding uses the MAVLink 2 dialect of
+:mod:`.mavlink_dialect` (``all``, a superset of ``ardupilotmega``: the same bytes).
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ from typing import BinaryIO
 import numpy as np
 
 from .conventions import GRAVITY_M_S2
+from .mavlink_dialect import dialect
 from .quat import quat_to_euler_zyx
 from .record import GYR_BIAS_COLS, FlightRecord, atomic_write
 
@@ -52,18 +53,11 @@ _HIGHRES_TEMP = 0x1000  # bit 12
 _TEMPERATURE_C = 25.0
 
 
-def _dialect():
-    os.environ.setdefault("MAVLINK20", "1")
-    from pymavlink.dialects.v20 import ardupilotmega
-
-    return ardupilotmega
-
-
 class TlogWriter:
     """Encodes MAVLink 2 messages into tlog records on an open binary file."""
 
     def __init__(self, f: BinaryIO, sysid: int = 1, compid: int = 1):
-        self.m = _dialect()
+        self.m = dialect()
         self.mav = self.m.MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self.f = f
         self.counts: dict[str, int] = {}

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from tepinn_flight.evaluation import broad as B
+from tepinn_flight.evaluation import broad_benchmark as B
 from tepinn_flight.evaluation.estimators import EST_Q_COLS, FilterEstimator
 from tests.conftest import BROAD, broad_trial
 

@@ -99,7 +99,7 @@ def test_calibration_picks_bias_states_for_a_gyro_bias_the_network_never_saw():
     from tepinn_flight.model.estimate import estimate_record
     from tepinn_flight.model.network import TEPINN
     from tepinn_flight.model.synthetic import synthetic_record
-    from tepinn_flight.model.train import calibrate_fusion
+    from tepinn_flight.model.calibration import calibrate_fusion
 
     torch.manual_seed(0)
     model = TEPINN(ModelConfig(window_tokens=16, d_model=16, n_heads=2, n_layers=1, d_ff=32)).eval()

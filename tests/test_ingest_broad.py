@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from tepinn_flight import quat as Q
-from tepinn_flight.consistency import rate_consistency
+from tests.consistency import rate_consistency
 from tepinn_flight.errors import ConfigError, CorruptLog, NoImuData
 from tepinn_flight.ingest import ingest_log
 from tepinn_flight.ingest.broad import Q_NED_ENU_WXYZ, q_es_from_q_nb, q_nb_from_q_es, sensor_to_body

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from tepinn_flight.consistency import rate_consistency
+from tests.consistency import rate_consistency
 from tepinn_flight.errors import ConfigError, CorruptLog, NoImuData, TepinnError
 from tepinn_flight.ingest import ingest_log, read_raw
 from tepinn_flight.ingest import dataflash_scan as dfs

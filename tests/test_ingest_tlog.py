@@ -19,7 +19,7 @@ import pytest
 from tests.conftest import real_log
 from scipy.spatial.transform import Rotation
 
-from tepinn_flight.consistency import rate_consistency
+from tests.consistency import rate_consistency
 from tepinn_flight.errors import ConfigError, NoImuData
 from tepinn_flight.ingest import ingest_log, read_raw
 from tepinn_flight.ingest import tlog as tlog_reader

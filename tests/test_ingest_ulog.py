@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from tepinn_flight import quat as Q
 from tepinn_flight.conventions import Q_ENU_FROM_NED_WXYZ
-from tepinn_flight.consistency import rate_consistency
+from tests.consistency import rate_consistency
 from tepinn_flight.errors import ConfigError, CorruptLog, NoImuData
 from tepinn_flight.ingest import ingest_log
 from tepinn_flight.ingest.assemble import build_record

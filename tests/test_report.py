@@ -106,7 +106,7 @@ def test_display_names(name, shown):
 
 
 def test_broad_table_uses_display_names():
-    from tepinn_flight.evaluation.broad import format_broad
+    from tepinn_flight.evaluation.broad_benchmark import format_broad
 
     row = {"mode": "6-D", "causal": True, "kind": "peer", "total_rmse_deg": 2.0, "heading_rmse_deg": 1.5,
            "inclination_rmse_deg": 1.0, "us_per_sample": 3.0}  # fmt: skip

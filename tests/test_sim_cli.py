@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from tepinn_flight.cli.main import main
-from tepinn_flight.consistency import rate_consistency
+from tests.consistency import rate_consistency
 from tepinn_flight.record import read_record
 from tepinn_flight.sim.campaign import MANIFEST, flight_seed
 

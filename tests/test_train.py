@@ -513,7 +513,8 @@ def test_optional_training_data_is_used_when_present_and_skipped_when_missing(tm
     """`optional_records`: a real log (not a record) is ingested like `tepinn-flight ingest`
     would; a pattern that matches nothing is skipped with a note instead of failing."""
     from tepinn_flight.ingest import ingest_log
-    from tepinn_flight.model.train import DataConfig, TrainConfig, load_records
+    from tepinn_flight.model.train_config import DataConfig, TrainConfig
+    from tepinn_flight.model.train_data import load_records
 
     repo = Path(__file__).resolve().parents[1]
     cfg = TrainConfig(data=DataConfig(optional_records=("logs/*.tlog", "no-such-folder/*.hdf5")))

@@ -34,7 +34,7 @@ def run(args) -> int:
     import json
     from pathlib import Path
 
-    from ..evaluation.broad import format_broad, run_broad_benchmark
+    from ..evaluation.broad_benchmark import format_broad, run_broad_benchmark
     from ..evaluation.estimators import learned_estimators
     from ..evaluation.harness import _jsonable
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 HELP = "compare TE-PINN with baseline filters and published peers on flight records; write a report"
 DESCRIPTION = (
@@ -37,31 +36,6 @@ def add_arguments(p) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
 
-def collect_records(items: list[str]) -> list[Path]:
-    from ..errors import TepinnError
-
-    out: list[Path] = []
-    for it in items:
-        p = Path(it)
-        if p.is_dir():
-            found = sorted(p.glob("*.parquet"))
-            if not found:
-                raise TepinnError("folder holds no flight records (*.parquet)", p)
-            out += found
-        elif p.exists():
-            out.append(p)
-        else:
-            raise TepinnError("no such file", p)
-    return out
-
-
-def load_any(path: Path):
-    from ..ingest import ingest_log
-    from ..record import is_record, read_record
-
-    return read_record(path) if is_record(path) else ingest_log(path)
-
-
 def run(args) -> int:
     import dataclasses
 
@@ -71,8 +45,9 @@ def run(args) -> int:
     from ..evaluation.names import display_name
     from ..evaluation.report import write_report
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
-
+    from ..ingest import load_record
     from ..record import check_output
+    from .paths import collect_records
 
     check_output(args.output, folder=True)  # before the (long) evaluation
     cfg = load_suite_config(args.config, args.set)
@@ -93,13 +68,13 @@ def run(args) -> int:
         if overlap:
             raise ConfigError(f"--tune-ekf-on overlaps the evaluated records ({', '.join(sorted(map(str, overlap)))}): "
                               "never tune on test data")  # fmt: skip
-        best, _ = tune([load_any(p) for p in train], base=cfg.ekf, warmup_s=args.warmup_s, progress=not args.quiet)
+        best, _ = tune([load_record(p) for p in train], base=cfg.ekf, warmup_s=args.warmup_s, progress=not args.quiet)
         cfg = dataclasses.replace(cfg, ekf=best)
         notes.append(f"EKF tuned on {len(train)} training record(s): " + ", ".join(
             f"{k}={getattr(best, k):g}" for k in ("gyro_noise_rad_s_sqrt_hz", "acc_noise_m_s2", "bias_walk_rad_s_sqrt_s")))
     records = []
     for p in paths:
-        rec = load_any(p)
+        rec = load_record(p)
         rec.meta.setdefault("name", p.stem)
         records.append(rec)
     if len({record_name(r) for r in records}) < len(records):

@@ -20,10 +20,9 @@ def run(args) -> int:
     from pathlib import Path
 
     from ..errors import TepinnError
-    from ..ingest import ingest_log
+    from ..ingest import load_record
     from ..ingest.sniff import sniff
-    from ..record import read_record
-    from ..summary import summarize
+    from ..record_stats import summarize
     from .summary import render_info
 
     failures = 0
@@ -42,10 +41,7 @@ def run(args) -> int:
     for path in files:
         try:
             fmt = sniff(path)
-            if fmt == "parquet":
-                rec = read_record(path)
-            else:
-                rec = ingest_log(path, imu=args.imu, reference=args.reference)
+            rec = load_record(path, imu=args.imu, reference=args.reference)
             s = summarize(rec)
             if fmt != "parquet":
                 s["format"] = fmt

@@ -5,6 +5,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from .paths import output_paths  # noqa: F401 - also imported from here by estimate_cmd
+
 HELP = "turn real logs (tlog, DataFlash .bin/.log, ULog, BROAD .hdf5) into flight records"
 DESCRIPTION = (
     "Parse ArduPilot/PX4 logs (MAVLink .tlog, DataFlash binary or text, PX4 .ulg) and BROAD trials "
@@ -23,26 +25,6 @@ def add_arguments(p) -> None:
                    help="reference attitude source, e.g. ATT, XKQ, NKQ1, ATTITUDE_QUATERNION, ATTITUDE, "
                         "vehicle_attitude, vehicle_attitude_groundtruth (default: the best available)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
-
-
-def output_paths(logs: list[Path], output: str | None) -> list[Path]:
-    """One output per log: ``-o`` is a file for one log, a folder for several."""
-    if output is not None and len(logs) == 1 and not Path(output).is_dir() and not output.endswith(("/", "\\")):
-        return [Path(output)]
-    folder = Path(output) if output is not None else Path.cwd()
-    names: list[Path] = []
-    seen: set[str] = set()
-    for log in logs:
-        name = log.stem
-        if name in seen:
-            name = f"{log.stem}_{log.suffix.lstrip('.').lower() or 'log'}"
-        k = 2
-        base = name
-        while name in seen:
-            name, k = f"{base}_{k}", k + 1
-        seen.add(name)
-        names.append(folder / f"{name}.parquet")
-    return names
 
 
 def run(args) -> int:

@@ -1,4 +1,4 @@
-"""Human-readable renderings of :func:`tepinn_flight.summary.summarize`."""
+"""Human-readable renderings of :func:`tepinn_flight.record_stats.summarize`."""
 
 from __future__ import annotations
 

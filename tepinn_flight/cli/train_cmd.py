@@ -30,7 +30,8 @@ def run(args) -> int:
 
     import torch
 
-    from ..model.train import load_train_config, train
+    from ..model.train import train
+    from ..model.train_config import load_train_config
     from ..record import check_output
 
     if args.threads:

@@ -7,5 +7,5 @@
 - :mod:`.estimators` — the common estimator interface (TE-PINN plugs in here).
 - :mod:`.harness` — same records, same masks, same warm-up for every estimator.
 - :mod:`.report` — Markdown + PNG + metrics.json.
-- :mod:`.broad` — the BROAD benchmark protocol and the published-Madgwick reproduction check.
+- :mod:`.broad_benchmark` — the BROAD benchmark protocol and the published-Madgwick reproduction check.
 """

@@ -2,7 +2,8 @@
 
 Each reader module (``tlog``, ``dataflash``, ``ulog``, ``broad``) exposes
 ``read(path, imu=None, reference=None) -> RawLog``; :func:`ingest_log` sniffs the content,
-calls the reader and assembles the record. No torch here.
+calls the reader and assembles the record. :func:`load_record` is the one way to get a record from
+any file: a flight record (Parquet) is read, any log is sniffed and ingested. No torch here.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import importlib
 import os
 
 from ..errors import TepinnError, UnknownLogFormat
-from ..record import FlightRecord
+from ..record import FlightRecord, read_record
 from .assemble import build_record
 from .sniff import sniff
 
@@ -44,3 +45,11 @@ def ingest_log(path: str | os.PathLike, imu: int | None = None, reference: str |
     """Parse any supported log into a validated flight record (not yet written)."""
     raw = read_raw(path, imu=imu, reference=reference)
     return build_record(raw, path)
+
+
+def load_record(path: str | os.PathLike, imu: int | None = None, reference: str | None = None) -> FlightRecord:
+    """The flight record in ``path``: a record (Parquet) is read as it is, any other file is sniffed
+    and ingested (``imu`` and ``reference`` as for :func:`ingest_log`; ignored for a record)."""
+    if sniff(path) == "parquet":
+        return read_record(path)
+    return ingest_log(path, imu=imu, reference=reference)

@@ -48,6 +48,8 @@ from typing import Iterable
 
 import numpy as np
 
+from ..mavlink_dialect import dialect
+
 TS_LEN = 8
 HDR_V1 = 6
 HDR_V2 = 10
@@ -78,14 +80,6 @@ def x25_crc(data: bytes, crc: int = 0xFFFF) -> int:
     for b in data:
         crc = (crc >> 8) ^ int(_CRC_TABLE[(crc ^ b) & 0xFF])
     return crc
-
-
-@lru_cache(maxsize=1)
-def dialect():
-    """pymavlink's ``all`` dialect, MAVLink 2 (what ``mavutil`` uses by default)."""
-    from pymavlink.dialects.v20 import all as mavlink  # noqa: PLC0415 - heavy import, on demand
-
-    return mavlink
 
 
 _STRUCT_TO_NUMPY = {

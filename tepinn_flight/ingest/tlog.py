@@ -50,8 +50,9 @@ from ..conventions import (
     UNIX_TIME_THRESHOLD_US,
 )
 from ..errors import ConfigError, CorruptLog, NoImuData
+from ..mavlink_dialect import dialect
 from ..quat import quat_from_euler_zyx
-from .mavlink_scan import dialect, scan_tlog
+from .mavlink_scan import scan_tlog
 from .streams import ImuStream, MagStream, RawLog, RefStream
 
 MAV_COMP_ID_AUTOPILOT1 = 1

@@ -13,29 +13,15 @@ Modules
     ``replay``    tlog playback on the messages' own clocks; DataFlash/ULog/records as a live stream
     ``status``    latency histograms, rate meters, the status line and the exit summary
 
-pymavlink is imported through :func:`mavutil` so that ``MAVLINK20=1`` is always set first
-(``mavlink.md`` §2): without it pymavlink speaks MAVLink 1 and lacks the v2 extension fields.
+pymavlink is imported through :func:`mavutil` (its home: :mod:`tepinn_flight.mavlink_dialect`) so
+that ``MAVLINK20=1`` is always set first (``mavlink.md`` §2): without it pymavlink speaks MAVLink 1
+and lacks the v2 extension fields.
 """
 
 from __future__ import annotations
 
-import os
+from ..mavlink_dialect import dialect, mavutil  # noqa: F401 - the dialect's one home, re-exported
 
 #: ``MAV_COMP_ID_ONBOARD_COMPUTER``: the bridge's own component id.
 MAV_COMP_ID_ONBOARD_COMPUTER = 191
 MAV_COMP_ID_AUTOPILOT1 = 1
-
-
-def mavutil():
-    """``pymavlink.mavutil`` with the MAVLink 2 ``all`` dialect loaded (whatever was imported before)."""
-    os.environ["MAVLINK20"] = "1"
-    from pymavlink import mavutil as mu  # noqa: PLC0415 - must follow the environment variable
-
-    if getattr(mu.mavlink, "WIRE_PROTOCOL_VERSION", "1.0") != "2.0":
-        mu.set_dialect(mu.current_dialect)
-    return mu
-
-
-def dialect():
-    """The MAVLink 2 dialect module the connections use (message classes, enums, constants)."""
-    return mavutil().mavlink

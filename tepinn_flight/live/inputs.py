@@ -26,8 +26,7 @@ import numpy as np
 
 from ..conventions import GAUSS_TO_UT, MILLI_G_TO_M_S2, MILLIGAUSS_TO_UT, MRAD_S_TO_RAD_S, UNIX_TIME_THRESHOLD_US
 from ..ingest.tlog import IMU_MESSAGES, IMU_PREFERENCE, imu_scale_known
-from ..model.fusion import gravity_body_f
-from ..quat import slerp
+from ..quat import gravity_body_f, slerp
 from .messages import euler_zyx
 
 _HIGHRES_ACC_GYRO = 0x003F

@@ -283,9 +283,8 @@ def record_stream(rec, imu_message: str = "highres", attitude_rate_hz: float = A
 
 def load_source(path, imu_message: str = "highres"):
     """(kind, factory of a fresh (playback time, frame) iterator, description) for any log."""
-    from ..ingest import ingest_log  # noqa: PLC0415
+    from ..ingest import load_record  # noqa: PLC0415
     from ..ingest.sniff import sniff  # noqa: PLC0415
-    from ..record import read_record  # noqa: PLC0415
 
     fmt = sniff(path)
     if fmt == "tlog":
@@ -297,7 +296,7 @@ def load_source(path, imu_message: str = "highres"):
             return ((p, f.buf) for p, f in schedule(frames))
 
         return "tlog", make, frames
-    rec = read_record(path) if fmt == "parquet" else ingest_log(path)
+    rec = load_record(path)
 
     def make():
         return record_stream(rec, imu_message=imu_message)

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..quat import quat_to_rotmat, quat_to_rotvec
+from ..quat import gravity_body_f, quat_to_rotmat, quat_to_rotvec
 
 
 @dataclass(frozen=True)
@@ -112,12 +112,6 @@ def rk4(q, w0, w1, dt):
     k4 = _qdot(_add(q, k3, dt), w1)
     s = dt / 6.0
     return _qnorm(tuple(q[i] + s * (k1[i] + 2 * k2[i] + 2 * k3[i] + k4[i]) for i in range(4)))
-
-
-def gravity_body_f(q):
-    """Earth down in body axes for a (w, x, y, z) tuple (scalar twin of ``quat.gravity_body``)."""
-    w, x, y, z = q
-    return (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
 
 
 def _exp(r):

@@ -1,6 +1,7 @@
-"""Training: strict TOML config, split by flight, adaptive physics-informed loss, early stopping,
-atomic checkpoints, ``--resume``, determinism for a seed, and DistributedDataParallel under
-``torchrun`` (gloo: training runs on the CPU).
+"""Training: the loop — adaptive physics-informed loss, early stopping, atomic checkpoints,
+``--resume``, determinism for a seed, and DistributedDataParallel under ``torchrun`` (gloo:
+training runs on the CPU). The recipe is in :mod:`.train_config`, the flights it trains on come
+from :mod:`.train_data`, and the fusion is fitted at the end by :mod:`.calibration`.
 
 The global batch is ``optim.batch_size`` windows; under DDP each of the N processes takes an
 equal share of the same globally-drawn windows, so N processes compute the same step as one:
@@ -24,7 +25,6 @@ import math
 import os
 import sys
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -32,76 +32,26 @@ import torch
 from torch import nn
 
 from .. import __version__
-from ..config import check_range, to_dict
+from ..config import to_dict
 from ..errors import ConfigError, TepinnError
-from ..record import GYR_BIAS_COLS, FlightRecord, atomic_write, read_record
+from ..record import atomic_write
+from .calibration import calibrate_fusion, calibrate_with, recalibrate
 from .checkpoint import CheckpointError, read_checkpoint, save_checkpoint
-from .config import ModelConfig
 from .dataset import TokenBank, build_bank, input_statistics, make_batch
-from .estimate import estimate_record
-from .fusion import FusionConfig
-from .losses import TERMS, LossConfig, TEPINNLoss, tilt_angle
+from .losses import TERMS, TEPINNLoss, tilt_angle
 from .network import TEPINN
+from .train_config import CalibrationConfig, DataConfig, OptimConfig, TrainConfig, load_train_config
+from .train_data import load_records, resolve_records, split_by_flight
 
-
-@dataclass(frozen=True)
-class DataConfig:
-    records: tuple[str, ...] = ()  # record files, folders or globs (relative to the config file)
-    # like `records`, but used only where present (e.g. the real data in ../shared): a missing
-    # path is skipped with a note. Files that are not records (*.parquet) are ingested as logs.
-    optional_records: tuple[str, ...] = ()
-    campaign: str | None = None  # a simulation campaign TOML, flown into RUN_DIR/data (resumable)
-    campaign_workers: int = 0  # processes for the campaign (0: one per CPU)
-    synthetic_flights: int = 0  # closed-form synthetic flights (tests, tiny runs)
-    synthetic_duration_s: float = 20.0
-    val_fraction: float = 0.2  # share of flights held out for validation (at least one)
-    rate_factors: tuple[int, ...] = (1, 2, 4)  # IMU decimation factors: rate augmentation
-    max_val_windows: int = 2048
-    # sensor-error augmentation: with this probability a training window (and its L_gyro partner)
-    # gets an extra constant gyro bias drawn per axis from N(0, σ) — an uncalibrated IMU's turn-on
-    # bias — added to the input and, where the true bias is known, to the bias target (0: off)
-    gyro_bias_aug_deg_s: float = 0.0
-    gyro_bias_aug_prob: float = 0.5
-
-    def __post_init__(self):
-        check_range("campaign_workers", self.campaign_workers, 0, 4096)
-        check_range("synthetic_flights", self.synthetic_flights, 0, 100000)
-        check_range("synthetic_duration_s", self.synthetic_duration_s, 0, 1e6, lo_open=True)
-        check_range("val_fraction", self.val_fraction, 0, 1, hi_open=True)
-        if not self.rate_factors:
-            raise ConfigError("'rate_factors' must list at least one factor (1: the log's own rate)")
-        for i, f in enumerate(self.rate_factors):
-            check_range(f"rate_factors[{i}]", f, 1, 10000)
-        check_range("max_val_windows", self.max_val_windows, 1, 10**9)
-        check_range("gyro_bias_aug_deg_s", self.gyro_bias_aug_deg_s, 0, 1000)
-        check_range("gyro_bias_aug_prob", self.gyro_bias_aug_prob, 0, 1)
-
-
-@dataclass(frozen=True)
-class OptimConfig:
-    batch_size: int = 64  # global batch (windows)
-    epochs: int = 20
-    steps_per_epoch: int = 100
-    lr: float = 1e-3  # network weights
-    lr_physics: float = 3e-4  # sensor model, inertia and loss weights
-    weight_decay: float = 1e-4  # network weights only
-    grad_clip: float = 1.0
-    early_stop_patience: int = 5  # epochs without validation improvement
-    max_minutes: float = 0.0  # stop after this wall time (0: no limit)
-    warmup_steps: int = 0  # linear learning-rate warm-up (post-LayerNorm transformers need it)
-    cosine_decay: bool = False  # cosine decay to 10 % of the learning rate at the last epoch
-
-    def __post_init__(self):
-        check_range("batch_size", self.batch_size, 1, 10**6)
-        check_range("epochs", self.epochs, 1, 10**6)
-        check_range("steps_per_epoch", self.steps_per_epoch, 1, 10**7)
-        check_range("lr", self.lr, 0, 10)  # 0: frozen (tests use it)
-        check_range("lr_physics", self.lr_physics, 0, 10)
-        check_range("weight_decay", self.weight_decay, 0, 10)
-        check_range("grad_clip", self.grad_clip, 0, None, lo_open=True)
-        check_range("early_stop_patience", self.early_stop_patience, 1, 10**6)
-        check_range("max_minutes", self.max_minutes, 0, None)  # 0: no limit
-        check_range("warmup_steps", self.warmup_steps, 0, 10**9)
+# re-exported: `from tepinn_flight.model.train import X` keeps working for the recipe, data and
+# calibration names that moved to their own modules
+__all__ = [
+    "CalibrationConfig", "DataConfig", "OptimConfig", "TrainConfig", "load_train_config",
+    "load_records", "resolve_records", "split_by_flight",
+    "calibrate_fusion", "calibrate_with", "recalibrate",
+    "lr_factor", "dist_info", "deal_to_ranks", "TrainStep", "validate", "resolve_device", "train",
+    "gyro_bias_augmentation", "add_gyro_bias",
+]  # fmt: skip
 
 
 def lr_factor(step: int, optim: OptimConfig) -> float:
@@ -113,131 +63,6 @@ def lr_factor(step: int, optim: OptimConfig) -> float:
         f *= 0.1 + 0.9 * 0.5 * (1.0 + math.cos(math.pi * p))
     return f
 
-
-@dataclass(frozen=True)
-class CalibrationConfig:
-    """The fusion calibration at the end of training (:func:`calibrate_fusion`)."""
-
-    max_flights: int = 12  # validation flights it runs on (spread over the split)
-    bias_state_sweeps: int = 2  # coordinate-search sweeps over the bias-state settings (0: low-pass only)
-    # bias feedback dead zones tried (°/s; empty: no feedback), refreshed every this many windows
-    feedback_deadzones_deg_s: tuple[float, ...] = ()
-    feedback_windows: int = 25
-
-    def __post_init__(self):
-        check_range("max_flights", self.max_flights, 1, 100000)
-        check_range("bias_state_sweeps", self.bias_state_sweeps, 0, 1000)
-        for i, d in enumerate(self.feedback_deadzones_deg_s):
-            check_range(f"feedback_deadzones_deg_s[{i}]", d, 0, 1000)
-        check_range("feedback_windows", self.feedback_windows, 1, 10**6)
-
-
-@dataclass(frozen=True)
-class TrainConfig:
-    seed: int = 0
-    model: ModelConfig = field(default_factory=ModelConfig)
-    loss: LossConfig = field(default_factory=LossConfig)
-    data: DataConfig = field(default_factory=DataConfig)
-    optim: OptimConfig = field(default_factory=OptimConfig)
-    fusion: FusionConfig = field(default_factory=FusionConfig)
-    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
-
-    def __post_init__(self):
-        check_range("seed", self.seed, 0, 2**31 - 1)  # numpy's seeds are non-negative
-        if self.loss.gyro_pair_tokens >= self.model.window_tokens:
-            raise ConfigError(f"loss: 'gyro_pair_tokens' must be < model.window_tokens ({self.model.window_tokens}), "
-                              f"got {self.loss.gyro_pair_tokens}")  # fmt: skip
-        # the fusion's numbers (FusionConfig has no checks of its own): ranges for a training recipe
-        f = self.fusion
-        for name in ("process_noise_rad2_s", "process_noise_rate_rad", "clip_inflation_rad", "clip_rate_gain",
-                     "adaptive_nis", "bias_sigma_rad_s", "bias_rw_rad_s_sqrt_s", "bias_init_sigma_rad_s",
-                     "clip_hold_s", "bias_feedback_deadzone_rad_s"):  # fmt: skip
-            _fusion_range(name, getattr(f, name), 0, None)
-        for name in ("bias_time_constant_s", "sigma_scale", "output_sigma_scale"):
-            _fusion_range(name, getattr(f, name), 0, None, lo_open=True)
-        _fusion_range("bias_feedback_windows", f.bias_feedback_windows, 0, 10**6)
-
-
-def _fusion_range(name: str, value, lo, hi, lo_open: bool = False) -> None:
-    try:
-        check_range(name, value, lo, hi, lo_open=lo_open)
-    except ConfigError as exc:
-        raise ConfigError(f"fusion: {exc.reason}") from None
-
-
-def load_train_config(path: str | os.PathLike, overrides=()) -> TrainConfig:
-    from ..config import load_config
-
-    return load_config(TrainConfig, path, overrides)
-
-
-# ---------------------------------------------------------------------- data
-
-
-def resolve_records(patterns, base: Path) -> list[Path]:
-    out: list[Path] = []
-    for pat in patterns:
-        p = Path(pat)
-        p = p if p.is_absolute() else base / p
-        if p.is_dir():
-            found = sorted(p.rglob("*.parquet"))
-            if not found:
-                raise ConfigError(f"no flight records (*.parquet) in training data folder {pat}")
-            out += found
-        elif any(ch in str(pat) for ch in "*?["):
-            found = sorted(Path(p.anchor).glob(str(p.relative_to(p.anchor))) if p.is_absolute() else base.glob(str(pat)))
-            if not found:
-                raise ConfigError(f"training data pattern matches nothing: {pat}")
-            out += found
-        elif p.exists():
-            out.append(p)
-        else:
-            raise ConfigError(f"training data not found: {pat}")
-    return sorted(set(out))
-
-
-def load_records(cfg: TrainConfig, extra_dirs=(), base: Path = Path("."), run_dir: Path | None = None,
-                 progress: bool = True) -> list[FlightRecord]:  # fmt: skip
-    recs: list[FlightRecord] = []
-    extra = [str(Path(d).resolve()) for d in extra_dirs]  # --data folders are relative to the cwd
-    if cfg.data.campaign:
-        from ..sim.campaign import run_campaign
-
-        camp = Path(cfg.data.campaign)
-        camp = camp if camp.is_absolute() else base / camp
-        data_dir = (run_dir or Path(".")) / "data"
-        res = run_campaign(camp, data_dir, workers=cfg.data.campaign_workers or None, progress=progress)
-        if res.failed:
-            raise TepinnError(f"{len(res.failed)} simulated flight(s) failed, e.g. {res.failed[0][0]}: {res.failed[0][1]}")
-        extra.append(str(data_dir.resolve()))
-    paths = resolve_records(list(cfg.data.records) + extra, base)
-    for pat in cfg.data.optional_records:
-        try:
-            paths += [p for p in resolve_records([pat], base) if p not in paths]
-        except ConfigError as exc:
-            print(f"note: optional training data skipped ({exc})", file=sys.stderr)
-    for p in paths:
-        if p.suffix == ".parquet":
-            recs.append(read_record(p))
-        else:
-            from ..ingest import ingest_log
-
-            recs.append(ingest_log(p))
-    if cfg.data.synthetic_flights:
-        from .synthetic import synthetic_record
-
-        for i in range(cfg.data.synthetic_flights):
-            recs.append(synthetic_record(seed=1000 * cfg.seed + i, duration_s=cfg.data.synthetic_duration_s))
-    if not recs:
-        raise ConfigError("no training data: give --data DIR, data.records or data.synthetic_flights")
-    return recs
-
-
-def split_by_flight(n: int, val_fraction: float, seed: int) -> tuple[list[int], list[int]]:
-    """Hold out whole flights: a seeded permutation, at least one flight on each side when n ≥ 2."""
-    perm = np.random.default_rng(seed).permutation(n)
-    n_val = 0 if n < 2 else min(n - 1, max(1, int(round(val_fraction * n))))
-    return sorted(perm[n_val:].tolist()), sorted(perm[:n_val].tolist())
 
 
 # ---------------------------------------------------------------------- distributed
@@ -356,191 +181,6 @@ def validate(model: TEPINN, bank: TokenBank, ends: np.ndarray, cfg: TrainConfig)
         res["val_nees"] = float(np.mean(e**2 / s**2))  # 2 when calibrated (2-D tilt error)
         res["val_sigma_corr"] = float(np.corrcoef(s, e)[0, 1]) if len(e) > 2 else float("nan")
     return res
-
-
-def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionConfig, max_records: int = 12,
-                     fallback_records: list[FlightRecord] = (), bias_state_sweeps: int = 2,
-                     feedback_deadzones_rad_s: tuple[float, ...] = (), feedback_windows: int = 25,
-                     ) -> tuple[FusionConfig, dict]:  # fmt: skip
-    """Fit the fusion on validation flights, minimising the mean over flights of the per-flight
-    tilt RMSE of the fused output (the figure the benchmark and ``evaluate`` report): the process
-    noise of the low-pass fusion, then the bias-state Kalman fusion (``bias_states``) by a
-    coordinate search over its σ scale, bias σ, process noise (per second and per radian turned)
-    and bias random walk — the better of the two is kept; for the low-pass, the bias time constant.
-    The settings for saturated gyro samples are compared on the validation flights that clip, or,
-    where none does, on up to 6 of ``fallback_records`` (training flights) that do; then bias
-    feedback with each of ``feedback_deadzones_rad_s`` (kept where it helps). Last, the σ scale that
-    makes the reported σ calibrated on the typical sample (median |e|²/σ² = 2 ln 2, the median of a
-    2-D Gaussian tilt error)."""
-    from ..quat import inclination_heading_split, quat_conj, quat_mul
-    from .estimate import window_estimates
-
-    usable = [r for r in records if (r.meta.get("imu_rate_hz") or 0) >= 20]
-    if not usable:
-        return base, {}
-    pick = np.unique(np.linspace(0, len(usable) - 1, min(max_records, len(usable))).round().astype(int))
-    recs = [usable[i] for i in pick]
-    wins = [window_estimates(model, r) for r in recs]
-
-    def run(cand, recs=recs, wins=wins):
-        errs, sig, berr = [], [], []
-        for r, w in zip(recs, wins):
-            est = estimate_record(model, r, cand, windows=None if cand.bias_feedback_windows else w)
-            q = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
-            ok = np.all(np.isfinite(q), 1) & np.all(np.isfinite(r.q_ref_wxyz), 1) & (est["sigma_rad"].to_numpy() > 0)
-            inc, _ = inclination_heading_split(quat_mul(q[ok], quat_conj(r.q_ref_wxyz[ok])))
-            errs.append(inc)
-            sig.append(est["sigma_rad"].to_numpy()[ok])
-            if GYR_BIAS_COLS[0] in r.data:
-                b = est[["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]].to_numpy()[ok]
-                berr.append(np.sqrt(np.mean(np.sum((b - r.data[GYR_BIAS_COLS].to_numpy()[ok]) ** 2, 1))))
-        return errs, sig, berr
-
-    def mean_rmse_deg(errs):
-        """Mean over flights of the per-flight tilt RMSE (degrees)."""
-        r = [np.degrees(np.sqrt(np.mean(e**2))) for e in errs if len(e)]
-        return float(np.mean(r)) if r else float("inf")
-
-    best, best_err, table, best_run = base, float("inf"), {}, None
-    for pn in (1e-7, 1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 1e-3):
-        cand = dataclasses.replace(base, process_noise_rad2_s=pn, output_sigma_scale=1.0)
-        errs, sig, _ = run(cand)
-        err = mean_rmse_deg(errs)
-        table[f"{pn:g}"] = err
-        if err < best_err:
-            best, best_err, best_run = cand, err, (errs, sig)
-    # innovation-adaptive P (helps uncalibrated gyros; kept only where it helps the typical flight)
-    for nis in (9.0, 4.0):
-        cand = dataclasses.replace(best, adaptive_nis=nis)
-        errs, sig, _ = run(cand)
-        err = mean_rmse_deg(errs)
-        table[f"{best.process_noise_rad2_s:g},nis={nis:g}"] = err
-        if err < best_err:
-            best, best_err, best_run = cand, err, (errs, sig)
-    # gyro-bias states: the tilt innovations estimate the bias too (an uncalibrated gyro)
-    kf_table = {}
-    if bias_state_sweeps > 0:
-        kf = dataclasses.replace(best, bias_states=True, adaptive_nis=0.0, sigma_scale=2.0, bias_sigma_rad_s=0.1,
-                                 bias_init_sigma_rad_s=0.3, bias_rw_rad_s_sqrt_s=1e-3)  # fmt: skip
-        errs, sig, _ = run(kf)
-        kf_err, kf_run = mean_rmse_deg(errs), (errs, sig)
-        kf_table["start"] = kf_err
-        grid = (("sigma_scale", (1.0, 1.5, 2.0, 3.0, 4.0)), ("bias_sigma_rad_s", (0.03, 0.1, 0.3, 1.0)),
-                ("process_noise_rad2_s", (1e-6, 3e-6, 1e-5, 3e-5, 1e-4, 3e-4)),
-                ("bias_rw_rad_s_sqrt_s", (1e-4, 3e-4, 1e-3, 3e-3)),
-                ("process_noise_rate_rad", (0.0, 1e-4, 3e-4, 1e-3)))  # fmt: skip
-        for _ in range(bias_state_sweeps):  # coordinate search (each setting tried once)
-            for name, values in grid:
-                for v in values:
-                    cand = dataclasses.replace(kf, **{name: v})
-                    key = f"{name}={v:g}," + ",".join(f"{k}={getattr(cand, k):g}" for k, _ in grid if k != name)
-                    if cand == kf or key in kf_table:
-                        continue
-                    errs, sig, _ = run(cand)
-                    err = kf_table[key] = mean_rmse_deg(errs)
-                    if err < kf_err:
-                        kf, kf_err, kf_run = cand, err, (errs, sig)
-        if kf_err < best_err:
-            best, best_err, best_run = kf, kf_err, kf_run
-    metrics = {"fusion_val_tilt_rmse_mean_deg": best_err, "fusion_grid": table, "fusion_val_flights": len(recs),
-               "fusion_bias_states_grid": kf_table, "fusion_bias_states": best.bias_states}  # fmt: skip
-    # saturated gyro samples propagated at (1 + κ)× their reading with the model's learned κ, and
-    # then trusted more (a smaller σ added per clipped sample), and for how long after the last
-    # saturated sample the attitude stays open to the window estimates (clip_hold_s). These
-    # settings act around clipped samples only, so they are compared on the validation flights
-    # that clip (all of them), or, where none does, on up to 6 training flights that do
-    kappa = model.sensor.clip_gain()
-    gain = 0.0 if kappa is None else round(float(kappa.detach()), 4)
-    clipping, source = [r for r in usable if bool(np.any(r.clipped))], "validation"
-    if not clipping:  # in-sample windows look better than they are: conservative
-        clipping = [r for r in fallback_records if (r.meta.get("imu_rate_hz") or 0) >= 20 and bool(np.any(r.clipped))]
-        clipping, source = clipping[:: max(1, -(-len(clipping) // 6))], "training"  # at most 6, spread
-    if clipping:
-        cwins = [window_estimates(model, r) for r in clipping]
-        base_err = mean_rmse_deg(run(best, clipping, cwins)[0])
-        clip_table, pick_clip = {"off": base_err}, None
-        for infl in (best.clip_inflation_rad, 0.15, 0.05):
-            cand = dataclasses.replace(best, clip_rate_gain=gain, clip_inflation_rad=infl)
-            err = mean_rmse_deg(run(cand, clipping, cwins)[0])
-            clip_table[f"gain={cand.clip_rate_gain:g},inflation={infl:g}"] = err
-            if err < base_err:
-                base_err, pick_clip = err, cand
-        start = pick_clip or dataclasses.replace(best, clip_rate_gain=gain)
-        for hold in (0.3, 1.0, 2.0):
-            cand = dataclasses.replace(start, clip_hold_s=hold)
-            err = mean_rmse_deg(run(cand, clipping, cwins)[0])
-            clip_table[f"gain={cand.clip_rate_gain:g},inflation={cand.clip_inflation_rad:g},hold={hold:g}"] = err
-            if err < base_err:
-                base_err, pick_clip = err, cand
-        metrics["fusion_clip_grid"] = clip_table
-        metrics["fusion_clip_flights"] = f"{len(clipping)} {source}"
-        if pick_clip is not None:
-            best = pick_clip
-            if best_run is not None:
-                errs, sig, _ = run(best)
-                best_err, best_run = mean_rmse_deg(errs), (errs, sig)
-                metrics["fusion_val_tilt_rmse_mean_deg"] = best_err
-    # bias feedback: the network sees the gyro minus the fusion's bias beyond a dead zone (an
-    # uncalibrated gyro); its windows depend on the fusion, so each candidate reruns the network
-    fb_table = {"off": best_err} if feedback_deadzones_rad_s else {}
-    for dz in feedback_deadzones_rad_s:
-        cand = dataclasses.replace(best, bias_feedback_windows=feedback_windows, bias_feedback_deadzone_rad_s=dz)
-        errs, sig, _ = run(cand)
-        err = fb_table[f"{dz:g}"] = mean_rmse_deg(errs)
-        if err < best_err:
-            best, best_err, best_run = cand, err, (errs, sig)
-            metrics["fusion_val_tilt_rmse_mean_deg"] = best_err
-    if fb_table:
-        metrics["fusion_feedback_grid"] = fb_table
-    # the bias low-pass: the time constant with the lowest gyro-bias error (where truth exists),
-    # kept only if the tilt error does not get worse
-    btable = {}
-    for tau in () if best.bias_states else (5.0, 10.0, 20.0, 40.0):
-        cand = dataclasses.replace(best, bias_time_constant_s=tau)
-        errs, sig, berr = run(cand)
-        if berr:
-            btable[f"{tau:g}"] = (float(np.degrees(np.exp(np.mean(np.log(np.maximum(berr, 1e-9)))))), mean_rmse_deg(errs), errs, sig, cand)
-    if btable:
-        key = min(btable, key=lambda k: btable[k][0] if btable[k][1] <= best_err * 1.02 else float("inf"))
-        if btable[key][1] <= best_err * 1.02:
-            _, best_err, errs, sig, best = btable[key]
-            best_run = (errs, sig)
-            metrics["fusion_val_tilt_rmse_mean_deg"] = best_err
-        metrics["fusion_bias_grid_deg_s"] = {k: v[0] for k, v in btable.items()}
-        metrics["fusion_bias_time_constant_s"] = best.bias_time_constant_s
-    if best_run is not None:
-        e = np.concatenate(best_run[0])
-        s = np.concatenate(best_run[1])
-        if len(e):
-            scale = float(np.sqrt(np.median(e**2 / s**2) / (2.0 * np.log(2.0))))  # 2-D Gaussian: median |e|²/σ² = 2 ln 2
-            best = dataclasses.replace(best, output_sigma_scale=scale)
-            metrics["fusion_output_sigma_scale"] = scale
-    return best, metrics
-
-
-def calibrate_with(cfg: TrainConfig, model: TEPINN, val_recs, train_recs) -> tuple[FusionConfig, dict]:
-    """:func:`calibrate_fusion` with the recipe's ``[calibration]`` settings."""
-    c = cfg.calibration
-    return calibrate_fusion(model, val_recs, cfg.fusion, c.max_flights, fallback_records=train_recs,
-                            bias_state_sweeps=c.bias_state_sweeps, feedback_windows=c.feedback_windows,
-                            feedback_deadzones_rad_s=tuple(math.radians(d) for d in c.feedback_deadzones_deg_s))  # fmt: skip
-
-
-def recalibrate(run_dir: str | os.PathLike, cfg: TrainConfig, data_dirs=(), config_base: Path = Path(".")) -> dict:
-    """Re-run the end of :func:`train` on a finished run: rebuild the validation split, fit the
-    fusion to ``best.pt`` and rewrite ``model.pt`` (used when the calibration code improves)."""
-    from .checkpoint import load_model
-
-    out = Path(run_dir)
-    records = load_records(cfg, data_dirs, config_base, out, progress=False)
-    tr_idx, va_idx = split_by_flight(len(records), cfg.data.val_fraction, cfg.seed)
-    val_recs = [records[i] for i in va_idx]
-    best_model, _, ck = load_model(out / "best.pt")
-    fusion, fus_metrics = calibrate_with(cfg, best_model, val_recs, [records[i] for i in tr_idx])
-    final_metrics = {**(ck.get("metrics") or {}), **fus_metrics}
-    save_checkpoint(out / "model.pt", best_model, fusion, training=ck.get("training"), metrics=final_metrics,
-                    loss_config=dataclasses.asdict(cfg.loss), tepinn_flight_version=__version__)  # fmt: skip
-    return fus_metrics
 
 
 # ---------------------------------------------------------------------- main loop

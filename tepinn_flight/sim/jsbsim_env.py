@@ -16,9 +16,10 @@ from pathlib import Path
 from typing import Callable, Iterator
 
 from tepinn_flight.errors import ConfigError
+from tepinn_flight.sim import FLIGHT_SIMS_DIR
 
 #: Our own aircraft definitions (``flight_sims/aircraft/<name>/<name>.xml``).
-AIRCRAFT_DIR = Path(__file__).resolve().parents[2] / "flight_sims" / "aircraft"
+AIRCRAFT_DIR = FLIGHT_SIMS_DIR / "aircraft"
 
 FT_TO_M = 0.3048
 LBF_TO_N = 4.4482216152605

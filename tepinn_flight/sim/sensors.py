@@ -43,6 +43,7 @@ from ..config import apply_overrides, check, finite_nonneg, from_dict, load_toml
 from ..conventions import GRAVITY_M_S2
 from ..errors import ConfigError
 from ..quat import quat_conj, quat_rotate
+from . import FLIGHT_SIMS_DIR
 from .truth import TruthTrajectory
 
 DEG = math.pi / 180.0
@@ -153,7 +154,7 @@ def _json_safe(v):
 def presets_dir() -> Path:
     """``flight_sims/sensors`` of the checkout (or ``$TEPINN_FLIGHT_SIMS/sensors``)."""
     root = os.environ.get("TEPINN_FLIGHT_SIMS")
-    base = Path(root) if root else Path(__file__).resolve().parents[2] / "flight_sims"
+    base = Path(root) if root else FLIGHT_SIMS_DIR
     return base / "sensors"
 
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import ConfigError
+from ...quat import gravity_body_f
 from .common import as_tuple4, check_inputs, initial_attitude
 
 
@@ -69,9 +70,7 @@ def _run(gyr, acc, mag, dt, tau_acc, tau_mag, q):
         if na > 0.0:
             na = -1.0 / sqrt(na)
             ax, ay, az = ax * na, ay * na, az * na  # measured down, body
-            vx = 2.0 * (x * z - w * y)  # predicted down, body
-            vy = 2.0 * (y * z + w * x)
-            vz = 1.0 - 2.0 * (x * x + y * y)
+            vx, vy, vz = gravity_body_f((w, x, y, z))  # predicted down, body
             ex, ey, ez = ay * vz - az * vy, az * vx - ax * vz, ax * vy - ay * vx  # d × v
             ne = sqrt(ex * ex + ey * ey + ez * ez)
             if ne > 1e-12:

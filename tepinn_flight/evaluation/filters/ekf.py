@@ -41,6 +41,7 @@ import numpy as np
 
 from ...conventions import GRAVITY_M_S2
 from ...errors import ConfigError
+from ...quat import gravity_body_f
 from .common import as_tuple4, check_inputs, initial_attitude
 
 
@@ -166,9 +167,7 @@ def _run(gyr, acc, dt, p: EkfParams, q, b):
                 by = min(lim, max(-lim, by + b1))
                 bz = min(lim, max(-lim, bz + b2))
         # predicted down direction in body
-        vx = 2.0 * (x * z - w * y)
-        vy = 2.0 * (y * z + w * x)
-        vz = 1.0 - 2.0 * (x * x + y * y)
+        vx, vy, vz = gravity_body_f((w, x, y, z))
         if lp_tau > 0.0 and (ax != 0.0 or ay != 0.0 or az != 0.0):
             # VQF's idea: low-pass the specific force in an inertial frame I that follows the
             # bias-corrected gyro only (no corrections), so zero-mean linear accelerations cancel
@@ -218,9 +217,7 @@ def _run(gyr, acc, dt, p: EkfParams, q, b):
             bx = min(lim, max(-lim, bx + b0))
             by = min(lim, max(-lim, by + b1))
             bz = min(lim, max(-lim, bz + b2))
-            vx = 2.0 * (x * z - w * y)
-            vy = 2.0 * (y * z + w * x)
-            vz = 1.0 - 2.0 * (x * x + y * y)
+            vx, vy, vz = gravity_body_f((w, x, y, z))
         r = 1.0 / sqrt(w * w + x * x + y * y + z * z)
         w, x, y, z = w * r, x * r, y * r, z * r
         q_out[i] = (w, x, y, z)

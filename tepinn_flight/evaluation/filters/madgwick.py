@@ -7,7 +7,7 @@ gravity reference, x along the horizontal magnetic field — is NED (magnetic no
 ``q_nb`` (body FRD → NED). Madgwick's update is equivariant under fixed rotations of the body and
 earth frames, so this gives exactly the attitude the C code would give on the same data in its own
 z-up frame, re-expressed (checked against BROAD's published numbers in
-:mod:`tepinn_flight.evaluation.broad`).
+:mod:`tepinn_flight.evaluation.broad_benchmark`).
 
 **The quirk.** The original C code computes ``_2bx = sqrt(hx² + hy²)`` and ``_2bz = hz`` although the
 gradient formulas that follow need twice those values (BROAD issue #1, arduino MadgwickAHRS #50,

@@ -1,5 +1,7 @@
 """Physical check of units and frames: body rates derived from the reference vs the gyro.
 
+A test helper (the ingest and simulation tests check every reader with it); not part of the package.
+
 With the right units and axes, the gyro and the rates differentiated from the reference attitude
 agree: per-axis correlation near 1 and least-squares gain near 1. Wrong units (mrad/s read as
 rad/s) show as a gain of 1000 or 0.001; a wrong axis as a low or negative correlation.
@@ -11,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .quat import body_rates_from_quats
-from .record import FlightRecord
+from tepinn_flight.quat import body_rates_from_quats
+from tepinn_flight.record import FlightRecord
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,5 @@
-"""What ``info`` reports about a flight record: pure computation on the record, no printing."""
+"""Statistics of a flight record, what ``info`` reports: pure computation on the record, no printing
+(:mod:`tepinn_flight.cli.summary` renders them)."""
 
 from __future__ import annotations
 

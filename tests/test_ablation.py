@@ -1,0 +1,43 @@
+"""The ablation experiment (evaluation/ablation.py) without training: variants, table, arguments."""
+
+from __future__ import annotations
+
+import pytest
+
+from tepinn_flight.errors import ConfigError
+from tepinn_flight.evaluation.ablation import (VARIANTS, ablation_markdown, check_variants, heldout_campaign,
+                                               variant_config)  # fmt: skip
+from tepinn_flight.model.train_config import TrainConfig
+
+
+def test_variants_remove_one_component_each():
+    base = TrainConfig()
+    assert variant_config(base, "full") == base
+    assert variant_config(base, "no-transformer").model.encoder == "mlp"
+    assert variant_config(base, "no-adaptive-weighting").loss.adaptive is False
+    lstm = variant_config(base, "lstm-baseline")
+    assert lstm.model.encoder == "lstm" and lstm.model.physics is False
+    assert set(VARIANTS) >= {"full", "no-physics", "no-uncertainty"}
+
+
+def test_unknown_variant_is_a_config_error():
+    check_variants(["full", "no-physics"])
+    with pytest.raises(ConfigError, match="unknown variant"):
+        check_variants(["full", "no-such"])
+
+
+def test_table_has_one_row_per_variant_and_dashes_for_missing_values():
+    rows = [{"variant": "full", "inclination_rmse_deg": 1.0, "inclination_rmse_median_deg": 0.9,
+             "gyr_bias_rms_deg_s": 0.0123, "nees": 2.1, "vs_full": 1.0},
+            {"variant": "vqf", "inclination_rmse_deg": 2.0, "inclination_rmse_median_deg": None,
+             "gyr_bias_rms_deg_s": None, "nees": None, "vs_full": 2.0}]  # fmt: skip
+    md = ablation_markdown(rows, "train/ablation.toml", 3, notes=["a note"])
+    assert md.startswith("# TE-PINN ablation\n")
+    assert "evaluated on 3 held-out flights" in md and "`train/ablation.toml`" in md
+    assert "| 1.00 | 0.90 | 0.012 | 2.10 | 1.00 |" in md
+    assert "| 2.00 | – | – | – | 2.00 |" in md
+    assert md.endswith("- a note\n")
+
+
+def test_default_heldout_campaign_is_in_the_checkout():
+    assert heldout_campaign().exists()

@@ -1,0 +1,41 @@
+"""Pins the shipped model's estimates on a real shared log, so refactors that must not change
+behaviour are checked to 1e-9 (values computed with the shipped checkpoint at commit f66fd0c)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.conftest import real_log
+
+LOG = "erle_pxf_copter_15-12-2014_16.BIN"
+
+# row → (q_est_w, q_est_x, q_est_y, q_est_z), sigma_rad
+PINNED = {
+    0: ([0.7070399528252804, 0.010530337087622554, -0.008480732802112341, 0.7070443368564561], 0.007853981633974483),
+    1266: ([0.6774591076205981, 0.020877443897249135, -0.015629897519659302, 0.7350979500323377], 0.008179756686584659),
+    2533: ([0.6811421821978719, -0.008198074884785399, -0.020091430990748463, 0.7318295249575878], 0.007917550395015986),
+    3800: ([0.6582711683548047, -0.005629764504614241, -0.017181440394956577, 0.7525637333610873], 0.007972128609992694),
+    5066: ([0.8839622503452874, 0.0017002236782266192, -0.024958288035739094, 0.46688856600077977], 0.00797574828366988),
+    6332: ([0.15749348187592424, 0.015982203006865286, -0.030111137769159916, 0.986931452399756], 0.008028978425865944),
+    7599: ([0.010292179749579014, -0.910703174028719, 0.4111762844608654, 0.038050794301520564], 0.008701374014719732),
+}
+
+
+def test_shipped_model_estimates_are_pinned():
+    from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.estimate import estimate_record
+
+    path = real_log(LOG)
+    if not default_model_path().exists():
+        pytest.skip(f"shipped model not available ({default_model_path()})")
+    rec = ingest_log(path)
+    model, estimator, _ = load_model(default_model_path())
+    est = estimate_record(model, rec, estimator)
+    assert len(est) == 7600
+    q = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+    s = est["sigma_rad"].to_numpy()
+    for row, (q_pin, s_pin) in PINNED.items():
+        np.testing.assert_allclose(q[row], q_pin, rtol=0, atol=1e-9, err_msg=f"q at row {row}")
+        np.testing.assert_allclose(s[row], s_pin, rtol=0, atol=1e-9, err_msg=f"sigma at row {row}")
