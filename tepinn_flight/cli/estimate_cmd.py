@@ -1,4 +1,4 @@
-"""``tepinn-flight estimate [--model CKPT] RECORD... -o OUT``."""
+"""``tepinn-flight estimate [--model CKPT|MODEL.onnx] [--runtime torch|onnx|auto] RECORD... -o OUT``."""
 
 from __future__ import annotations
 
@@ -15,10 +15,14 @@ DESCRIPTION = (
 def add_arguments(p) -> None:
     p.add_argument("records", nargs="+", metavar="RECORD", help="flight records (.parquet; use `ingest` for raw logs)")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output file (one record) or folder")
-    p.add_argument("--model", default=None, metavar="CKPT", help="checkpoint (default: the shipped model)")
+    p.add_argument("--model", default=None, metavar="CKPT",
+                   help="checkpoint or .onnx export (`tepinn-flight export`; default: the shipped model)")
+    p.add_argument("--runtime", choices=["auto", "torch", "onnx"], default="auto",
+                   help="run the network in PyTorch or onnxruntime (auto: onnx for an .onnx model or where torch is "
+                        "not installed, else torch)")
     p.add_argument("--yaw", choices=["gyro", "zero"], default=None,
                    help="heading of the output: integrated gyro (default) or 0 (the paper's 6-D correction)")
-    p.add_argument("--threads", type=threads, default=0, help="torch CPU threads (default: torch's choice)")
+    p.add_argument("--threads", type=threads, default=0, help="CPU threads of the runtime (default: its own choice)")
     p.add_argument("-q", "--quiet", action="store_true")
 
 
@@ -29,20 +33,20 @@ def run(args) -> int:
 
     import pyarrow as pa
     import pyarrow.parquet as pq
-    import torch
 
     from ..errors import TepinnError
-    from ..model.checkpoint import default_model_path, load_model
+    from ..model.checkpoint import default_model_path
     from ..model.estimate import estimate_record
+    from ..model.runtime import default_onnx_path, load_runner, resolve_runtime
     from ..record import atomic_write, check_output, read_record
     from .ingest_cmd import output_paths
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
     ckpt_path = Path(args.model) if args.model else default_model_path()
+    if not args.model and resolve_runtime(ckpt_path, args.runtime) == "onnx" and default_onnx_path().is_file():
+        ckpt_path = default_onnx_path()  # the shipped model, exported
     if not args.model and not ckpt_path.exists():
         raise TepinnError("the shipped default model is missing from this installation; pass --model CKPT")
-    model, fusion, _ = load_model(ckpt_path)
+    model, fusion, _ = load_runner(ckpt_path, args.runtime, args.threads or None)
     if args.yaw and hasattr(fusion, "yaw"):  # the network-centred fusion only (the anchored one has VQF's heading)
         fusion = dataclasses.replace(fusion, yaw=args.yaw)
     paths = [Path(p) for p in args.records]
