@@ -181,9 +181,9 @@ def test_estimate_and_live_worker_run_without_torch(tmp_path, exported):
         np.testing.assert_allclose(got.to_numpy(), ref.to_numpy(), rtol=0, atol=1e-5, equal_nan=True)
 
 
-def _index_reachable() -> str | None:
+def _index_reachable(tmp: Path) -> str | None:
     """None when pip can fetch packages, else why not."""
-    p = subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "-d", os.devnull, "-q", "tqdm"],
+    p = subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "-d", str(tmp / "dl"), "-q", "tqdm"],
                        capture_output=True, text=True, timeout=120)  # fmt: skip
     return None if p.returncode == 0 else (p.stderr.strip().splitlines() or ["pip download failed"])[-1]
 
@@ -191,7 +191,7 @@ def _index_reachable() -> str | None:
 @pytest.mark.slow
 def test_fresh_venv_runtime_extra_without_torch(tmp_path, exported):
     """`pip install ".[runtime]"` into a plain venv: no torch, and `estimate --runtime onnx` works."""
-    why = _index_reachable()
+    why = _index_reachable(tmp_path)
     if why:
         pytest.skip(f"pip cannot reach the package index ({why})")
     venv = tmp_path / "venv"
