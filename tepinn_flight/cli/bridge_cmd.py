@@ -72,11 +72,11 @@ def run(args) -> int:
         model = default_model_path()
         if resolve_runtime(model, args.runtime) == "onnx" and default_onnx_path().is_file():
             model = default_onnx_path()  # the shipped model, exported
+        if not model.is_file():
+            raise TepinnError("the shipped default model is missing from this installation; pass --model CKPT")
     from ..model.runtime import resolve_runtime
 
     resolve_runtime(model, args.runtime)  # a runtime that cannot run this model: one line now, not in the worker
-        if not model.is_file():
-            raise TepinnError("the shipped default model is missing from this installation; pass --model CKPT")
     cfg = BridgeConfig(
         master=args.master, outs=tuple(args.out), model_path=str(model), runtime=args.runtime, tlog_path=args.tlog, rate_hz=args.rate,
         diag_rate_hz=args.diag_rate, imu_instance=args.imu, min_imu_rate_hz=args.min_imu_rate,
