@@ -223,3 +223,18 @@ def test_fresh_venv_runtime_extra_without_torch(tmp_path, exported):
     ref = estimate_record(model, rec, settings)
     got = pd.read_parquet(tmp_path / "e.parquet")
     np.testing.assert_allclose(got.to_numpy(), ref.to_numpy(), rtol=0, atol=1e-5, equal_nan=True)
+
+
+@pytest.mark.slow
+def test_bridge_end_to_end_with_the_onnx_model(tmp_path, exported):
+    """replay → bridge (worker process on the .onnx, onnxruntime) → listener: the estimates are the
+    torch StreamingEstimator's for the same samples."""
+    from tests.test_bridge import _check_chain, _offline_estimates, _run_chain, _sim_tlog
+
+    _, tlog = _sim_tlog(tmp_path, 6.0, 400.0)
+    lis, summary, _ = _run_chain(tmp_path, exported, tlog, speed=1.0)
+    aq, ms = _check_chain(lis, tlog, summary)
+    ref = _offline_estimates(default_model_path(), tlog)  # torch
+    q_live = np.array([[m.q1, m.q2, m.q3, m.q4] for m in aq])
+    np.testing.assert_allclose(q_live, np.array([ref[int(k)] for k in ms]), atol=1e-5)
+    assert summary["estimates"]["errors"] == 0
