@@ -22,7 +22,10 @@ def add_arguments(p) -> None:
                    help="the autopilot: udpin:0.0.0.0:14550, tcp:HOST:PORT, tcpin:, udpout: or a serial port /dev/ttyACM0,115200")
     p.add_argument("--out", action="append", default=[], metavar="ENDPOINT",
                    help="a ground station or router, e.g. udpout:127.0.0.1:14551 (repeatable)")
-    p.add_argument("--model", default=None, metavar="CKPT", help="checkpoint (default: the shipped model)")
+    p.add_argument("--model", default=None, metavar="CKPT", help="checkpoint or .onnx export (default: the shipped model)")
+    p.add_argument("--runtime", choices=["auto", "torch", "onnx"], default="auto",
+                   help="run the network in PyTorch or onnxruntime (auto: onnx for an .onnx model or where torch is "
+                        "not installed, else torch)")
     p.add_argument("--tlog", default=None, metavar="FILE", help="write the whole session (autopilot, ground stations, estimates) as a tlog")
     p.add_argument("--rate", type=float, default=50.0, metavar="HZ", help="estimates per second of autopilot time (default 50)")
     p.add_argument("--diag-rate", type=float, default=10.0, metavar="HZ", help="diagnostics per second (default 10; 0 = none)")
@@ -70,13 +73,19 @@ def run(args) -> int:
         if not model.is_file():
             raise ConfigError(f"--model {args.model}: no such checkpoint")
     else:
-        from ..model.checkpoint import default_model_path  # imports torch: only when needed
+        from ..model.checkpoint import default_model_path
+        from ..model.runtime import default_onnx_path, resolve_runtime
 
         model = default_model_path()
+        if resolve_runtime(model, args.runtime) == "onnx" and default_onnx_path().is_file():
+            model = default_onnx_path()  # the shipped model, exported
         if not model.is_file():
             raise TepinnError("the shipped default model is missing from this installation; pass --model CKPT")
+    from ..model.runtime import resolve_runtime
+
+    resolve_runtime(model, args.runtime)  # a runtime that cannot run this model: one line now, not in the worker
     cfg = BridgeConfig(
-        master=args.master, outs=tuple(args.out), model_path=str(model), tlog_path=args.tlog, rate_hz=args.rate,
+        master=args.master, outs=tuple(args.out), model_path=str(model), runtime=args.runtime, tlog_path=args.tlog, rate_hz=args.rate,
         diag_rate_hz=args.diag_rate, imu_instance=args.imu, min_imu_rate_hz=args.min_imu_rate,
         request_imu_rate_hz=args.request_imu_rate, sysid=args.sysid, compid=args.compid,
         estimates_to_master=args.estimates_to_master, estimate_as=args.estimate_as, worker=args.worker, max_sample_age_s=args.max_age,

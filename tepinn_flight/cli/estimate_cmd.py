@@ -1,4 +1,4 @@
-"""``tepinn-flight estimate [--model CKPT] RECORD... -o OUT``."""
+"""``tepinn-flight estimate [--model CKPT|MODEL.onnx] [--runtime torch|onnx|auto] RECORD... -o OUT``."""
 
 from __future__ import annotations
 
@@ -16,14 +16,18 @@ DESCRIPTION = (
 def add_arguments(p) -> None:
     p.add_argument("records", nargs="+", metavar="RECORD", help="flight records (.parquet; use `ingest` for raw logs)")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output file (one record) or folder")
-    p.add_argument("--model", default=None, metavar="CKPT", help="checkpoint (default: the shipped model)")
+    p.add_argument("--model", default=None, metavar="CKPT",
+                   help="checkpoint or .onnx export (`tepinn-flight export`; default: the shipped model)")
+    p.add_argument("--runtime", choices=["auto", "torch", "onnx"], default="auto",
+                   help="run the network in PyTorch or onnxruntime (auto: onnx for an .onnx model or where torch is "
+                        "not installed, else torch)")
     p.add_argument("--yaw", choices=["gyro", "zero"], default=None,
                    help="heading of the output: integrated gyro (default) or 0 (the paper's 6-D correction)")
     p.add_argument("--mode", choices=["6d", "9d", "auto"], default=None,
                    help="6d: gyro + accelerometer, heading relative; 9d: with the magnetometer, heading from magnetic "
                         "north (no declination applied); auto: 9d where the record has a magnetometer "
                         "(default: the model's, 6d for the shipped one)")
-    p.add_argument("--threads", type=threads, default=0, help="torch CPU threads (default: torch's choice)")
+    p.add_argument("--threads", type=threads, default=0, help="CPU threads of the runtime (default: its own choice)")
     p.add_argument("--tlog", default=None, metavar="OUT",
                    help="also write a tlog (file for one record, folder for several): the source tlog's messages (or, for "
                         "other sources, the record's IMU and reference attitude) plus the estimate from component 191, "
@@ -44,20 +48,20 @@ def run(args) -> int:
 
     import pyarrow as pa
     import pyarrow.parquet as pq
-    import torch
 
     from ..errors import TepinnError
-    from ..model.checkpoint import default_model_path, load_model
+    from ..model.checkpoint import default_model_path
     from ..model.estimate import estimate_record
+    from ..model.runtime import default_onnx_path, load_runner, resolve_runtime
     from ..record import atomic_write, check_output, read_record
     from .ingest_cmd import output_paths
 
-    if args.threads:
-        torch.set_num_threads(args.threads)
     ckpt_path = Path(args.model) if args.model else default_model_path()
+    if not args.model and resolve_runtime(ckpt_path, args.runtime) == "onnx" and default_onnx_path().is_file():
+        ckpt_path = default_onnx_path()  # the shipped model, exported
     if not args.model and not ckpt_path.exists():
         raise TepinnError("the shipped default model is missing from this installation; pass --model CKPT")
-    model, fusion, _ = load_model(ckpt_path)
+    model, fusion, _ = load_runner(ckpt_path, args.runtime, args.threads or None)
     if args.mode:
         if not hasattr(fusion, "mode"):
             raise TepinnError(f"--mode {args.mode}: {ckpt_path.name} runs the older network-centred fusion, 6-D only")

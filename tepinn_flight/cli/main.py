@@ -25,6 +25,7 @@ COMMANDS = [
     ("simulate", "simulate_cmd"),
     ("train", "train_cmd"),
     ("estimate", "estimate_cmd"),
+    ("export", "export_cmd"),
     ("evaluate", "evaluate_cmd"),
     ("ablate", "ablate_cmd"),
     ("benchmark", "benchmark_cmd"),

@@ -78,6 +78,7 @@ class BridgeConfig:
     master: str
     outs: tuple[str, ...] = ()
     model_path: str | None = None
+    runtime: str = "auto"  # the network's runtime: "torch", "onnx" or "auto" (model.runtime)
     tlog_path: str | None = None
     rate_hz: float = 50.0  # estimates out, on the autopilot's clock
     diag_rate_hz: float = 10.0  # NAMED_VALUE_FLOAT / DEBUG_VECT
@@ -103,6 +104,8 @@ class BridgeConfig:
             raise ConfigError(f"--estimate-as must be one of {', '.join(ESTIMATE_AS)}, not {self.estimate_as!r}")
         if self.worker not in ("process", "thread"):
             raise ConfigError(f"worker must be 'process' or 'thread', not {self.worker!r}")
+        if self.runtime not in ("auto", "torch", "onnx"):
+            raise ConfigError(f"runtime must be 'auto', 'torch' or 'onnx', not {self.runtime!r}")
         if self.sysid is not None and not 1 <= self.sysid <= 255:
             raise ConfigError("--sysid must be in 1..255")
         if not 1 <= self.compid <= 255:
@@ -162,7 +165,7 @@ class Bridge:
 
             if not config.model_path:
                 raise ConfigError("no model given")
-            self.make_estimator = model_estimator_factory(config.model_path)
+            self.make_estimator = model_estimator_factory(config.model_path, config.runtime)
         self.links: list[Link] = []
         try:
             self.master = Link(config.master, "master")
@@ -256,7 +259,7 @@ class Bridge:
     def _start_worker(self) -> None:
         c = self.cfg
         if c.worker == "process":
-            self.worker = ProcessWorker(c.model_path, c.rate_hz, c.max_sample_age_s)
+            self.worker = ProcessWorker(c.model_path, c.rate_hz, c.max_sample_age_s, c.runtime)
         else:
             self.worker = ThreadWorker(self.make_estimator, c.rate_hz, c.max_sample_age_s)
         self.worker_ready = False

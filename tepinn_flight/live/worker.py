@@ -23,7 +23,9 @@ Protocol (both modes, the same :func:`worker_loop`):
   ``S`` counters, ``X`` a non-fatal error line (the estimator raised: it is reset and goes on),
   ``F`` a fatal error line (the model could not be loaded; the worker exits).
 
-Run as ``python -m tepinn_flight.live.worker --model CKPT``: records on stdin, frames on stdout.
+Run as ``python -m tepinn_flight.live.worker --model CKPT [--runtime torch|onnx|auto]``: records on
+stdin, frames on stdout. The network runs in PyTorch or onnxruntime (:mod:`~tepinn_flight.model.runtime`;
+with an ``.onnx`` model and ``--runtime onnx``/``auto`` torch is never imported).
 """
 
 from __future__ import annotations
@@ -271,10 +273,10 @@ class ProcessWorker(_WorkerBase):
 
     mode = "process"
 
-    def __init__(self, model_path: str, rate_hz: float, max_age_s: float):
+    def __init__(self, model_path: str, rate_hz: float, max_age_s: float, runtime: str = "auto"):
         super().__init__()
         cmd = [sys.executable, "-m", "tepinn_flight.live.worker", "--model", str(model_path),
-               "--rate", repr(float(rate_hz)), "--max-age", repr(float(max_age_s))]  # fmt: skip
+               "--rate", repr(float(rate_hz)), "--max-age", repr(float(max_age_s)), "--runtime", runtime]  # fmt: skip
         env = dict(os.environ)
         env.setdefault("OMP_NUM_THREADS", "1")
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -369,15 +371,16 @@ class ThreadWorker(_WorkerBase):
             pass
 
 
-def model_estimator_factory(model_path: str):
-    """A factory building a StreamingEstimator from a checkpoint (imports torch when called)."""
+def model_estimator_factory(model_path: str, runtime: str = "auto"):
+    """A factory building a StreamingEstimator from a checkpoint or an ``.onnx`` export, run by
+    ``runtime`` (imports torch when called, for the torch runtime only)."""
 
     def make():
-        from ..model.checkpoint import load_model  # noqa: PLC0415 - torch only where needed
+        from ..model.runtime import load_runner  # noqa: PLC0415 - torch only where needed
         from ..model.streaming import StreamingEstimator  # noqa: PLC0415
 
-        model, fusion, _ = load_model(model_path)
-        return StreamingEstimator(model, fusion, threads=1)
+        runner, fusion, _ = load_runner(model_path, runtime)
+        return StreamingEstimator(runner, fusion, threads=1)
 
     return make
 
@@ -387,6 +390,7 @@ def main(argv=None) -> int:
     p.add_argument("--model", required=True)
     p.add_argument("--rate", type=float, default=50.0)
     p.add_argument("--max-age", type=float, default=0.2)
+    p.add_argument("--runtime", choices=["auto", "torch", "onnx"], default="auto")
     a = p.parse_args(argv)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the bridge stops us by closing stdin
     try:
@@ -395,7 +399,7 @@ def main(argv=None) -> int:
         pass
     out_fd = os.dup(1)
     os.dup2(2, 1)  # stray prints of libraries go to stderr, never into the protocol
-    return worker_loop(0, out_fd, model_estimator_factory(a.model), a.rate, a.max_age)
+    return worker_loop(0, out_fd, model_estimator_factory(a.model, a.runtime), a.rate, a.max_age)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -7,6 +7,9 @@ A checkpoint is a plain dict saved with ``torch.save`` and loadable with
 ``fusion_config`` (dicts), ``state_dict`` (weights incl. the input normalisation buffers),
 ``conventions``, ``training`` (data summary, seed, epochs), ``metrics``, plus, for resumable
 training checkpoints, ``optimizer``/``loss_state``/``rng``/``epoch``.
+
+torch is imported where a checkpoint is read or written, not at import (the paths below and the
+runtime without torch need this module).
 """
 
 from __future__ import annotations
@@ -14,16 +17,16 @@ from __future__ import annotations
 import dataclasses
 import os
 from pathlib import Path
-
-import torch
+from typing import TYPE_CHECKING
 
 from .. import conventions
 from ..errors import TepinnError
 from ..record import atomic_write
-from .config import ModelConfig
 from .anchor import AnchorConfig
 from .fusion import FusionConfig
-from .network import TEPINN
+
+if TYPE_CHECKING:
+    from .network import TEPINN
 
 FORMAT = "tepinn-flight-checkpoint"
 VERSION = 1
@@ -37,6 +40,8 @@ def save_checkpoint(path: str | os.PathLike, model: TEPINN, fusion: FusionConfig
                     **extra) -> None:  # fmt: skip
     """``anchor``: the filter-anchored estimator's settings (``anchor_config``); without it the
     checkpoint runs the network-centred fusion ``fusion``."""
+    import torch
+
     ckpt = {
         "format": FORMAT,
         "version": VERSION,
@@ -51,6 +56,8 @@ def save_checkpoint(path: str | os.PathLike, model: TEPINN, fusion: FusionConfig
 
 
 def read_checkpoint(path: str | os.PathLike) -> dict:
+    import torch
+
     p = Path(path)
     if not p.exists():
         raise CheckpointError("no such checkpoint", p)
@@ -88,19 +95,14 @@ def load_model(path: str | os.PathLike) -> tuple[TEPINN, FusionConfig | AnchorCo
     """Rebuild the model (eval mode, float32) and the settings of the estimator it runs in: an
     :class:`AnchorConfig` (filter-anchored VQF, the shipped model) where the checkpoint has an
     enabled ``anchor_config``, else its :class:`FusionConfig` (network-centred fusion)."""
+    from .network import TEPINN
+    from .runtime import estimator_settings, model_config_from
+
     ckpt = read_checkpoint(path)
     try:
-        # version-1 checkpoints written before `clip_aware`, the sensor limits, `declip` and
-        # `learned_pooling` existed were trained without them
-        before = {"clip_aware": False, "sensor_scale_max": 0.0, "sensor_gyro_bias_max_rad_s": 0.0,
-                  "sensor_accel_bias_max_m_s2": 0.0, "declip": False, "learned_pooling": False}  # fmt: skip
-        model = TEPINN(ModelConfig(**{**before, **ckpt["model_config"]}))
+        model = TEPINN(model_config_from(ckpt))
         model.load_state_dict(ckpt["state_dict"])
-        fusion = FusionConfig(**ckpt.get("fusion_config", {}))
-        if ckpt.get("anchor_config") is not None:
-            anchor = AnchorConfig(**ckpt["anchor_config"])
-            if anchor.enabled:
-                fusion = anchor
+        fusion = estimator_settings(ckpt)
     except (TypeError, KeyError, RuntimeError) as exc:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
         raise CheckpointError(f"checkpoint does not match this model ({first})", path) from None

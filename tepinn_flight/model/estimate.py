@@ -1,20 +1,27 @@
 """Offline estimation over whole records: batched sliding windows, then the causal pass — the
 filter-anchored VQF (:func:`estimate_anchored`, the shipped model) or the older network-centred
-fusion (:func:`estimate_record` with a :class:`FusionConfig`)."""
+fusion (:func:`estimate_record` with a :class:`FusionConfig`).
+
+``model`` is a :class:`~.network.TEPINN` (run in PyTorch) or any :class:`~.runtime.NetworkRunner`
+(e.g. :class:`~.runtime.OnnxRunner`: no torch needed)."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import pandas as pd
-import torch
 
 from ..errors import TepinnError
 from ..record import FlightRecord
 from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows
 from .fusion import FusionConfig, FusionRun, feedback_bias
-from .network import TEPINN
+from .runtime import as_runner
 from .streaming import TS_STEPS
 from .tokens import tokenize, tokenize_record
+
+if TYPE_CHECKING:
+    from .network import TEPINN
 
 EST_Q_COLS = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
 EST_BIAS_COLS = ["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]
@@ -29,15 +36,14 @@ def network_on_windows(model: TEPINN, tok, ends: np.ndarray, gyr_offset: np.ndar
     return out["q"], out["sigma"], out["bias"]
 
 
-@torch.inference_mode()
 def network_outputs(model: TEPINN, tok, ends: np.ndarray, gyr_offset: np.ndarray | None = None,
                     batch_size: int = 256) -> dict:  # fmt: skip
     """The network's outputs for the windows ending at token indices ``ends``: ``q`` (W, 4),
     ``sigma`` (W,), ``bias`` (W, 3) and the transport-theorem head's body velocity ``vel`` and its
     rate ``acc_v`` (W, 3; zeros for a model without that head)."""
-    c = model.config
+    runner = as_runner(model)
+    c = runner.config
     qs, ss, bs, vs, avs = [], [], [], [], []
-    dtype = next(model.parameters()).dtype
     gyr = np.nan_to_num(tok.gyr)
     acc = np.nan_to_num(tok.acc)
     mag = np.nan_to_num(tok.mag)
@@ -46,17 +52,12 @@ def network_outputs(model: TEPINN, tok, ends: np.ndarray, gyr_offset: np.ndarray
         idx = e[:, None] + np.arange(-c.window_tokens + 1, 1)[None, :]
         t = tok.t_s[idx]
         g = gyr[idx] if gyr_offset is None else gyr[idx] - gyr_offset[a : a + batch_size, None, :]
-        out = model(
-            torch.as_tensor(g, dtype=dtype), torch.as_tensor(acc[idx], dtype=dtype),
-            torch.as_tensor(tok.count[idx], dtype=dtype), torch.as_tensor(t - t[:, -1:], dtype=dtype),
-            torch.as_tensor(tok.dt_s[idx], dtype=dtype), torch.as_tensor(mag[idx], dtype=dtype),
-            torch.as_tensor(tok.clip[idx], dtype=dtype),
-        )  # fmt: skip
-        qs.append(out["q"].double().numpy())
-        ss.append(out["sigma"].double().numpy() if "sigma" in out else np.full(len(e), np.radians(2.0)))
-        bs.append(out["bias"].double().numpy())
-        vs.append(out["vel"].double().numpy() if "vel" in out else np.zeros((len(e), 3)))
-        avs.append(out["acc_v"].double().numpy() if "acc_v" in out else np.zeros((len(e), 3)))
+        out = runner.run(g, acc[idx], tok.count[idx], t - t[:, -1:], tok.dt_s[idx], mag[idx], tok.clip[idx])
+        qs.append(out["q"])
+        ss.append(out["sigma"])
+        bs.append(out["bias"])
+        vs.append(out["vel"])
+        avs.append(out["acc_v"])
     if not qs:
         z3 = np.zeros((0, 3))
         return {"q": np.zeros((0, 4)), "sigma": np.zeros(0), "bias": z3, "vel": z3, "acc_v": z3}

@@ -5,6 +5,9 @@ opens a new token, the finished token joins the window, the network runs on the 
 token, 25 Hz by default) and the fusion is corrected at the finished token's last sample before
 propagating to the new one. A time reversal or a gap longer than 2.5 nominal periods starts a new
 segment (the state is reset; estimates resume when the next window is full).
+
+The network runs through a :class:`~.runtime.NetworkRunner`: a :class:`~.network.TEPINN` module
+(PyTorch) or e.g. an :class:`~.runtime.OnnxRunner` (no torch).
 """
 
 from __future__ import annotations
@@ -13,13 +16,16 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
 from .anchor import AnchorConfig, AnchoredVQF, WindowOutput
 from .fusion import AttitudeFusion, FusionConfig, feedback_bias
-from .network import TEPINN
+from .runtime import NetworkRunner, as_runner
+
+if TYPE_CHECKING:
+    from .network import TEPINN
 
 GAP_PERIODS = 2.5
 #: the anchored filter's sample period is the median of a segment's first steps (offline the same)
@@ -50,15 +56,18 @@ class _Token:
 
 
 class StreamingEstimator:
-    def __init__(self, model: TEPINN, fusion: FusionConfig | AnchorConfig | None = None, threads: int | None = 1):
-        self.model = model.eval()
-        self.cfg = model.config
+    def __init__(self, model: TEPINN | NetworkRunner, fusion: FusionConfig | AnchorConfig | None = None,
+                 threads: int | None = 1):  # fmt: skip
+        """``model``: a TE-PINN module (put in eval mode, run in PyTorch) or a network runner;
+        ``threads``: the runtime's CPU threads (None/0: its own choice)."""
+        self.model = model if isinstance(model, NetworkRunner) else model.eval()
+        self.runner = as_runner(self.model)
+        self.cfg = self.runner.config
         self.anchor_cfg = fusion if isinstance(fusion, AnchorConfig) else None
         self.fusion_cfg = FusionConfig() if self.anchor_cfg is not None else (fusion or FusionConfig())
         self.delta = 1.0 / self.cfg.token_rate_hz
-        self.dtype = next(model.parameters()).dtype
         if threads:
-            torch.set_num_threads(threads)
+            self.runner.set_threads(threads)
         self.reset()
 
     def reset(self) -> None:
@@ -165,7 +174,6 @@ class StreamingEstimator:
             return None
         return self._run_model()
 
-    @torch.inference_mode()
     def _run_model(self):
         w = list(self.win)
         t = np.array([x[0] for x in w])
@@ -174,19 +182,16 @@ class StreamingEstimator:
             self.feedback = feedback_bias(self.fusion_cfg, self.fusion.bias)  # after the previous estimate
         self.n_windows += 1
         fb = self.feedback if fb_every > 0 else (0.0, 0.0, 0.0)
-        g = torch.tensor([[x[1][i] - fb[i] for i in range(3)] for x in w], dtype=self.dtype)[None]
-        a = torch.tensor([x[2] for x in w], dtype=self.dtype)[None]
-        m = torch.tensor(np.nan_to_num(np.array([x[3] for x in w])), dtype=self.dtype)[None]
-        n = torch.tensor([x[4] for x in w], dtype=self.dtype)[None]
-        cl = torch.tensor([x[5] for x in w], dtype=self.dtype)[None]
-        t_rel = torch.tensor(t - t[-1], dtype=self.dtype)[None]
-        dt = torch.full_like(n, self.delta)
-        out = self.model(g, a, n, t_rel, dt, m, cl)
-        sigma = float(out["sigma"][0]) if "sigma" in out else math.radians(2.0)
-        bias = [v + fb[i] for i, v in enumerate(out["bias"][0].double().tolist())]
+        g = np.array([[x[1][i] - fb[i] for i in range(3)] for x in w])[None]
+        a = np.array([x[2] for x in w])[None]
+        m = np.nan_to_num(np.array([x[3] for x in w]))[None]
+        n = np.array([x[4] for x in w])[None]
+        cl = np.array([x[5] for x in w])[None]
+        t_rel = (t - t[-1])[None]
+        dt = np.full_like(n, self.delta)
+        out = self.runner.run(g, a, n, t_rel, dt, m, cl)
+        sigma = float(out["sigma"][0])
+        bias = [v + fb[i] for i, v in enumerate(out["bias"][0].tolist())]
         if self.anchor_cfg is not None:
-            z = np.zeros(3)
-            return WindowOutput(out["q"][0].double().numpy(), sigma, np.array(bias),
-                                out["vel"][0].double().numpy() if "vel" in out else z,
-                                out["acc_v"][0].double().numpy() if "acc_v" in out else z)  # fmt: skip
-        return (out["q"][0].double().tolist(), sigma, bias)
+            return WindowOutput(out["q"][0], sigma, np.array(bias), out["vel"][0], out["acc_v"][0])
+        return (out["q"][0].tolist(), sigma, bias)

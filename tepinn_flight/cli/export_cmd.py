@@ -1,0 +1,54 @@
+"""``tepinn-flight export [MODEL] -o model.onnx``: a checkpoint as ONNX, for onnxruntime without torch."""
+
+from __future__ import annotations
+
+HELP = "export a TE-PINN checkpoint (the shipped model by default) to ONNX for onnxruntime (no torch needed to run it)"
+DESCRIPTION = (
+    "Writes the network as an ONNX graph (opset 17, float32; inputs gyr, acc, count, t_rel, dt, mag, clip with a "
+    "dynamic batch axis and the window length fixed by the model config; outputs q, sigma, bias, vel, acc_v) with "
+    "the checkpoint's model_config, anchor_config/fusion_config and conventions as JSON in its metadata. "
+    "`estimate --model MODEL.onnx` and `bridge --model MODEL.onnx` run it with onnxruntime. Needs torch and onnx."
+)
+
+
+def add_arguments(p) -> None:
+    p.add_argument("model", nargs="?", default=None, metavar="MODEL", help="checkpoint (default: the shipped model)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT", help="the .onnx file to write")
+    p.add_argument("--opset", type=int, default=None, metavar="N", help="ONNX opset (default 17)")
+    p.add_argument("--no-check", action="store_true", help="skip comparing onnxruntime with torch on random windows")
+    p.add_argument("-q", "--quiet", action="store_true")
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from ..errors import ConfigError, TepinnError
+    from ..model.checkpoint import default_model_path
+    from ..model.runtime import is_onnx_path
+
+    src = Path(args.model) if args.model else default_model_path()
+    if not src.is_file():
+        raise TepinnError(f"{src}: no such checkpoint")
+    out = Path(args.output)
+    if not is_onnx_path(out):
+        raise ConfigError(f"-o {out}: the output must end in .onnx")
+    if not out.parent.is_dir():
+        raise ConfigError(f"-o {out}: folder {out.parent} does not exist")
+    try:
+        import onnx  # noqa: F401
+        import torch  # noqa: F401
+    except ImportError as exc:
+        raise TepinnError(f"export needs torch and onnx ({exc}); pip install 'tepinn-flight[torch]'") from None
+    from ..model.export import OPSET, check_export, export_onnx
+
+    opset = args.opset or OPSET
+    export_onnx(src, out, opset)
+    msg = f"{src} -> {out}: opset {opset}, {out.stat().st_size / 1024:.0f} KiB"
+    if not args.no_check:
+        err = check_export(src, out)
+        msg += f"; onnxruntime vs torch max |diff| {err:.1e}"
+        if err > 1e-4:
+            raise TepinnError(f"{out}: onnxruntime differs from torch by {err:.1e} (> 1e-4)")
+    if not args.quiet:
+        print(msg)
+    return 0

@@ -1,0 +1,150 @@
+"""Export a TE-PINN checkpoint to ONNX for onnxruntime (no torch at run time).
+
+The graph: inputs ``gyr``, ``acc``, ``mag`` (B, K, 3) and ``count``, ``t_rel``, ``dt``, ``clip``
+(B, K), float32, as :meth:`~tepinn_flight.model.network.TEPINN.forward` takes them; outputs ``q``
+(B, 4), ``sigma`` (B,), ``bias``, ``vel``, ``acc_v`` (B, 3), float32. The batch axis B is dynamic;
+the window length K is fixed by the model config (``window_tokens``). Opset :data:`OPSET`.
+
+``metadata_props`` carry, as JSON strings: ``format`` ("tepinn-flight-onnx"), ``version``,
+``model_config``, ``fusion_config``, ``anchor_config`` (when the checkpoint has one),
+``conventions``, ``outputs_present`` (the heads the model has: the others are zeros in the graph
+and the runner replaces them with the estimators' defaults), ``opset``, ``source`` (checkpoint
+file name), ``training`` and ``metrics`` where JSON-serialisable. :func:`~.runtime.load_runner`
+rebuilds from them the same estimator settings as :func:`~.checkpoint.load_model`.
+
+Needs torch and the ``onnx`` package (the ``[torch]`` extra).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import warnings
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from ..record import atomic_write
+from .checkpoint import load_model
+from .runtime import INPUTS, ONNX_FORMAT, ONNX_VERSION, OUTPUTS
+
+#: ONNX opset of the exported graph
+OPSET = 17
+
+
+class ExportWrapper(nn.Module):
+    """The network with a fixed output tuple ``(q, sigma, bias, vel, acc_v)``; heads the model does
+    not have are zeros."""
+
+    def __init__(self, model: nn.Module):
+        super().__init__()
+        self.model = model
+
+    def forward(self, gyr, acc, count, t_rel, dt, mag, clip):
+        out = self.model(gyr, acc, count, t_rel, dt, mag, clip)
+        q = out["q"]
+        zeros3 = torch.zeros_like(q[:, :3])
+        sigma = out["sigma"] if "sigma" in out else torch.zeros_like(q[:, 0])
+        return (q, sigma, out["bias"], out.get("vel", zeros3), out.get("acc_v", zeros3))
+
+
+def present_outputs(model: nn.Module) -> list[str]:
+    c = model.config
+    present = ["q", "bias"]
+    if c.uncertainty:
+        present.append("sigma")
+    if c.physics and c.centripetal:
+        present += ["vel", "acc_v"]
+    return [k for k in OUTPUTS if k in present]
+
+
+def example_inputs(config, batch: int = 2, seed: int = 0) -> tuple:
+    """Plausible random float32 windows (B, K): gyro, accel near 1 g, counts, times, mag, clip."""
+    g = torch.Generator().manual_seed(seed)
+    k = config.window_tokens
+    delta = 1.0 / config.token_rate_hz
+    gyr = 0.5 * torch.randn(batch, k, 3, generator=g)
+    acc = torch.tensor([0.0, 0.0, -9.81]) + 2.0 * torch.randn(batch, k, 3, generator=g)
+    count = torch.full((batch, k), 8.0)
+    t_rel = (torch.arange(k, dtype=torch.float32) - (k - 1)) * delta
+    t_rel = t_rel.expand(batch, k).contiguous()
+    dt = torch.full((batch, k), delta)
+    mag = torch.tensor([20.0, 0.0, 40.0]) + 5.0 * torch.randn(batch, k, 3, generator=g)
+    clip = torch.zeros(batch, k)
+    return gyr, acc, count, t_rel, dt, mag, clip
+
+
+def _metadata(ckpt: dict, model: nn.Module, source: str, opset: int) -> dict[str, str]:
+    meta = {
+        "format": ONNX_FORMAT,
+        "version": ONNX_VERSION,
+        "model_config": ckpt["model_config"],
+        "fusion_config": ckpt.get("fusion_config", {}),
+        "conventions": ckpt.get("conventions", {}),
+        "outputs_present": present_outputs(model),
+        "opset": opset,
+        "source": source,
+        "inputs": list(INPUTS),
+        "outputs": list(OUTPUTS),
+    }
+    if ckpt.get("anchor_config") is not None:
+        meta["anchor_config"] = ckpt["anchor_config"]
+    for k in ("training", "metrics"):
+        if k in ckpt:
+            try:
+                json.dumps(ckpt[k])
+            except (TypeError, ValueError):
+                continue
+            meta[k] = ckpt[k]
+    return {k: (v if k == "format" else json.dumps(v)) for k, v in meta.items()}
+
+
+def export_bytes(ckpt_path: str | os.PathLike, opset: int = OPSET) -> bytes:
+    """The checkpoint as a serialized ONNX model (float32, metadata included)."""
+    import onnx
+
+    model, _, ckpt = load_model(ckpt_path)
+    model = model.float().eval()
+    wrapper = ExportWrapper(model).eval()
+    buf = io.BytesIO()
+    batch = {0: "batch"}
+    dyn = {n: batch for n in INPUTS} | {n: batch for n in OUTPUTS}
+    # the transformer's fused inference kernel (taken under no_grad/inference_mode) has no ONNX
+    # form: trace the layer-by-layer path (the same math)
+    fast = torch.backends.mha.get_fastpath_enabled()
+    torch.backends.mha.set_fastpath_enabled(False)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # tracer notes on Python-level shape checks (K is fixed)
+            torch.onnx.export(wrapper, example_inputs(model.config), buf, input_names=list(INPUTS),
+                              output_names=list(OUTPUTS), dynamic_axes=dyn, opset_version=opset, dynamo=False)  # fmt: skip
+    finally:
+        torch.backends.mha.set_fastpath_enabled(fast)
+    proto = onnx.load_from_string(buf.getvalue())
+    del proto.metadata_props[:]
+    for k, v in _metadata(ckpt, model, Path(ckpt_path).name, opset).items():
+        proto.metadata_props.add(key=k, value=v)
+    proto.producer_name = "tepinn-flight"
+    return proto.SerializeToString()
+
+
+def export_onnx(ckpt_path: str | os.PathLike, out_path: str | os.PathLike, opset: int = OPSET) -> Path:
+    """Write ``ckpt_path`` as ONNX to ``out_path`` (atomically)."""
+    data = export_bytes(ckpt_path, opset)
+    atomic_write(out_path, lambda tmp: Path(tmp).write_bytes(data))
+    return Path(out_path)
+
+
+def check_export(ckpt_path: str | os.PathLike, onnx_path: str | os.PathLike, batch: int = 4, seed: int = 1) -> float:
+    """Largest |onnxruntime − torch| over all outputs on random windows."""
+    import numpy as np
+
+    from .runtime import OnnxRunner, TorchRunner
+
+    model, _, _ = load_model(ckpt_path)
+    x = [v.numpy() for v in example_inputs(model.config, batch, seed)]
+    a = OnnxRunner(onnx_path).run(*x)
+    b = TorchRunner(model).run(*x)
+    return max(float(np.max(np.abs(a[k] - b[k]))) for k in OUTPUTS)

@@ -1,0 +1,258 @@
+"""Network runners: the TE-PINN network behind one small interface, with or without PyTorch.
+
+A runner takes a batch of token windows as numpy arrays and returns the window outputs the
+estimators use, as float64 numpy arrays::
+
+    runner.run(gyr, acc, count, t_rel, dt, mag, clip) -> {"q": (B, 4), "sigma": (B,),
+                                                          "bias": (B, 3), "vel": (B, 3), "acc_v": (B, 3)}
+
+with ``gyr``/``acc``/``mag`` (B, K, 3), ``count``/``t_rel``/``dt``/``clip`` (B, K) as in
+:meth:`~tepinn_flight.model.network.TEPINN.forward` (K = ``runner.config.window_tokens``). A model
+without the σ head gives σ = 2° and one without the velocity head zeros, as the estimators always
+assumed. Two implementations:
+
+* :class:`TorchRunner` wraps a :class:`~tepinn_flight.model.network.TEPINN` (imports torch);
+* :class:`OnnxRunner` runs an ``.onnx`` file written by ``tepinn-flight export`` with onnxruntime
+  (no torch); its metadata carries the checkpoint's model/anchor/fusion configs.
+
+:func:`load_runner` opens a checkpoint or an ``.onnx`` file for a runtime ``torch``, ``onnx`` or
+``auto`` (the file's own runtime; for a checkpoint without torch installed, the ``.onnx`` beside
+it when there is one). This module imports neither torch nor onnxruntime at import time.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError
+from .config import ModelConfig
+
+INPUTS = ("gyr", "acc", "count", "t_rel", "dt", "mag", "clip")
+OUTPUTS = ("q", "sigma", "bias", "vel", "acc_v")
+RUNTIMES = ("auto", "torch", "onnx")
+#: σ of a model without the σ head (rad)
+DEFAULT_SIGMA_RAD = math.radians(2.0)
+ONNX_FORMAT = "tepinn-flight-onnx"
+ONNX_VERSION = 1
+
+
+def torch_available() -> bool:
+    return importlib.util.find_spec("torch") is not None
+
+
+def is_onnx_path(path) -> bool:
+    return Path(path).suffix.lower() == ".onnx"
+
+
+def _complete(out: dict, present, b: int) -> dict:
+    """float64 outputs with the estimators' defaults for heads the model does not have."""
+    res = {}
+    for k in OUTPUTS:
+        if k in present and k in out:
+            res[k] = np.asarray(out[k], dtype=np.float64)
+        elif k == "sigma":
+            res[k] = np.full(b, DEFAULT_SIGMA_RAD)
+        else:
+            res[k] = np.zeros((b, 3))
+    return res
+
+
+class NetworkRunner:
+    """Interface: ``config`` (:class:`ModelConfig`), ``name``, :meth:`run`, :meth:`set_threads`."""
+
+    name = "?"
+    config: ModelConfig
+
+    def run(self, gyr, acc, count, t_rel, dt, mag, clip) -> dict:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def set_threads(self, n: int | None) -> None:
+        """CPU threads of the runtime (None/0: leave the runtime's choice)."""
+
+
+class TorchRunner(NetworkRunner):
+    """A TE-PINN module in PyTorch (its dtype and mode as given; CPU)."""
+
+    name = "torch"
+
+    def __init__(self, model):
+        self.model = model
+        self.config = model.config
+        self.dtype = next(model.parameters()).dtype
+
+    def set_threads(self, n: int | None) -> None:
+        if n:
+            import torch
+
+            torch.set_num_threads(n)
+
+    def run(self, gyr, acc, count, t_rel, dt, mag, clip) -> dict:
+        import torch
+
+        with torch.inference_mode():
+            args = [torch.as_tensor(x, dtype=self.dtype) for x in (gyr, acc, count, t_rel, dt, mag, clip)]
+            out = self.model(*args)
+            out = {k: out[k].double().numpy() for k in OUTPUTS if k in out}
+        return _complete(out, out.keys(), len(gyr))
+
+
+def read_onnx_metadata(path) -> dict:
+    """The JSON metadata of an exported model (``metadata_props``), values decoded."""
+    import onnxruntime as ort
+
+    try:
+        sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    except Exception as exc:  # noqa: BLE001 - onnxruntime raises its own types
+        raise ConfigError(f"{path}: not a readable ONNX model ({_first_line(exc)})") from None
+    return _decode_meta(sess.get_modelmeta().custom_metadata_map, path)
+
+
+def _decode_meta(raw: dict, path) -> dict:
+    if raw.get("format") != ONNX_FORMAT:
+        raise ConfigError(f"{path}: not a tepinn-flight ONNX export (no '{ONNX_FORMAT}' metadata)")
+    meta = {}
+    for k, v in raw.items():
+        try:
+            meta[k] = json.loads(v)
+        except ValueError:
+            meta[k] = v
+    if meta.get("version") != ONNX_VERSION:
+        raise ConfigError(f"{path}: unknown export version {meta.get('version')!r} (this tepinn-flight reads {ONNX_VERSION})")
+    return meta
+
+
+def _first_line(exc: BaseException) -> str:
+    return ((str(exc).strip().splitlines() or [type(exc).__name__])[0])[:200]
+
+
+class OnnxRunner(NetworkRunner):
+    """An ``.onnx`` export (``tepinn-flight export``) in onnxruntime on the CPU. ``model`` is a
+    path or the serialized model bytes."""
+
+    name = "onnx"
+
+    def __init__(self, model, threads: int | None = None):
+        import onnxruntime as ort
+
+        self._ort = ort
+        self._src = model if isinstance(model, (bytes, bytearray)) else str(model)
+        self._label = "<bytes>" if isinstance(model, (bytes, bytearray)) else str(model)
+        self.threads = None
+        self._open(threads)
+        self.meta = _decode_meta(self.session.get_modelmeta().custom_metadata_map, self._label)
+        self.config = model_config_from(self.meta)
+        self.present = set(self.meta.get("outputs_present", OUTPUTS))
+        self.input_names = [i.name for i in self.session.get_inputs()]
+        self.output_names = [o.name for o in self.session.get_outputs()]
+
+    def _open(self, threads: int | None) -> None:
+        so = self._ort.SessionOptions()
+        if threads:
+            so.intra_op_num_threads = int(threads)
+            so.inter_op_num_threads = 1
+        try:
+            self.session = self._ort.InferenceSession(self._src, so, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # noqa: BLE001
+            raise ConfigError(f"{self._label}: not a readable ONNX model ({_first_line(exc)})") from None
+        self.threads = threads
+
+    def set_threads(self, n: int | None) -> None:
+        if n and n != self.threads:
+            self._open(n)
+
+    def run(self, gyr, acc, count, t_rel, dt, mag, clip) -> dict:
+        arrays = dict(zip(INPUTS, (gyr, acc, count, t_rel, dt, mag, clip)))
+        feed = {k: np.ascontiguousarray(arrays[k], dtype=np.float32) for k in self.input_names}
+        res = self.session.run(self.output_names, feed)
+        return _complete(dict(zip(self.output_names, res)), self.present, len(gyr))
+
+
+def model_config_from(meta: dict) -> ModelConfig:
+    """The :class:`ModelConfig` of a checkpoint dict or an export's metadata. Version-1 checkpoints
+    written before ``clip_aware``, the sensor limits, ``declip`` and ``learned_pooling`` existed
+    were trained without them."""
+    before = {"clip_aware": False, "sensor_scale_max": 0.0, "sensor_gyro_bias_max_rad_s": 0.0,
+              "sensor_accel_bias_max_m_s2": 0.0, "declip": False, "learned_pooling": False}  # fmt: skip
+    return ModelConfig(**{**before, **meta["model_config"]})
+
+
+def estimator_settings(meta: dict):
+    """The estimator a checkpoint dict or an export's metadata runs in: an enabled ``anchor_config``
+    (:class:`~.anchor.AnchorConfig`, the filter-anchored VQF) or else its ``fusion_config``
+    (:class:`~.fusion.FusionConfig`)."""
+    from .anchor import AnchorConfig
+    from .fusion import FusionConfig
+
+    fusion = FusionConfig(**(meta.get("fusion_config") or {}))
+    if meta.get("anchor_config") is not None:
+        anchor = AnchorConfig(**meta["anchor_config"])
+        if anchor.enabled:
+            return anchor
+    return fusion
+
+
+def resolve_runtime(path, runtime: str = "auto") -> str:
+    """``torch`` or ``onnx`` for ``path`` under ``runtime`` (see :func:`load_runner`)."""
+    if runtime not in RUNTIMES:
+        raise ConfigError(f"runtime must be one of {', '.join(RUNTIMES)}, not {runtime!r}")
+    onnx_file = is_onnx_path(path)
+    if runtime == "auto":
+        return "onnx" if onnx_file or not torch_available() else "torch"
+    if runtime == "torch" and onnx_file:
+        raise ConfigError(f"{path}: an .onnx model runs with the onnx runtime (--runtime onnx or auto)")
+    if runtime == "torch" and not torch_available():
+        raise ConfigError("--runtime torch needs PyTorch (pip install 'tepinn-flight[torch]')")
+    return runtime
+
+
+def load_runner(path, runtime: str = "auto", threads: int | None = None):
+    """(runner, estimator settings, metadata dict) of a checkpoint or an ``.onnx`` export.
+
+    ``runtime``: ``torch`` (a checkpoint in PyTorch), ``onnx`` (an ``.onnx`` file in onnxruntime; a
+    checkpoint is exported in memory first where torch is installed, else the ``.onnx`` of the same
+    name beside it is run) or ``auto`` (``onnx`` for an ``.onnx`` file or when torch is absent, else
+    ``torch``). The settings are those :func:`~.checkpoint.load_model` gives for the checkpoint."""
+    path = Path(path)
+    rt = resolve_runtime(path, runtime)
+    if rt == "torch":
+        from .checkpoint import load_model
+
+        model, settings, ckpt = load_model(path)
+        runner = TorchRunner(model)
+        runner.set_threads(threads)
+        return runner, settings, ckpt
+    if is_onnx_path(path):
+        if not path.is_file():
+            raise ConfigError(f"{path}: no such model")
+        runner = OnnxRunner(path, threads)
+    else:
+        beside = path.with_suffix(".onnx")
+        if beside.is_file() and not torch_available():
+            runner = OnnxRunner(beside, threads)
+        elif torch_available():
+            from .export import export_bytes
+
+            runner = OnnxRunner(export_bytes(path), threads)
+        else:
+            raise ConfigError(f"{path}: a checkpoint needs PyTorch to be read; without it, export it once where torch is "
+                              f"installed (tepinn-flight export {path.name} -o model.onnx) and pass the .onnx")  # fmt: skip
+    return runner, estimator_settings(runner.meta), runner.meta
+
+
+def as_runner(model) -> NetworkRunner:
+    """A runner for ``model``: a runner as is, a TE-PINN module wrapped in :class:`TorchRunner`."""
+    return model if isinstance(model, NetworkRunner) else TorchRunner(model)
+
+
+def default_onnx_path() -> Path:
+    """The shipped model exported to ONNX (beside the checkpoint), used without torch."""
+    return Path(__file__).resolve().parents[1] / "assets" / "tepinn_default.onnx"
+
+
+__all__ = ["NetworkRunner", "TorchRunner", "OnnxRunner", "load_runner", "as_runner", "estimator_settings",
+           "model_config_from", "read_onnx_metadata", "resolve_runtime", "torch_available", "RUNTIMES"]

@@ -1,0 +1,240 @@
+"""ONNX export and the network runners: onnxruntime gives torch's outputs, and the estimate and
+live paths run without torch."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.conftest import REPO, real_log
+
+torch = pytest.importorskip("torch")
+pytest.importorskip("onnx")
+pytest.importorskip("onnxruntime")
+
+from tepinn_flight.model.checkpoint import default_model_path, load_model  # noqa: E402
+from tepinn_flight.model.runtime import (  # noqa: E402
+    OUTPUTS, OnnxRunner, TorchRunner, default_onnx_path, load_runner, read_onnx_metadata,
+)  # fmt: skip
+
+ERLE = "erle_pxf_copter_15-12-2014_16.BIN"
+#: q, σ, bias to 1e-5 absolute; the velocity head's outputs are in m/s (×30) and m/s² (×5):
+#: 1e-5 of the head's own units
+ATOL = {"q": 1e-5, "sigma": 1e-5, "bias": 1e-5, "vel": 30 * 1e-5, "acc_v": 5 * 1e-5}
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    from tepinn_flight.cli.main import main
+
+    path = tmp_path_factory.mktemp("onnx") / "model.onnx"
+    assert main(["export", "-o", str(path), "-q"]) == 0
+    return path
+
+
+def _assert_close(a: dict, b: dict):
+    for k in OUTPUTS:
+        np.testing.assert_allclose(a[k], b[k], rtol=0, atol=ATOL[k], err_msg=k)
+
+
+def _random_windows(config, batch, seed):
+    from tepinn_flight.model.export import example_inputs
+
+    return [v.numpy().astype(np.float64) for v in example_inputs(config, batch, seed)]
+
+
+def test_export_metadata_and_settings_match_the_checkpoint(exported):
+    model, settings, ckpt = load_model(default_model_path())
+    meta = read_onnx_metadata(exported)
+    assert meta["format"] == "tepinn-flight-onnx" and meta["version"] == 1 and meta["opset"] == 17
+    assert meta["model_config"] == ckpt["model_config"]
+    assert meta["anchor_config"] == ckpt["anchor_config"] and meta["fusion_config"] == ckpt["fusion_config"]
+    assert meta["conventions"] == ckpt["conventions"]
+    runner, settings_onnx, _ = load_runner(exported, "auto")
+    assert isinstance(runner, OnnxRunner) and settings_onnx == settings
+    assert runner.config == model.config
+    # dynamic batch axis, window length fixed by the config
+    for i in runner.session.get_inputs():
+        assert isinstance(i.shape[0], str) and i.shape[1] == model.config.window_tokens, (i.name, i.shape)
+
+
+@pytest.mark.parametrize("batch,seed", [(1, 0), (7, 1), (300, 2)])
+def test_onnx_equals_torch_on_random_windows(exported, batch, seed):
+    model, _, _ = load_model(default_model_path())
+    x = _random_windows(model.config, batch, seed)
+    _assert_close(OnnxRunner(exported).run(*x), TorchRunner(model).run(*x))
+
+
+def test_shipped_onnx_is_the_shipped_checkpoint():
+    """assets/tepinn_default.onnx (used where torch is absent) is kept in sync with the .pt."""
+    model, settings, ckpt = load_model(default_model_path())
+    runner, settings_onnx, meta = load_runner(default_onnx_path(), "onnx")
+    assert settings_onnx == settings and meta["model_config"] == ckpt["model_config"]
+    x = _random_windows(model.config, 16, 5)
+    _assert_close(runner.run(*x), TorchRunner(model).run(*x))
+
+
+def test_torch_runtime_refuses_an_onnx_file(exported):
+    from tepinn_flight.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="onnx runtime"):
+        load_runner(exported, "torch")
+
+
+@pytest.fixture(scope="module")
+def erle():
+    from tepinn_flight.ingest import ingest_log
+
+    return ingest_log(real_log(ERLE))
+
+
+@pytest.mark.slow
+def test_real_windows_and_estimate_anchored_onnx_equals_torch(exported, erle):
+    from tepinn_flight.model.estimate import anchored_windows, estimate_anchored
+
+    model, settings, _ = load_model(default_model_path())
+    onnx_runner, onnx_settings, _ = load_runner(exported, "onnx")
+    assert onnx_settings == settings
+    idx_t, out_t = anchored_windows(model, erle)
+    idx_o, out_o = anchored_windows(onnx_runner, erle)
+    assert len(idx_t) > 1000 and np.array_equal(idx_t, idx_o)
+    _assert_close(out_o, out_t)
+    a = estimate_anchored(model, erle, settings, windows=(idx_t, out_t))
+    b = estimate_anchored(onnx_runner, erle, onnx_settings, windows=(idx_o, out_o))
+    assert a["q_est_w"].notna().mean() > 0.9
+    np.testing.assert_allclose(b.to_numpy(), a.to_numpy(), rtol=0, atol=1e-5, equal_nan=True)
+
+
+def test_streaming_onnx_equals_torch(exported, erle):
+    from tepinn_flight.model.streaming import StreamingEstimator
+
+    model, settings, _ = load_model(default_model_path())
+    runner, _, _ = load_runner(exported, "onnx")
+    live_t = StreamingEstimator(model, settings)
+    live_o = StreamingEstimator(runner, settings)
+    n = min(len(erle), 1200)
+    ran = 0
+    for i in range(n):
+        args = (erle.t_s[i], erle.gyr_rad_s[i], erle.acc_m_s2[i], None, bool(erle.clipped[i]))
+        et, eo = live_t.push(*args), live_o.push(*args)
+        assert et.model_ran == eo.model_ran
+        ran += et.model_ran
+        assert (et.q_nb_wxyz is None) == (eo.q_nb_wxyz is None)
+        if et.q_nb_wxyz is not None:
+            np.testing.assert_allclose(eo.q_nb_wxyz, et.q_nb_wxyz, atol=1e-5)
+            np.testing.assert_allclose(eo.gyr_bias_rad_s, et.gyr_bias_rad_s, atol=1e-5)
+            assert eo.sigma_rad == pytest.approx(et.sigma_rad, abs=1e-5)
+    assert ran > 10
+
+
+#: blocks `import torch` in a subprocess: the runtime path must not need it
+NO_TORCH = textwrap.dedent("""
+    import importlib.abc, sys
+    class _NoTorch(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path=None, target=None):
+            if name == "torch" or name.startswith("torch."):
+                raise ImportError("torch blocked by the test")
+    sys.meta_path.insert(0, _NoTorch())
+    import importlib.util
+    importlib.util.find_spec = (lambda f: (lambda name, *a: None if name.split(".")[0] == "torch" else f(name, *a)))(importlib.util.find_spec)
+""")
+
+
+def test_estimate_and_live_worker_run_without_torch(tmp_path, exported):
+    from tepinn_flight.record import write_record
+    from tepinn_flight.sim.simulate import simulate_record
+
+    rec = simulate_record("F450", 6.0, rate_hz=200.0, seed=1)
+    write_record(rec, tmp_path / "r.parquet")
+    code = NO_TORCH + textwrap.dedent(f"""
+        from tepinn_flight.cli.main import main
+        rc1 = main(["estimate", "-q", "--model", {str(exported)!r}, {str(tmp_path / 'r.parquet')!r}, "-o", {str(tmp_path / 'e.parquet')!r}])
+        rc2 = main(["estimate", "-q", {str(tmp_path / 'r.parquet')!r}, "-o", {str(tmp_path / 'd.parquet')!r}])  # shipped model: its .onnx
+        from tepinn_flight.live.worker import model_estimator_factory
+        import tepinn_flight.live.bridge
+        est = model_estimator_factory({str(exported)!r})()
+        from tepinn_flight.record import read_record
+        r = read_record({str(tmp_path / 'r.parquet')!r})
+        n = sum(est.push(r.t_s[i], r.gyr_rad_s[i], r.acc_m_s2[i]).q_nb_wxyz is not None for i in range(len(r)))
+        print("RC", rc1, rc2, "N", n, "TORCH", "torch" in sys.modules)
+    """)
+    env = {k: v for k, v in os.environ.items() if k != "TEPINN_DEBUG"}
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env, cwd=REPO)
+    assert "RC 0 0" in p.stdout and "TORCH False" in p.stdout, p.stdout + p.stderr
+    n = int(p.stdout.split("N ")[1].split()[0])
+    assert n > len(rec) // 2
+    import pandas as pd
+
+    from tepinn_flight.model.estimate import estimate_record
+
+    model, settings, _ = load_model(default_model_path())
+    ref = estimate_record(model, rec, settings)
+    for name in ("e.parquet", "d.parquet"):
+        got = pd.read_parquet(tmp_path / name)
+        np.testing.assert_allclose(got.to_numpy(), ref.to_numpy(), rtol=0, atol=1e-5, equal_nan=True)
+
+
+def _index_reachable(tmp: Path) -> str | None:
+    """None when pip can fetch packages, else why not."""
+    p = subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "-d", str(tmp / "dl"), "-q", "tqdm"],
+                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    return None if p.returncode == 0 else (p.stderr.strip().splitlines() or ["pip download failed"])[-1]
+
+
+@pytest.mark.slow
+def test_fresh_venv_runtime_extra_without_torch(tmp_path, exported):
+    """`pip install ".[runtime]"` into a plain venv: no torch, and `estimate --runtime onnx` works."""
+    why = _index_reachable(tmp_path)
+    if why:
+        pytest.skip(f"pip cannot reach the package index ({why})")
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=120)
+    py = venv / "bin" / "python"
+    src = tmp_path / "src"  # a copy: the build must not leave files in the checkout
+    shutil.copytree(REPO, src, ignore=shutil.ignore_patterns(".git", ".venv", "__pycache__", "*.egg-info", "build", "tests"))
+    p = subprocess.run([str(py), "-m", "pip", "install", "-q", f"{src}[runtime]"], capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
+    p = subprocess.run([str(py), "-c", "import torch"], capture_output=True, text=True)
+    assert p.returncode != 0 and "No module named 'torch'" in p.stderr
+    from tepinn_flight.record import write_record
+    from tepinn_flight.sim.simulate import simulate_record
+
+    rec = simulate_record("F450", 5.0, rate_hz=200.0, seed=2)
+    write_record(rec, tmp_path / "r.parquet")
+    exe = venv / "bin" / "tepinn-flight"
+    p = subprocess.run([str(exe), "estimate", "--runtime", "onnx", "--model", str(exported), str(tmp_path / "r.parquet"),
+                        "-o", str(tmp_path / "e.parquet")], capture_output=True, text=True, timeout=300, cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    p2 = subprocess.run([str(exe), "estimate", "--runtime", "torch", str(tmp_path / "r.parquet"), "-o", str(tmp_path / "x.parquet")],
+                        capture_output=True, text=True, timeout=300, cwd=tmp_path)  # fmt: skip
+    assert p2.returncode == 2 and "needs PyTorch" in p2.stderr
+    import pandas as pd
+
+    from tepinn_flight.model.estimate import estimate_record
+
+    model, settings, _ = load_model(default_model_path())
+    ref = estimate_record(model, rec, settings)
+    got = pd.read_parquet(tmp_path / "e.parquet")
+    np.testing.assert_allclose(got.to_numpy(), ref.to_numpy(), rtol=0, atol=1e-5, equal_nan=True)
+
+
+@pytest.mark.slow
+def test_bridge_end_to_end_with_the_onnx_model(tmp_path, exported):
+    """replay → bridge (worker process on the .onnx, onnxruntime) → listener: the estimates are the
+    torch StreamingEstimator's for the same samples."""
+    from tests.test_bridge import _check_chain, _offline_estimates, _run_chain, _sim_tlog
+
+    _, tlog = _sim_tlog(tmp_path, 6.0, 400.0)
+    lis, summary, _ = _run_chain(tmp_path, exported, tlog, speed=1.0)
+    aq, ms = _check_chain(lis, tlog, summary)
+    ref = _offline_estimates(default_model_path(), tlog)  # torch
+    q_live = np.array([[m.q1, m.q2, m.q3, m.q4] for m in aq])
+    np.testing.assert_allclose(q_live, np.array([ref[int(k)] for k in ms]), atol=1e-5)
+    assert summary["estimates"]["errors"] == 0
