@@ -122,7 +122,7 @@ def test_help_via_the_module_entry_point():
 @pytest.mark.parametrize(
     "argv, bad",
     [
-        (["estimate", "rec.parquet", "-o", "x.parquet", "--mode", "9d"], "--mode"),  # was taken as --model 9d
+        (["estimate", "rec.parquet", "-o", "x.parquet", "--mod", "9d"], "--mod"),  # --mode or --model: neither taken
         (["evaluate", "rec.parquet", "--report", "r", "--warm", "3"], "--warm"),  # --warmup-s
         (["benchmark", "broad", "dir", "--no-mod"], "--no-mod"),  # nested sub-parser: --no-model
         (["--vers"], "--vers"),  # the main parser: --version
