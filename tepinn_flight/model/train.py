@@ -297,9 +297,19 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
     if len(val_ends) > cfg.data.max_val_windows:
         val_ends = np.sort(np.random.default_rng(cfg.seed + 1).choice(val_ends, cfg.data.max_val_windows, replace=False))
 
-    model = TEPINN(cfg.model)
-    mean, std = input_statistics(model.features, bank, cfg.model, seed=cfg.seed)
-    model.set_normalization(mean, std)
+    init_ck = None
+    if cfg.init:  # fine-tuning: the init checkpoint's weights and input normalisation
+        from .checkpoint import default_model_path, load_model
+
+        model, _, init_ck = load_model(default_model_path() if cfg.init == "default" else cfg.init)
+        model.train()
+        if model.config != cfg.model:
+            raise ConfigError("init: the checkpoint's model config differs from the recipe's [model] (fine-tuning "
+                              "keeps the architecture; leave [model] out or copy the checkpoint's)")  # fmt: skip
+    else:
+        model = TEPINN(cfg.model)
+        mean, std = input_statistics(model.features, bank, cfg.model, seed=cfg.seed)
+        model.set_normalization(mean, std)
     model.to(dev)
     loss_fn = TEPINNLoss(cfg.loss, model.body).to(dev)
     step_mod = TrainStep(model, loss_fn, world)
@@ -442,13 +452,22 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
         from .checkpoint import load_model
 
         best_model, _, ck = load_model(out / "best.pt") if (out / "best.pt").exists() else (model.cpu().eval(), None, {})
-        fusion, fus_metrics = calibrate_with(cfg, best_model, val_recs, train_recs)
+        anchor = None
+        if init_ck is not None:  # fine-tuning keeps the init's estimator settings (finetune.py tunes them)
+            from .anchor import AnchorConfig
+            from .fusion import FusionConfig
+
+            fusion, fus_metrics = FusionConfig(**init_ck.get("fusion_config", {})), {}
+            anchor = AnchorConfig(**init_ck["anchor_config"]) if init_ck.get("anchor_config") else None
+        else:
+            fusion, fus_metrics = calibrate_with(cfg, best_model, val_recs, train_recs)
         final_metrics = {**(ck.get("metrics") or {}), **fus_metrics}
-        save_checkpoint(out / "model.pt", best_model, fusion, training=summary, metrics=final_metrics,
+        save_checkpoint(out / "model.pt", best_model, fusion, anchor, training=summary, metrics=final_metrics,
                         loss_config=dataclasses.asdict(cfg.loss),
                         tepinn_flight_version=__version__)  # fmt: skip
         result.update(fus_metrics)
-        log(f"best validation tilt RMSE {best_val:.3f}° (window), fused {fus_metrics.get('fusion_val_tilt_rmse_mean_deg', float('nan')):.3f}° (mean over validation flights); model: {out / 'model.pt'}")
+        fused = f", fused {fus_metrics['fusion_val_tilt_rmse_mean_deg']:.3f}° (mean over validation flights)" if fus_metrics else ""
+        log(f"best validation tilt RMSE {best_val:.3f}° (window){fused}; model: {out / 'model.pt'}")
     if world > 1:
         torch.distributed.barrier()
     return result

@@ -95,6 +95,9 @@ class CalibrationConfig:
 @dataclass(frozen=True)
 class TrainConfig:
     seed: int = 0
+    # start from this checkpoint's weights and model config ("default": the shipped model) instead of
+    # a fresh network; its estimator settings (anchor/fusion) are carried to model.pt, not recalibrated
+    init: str = ""
     model: ModelConfig = field(default_factory=ModelConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     data: DataConfig = field(default_factory=DataConfig)

@@ -1,0 +1,158 @@
+"""Fine-tuning on a user's own logs: ``tepinn-flight train --init MODEL --data LOG_OR_DIR... -o RUN_DIR``.
+
+The built-in recipe (:func:`finetune_config`) starts from the checkpoint's weights (``--init
+default``: the shipped model) and trains on the user's logs — any format ``ingest`` reads, the
+autopilot's own estimate as the label — for a few minutes on the CPU, validation held out by whole
+file. Then the anchored estimator's VQF accelerometer time constant is chosen on the training files
+(mean per-file inclination RMSE against the reference): the autopilot's estimator has its own
+trade-off between gyro and accelerometer, and the one that fits the vehicle's logs is a property of
+the vehicle (vibration, typical accelerations). ``RUN_DIR/model.pt`` then works with
+``estimate --model``; ``RUN_DIR/finetune.json`` holds the before/after figures on the validation
+files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError, TepinnError
+from ..record import FlightRecord, atomic_write
+from .train_config import DataConfig, OptimConfig, TrainConfig
+
+#: VQF accelerometer time constants (s) the fine-tuning chooses from
+TAU_ACC_GRID_S = (1.0, 2.0, 3.0, 5.0, 8.0, 12.0)
+
+
+def finetune_config(model_config, records: list[str], minutes: float = 6.0, seed: int = 0) -> TrainConfig:
+    """The built-in fine-tuning recipe: small learning rate, no rate augmentation, a quarter of the
+    files (at least one, when there are two or more) held out for validation."""
+    return TrainConfig(
+        seed=seed, init="", model=model_config,
+        data=DataConfig(records=tuple(records), val_fraction=0.25, rate_factors=(1,), max_val_windows=1024),
+        optim=OptimConfig(batch_size=32, epochs=30, steps_per_epoch=40, lr=2e-4, lr_physics=5e-5,
+                          early_stop_patience=4, max_minutes=minutes, warmup_steps=40),
+    )  # fmt: skip
+
+
+def collect_logs(items) -> list[Path]:
+    """Files as given; folders: every file below them that is a record or a log ``ingest`` reads."""
+    from ..ingest.sniff import sniff
+
+    out: list[Path] = []
+    for it in items:
+        p = Path(it)
+        if p.is_dir():
+            for f in sorted(q for q in p.rglob("*") if q.is_file()):
+                try:
+                    sniff(f)
+                except TepinnError:
+                    continue
+                out.append(f)
+        elif p.exists():
+            out.append(p)
+        else:
+            raise ConfigError(f"no such log or folder: {it}")
+    if not out:
+        raise ConfigError("no logs found in --data")
+    return sorted(set(out))
+
+
+def usable(rec: FlightRecord) -> bool:
+    """A log the fine-tuning can learn from: fast enough IMU and a reference on most samples."""
+    ok = str(rec.meta.get("estimation_ok", True)).lower() != "false"
+    return ok and float(np.mean(np.all(np.isfinite(rec.q_ref_wxyz), axis=1))) > 0.5
+
+
+def tune_anchor(model, anchor, records: list[FlightRecord], grid=TAU_ACC_GRID_S, warmup_s: float = 5.0):
+    """The VQF accelerometer time constant with the lowest mean per-file inclination RMSE on
+    ``records``; returns (anchor, {tau: mean RMSE °})."""
+    from .estimate import anchored_windows, estimate_anchored
+
+    wins = [anchored_windows(model, r) for r in records]
+    table = {}
+    for tau in grid:
+        cand = dataclasses.replace(anchor, tau_acc_s=tau)
+        table[tau] = float(np.mean([inclination_rmse_deg(r, estimate_anchored(model, r, cand, windows=w), warmup_s)
+                                    for r, w in zip(records, wins)]))  # fmt: skip
+    best = min(table, key=table.get)
+    return dataclasses.replace(anchor, tau_acc_s=best), table
+
+
+def inclination_rmse_deg(rec: FlightRecord, est, warmup_s: float = 5.0) -> float:
+    """Inclination RMSE (°) of an estimate frame against the record's reference (the harness's mask)."""
+    from ..evaluation.harness import scoring_mask
+    from ..evaluation.metrics import error_quat_earth, inclination_error_rad
+
+    q = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+    m = scoring_mask(rec, warmup_s) & np.all(np.isfinite(q), axis=1)
+    if not m.any():
+        return float("nan")
+    e = inclination_error_rad(error_quat_earth(q[m], rec.q_ref_wxyz[m]))
+    return float(np.degrees(np.sqrt(np.mean(e**2))))
+
+
+def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = True, seed: int = 0) -> dict:
+    """Fine-tune ``init`` (a checkpoint path or "default") on the logs in ``items``; see module doc."""
+    from ..ingest import load_record
+    from .checkpoint import default_model_path, load_model, read_checkpoint, save_checkpoint
+    from .anchor import AnchorConfig
+    from .train import train
+    from .train_data import split_by_flight
+
+    init_path = default_model_path() if init == "default" else Path(init)
+    model0, est0, ck0 = load_model(init_path)
+    if not isinstance(est0, AnchorConfig):
+        raise ConfigError(f"--init {init}: fine-tuning needs a filter-anchored checkpoint (anchor_config)")
+    paths, recs = [], []
+    for p in collect_logs(items):
+        try:
+            r = load_record(p)
+        except TepinnError as exc:
+            print(f"note: {p}: skipped ({exc.reason})", file=sys.stderr)
+            continue
+        if usable(r):
+            paths.append(str(p.resolve()))
+            recs.append(r)
+        else:
+            print(f"note: {p}: skipped (IMU too slow or no reference attitude to learn from)", file=sys.stderr)
+    if not recs:
+        raise ConfigError("none of the --data logs can be learned from (each needs an IMU of >= 20 Hz and a reference attitude)")
+    cfg = dataclasses.replace(finetune_config(model0.config, paths, minutes, seed), init=str(init_path))
+    out = Path(out_dir)
+    result = train(cfg, out, progress=progress)
+    tr, va = split_by_flight(len(recs), cfg.data.val_fraction, seed)
+    val = [recs[i] for i in va] or [recs[i] for i in tr]
+    model1, _, ck1 = load_model(out / "model.pt")
+    anchor, table = tune_anchor(model1, est0, [recs[i] for i in tr])
+    ck = read_checkpoint(out / "model.pt")
+    save_checkpoint(out / "model.pt", model1, ck1 and _fusion_of(ck), anchor,
+                    **{k: v for k, v in ck.items() if k not in ("format", "version", "model_config", "fusion_config",
+                                                                 "anchor_config", "state_dict", "conventions")})  # fmt: skip
+    before = [inclination_rmse_deg(r, _est(model0, est0, r)) for r in val]
+    after = [inclination_rmse_deg(r, _est(model1, anchor, r)) for r in val]
+    summary = {
+        "init": str(init_path), "files": paths, "train_files": [paths[i] for i in tr], "val_files": [paths[i] for i in va],
+        "tau_acc_grid_deg": {f"{k:g}": v for k, v in table.items()}, "tau_acc_s": anchor.tau_acc_s,
+        "val_inclination_rmse_deg_before": float(np.mean(before)), "val_inclination_rmse_deg_after": float(np.mean(after)),
+        "validation_note": "" if va else "one file only: the figures are on the file it was tuned on",
+        **{k: v for k, v in result.items() if isinstance(v, (int, float, str))},
+    }  # fmt: skip
+    atomic_write(out / "finetune.json", lambda tmp: Path(tmp).write_text(json.dumps(summary, indent=2)))
+    return summary
+
+
+def _fusion_of(ck):
+    from .fusion import FusionConfig
+
+    return FusionConfig(**ck.get("fusion_config", {}))
+
+
+def _est(model, anchor, rec):
+    from .estimate import estimate_anchored
+
+    return estimate_anchored(model, rec, anchor)

@@ -1,0 +1,68 @@
+"""Fine-tuning on a user's own logs (`train --init default --data ... -o RUN`), no recipe."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tests.conftest import real_log
+from tepinn_flight.cli.main import main
+
+
+def _quarters(tmp_path):
+    """The erle ArduCopter log cut into four consecutive 'logs' of the same vehicle: three to
+    fine-tune on, the last held out."""
+    from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.record import FlightRecord, write_record
+
+    rec = ingest_log(real_log("erle_pxf_copter_15-12-2014_16.BIN"))
+    n = len(rec)
+    data, test = tmp_path / "logs", tmp_path / "test"
+    data.mkdir()
+    test.mkdir()
+    for k in range(4):
+        d = rec.data.iloc[k * n // 4 : (k + 1) * n // 4].reset_index(drop=True).copy()
+        d["t_s"] -= d["t_s"].iloc[0]
+        write_record(FlightRecord(d, dict(rec.meta)), (data if k < 3 else test) / f"part{k}.parquet")
+    return data, test / "part3.parquet"
+
+
+@pytest.mark.slow
+def test_finetuning_on_a_vehicles_logs_improves_a_held_out_log_of_it(tmp_path):
+    from tepinn_flight.model.anchor import AnchorConfig
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.estimate import estimate_record
+    from tepinn_flight.model.finetune import inclination_rmse_deg
+    from tepinn_flight.record import read_record
+
+    data, held = _quarters(tmp_path)
+    run = tmp_path / "run"
+    assert main(["train", "--init", "default", "--data", str(data), "-o", str(run), "--minutes", "0.5", "-q"]) == 0
+    summary = json.loads((run / "finetune.json").read_text())
+    assert len(summary["train_files"]) == 2 and len(summary["val_files"]) == 1  # split by whole file
+    rec = read_record(held)
+    m0, e0, _ = load_model(default_model_path())
+    m1, e1, _ = load_model(run / "model.pt")
+    assert isinstance(e1, AnchorConfig) and e1.tau_acc_s in (1.0, 2.0, 3.0, 5.0, 8.0, 12.0)
+    before = inclination_rmse_deg(rec, estimate_record(m0, rec, e0))
+    after = inclination_rmse_deg(rec, estimate_record(m1, rec, e1))
+    assert after < 0.9 * before, (before, after)
+    # and `estimate --model RUN/model.pt` works on it
+    out = tmp_path / "est.parquet"
+    assert main(["estimate", str(held), "--model", str(run / "model.pt"), "-o", str(out), "-q"]) == 0
+    import pandas as pd
+
+    assert np.all(np.isfinite(pd.read_parquet(out)["q_est_w"].to_numpy()))
+
+
+def test_finetuning_needs_data_and_says_so_in_one_line(tmp_path, capsys):
+    assert main(["train", "--init", "default", "-o", str(tmp_path / "r")]) == 2
+    assert "--data" in capsys.readouterr().err
+    assert main(["train", "-o", str(tmp_path / "r")]) == 2
+    assert "--config" in capsys.readouterr().err
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["train", "--init", "default", "--data", str(empty), "-o", str(tmp_path / "r")]) == 2
+    assert "no logs" in capsys.readouterr().err
