@@ -37,12 +37,13 @@ frame; conversions happen only at this module's edges (body FRD / NED outside).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..conventions import Q_ENU_FROM_NED_WXYZ
 from ..errors import ConfigError
+from .fusion import FusionConfig
 from ..quat import gravity_body, quat_conj, quat_mul, quat_normalize, quat_to_rotmat
 
 #: q_SB (180° about x) and q_NE (ENU-type z-up earth → NED), as in evaluation/peers.py
@@ -64,6 +65,10 @@ class AnchorConfig:
     tau_acc_flight_s: float = 10.0
     bias_clip_deg_s: float = 2.0  # VQF's bias limit (its default)
     pull_gain: float = 0.5  # fraction of the tilt difference removed per window at gate 1
+    # what the pulls pull toward: "fusion", the older network-centred fusion of the same windows run
+    # alongside (gyro-propagated, Kalman-weighted by the network's σ, gyro-bias states: the windows'
+    # noise averaged out), or "window", each window's own tilt
+    pull_target: str = "fusion"
     speed_lo_m_s: float = 20.0  # flight-speed gate: 0 below, 1 above speed_hi_m_s
     speed_hi_m_s: float = 30.0
     centripetal: bool = True  # remove ω × v̂ + â (times the flight gate) from VQF's accelerometer
@@ -74,8 +79,14 @@ class AnchorConfig:
     sigma_acc_gain: float = 0.025  # c
     sigma_net_scale: float = 1.0  # s
     sigma_acc_tau_s: float = 1.0
+    # the older fusion's settings (the checkpoint's fusion_config; filled in when loaded)
+    fusion_config: FusionConfig | None = field(default=None, compare=False)
 
     def __post_init__(self):
+        if isinstance(self.fusion_config, dict):  # from a checkpoint's JSON-like dict
+            object.__setattr__(self, "fusion_config", FusionConfig(**self.fusion_config))
+        if self.pull_target not in ("fusion", "window"):
+            raise ConfigError(f"anchor pull_target must be fusion or window, not {self.pull_target!r}")
         if self.mode not in ("6d", "9d", "auto"):
             raise ConfigError(f"anchor mode must be 6d, 9d or auto, not {self.mode!r}")
         if self.tau_acc_flight_s < 0:

@@ -47,7 +47,8 @@ def save_checkpoint(path: str | os.PathLike, model: TEPINN, fusion: FusionConfig
         "version": VERSION,
         "model_config": dataclasses.asdict(model.config),
         "fusion_config": dataclasses.asdict(fusion),
-        **({"anchor_config": dataclasses.asdict(anchor)} if anchor is not None else {}),
+        **({"anchor_config": {k: v for k, v in dataclasses.asdict(anchor).items() if k != "fusion_config"}}
+           if anchor is not None else {}),
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
         "conventions": conventions.describe(),
         **extra,

@@ -130,20 +130,65 @@ def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | Anc
     return _frame(t, q_out, s_out, b_out)
 
 
-def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256):
-    """(sample_index (W,), outputs dict) of every full window: what :func:`estimate_anchored` needs.
-    Non-finite IMU samples are holes: the tokens see the last finite sample in their place."""
+def bridge_holes(rec: FlightRecord) -> tuple[FlightRecord, int]:
+    """``rec`` with every non-finite gyro/accelerometer sample replaced by the last finite one (a
+    hole, bridged as the live estimator does), and how many there were."""
     gyr, acc = rec.gyr_rad_s, rec.acc_m_s2
     bad = ~(np.all(np.isfinite(gyr), 1) & np.all(np.isfinite(acc), 1))
-    if bad.any():
-        gyr, acc = gyr.copy(), acc.copy()
-        gyr[bad] = np.nan
-        acc[bad] = np.nan
-        ffill_rows(gyr, np.zeros(3))
-        ffill_rows(acc, np.zeros(3))
-    tok = tokenize(rec.t_s, rec.segment, gyr, acc, rec.mag_ut, model.config.token_rate_hz, rec.clipped)
+    if not bad.any():
+        return rec, 0
+    gyr, acc = gyr.copy(), acc.copy()
+    gyr[bad] = np.nan
+    acc[bad] = np.nan
+    ffill_rows(gyr, np.zeros(3))
+    ffill_rows(acc, np.zeros(3))
+    data = rec.data.copy()
+    data[["gyr_x_rad_s", "gyr_y_rad_s", "gyr_z_rad_s"]] = gyr
+    data[["acc_x_m_s2", "acc_y_m_s2", "acc_z_m_s2"]] = acc
+    return FlightRecord(data, dict(rec.meta)), int(bad.sum())
+
+
+def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fusion: FusionConfig | None = None):
+    """(sample_index (W,), outputs dict) of every full window: what :func:`estimate_anchored` needs.
+    With ``fusion`` (the pull target ``"fusion"``), the older network-centred fusion runs alongside:
+    the windows are made as its bias feedback makes them and ``outputs["q_target"]`` is its
+    estimate at each window's last sample (before that window is applied: causal)."""
+    rec, _ = bridge_holes(rec)
+    tok = tokenize_record(rec, model.config.token_rate_hz)
     ends = tok.windows_ending(model.config.window_tokens)
-    return tok.last_index[ends], network_outputs(model, tok, ends, batch_size=batch_size)
+    idx = tok.last_index[ends]
+    if fusion is None:
+        return idx, network_outputs(model, tok, ends, batch_size=batch_size)
+    n = len(rec)
+    q_old = np.full((n, 4), np.nan)
+    parts = []
+    t, gyr, clipped = rec.t_s, rec.gyr_rad_s, rec.clipped
+    bounds = np.flatnonzero(np.diff(rec.segment)) + 1
+    for a, b in zip(np.r_[0, bounds], np.r_[bounds, n]):
+        m = (idx >= a) & (idx < b)
+        e_seg, i_seg = ends[m], idx[m] - a
+        run = FusionRun(t[a:b], gyr[a:b], fusion, clipped[a:b])
+        step = fusion.bias_feedback_windows or max(len(e_seg), 1)
+        for s0 in range(0, len(e_seg), step):
+            blk = slice(s0, s0 + step)
+            fb = None
+            if fusion.bias_feedback_windows:
+                fb = np.tile(feedback_bias(fusion, run.fusion.bias), (len(e_seg[blk]), 1))
+            o = network_outputs(model, tok, e_seg[blk], fb, batch_size)
+            parts.append(o)
+            run.add(i_seg[blk], o["q"], o["sigma"], o["bias"])
+            run.advance(int(i_seg[blk][-1]) + 2)
+        run.advance(b - a)
+        q_old[a:b] = run.q
+    if parts:
+        out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    else:
+        out = network_outputs(model, tok, ends[:0], batch_size=batch_size)
+    target = q_old[idx]
+    bad = ~np.all(np.isfinite(target), axis=1)
+    target[bad] = out["q"][bad]
+    out["q_target"] = target
+    return idx, out
 
 
 class MissingMagnetometer(TepinnError):
@@ -165,9 +210,15 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     """The filter-anchored estimate (:mod:`.anchor`): one row per record row, ``t_s``, ``q_est_*``
     (body→NED; 9-D heading where ``wants_mag``), ``sigma_rad``, ``gyr_bias_est_*``. Estimates start
     at a segment's first sample (VQF); the network's windows apply from the sample after their last
-    one. ``windows`` takes :func:`anchored_windows`' result when already at hand."""
+    one. ``windows`` takes :func:`anchored_windows`' result when already at hand. Non-finite IMU
+    samples are holes, bridged with the last finite sample."""
     anchor = anchor or AnchorConfig()
-    idx, out = windows if windows is not None else anchored_windows(model, rec, batch_size)
+    rec, _ = bridge_holes(rec)
+    if windows is None:
+        fus = (anchor.fusion_config or FusionConfig()) if anchor.pull_target == "fusion" else None
+        windows = anchored_windows(model, rec, batch_size, fus)
+    idx, out = windows
+    q_pull = out.get("q_target", out["q"])
     use_mag = wants_mag(anchor, rec)
     n = len(rec)
     q_out = np.full((n, 4), np.nan)
@@ -185,7 +236,7 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
             if i > cur:
                 _put(flt, rec, cur, i, q_out, s_out, b_out, use_mag)
                 cur = i
-            flt.correct(WindowOutput(out["q"][j], float(out["sigma"][j]), out["bias"][j], out["vel"][j], out["acc_v"][j]))
+            flt.correct(WindowOutput(q_pull[j], float(out["sigma"][j]), out["bias"][j], out["vel"][j], out["acc_v"][j]))
         if cur < b:
             _put(flt, rec, cur, b, q_out, s_out, b_out, use_mag)
     return _frame(t, q_out, s_out, b_out)

@@ -22,6 +22,8 @@ it when there is one). This module imports neither torch nor onnxruntime at impo
 
 from __future__ import annotations
 
+import dataclasses
+
 import importlib.util
 import json
 import math
@@ -190,9 +192,9 @@ def estimator_settings(meta: dict):
 
     fusion = FusionConfig(**(meta.get("fusion_config") or {}))
     if meta.get("anchor_config") is not None:
-        anchor = AnchorConfig(**meta["anchor_config"])
-        if anchor.enabled:
-            return anchor
+        anchor = AnchorConfig(**{k: v for k, v in meta["anchor_config"].items() if k != "fusion_config"})
+        if anchor.enabled:  # the pulls' target, the older fusion, runs with the checkpoint's settings
+            return dataclasses.replace(anchor, fusion_config=fusion)
     return fusion
 
 

@@ -12,6 +12,7 @@ The network runs through a :class:`~.runtime.NetworkRunner`: a :class:`~.network
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections import deque
@@ -63,8 +64,13 @@ class StreamingEstimator:
         self.model = model if isinstance(model, NetworkRunner) else model.eval()
         self.runner = as_runner(self.model)
         self.cfg = self.runner.config
-        self.anchor_cfg = fusion if isinstance(fusion, AnchorConfig) else None
-        self.fusion_cfg = FusionConfig() if self.anchor_cfg is not None else (fusion or FusionConfig())
+        self.anchor_cfg = a = fusion if isinstance(fusion, AnchorConfig) else None
+        if a is not None:  # the older fusion runs alongside as the pulls' target (or not at all)
+            self.fusion_cfg = (a.fusion_config or FusionConfig()) if a.pull_target == "fusion" else FusionConfig()
+        else:
+            self.fusion_cfg = fusion or FusionConfig()
+        self.last_imu = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))  # the last finite gyro and accelerometer sample
+        self.holes = 0  # non-finite samples bridged with it
         self.delta = 1.0 / self.cfg.token_rate_hz
         if threads:
             self.runner.set_threads(threads)
@@ -73,6 +79,7 @@ class StreamingEstimator:
     def reset(self) -> None:
         """Forget everything (a new segment: reboot, time jump, dropout)."""
         self.fusion = AttitudeFusion(self.fusion_cfg)
+        self.old_q = None  # the older fusion's estimate at the previous sample (the pulls' target)
         self.anchored = None  # AnchoredVQF, made once the segment's sample period is known
         self.pending: list = []  # the segment's first samples (and windows) until then
         self.t0 = None
@@ -100,6 +107,11 @@ class StreamingEstimator:
     def push(self, t_s: float, gyr_rad_s, acc_m_s2, mag_ut=None, clipped: bool = False) -> Estimate:
         t0c = time.perf_counter()
         t = float(t_s)
+        if all(math.isfinite(float(v)) for v in (*gyr_rad_s, *acc_m_s2)):
+            self.last_imu = (tuple(gyr_rad_s), tuple(acc_m_s2))
+        else:  # a hole: bridged with the last finite sample, as offline
+            gyr_rad_s, acc_m_s2 = self.last_imu
+            self.holes += 1
         if self._new_segment(t):
             self.reset()
             self.t0 = t
@@ -140,6 +152,12 @@ class StreamingEstimator:
     def _anchored_step(self, t, gyr, acc, mag, clipped, est):
         """The filter-anchored estimate of this sample; ``est`` (the network's window at the
         previous sample, or None) is applied first."""
+        if self.anchor_cfg.pull_target == "fusion":  # pull toward the older fusion's estimate before this window
+            target = self.old_q
+            old = None if est is None else (list(est.q_nb_wxyz), est.sigma_rad, list(est.gyr_bias_rad_s))
+            self.old_q, _, _ = self.fusion.step(t, gyr, old, clipped)
+            if est is not None and target is not None and all(math.isfinite(v) for v in target):
+                est = dataclasses.replace(est, q_nb_wxyz=np.asarray(target, np.float64))
         if self.anchored is None:
             self.pending.append((t, gyr, acc, mag, clipped, est))
             if len(self.pending) <= TS_STEPS:
