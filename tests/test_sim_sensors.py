@@ -318,3 +318,36 @@ def test_bad_sensor_configuration_is_a_config_error(tmp_path):
         load_sensor_config("consumer", ["accel.vrw_m_s_sqrt_h=-1"])
     with pytest.raises(ConfigError, match="anti_alias"):
         load_sensor_config("consumer", ["anti_alias=median"])
+
+
+def test_magnetometer_motor_interference_follows_the_thrust_and_disturbances_come_in_episodes():
+    """Closed form: with only the new terms on, m − R_nbᵀ B_n = k·T·u (T = thrust in g along −z)
+    outside the disturbance episodes, and inside one it is R_nbᵀ d for a constant earth-frame d."""
+    import numpy as np
+
+    from tepinn_flight.quat import quat_conj, quat_rotate
+    from tepinn_flight.sim.sensors import MagConfig, _magnetometer
+
+    n = 4000
+    t = np.arange(n) / 100.0
+    yaw = 0.3 * t
+    q = np.stack([np.cos(yaw / 2), 0 * t, 0 * t, np.sin(yaw / 2)], 1)
+    thrust = 1.0 + 0.5 * np.sin(t)  # g
+    acc = np.zeros((n, 3))
+    acc[:, 2] = -9.80665 * thrust
+    b = np.array([20.0, -3.0, 40.0])
+    cfg = MagConfig(rate_hz=100.0, motor_ut_per_g=8.0, disturbances_per_min=6.0, disturbance_ut=15.0)
+    y, consts = _magnetometer(np.random.default_rng(5), t, q, b, cfg, 100.0, acc)
+    base = quat_rotate(quat_conj(q), np.broadcast_to(b, (n, 3)))
+    u = np.array(consts["motor_direction"])
+    resid = y - base - 8.0 * thrust[:, None] * u
+    inside = np.zeros(n, bool)
+    for a, e in consts["disturbances"]:
+        inside |= (t >= a) & (t < e)
+    assert consts["disturbances"] and inside.any() and (~inside).any()
+    np.testing.assert_allclose(resid[~inside], 0.0, atol=1e-9)
+    d_earth = quat_rotate(q[inside], resid[inside])  # back to the earth frame: piecewise constant
+    assert np.abs(d_earth).max() > 1.0
+    # switched off, the earlier realisation is unchanged
+    y0, _ = _magnetometer(np.random.default_rng(5), t, q, b, MagConfig(rate_hz=100.0), 100.0, acc)
+    np.testing.assert_allclose(y0, base, atol=1e-9)

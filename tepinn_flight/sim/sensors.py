@@ -12,9 +12,11 @@ Per axis triad, at the sensor's output rate ``f`` (period ``dt = 1/f``)::
     n_k = N √f · v_k                              white noise of density N (ARW / VRW)
 
 ``sat`` clips each axis to ``±range`` (such samples set ``clipped``), ``Q`` rounds to the LSB.
-The magnetometer reads ``m = S · (R_nbᵀ B_n) + h + n`` with soft-iron ``S = I + E`` (``E``
-symmetric), hard-iron ``h`` and white noise, is sampled at its own rate and held (zero-order hold)
-onto the IMU samples. Datasheet units in the configuration, converted here:
+The magnetometer reads ``m = S · (R_nbᵀ (B_n + d_n(t))) + h + k·T(t)·u + n`` with soft-iron
+``S = I + E`` (``E`` symmetric), hard-iron ``h``, white noise, local disturbance episodes ``d_n``
+(earth frame, 1–10 s each) and motor-current interference along a body-fixed unit vector ``u``
+proportional to the thrust ``T`` (true specific force along −z, in g), is sampled at its own rate
+and held (zero-order hold) onto the IMU samples. Datasheet units in the configuration, converted here:
 
 - ``gyro.arw_deg_sqrt_h`` (°/√h = 60 × °/s/√Hz): N = arw / 60 · π/180 rad/s/√Hz;
 - ``accel.vrw_m_s_sqrt_h`` (m/s/√h; 400 µg/√Hz = 0.2354 m/s/√h): N = vrw / 60 m/s²/√Hz;
@@ -100,11 +102,20 @@ class MagConfig:
     noise_ut: float = 0.0  # white noise σ per sample
     hard_iron_ut: float = 0.0  # σ of each hard-iron offset component
     soft_iron_pct: float = 0.0  # σ of each entry of the symmetric soft-iron deviation E
+    # motor-current interference: a body-fixed field proportional to the thrust, read from the true
+    # specific force along body z (a multirotor's thrust per mass), µT per g; the direction is drawn
+    # once per flight (the power wiring's geometry), the size is this
+    motor_ut_per_g: float = 0.0
+    # local disturbances (steel structures, cars, power lines passed by): episodes at this rate, each
+    # 1–10 s long with a constant earth-frame offset of σ disturbance_ut per component
+    disturbances_per_min: float = 0.0
+    disturbance_ut: float = 0.0
 
     def __post_init__(self):
         check(self.rate_hz > 0 and math.isfinite(self.rate_hz), f"'rate_hz' must be > 0, got {self.rate_hz!r}")
         check(self.range_ut > 0, f"'range_ut' must be > 0, got {self.range_ut!r}")
-        for name in ("lsb_ut", "noise_ut", "hard_iron_ut", "soft_iron_pct"):
+        for name in ("lsb_ut", "noise_ut", "hard_iron_ut", "soft_iron_pct", "motor_ut_per_g", "disturbances_per_min",
+                     "disturbance_ut"):  # fmt: skip
             finite_nonneg(name, getattr(self, name))
 
 
@@ -338,7 +349,7 @@ def apply_sensors(truth: TruthTrajectory, cfg: SensorConfig, rng: np.random.Gene
     r_gyr, r_acc, r_mag = (np.random.default_rng(s) for s in seeds)
     gyr, gclip, gbias, gtruth = _triad(r_gyr, gyr_x, _gyro_si(cfg.gyro), rate)
     acc, aclip, abias, atruth = _triad(r_acc, acc_x, _accel_si(cfg.accel), rate)
-    mag, mtruth = _magnetometer(r_mag, t, q, np.asarray(truth.mag_earth_ut, np.float64), cfg.mag, rate)
+    mag, mtruth = _magnetometer(r_mag, t, q, np.asarray(truth.mag_earth_ut, np.float64), cfg.mag, rate, acc_x)
     return SensorOutput(
         t_s=t, index=idx, gyr_rad_s=gyr, acc_m_s2=acc, mag_ut=mag, clipped=gclip | aclip,
         gyr_bias_rad_s=gbias, acc_bias_m_s2=abias, q_nb_wxyz=q,
@@ -346,7 +357,7 @@ def apply_sensors(truth: TruthTrajectory, cfg: SensorConfig, rng: np.random.Gene
     )  # fmt: skip
 
 
-def _magnetometer(rng, t, q, b_earth, cfg: MagConfig, imu_rate: float):
+def _magnetometer(rng, t, q, b_earth, cfg: MagConfig, imu_rate: float, acc_true=None):
     e = rng.standard_normal(6) * cfg.soft_iron_pct / 100.0
     soft = np.eye(3)
     iu = np.triu_indices(3)
@@ -363,6 +374,24 @@ def _magnetometer(rng, t, q, b_earth, cfg: MagConfig, imu_rate: float):
     b_body = quat_rotate(quat_conj(q[at]), np.broadcast_to(b_earth, (len(at), 3)))
     noise = rng.standard_normal((len(at), 3)) * cfg.noise_ut
     y = b_body @ soft.T + hard + noise
+    # (drawn after everything above, and only when switched on: other realisations do not move)
+    if cfg.motor_ut_per_g > 0 and acc_true is not None:
+        u = rng.standard_normal(3)
+        u /= np.linalg.norm(u)
+        thrust_g = np.maximum(-np.asarray(acc_true)[at, 2], 0.0) / 9.80665  # specific force along −z, in g
+        y = y + cfg.motor_ut_per_g * thrust_g[:, None] * u
+        consts["motor_direction"] = u.tolist()
+    if cfg.disturbances_per_min > 0 and cfg.disturbance_ut > 0 and len(at):
+        dur = t[-1] - t[0]
+        n_ep = rng.poisson(cfg.disturbances_per_min * dur / 60.0)
+        starts = t[0] + rng.uniform(0.0, dur, n_ep)
+        lengths = rng.uniform(1.0, 10.0, n_ep)
+        offs = rng.standard_normal((n_ep, 3)) * cfg.disturbance_ut
+        d_earth = np.zeros((len(at), 3))
+        for s0, ln, off in zip(starts, lengths, offs):
+            d_earth[(t[at] >= s0) & (t[at] < s0 + ln)] += off
+        y = y + quat_rotate(quat_conj(q[at]), d_earth) @ soft.T
+        consts["disturbances"] = [[float(a), float(a + b)] for a, b in zip(starts, lengths)]
     y, _ = _saturate_quantize(y, cfg.range_ut, cfg.lsb_ut)
     hold = np.cumsum(new) - 1  # output sample -> index of the latest magnetometer sample
     consts["rate_hz"] = rate
