@@ -333,3 +333,57 @@ def test_truncated_ulog_gets_a_truncation_note(tmp_path):
     rec = ingest_log(cut)
     assert any("truncated" in n for n in rec.meta["notes"]), rec.meta["notes"]
     assert 0 < len(rec) < len(full)
+
+
+def _session_pids(sid: int) -> list[int]:
+    """Live processes (not zombies) of a session, from /proc."""
+    import os
+
+    out = []
+    for d in os.listdir("/proc"):
+        if not d.isdigit():
+            continue
+        try:
+            with open(f"/proc/{d}/stat") as f:
+                st = f.read()
+        except OSError:
+            continue
+        fields = st[st.rindex(")") + 2 :].split()
+        if int(fields[3]) == sid and fields[0] != "Z":  # fields: state ppid pgrp session ...
+            out.append(int(d))
+    return out
+
+
+@pytest.mark.slow
+def test_kill_9_of_a_campaign_takes_its_workers_with_it(tmp_path):
+    """kill -9 of a 2-worker campaign: its worker processes die too instead of flying their flights
+    to the end (they used to run on for the rest of their flights)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("parent-death signal is Linux-only")
+    camp = tmp_path / "c.toml"
+    camp.write_text('name = "k"\nseed = 1\nduration_s = 1800.0\nrate_hz = 400.0\n[[groups]]\naircraft = ["F450"]\n'
+                    'profiles = [{ name = "random" }]\nsensors = ["consumer"]\nturbulence = ["none"]\nrepeats = 2\n')
+    proc = subprocess.Popen([sys.executable, "-m", "tepinn_flight", "simulate", "--campaign", str(camp), "-o",
+                             str(tmp_path / "out"), "--workers", "2", "--quiet"], start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while len(_session_pids(proc.pid)) < 5 and time.monotonic() < deadline:  # main, tracker, forkserver, 2 workers
+            time.sleep(0.2)
+        assert len(_session_pids(proc.pid)) >= 5, "the campaign did not start its workers"
+        time.sleep(1.0)  # the workers are flying
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        deadline = time.monotonic() + 15
+        while _session_pids(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not _session_pids(proc.pid), "worker processes outlived the killed campaign"
+    finally:
+        for pid in _session_pids(proc.pid):
+            os.kill(pid, signal.SIGKILL)

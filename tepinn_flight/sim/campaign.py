@@ -230,9 +230,25 @@ def _fly_one_packed(args):
     return _fly_one(*args)
 
 
-def _worker_init() -> None:
-    """Workers ignore Ctrl-C: the main process handles it and terminates them."""
+def _worker_init(main_pid: int | None = None) -> None:
+    """Workers ignore Ctrl-C (the main process handles it and terminates them) and exit when the
+    main process is gone — a ``kill -9`` of the campaign must not leave them flying their flights
+    to the end. They are the forkserver's children, not the main process's, so a watchdog thread
+    polls the main process (every 0.5 s)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if main_pid is not None:
+        threading.Thread(target=_exit_without, args=(main_pid,), daemon=True, name="campaign-watchdog").start()
+
+
+def _exit_without(pid: int) -> None:
+    while True:
+        time.sleep(0.5)
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            os._exit(1)
+        except PermissionError:  # alive, someone else's (cannot happen for our parent; keep waiting)
+            pass
 
 
 @contextmanager
@@ -344,7 +360,8 @@ def run_campaign(
                 done(*_fly_one(*s))
         elif specs:
             with _terminate_on_sigterm():
-                pool = _mp_context().Pool(n_workers, initializer=_worker_init, maxtasksperchild=MAX_TASKS_PER_WORKER)
+                pool = _mp_context().Pool(n_workers, initializer=_worker_init, initargs=(os.getpid(),),
+                                          maxtasksperchild=MAX_TASKS_PER_WORKER)  # fmt: skip
                 try:
                     for result in pool.imap_unordered(_fly_one_packed, specs):
                         done(*result)
