@@ -221,3 +221,20 @@ def test_nine_d_on_a_record_without_magnetometer_is_one_clear_error():
         estimate_anchored(model, rec, dataclasses.replace(AnchorConfig(), mode="9d"))
     auto = estimate_anchored(model, rec, dataclasses.replace(AnchorConfig(), mode="auto"))
     np.testing.assert_array_equal(auto[Q].to_numpy(), estimate_anchored(model, rec, AnchorConfig())[Q].to_numpy())
+
+
+def test_estimate_cli_bridges_a_nan_sample_says_so_in_one_line_and_estimates_the_rest(tmp_path, capsys):
+    import pandas as pd
+
+    from tepinn_flight.cli.main import main
+    from tepinn_flight.record import write_record
+
+    rec = synthetic_record(seed=3, duration_s=12.0, rate_hz=100.0)
+    rec.data.loc[len(rec) // 2, "gyr_y_rad_s"] = np.nan
+    src = tmp_path / "r.parquet"
+    write_record(rec, src)
+    assert main(["estimate", str(src), "-o", str(tmp_path / "e.parquet"), "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "1 non-finite IMU sample(s) bridged" in err and len(err.strip().splitlines()) == 1
+    q = pd.read_parquet(tmp_path / "e.parquet")["q_est_w"].to_numpy()
+    assert np.all(np.isfinite(q))  # every sample estimated (was: 42 % after one NaN)

@@ -42,6 +42,7 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    import numpy as np
     import dataclasses
     import sys
     from pathlib import Path
@@ -84,7 +85,12 @@ def run(args) -> int:
                 sys.stderr.write(f"tepinn-flight estimate: warning: {src}: IMU "
                                  f"{'rate unknown' if rate is None else f'at {rate:.1f} Hz'} is too slow for windowed "
                                  "estimation (estimation_ok is false); estimating anyway, expect poor attitude\n")  # fmt: skip
-            df = estimate_record(model, rec, fusion)
+            holes = int(np.sum(~(np.all(np.isfinite(rec.gyr_rad_s), 1) & np.all(np.isfinite(rec.acc_m_s2), 1))))
+            if holes:
+                sys.stderr.write(f"tepinn-flight estimate: note: {src}: {holes} non-finite IMU sample(s) bridged with "
+                                 "the previous sample\n")  # fmt: skip
+            with np.errstate(invalid="ignore"):
+                df = estimate_record(model, rec, fusion)
         except TepinnError as exc:
             failures += 1
             sys.stderr.write(f"tepinn-flight estimate: error: {exc if exc.path else f'{src}: {exc}'}\n")
