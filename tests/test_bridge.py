@@ -440,10 +440,12 @@ def test_asks_for_a_faster_imu_stream(granted):
     if granted:
         assert len(cmds) == 1 and s["imu"]["requested"] == 1 and s["imu"]["request_ack"] == "accepted"
         assert s["imu"]["warning"] is None and s["imu"]["message"] == "RAW_IMU"
+        assert s["estimates"]["withheld_imu_too_slow"] == 0
     else:
         assert len(cmds) == 3 and s["imu"]["requested"] == 3
         w = s["imu"]["warning"]
         assert "not granted" in w and 15 <= float(re.match(r"IMU at ([0-9.]+) Hz", w).group(1)) <= 21
+        assert s["estimates"]["withheld_imu_too_slow"] > 0  # no estimate published from a too-slow IMU
 
 
 def test_stream_endpoints_tcp_and_serial_pty():

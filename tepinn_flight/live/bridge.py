@@ -248,6 +248,7 @@ class Bridge:
         self.req_msg = None
         self.req_ack = None
         self.imu_warning = None
+        self.est_withheld = 0  # estimates not published while the IMU is too slow (imu_warning)
         # timers
         self.next_hb = 0.0
         self.next_rate_check = 0.0
@@ -593,6 +594,9 @@ class Bridge:
     def _emit(self, est: dict) -> None:
         if self.enc is None:
             return
+        if self.imu_warning:  # the IMU stays below min_imu_rate_hz: an estimate from it would mislead
+            self.est_withheld += 1
+            return
         q, bias, gyr = est["q"], est["bias"], est["gyr"]
         rates = tuple(gyr[i] - bias[i] for i in range(3))
         ms = est["time_boot_ms"] if est["time_boot_ms"] is not None else 0
@@ -748,6 +752,7 @@ class Bridge:
                          "internal_errors": self.internal_errors, "master_rcvbuf_bytes": self.master.rcvbuf_bytes},
             "estimates": {
                 "count": self.est_count,
+                "withheld_imu_too_slow": self.est_withheld,
                 "rate_hz": round(self.est_intervals / self.est_span, 2) if self.est_span > 0 else None,
                 "samples_processed": wc[0],
                 "dropped_stale": wc[1],
