@@ -23,6 +23,9 @@ def add_arguments(p) -> None:
     p.add_argument("--out", action="append", default=[], metavar="ENDPOINT",
                    help="a ground station or router, e.g. udpout:127.0.0.1:14551 (repeatable)")
     p.add_argument("--model", default=None, metavar="CKPT", help="checkpoint or .onnx export (default: the shipped model)")
+    p.add_argument("--mode", choices=["6d", "9d", "auto"], default="",
+                   help="6d, 9d (heading from the magnetometer: magnetic north) or auto (9-D when the vehicle sends "
+                        "magnetometer data); default: the model's own (6d for the shipped model)")
     p.add_argument("--runtime", choices=["auto", "torch", "onnx"], default="auto",
                    help="run the network in PyTorch or onnxruntime (auto: onnx for an .onnx model or where torch is "
                         "not installed, else torch)")
@@ -85,7 +88,7 @@ def run(args) -> int:
 
     resolve_runtime(model, args.runtime)  # a runtime that cannot run this model: one line now, not in the worker
     cfg = BridgeConfig(
-        master=args.master, outs=tuple(args.out), model_path=str(model), runtime=args.runtime, tlog_path=args.tlog, rate_hz=args.rate,
+        master=args.master, outs=tuple(args.out), model_path=str(model), runtime=args.runtime, mode=args.mode, tlog_path=args.tlog, rate_hz=args.rate,
         diag_rate_hz=args.diag_rate, imu_instance=args.imu, min_imu_rate_hz=args.min_imu_rate,
         request_imu_rate_hz=args.request_imu_rate, sysid=args.sysid, compid=args.compid,
         estimates_to_master=args.estimates_to_master, estimate_as=args.estimate_as, worker=args.worker, max_sample_age_s=args.max_age,

@@ -79,6 +79,9 @@ class BridgeConfig:
     outs: tuple[str, ...] = ()
     model_path: str | None = None
     runtime: str = "auto"  # the network's runtime: "torch", "onnx" or "auto" (model.runtime)
+    # 6d, 9d (the magnetometer's heading, magnetic north) or auto (9-D when the vehicle sends a
+    # magnetometer); "" keeps the model's own (6d for the shipped one)
+    mode: str = ""
     tlog_path: str | None = None
     rate_hz: float = 50.0  # estimates out, on the autopilot's clock
     diag_rate_hz: float = 10.0  # NAMED_VALUE_FLOAT / DEBUG_VECT
@@ -104,6 +107,8 @@ class BridgeConfig:
             raise ConfigError(f"--estimate-as must be one of {', '.join(ESTIMATE_AS)}, not {self.estimate_as!r}")
         if self.worker not in ("process", "thread"):
             raise ConfigError(f"worker must be 'process' or 'thread', not {self.worker!r}")
+        if self.mode not in ("", "6d", "9d", "auto"):
+            raise ConfigError(f"mode must be 6d, 9d or auto, not {self.mode!r}")
         if self.runtime not in ("auto", "torch", "onnx"):
             raise ConfigError(f"runtime must be 'auto', 'torch' or 'onnx', not {self.runtime!r}")
         if self.sysid is not None and not 1 <= self.sysid <= 255:
@@ -165,7 +170,7 @@ class Bridge:
 
             if not config.model_path:
                 raise ConfigError("no model given")
-            self.make_estimator = model_estimator_factory(config.model_path, config.runtime)
+            self.make_estimator = model_estimator_factory(config.model_path, config.runtime, config.mode)
         self.links: list[Link] = []
         try:
             self.master = Link(config.master, "master")
@@ -260,7 +265,7 @@ class Bridge:
     def _start_worker(self) -> None:
         c = self.cfg
         if c.worker == "process":
-            self.worker = ProcessWorker(c.model_path, c.rate_hz, c.max_sample_age_s, c.runtime)
+            self.worker = ProcessWorker(c.model_path, c.rate_hz, c.max_sample_age_s, c.runtime, c.mode)
         else:
             self.worker = ThreadWorker(self.make_estimator, c.rate_hz, c.max_sample_age_s)
         self.worker_ready = False

@@ -206,8 +206,8 @@ class AnchoredVQF:
             a = a - (np.cross(gyr_b, self.vel) + self.acc_v)
         m = None
         if self.use_mag:
-            m = np.atleast_2d(np.asarray(mag, np.float64))
-            m = to_sensor(np.where(np.isfinite(m), m, 0.0))
+            m = np.full((n, 3), np.nan) if mag is None else np.atleast_2d(np.asarray(mag, np.float64))
+            m = to_sensor(np.where(np.isfinite(m), m, 0.0))  # zero: VQF skips the magnetometer update
         out = self.f.updateBatch(to_sensor(g), to_sensor(a), m)
         q6 = q_nb_from_vqf(out["quat6D"])
         q9 = q_nb_from_vqf(out["quat9D"]) if self.use_mag else None

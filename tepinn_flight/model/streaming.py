@@ -163,7 +163,10 @@ class StreamingEstimator:
             if len(self.pending) <= TS_STEPS:
                 return None, float("nan"), (float("nan"),) * 3
             dts = np.diff([p[0] for p in self.pending])
-            self.anchored = AnchoredVQF(self.anchor_cfg, float(np.median(dts)), use_mag=self.anchor_cfg.mode == "9d")
+            mode = self.anchor_cfg.mode  # auto: 9-D when the segment's first samples carry a magnetometer
+            use_mag = mode == "9d" or (mode == "auto" and any(p[3] is not None and all(math.isfinite(float(v)) for v in p[3])
+                                                              for p in self.pending))  # fmt: skip
+            self.anchored = AnchoredVQF(self.anchor_cfg, float(np.median(dts)), use_mag=use_mag)
             pending, self.pending = self.pending, []
         else:
             pending = [(t, gyr, acc, mag, clipped, est)]
