@@ -21,6 +21,11 @@ from tepinn_flight.model.synthetic import synthetic_record
 Q = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
 
 
+def _shipped() -> AnchorConfig:
+    """The shipped estimator's settings (with the checkpoint's fusion as the pulls' target)."""
+    return load_model(default_model_path())[1]
+
+
 def _vqf_reference(rec):
     """VQF straight from the package on the record's one segment (the frame conversion is the
     one the peers use: evaluation/peers.py)."""
@@ -39,7 +44,7 @@ def test_with_every_learned_correction_off_it_is_vqf_on_a_real_broad_trial():
     est = estimate_anchored(model, rec, AnchorConfig().learned_off)
     np.testing.assert_array_equal(est[Q].to_numpy(), _vqf_reference(rec))
     # and the shipped settings change nothing where no gate fires (slow hand-held translation)
-    est2 = estimate_anchored(model, rec, AnchorConfig())
+    est2 = estimate_anchored(model, rec, _shipped())
     np.testing.assert_allclose(est2[Q].to_numpy(), _vqf_reference(rec), atol=1e-12)
 
 
@@ -108,10 +113,10 @@ def test_gates_use_the_network_only_with_evidence():
 def test_a_non_finite_sample_is_a_hole_not_the_end_of_the_estimate():
     rec = synthetic_record(seed=1, duration_s=12.0, rate_hz=100.0)
     model, _, _ = load_model(default_model_path())
-    clean = estimate_anchored(model, rec, AnchorConfig())[Q].to_numpy()
+    clean = estimate_anchored(model, rec, _shipped())[Q].to_numpy()
     rec.data.loc[600, "gyr_x_rad_s"] = np.nan
     rec.data.loc[700, "acc_z_m_s2"] = np.inf
-    holed = estimate_anchored(model, rec, AnchorConfig())[Q].to_numpy()
+    holed = estimate_anchored(model, rec, _shipped())[Q].to_numpy()
     assert np.all(np.isfinite(holed))
     assert np.abs(holed[600] - holed[599]).max() < 0.05  # bridged with the previous sample
     ang = np.degrees(2 * np.arccos(np.clip(np.abs(np.sum(holed * clean, 1)), 0, 1)))
@@ -123,7 +128,7 @@ def test_live_equals_offline_with_the_gates_on():
     with every gate forced on (pull, centripetal correction) so that all of it is exercised."""
     rec = synthetic_record(seed=2, duration_s=8.0, rate_hz=100.0)
     model, _, _ = load_model(default_model_path())
-    cfg = dataclasses.replace(AnchorConfig(), speed_lo_m_s=0.0, speed_hi_m_s=1e-3)
+    cfg = dataclasses.replace(_shipped(), speed_lo_m_s=0.0, speed_hi_m_s=1e-3)
     off = estimate_anchored(model, rec, cfg)
     live = StreamingEstimator(model, cfg)
     q_live = np.full((len(rec), 4), np.nan)
@@ -176,8 +181,8 @@ def _heading_err_deg(est, yaw):
 def test_nine_d_reads_the_heading_from_the_field_of_a_level_vehicle_spun_about_z():
     rec, yaw = _spin_record()
     model, _, _ = load_model(default_model_path())
-    six = estimate_anchored(model, rec, AnchorConfig())
-    nine = estimate_anchored(model, rec, dataclasses.replace(AnchorConfig(), mode="9d"))
+    six = estimate_anchored(model, rec, _shipped())
+    nine = estimate_anchored(model, rec, dataclasses.replace(_shipped(), mode="9d"))
     late = rec.t_s > 20.0
     assert _heading_err_deg(nine, yaw)[late].max() < 1.0  # absolute heading: magnetic north
     assert _heading_err_deg(six, yaw)[late].min() > 30.0  # 6-D starts at heading 0, not 0.7 rad
@@ -192,7 +197,7 @@ def test_nine_d_rejects_a_constant_disturbance_of_the_field():
     drifts much further than the anchored estimator."""
     rec, yaw = _spin_record(yaw_rate_rad_s=0.5, disturbance_ut=np.array([0.0, 30.0, 0.0]), duration_s=40.0)
     model, _, _ = load_model(default_model_path())
-    nine = estimate_anchored(model, rec, dataclasses.replace(AnchorConfig(), mode="9d"))
+    nine = estimate_anchored(model, rec, dataclasses.replace(_shipped(), mode="9d"))
     after = (rec.t_s > 10.0) & (rec.t_s < 28.0)  # VQF takes a field that stays 20 s as the new normal
     err = _heading_err_deg(nine, yaw)[after]
     assert err.max() < 12.0
@@ -218,9 +223,9 @@ def test_nine_d_on_a_record_without_magnetometer_is_one_clear_error():
     rec.data[["mag_x_ut", "mag_y_ut", "mag_z_ut"]] = np.nan
     model, _, _ = load_model(default_model_path())
     with pytest.raises(MissingMagnetometer):
-        estimate_anchored(model, rec, dataclasses.replace(AnchorConfig(), mode="9d"))
-    auto = estimate_anchored(model, rec, dataclasses.replace(AnchorConfig(), mode="auto"))
-    np.testing.assert_array_equal(auto[Q].to_numpy(), estimate_anchored(model, rec, AnchorConfig())[Q].to_numpy())
+        estimate_anchored(model, rec, dataclasses.replace(_shipped(), mode="9d"))
+    auto = estimate_anchored(model, rec, dataclasses.replace(_shipped(), mode="auto"))
+    np.testing.assert_array_equal(auto[Q].to_numpy(), estimate_anchored(model, rec, _shipped())[Q].to_numpy())
 
 
 def test_estimate_cli_bridges_a_nan_sample_says_so_in_one_line_and_estimates_the_rest(tmp_path, capsys):
@@ -244,7 +249,7 @@ def test_estimate_cli_bridges_a_nan_sample_says_so_in_one_line_and_estimates_the
 def test_live_nine_d_equals_offline(mode):
     rec, yaw = _spin_record(duration_s=12.0)
     model, _, _ = load_model(default_model_path())
-    cfg = dataclasses.replace(AnchorConfig(), mode=mode)
+    cfg = dataclasses.replace(_shipped(), mode=mode)
     off = estimate_anchored(model, rec, cfg)[Q].to_numpy()
     live = StreamingEstimator(model, cfg)
     q_live = np.full((len(rec), 4), np.nan)

@@ -51,6 +51,7 @@ Q_SENSOR_BODY = np.array([0.0, 1.0, 0.0, 0.0])
 Q_NED_ENU = quat_conj(np.asarray(Q_ENU_FROM_NED_WXYZ, np.float64))
 _FLIP = np.array([1.0, -1.0, -1.0])
 _EZ = np.array([0.0, 0.0, 1.0])
+BIAS_EVIDENCE_S = 2.0  # the older fusion's bias must stay beyond its gate this long
 
 
 @dataclass(frozen=True)
@@ -75,6 +76,9 @@ class AnchorConfig:
     clip_hold_s: float = 2.0  # gyro-saturation gate stays on this long after the last clipped sample
     bias_gate_weight: float = 0.6  # pull weight while the uncalibrated-gyro gate is on (0: never)
     bias_deadzone_deg_s: float = 2.0  # the network's bias beyond this is removed from the gyro
+    # ... and the gate also opens when the older fusion's bias estimate (pull target "fusion") exceeds
+    # this on an axis (calibrated autopilot gyros and BROAD stay below 1 °/s there; 0: off)
+    bias_gate_fusion_deg_s: float = 3.0
     sigma_floor_deg: float = 0.45  # σ₀ (fitted on the 17 BROAD trials the network was trained or validated on)
     sigma_acc_gain: float = 0.025  # c
     sigma_net_scale: float = 1.0  # s
@@ -97,7 +101,7 @@ class AnchorConfig:
             raise ConfigError("pull_gain and bias_gate_weight must be in [0, 1]")
         if not 0 <= self.speed_lo_m_s < self.speed_hi_m_s:
             raise ConfigError("need 0 <= speed_lo_m_s < speed_hi_m_s")
-        if min(self.clip_hold_s, self.bias_deadzone_deg_s, self.sigma_floor_deg, self.sigma_acc_gain,
+        if min(self.clip_hold_s, self.bias_deadzone_deg_s, self.bias_gate_fusion_deg_s, self.sigma_floor_deg, self.sigma_acc_gain,
                self.sigma_net_scale) < 0:  # fmt: skip
             raise ConfigError("clip_hold_s, bias_deadzone_deg_s and the σ settings must be >= 0")
 
@@ -119,6 +123,7 @@ class WindowOutput:
     gyr_bias_rad_s: np.ndarray  # (3,)
     vel_m_s: np.ndarray  # (3,) body velocity v̂ (zeros where the model has no such head)
     acc_m_s2: np.ndarray  # (3,) its rate â
+    fusion_bias_rad_s: np.ndarray | None = None  # (3,) the older fusion's gyro-bias estimate (pull target "fusion")
 
 
 def to_sensor(v_b: np.ndarray) -> np.ndarray:
@@ -168,6 +173,7 @@ class AnchoredVQF:
         self.acc_v = np.zeros(3)
         self.gyr_corr = np.zeros(3)  # body axes, removed from the gyro
         self.bias_latched = False
+        self.t_bias_over = None  # since when the older fusion's horizontal bias is beyond its gate
         self.tau_acc = c.tau_acc_s
         self.t_clip = -math.inf  # time of the last saturated sample
         self.t = 0.0
@@ -239,9 +245,19 @@ class AnchoredVQF:
         speed = float(np.linalg.norm(w.vel_m_s))
         g_flight = min(1.0, max(0.0, (speed - c.speed_lo_m_s) / (c.speed_hi_m_s - c.speed_lo_m_s)))
         g_clip = 1.0 if self.t - self.t_clip < c.clip_hold_s else 0.0
+        # only the bias component perpendicular to gravity turns the tilt (the one along it turns the
+        # heading, which no tilt measurement can check): that part is the evidence and the correction
+        down = gravity_body(q_nb_from_vqf(self.f.getQuat6D()))  # the filter's own vertical
+        horiz = np.eye(3) - np.outer(down, down)
+        b_src = w.gyr_bias_rad_s if w.fusion_bias_rad_s is None else w.fusion_bias_rad_s
+        b_h = horiz @ np.asarray(b_src, np.float64)
         if c.bias_gate_weight > 0 and not self.bias_latched:
             b, _ = self.f.getBiasEstimate()
             self.bias_latched = bool(np.max(np.abs(b)) >= 0.95 * math.radians(c.bias_clip_deg_s))
+            if c.bias_gate_fusion_deg_s > 0 and w.fusion_bias_rad_s is not None:  # for 2 s on end
+                over = bool(np.linalg.norm(b_h) > math.radians(c.bias_gate_fusion_deg_s))
+                self.t_bias_over = (self.t_bias_over if self.t_bias_over is not None else self.t) if over else None
+                self.bias_latched |= over and self.t - self.t_bias_over >= BIAS_EVIDENCE_S
         g_bias = c.bias_gate_weight if self.bias_latched else 0.0
         self.gate = max(g_flight, g_clip, g_bias)
         if c.tau_acc_flight_s > 0:
@@ -253,8 +269,10 @@ class AnchoredVQF:
         if c.centripetal:
             self.vel = g_flight * np.asarray(w.vel_m_s, np.float64)
             self.acc_v = g_flight * np.asarray(w.acc_m_s2, np.float64)
-        if self.bias_latched:
-            self.gyr_corr = _soft(np.asarray(w.gyr_bias_rad_s, np.float64), math.radians(c.bias_deadzone_deg_s))
+        if self.bias_latched:  # the older fusion's bias where it runs (bias states), else the network's
+            nb = float(np.linalg.norm(b_h))
+            dz = math.radians(c.bias_deadzone_deg_s)
+            self.gyr_corr = b_h * max(0.0, 1.0 - dz / nb) if nb > 0 else np.zeros(3)
         k = c.pull_gain * self.gate
         if k > 0:
             up_s = to_sensor(-gravity_body(np.asarray(w.q_nb_wxyz, np.float64)))

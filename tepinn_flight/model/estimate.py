@@ -161,6 +161,7 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
         return idx, network_outputs(model, tok, ends, batch_size=batch_size)
     n = len(rec)
     q_old = np.full((n, 4), np.nan)
+    b_old = np.full((n, 3), np.nan)
     parts = []
     t, gyr, clipped = rec.t_s, rec.gyr_rad_s, rec.clipped
     bounds = np.flatnonzero(np.diff(rec.segment)) + 1
@@ -180,6 +181,7 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
             run.advance(int(i_seg[blk][-1]) + 2)
         run.advance(b - a)
         q_old[a:b] = run.q
+        b_old[a:b] = run.bias
     if parts:
         out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     else:
@@ -188,6 +190,7 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
     bad = ~np.all(np.isfinite(target), axis=1)
     target[bad] = out["q"][bad]
     out["q_target"] = target
+    out["bias_target"] = np.nan_to_num(b_old[idx])  # its gyro-bias estimate then (uncalibrated-gyro evidence)
     return idx, out
 
 
@@ -219,6 +222,7 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
         windows = anchored_windows(model, rec, batch_size, fus)
     idx, out = windows
     q_pull = out.get("q_target", out["q"])
+    b_fus = out.get("bias_target")
     use_mag = wants_mag(anchor, rec)
     n = len(rec)
     q_out = np.full((n, 4), np.nan)
@@ -236,7 +240,8 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
             if i > cur:
                 _put(flt, rec, cur, i, q_out, s_out, b_out, use_mag)
                 cur = i
-            flt.correct(WindowOutput(q_pull[j], float(out["sigma"][j]), out["bias"][j], out["vel"][j], out["acc_v"][j]))
+            flt.correct(WindowOutput(q_pull[j], float(out["sigma"][j]), out["bias"][j], out["vel"][j], out["acc_v"][j],
+                                     None if b_fus is None else b_fus[j]))  # fmt: skip
         if cur < b:
             _put(flt, rec, cur, b, q_out, s_out, b_out, use_mag)
     return _frame(t, q_out, s_out, b_out)

@@ -80,6 +80,7 @@ class StreamingEstimator:
         """Forget everything (a new segment: reboot, time jump, dropout)."""
         self.fusion = AttitudeFusion(self.fusion_cfg)
         self.old_q = None  # the older fusion's estimate at the previous sample (the pulls' target)
+        self.old_bias = None  # ... and its gyro-bias estimate
         self.anchored = None  # AnchoredVQF, made once the segment's sample period is known
         self.pending: list = []  # the segment's first samples (and windows) until then
         self.t0 = None
@@ -153,11 +154,14 @@ class StreamingEstimator:
         """The filter-anchored estimate of this sample; ``est`` (the network's window at the
         previous sample, or None) is applied first."""
         if self.anchor_cfg.pull_target == "fusion":  # pull toward the older fusion's estimate before this window
-            target = self.old_q
+            target, b_target = self.old_q, self.old_bias
             old = None if est is None else (list(est.q_nb_wxyz), est.sigma_rad, list(est.gyr_bias_rad_s))
-            self.old_q, _, _ = self.fusion.step(t, gyr, old, clipped)
-            if est is not None and target is not None and all(math.isfinite(v) for v in target):
-                est = dataclasses.replace(est, q_nb_wxyz=np.asarray(target, np.float64))
+            self.old_q, _, self.old_bias = self.fusion.step(t, gyr, old, clipped)
+            if est is not None:
+                b = np.nan_to_num(np.asarray(b_target if b_target is not None else (0.0, 0.0, 0.0), np.float64))
+                est = dataclasses.replace(est, fusion_bias_rad_s=b)
+                if target is not None and all(math.isfinite(v) for v in target):
+                    est = dataclasses.replace(est, q_nb_wxyz=np.asarray(target, np.float64))
         if self.anchored is None:
             self.pending.append((t, gyr, acc, mag, clipped, est))
             if len(self.pending) <= TS_STEPS:
