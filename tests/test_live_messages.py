@@ -152,7 +152,7 @@ def test_set_message_interval_command():
 
 def test_diagnostics_carry_the_difference_in_degrees():
     q = tuple(np.roll(_random_quats(1)[0].as_quat(), 1))
-    diff = (math.radians(1.0), math.radians(-2.0), math.radians(3.0))
+    diff = (math.radians(1.0), math.radians(-2.0), math.radians(3.0), math.radians(-40.0))
     msgs = _decode(b"".join(Encoder(1).pack(m) for m in diagnostic_msgs(
         500, 500_000, q, sigma_rad=math.radians(0.5), latency_s=0.004, imu_rate_hz=400.0,
         bias_rad_s=(0.01, 0.02, 0.03), diff=diff)))  # fmt: skip
@@ -160,6 +160,7 @@ def test_diagnostics_carry_the_difference_in_degrees():
     dv = {m.name: (m.x, m.y, m.z) for m in msgs if m.get_type() == "DEBUG_VECT"}
     assert set(nvf) == set(DIAG_NAMES)
     assert nvf["tp_dincl"] == pytest.approx(3.0, abs=1e-5)
+    assert nvf["tp_dhead"] == pytest.approx(-40.0, abs=1e-4)
     assert nvf["tp_sigma"] == pytest.approx(0.5, abs=1e-5)
     assert nvf["tp_lat_ms"] == pytest.approx(4.0, abs=1e-4)
     np.testing.assert_allclose(dv["TP_DIFF"], (1.0, -2.0, 3.0), atol=1e-5)
@@ -248,6 +249,10 @@ def test_tilt_difference_ignores_heading_and_matches_scipy():
         spin = Rotation.from_euler("z", RNG.uniform(-np.pi, np.pi)) * r  # heading change (earth z)
         sx, sy, sz, sw = spin.as_quat()
         assert tilt_difference((sw, sx, sy, sz), q)[2] == pytest.approx(0.0, abs=1e-6)
+        # ... and the heading difference is the yaw difference (scipy's ZYX), wrapped
+        ye, yr = spin.as_euler("ZYX")[0], r.as_euler("ZYX")[0]
+        want_h = math.atan2(math.sin(ye - yr), math.cos(ye - yr))
+        assert tilt_difference((sw, sx, sy, sz), q)[3] == pytest.approx(want_h, abs=1e-6)
         other = Rotation.random(random_state=int(RNG.integers(1e9)))
         ox, oy, oz, ow = other.as_quat()
         g_a = r.inv().apply([0, 0, 1])  # earth down in body axes

@@ -712,7 +712,8 @@ class Bridge:
         else:
             lat = self.lat_hist
             est = f"est {self.est_rate.rate(now):.0f} Hz lat p50 {lat.percentile(50) * 1e3:.1f} p99 {lat.percentile(99) * 1e3:.1f} ms"
-        diff = f"dIncl {math.degrees(self.last_diff[3]):.2f} deg" if self.last_diff is not None else "dIncl -"
+        diff = (f"dIncl {math.degrees(self.last_diff[3]):.2f} deg dHead {math.degrees(self.last_diff[4]):.1f} deg"
+                if self.last_diff is not None else "dIncl -")  # fmt: skip
         drops = self.wc[1] + self.wc_done[1] + self.dropped_queue
         bad = sum(link.bad_frames for link in self.links)
         line = f"{ap} | {imu} | {est} | {diff} | fwd {self.fwd_rate.rate(now):.0f} msg/s | bad {bad} | stale {drops}"

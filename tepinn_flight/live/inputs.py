@@ -114,17 +114,19 @@ def _wrap(a: float) -> float:
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
-def tilt_difference(q_est, q_ref) -> tuple[float, float, float]:
-    """(roll, pitch, inclination) differences in rad; inclination = angle between the gravity
-    directions in the body frame, which ignores heading (6-D heading is relative)."""
+def tilt_difference(q_est, q_ref) -> tuple[float, float, float, float]:
+    """(roll, pitch, inclination, heading) differences in rad; inclination = angle between the
+    gravity directions in the body frame, which ignores heading; heading = yaw difference wrapped
+    to ±π (absolute with a 9-D estimate; in 6-D the estimate's heading origin is arbitrary, so only
+    its changes mean something)."""
     ge, gr = gravity_body_f(q_est), gravity_body_f(q_ref)
     cx = ge[1] * gr[2] - ge[2] * gr[1]
     cy = ge[2] * gr[0] - ge[0] * gr[2]
     cz = ge[0] * gr[1] - ge[1] * gr[0]
     dincl = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), ge[0] * gr[0] + ge[1] * gr[1] + ge[2] * gr[2])
-    re, pe, _ = euler_zyx(q_est)
-    rr, pr, _ = euler_zyx(q_ref)
-    return _wrap(re - rr), pe - pr, dincl
+    re, pe, ye = euler_zyx(q_est)
+    rr, pr, yr = euler_zyx(q_ref)
+    return _wrap(re - rr), pe - pr, dincl, _wrap(ye - yr)
 
 
 class EkfComparator:

@@ -33,6 +33,7 @@ from . import MAV_COMP_ID_ONBOARD_COMPUTER, dialect
 #: NAMED_VALUE_FLOAT diagnostics: name → meaning (all ≤ 10 characters, the field's size).
 DIAG_NAMES = {
     "tp_dincl": "inclination difference TE-PINN vs autopilot EKF, deg (heading is relative in 6-D)",
+    "tp_dhead": "heading difference TE-PINN vs autopilot EKF, deg (absolute in 9-D; in 6-D only its drift means something)",
     "tp_sigma": "TE-PINN tilt uncertainty σ, deg",
     "tp_lat_ms": "latency IMU message in → estimate out (wall clock), ms",
     "tp_imu_hz": "IMU messages per second received from the autopilot",
@@ -156,7 +157,7 @@ def estimate_msgs(time_boot_ms: int, q_nb_wxyz, rates_rad_s, kind: str = "attitu
 
 def diagnostic_msgs(time_boot_ms: int, time_usec: int, q_nb_wxyz, *, sigma_rad: float, latency_s: float,
                     imu_rate_hz: float, bias_rad_s, diff=None, rpy: bool = True) -> list:  # fmt: skip
-    """NAMED_VALUE_FLOATs and DEBUG_VECTs of one estimate. ``diff`` = (droll, dpitch, dincl) in rad or None;
+    """NAMED_VALUE_FLOATs and DEBUG_VECTs of one estimate. ``diff`` = (droll, dpitch, dincl[, dheading]) in rad or None;
     ``rpy=False`` leaves out ``TP_RPY`` (when the estimate itself is sent as that DEBUG_VECT)."""
     roll, pitch, yaw = euler_zyx(q_nb_wxyz)
     d = math.degrees
@@ -170,6 +171,8 @@ def diagnostic_msgs(time_boot_ms: int, time_usec: int, q_nb_wxyz, *, sigma_rad: 
         out.insert(3, debug_vect_msg(ESTIMATE_VECT_NAME, time_usec, d(roll), d(pitch), d(yaw)))
     if diff is not None:
         out.insert(0, named_value_float_msg(time_boot_ms, "tp_dincl", d(diff[2])))
+        if len(diff) > 3:
+            out.insert(1, named_value_float_msg(time_boot_ms, "tp_dhead", d(diff[3])))
         out.append(debug_vect_msg("TP_DIFF", time_usec, d(diff[0]), d(diff[1]), d(diff[2])))
     return out
 
