@@ -55,7 +55,7 @@ def run(args) -> int:
     from ..model.estimate import estimate_record
     from ..model.runtime import default_onnx_path, load_runner, resolve_runtime
     from ..record import atomic_write, check_output, read_record
-    from .ingest_cmd import output_paths
+    from .paths import output_paths
 
     ckpt_path = Path(args.model) if args.model else default_model_path()
     if not args.model and resolve_runtime(ckpt_path, args.runtime) == "onnx" and default_onnx_path().is_file():
@@ -116,7 +116,7 @@ def _tlog_paths(args, paths) -> list:
 
     from ..errors import ConfigError
     from ..estimate_tlog import parse_messages
-    from .ingest_cmd import output_paths
+    from .paths import output_paths
 
     if args.tlog is None:
         if args.source_log:
