@@ -65,7 +65,7 @@ class AnchorConfig:
     # leans on the gyro and the pulls (0: tau_acc_s)
     tau_acc_flight_s: float = 10.0
     bias_clip_deg_s: float = 2.0  # VQF's bias limit (its default)
-    pull_gain: float = 0.5  # fraction of the tilt difference removed per window at gate 1
+    pull_gain: float = 0.8  # fraction of the tilt difference removed per window at gate 1
     # what the pulls pull toward: "fusion", the older network-centred fusion of the same windows run
     # alongside (gyro-propagated, Kalman-weighted by the network's σ, gyro-bias states: the windows'
     # noise averaged out), or "window", each window's own tilt
@@ -73,7 +73,7 @@ class AnchorConfig:
     speed_lo_m_s: float = 20.0  # flight-speed gate: 0 below, 1 above speed_hi_m_s
     speed_hi_m_s: float = 30.0
     centripetal: bool = True  # remove ω × v̂ + â (times the flight gate) from VQF's accelerometer
-    clip_hold_s: float = 2.0  # gyro-saturation gate stays on this long after the last clipped sample
+    clip_hold_s: float = 4.0  # gyro-saturation gate stays on this long after the last clipped sample
     bias_gate_weight: float = 0.6  # pull weight while the uncalibrated-gyro gate is on (0: never)
     bias_deadzone_deg_s: float = 2.0  # the network's bias beyond this is removed from the gyro
     # ... and the gate also opens when the older fusion's bias estimate (pull target "fusion") exceeds
