@@ -461,6 +461,7 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
             anchor = AnchorConfig(**init_ck["anchor_config"]) if init_ck.get("anchor_config") else None
         else:
             fusion, fus_metrics = calibrate_with(cfg, best_model, val_recs, train_recs)
+            anchor = cfg.anchor if cfg.anchor.enabled else None
         final_metrics = {**(ck.get("metrics") or {}), **fus_metrics}
         save_checkpoint(out / "model.pt", best_model, fusion, anchor, training=summary, metrics=final_metrics,
                         loss_config=dataclasses.asdict(cfg.loss),

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from ..config import check_range, load_config
 from ..errors import ConfigError
 from .config import ModelConfig
+from .anchor import AnchorConfig
 from .fusion import FusionConfig
 from .losses import LossConfig
 
@@ -104,6 +105,9 @@ class TrainConfig:
     optim: OptimConfig = field(default_factory=OptimConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
     calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
+    # the estimator model.pt runs: the filter-anchored VQF with these settings (its pull target, the
+    # older fusion, is the one calibrated above); enabled = false: the older fusion alone
+    anchor: AnchorConfig = field(default_factory=AnchorConfig)
 
     def __post_init__(self):
         check_range("seed", self.seed, 0, 2**31 - 1)  # numpy's seeds are non-negative
