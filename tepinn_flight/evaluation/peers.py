@@ -21,22 +21,16 @@ import os
 import numpy as np
 import pandas as pd
 
-from ..conventions import GRAVITY_M_S2, Q_ENU_FROM_NED_WXYZ
-from ..quat import quat_conj, quat_mul, quat_normalize
+from ..conventions import GRAVITY_M_S2
+from ..quat import quat_mul, quat_normalize
+from ..model.anchor import _FLIP, Q_NED_ENU, Q_SENSOR_BODY  # the frames VQF works in: one home
+from ..model.anchor import to_sensor as body_to_zup_sensor  # body FRD → the z-up sensor frame S
 from ..record import FlightRecord
 from .estimators import estimate_frame, record_mag, segment_slices
 from .names import display_name
 
-Q_SENSOR_BODY = np.array([0.0, 1.0, 0.0, 0.0])  # q_SB: 180° about x
-Q_NED_ENU = quat_conj(Q_ENU_FROM_NED_WXYZ)  # q_NE (its own inverse up to sign)
+
 Q_NED_NWU = np.array([0.0, 1.0, 0.0, 0.0])  # 180° about x
-
-_FLIP = np.array([1.0, -1.0, -1.0])
-
-
-def body_to_zup_sensor(v_b: np.ndarray) -> np.ndarray:
-    """Vectors in body FRD → the z-up sensor frame S the peers expect."""
-    return np.ascontiguousarray(np.asarray(v_b, np.float64) * _FLIP)
 
 
 def q_nb_from_earth_sensor(q_es: np.ndarray, q_ned_earth: np.ndarray) -> np.ndarray:

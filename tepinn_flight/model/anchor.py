@@ -138,10 +138,6 @@ def q_nb_from_vqf(q_es: np.ndarray) -> np.ndarray:
     return quat_normalize(quat_mul(np.broadcast_to(Q_NED_ENU, sh), quat_mul(q_es, np.broadcast_to(Q_SENSOR_BODY, sh))))
 
 
-def _soft(b: np.ndarray, dz: float) -> np.ndarray:
-    return np.sign(b) * np.maximum(np.abs(b) - dz, 0.0)
-
-
 def tilt_pull_quat(q_es: np.ndarray, up_s: np.ndarray, fraction: float) -> np.ndarray:
     """Earth-frame rotation that turns the filter attitude ``q_es`` by ``fraction`` of the tilt
     between it and a target whose up direction in sensor axes is ``up_s``; about a horizontal

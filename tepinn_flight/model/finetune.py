@@ -99,8 +99,9 @@ def inclination_rmse_deg(rec: FlightRecord, est, warmup_s: float = 5.0) -> float
 def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = True, seed: int = 0) -> dict:
     """Fine-tune ``init`` (a checkpoint path or "default") on the logs in ``items``; see module doc."""
     from ..ingest import load_record
-    from .checkpoint import default_model_path, load_model, read_checkpoint, save_checkpoint
+    from .checkpoint import default_model_path, load_model, save_checkpoint
     from .anchor import AnchorConfig
+    from .fusion import FusionConfig
     from .train import train
     from .train_data import split_by_flight
 
@@ -127,10 +128,9 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     result = train(cfg, out, progress=progress)
     tr, va = split_by_flight(len(recs), cfg.data.val_fraction, seed)
     val = [recs[i] for i in va] or [recs[i] for i in tr]
-    model1, _, ck1 = load_model(out / "model.pt")
+    model1, _, ck = load_model(out / "model.pt")
     anchor, table = tune_anchor(model1, est0, [recs[i] for i in tr])
-    ck = read_checkpoint(out / "model.pt")
-    save_checkpoint(out / "model.pt", model1, ck1 and _fusion_of(ck), anchor,
+    save_checkpoint(out / "model.pt", model1, FusionConfig(**ck.get("fusion_config", {})), anchor,
                     **{k: v for k, v in ck.items() if k not in ("format", "version", "model_config", "fusion_config",
                                                                  "anchor_config", "state_dict", "conventions")})  # fmt: skip
     before = [inclination_rmse_deg(r, _est(model0, est0, r)) for r in val]
@@ -144,12 +144,6 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     }  # fmt: skip
     atomic_write(out / "finetune.json", lambda tmp: Path(tmp).write_text(json.dumps(summary, indent=2)))
     return summary
-
-
-def _fusion_of(ck):
-    from .fusion import FusionConfig
-
-    return FusionConfig(**ck.get("fusion_config", {}))
 
 
 def _est(model, anchor, rec):
