@@ -561,3 +561,50 @@ def test_gyro_bias_augmentation_equals_a_record_with_that_bias():
     draws = T.gyro_bias_augmentation(rng, 4000, 5.0, 0.5)
     on = np.any(draws != 0, axis=1)
     assert abs(on.mean() - 0.5) < 0.03 and abs(np.degrees(draws[on].std()) - 5.0) < 0.2
+
+
+def test_scale_augmentation_equals_a_record_with_those_scale_errors():
+    """Scaling a batch's token means is the same as recording the flight with those scale errors,
+    and the draws have the configured share and ranges."""
+    cfg = small_cfg()
+    r = synthetic_record(seed=3, duration_s=6.0)
+    sg, sa = np.array([1.02, 0.97, 1.01]), np.array([0.81, 0.83, 0.80])
+    df = r.data.copy()
+    df[["gyr_x_rad_s", "gyr_y_rad_s", "gyr_z_rad_s"]] *= sg
+    df[["acc_x_m_s2", "acc_y_m_s2", "acc_z_m_s2"]] *= sa
+    k = cfg.model.window_tokens
+    banks = [build_bank([x], cfg.model, (1,), cfg.loss.gyro_pair_tokens) for x in (r, FlightRecord(df, r.meta))]
+    ends = banks[0].ends[::7]
+    n = len(ends)
+    aug = T.scale_sensors(make_batch(banks[0], ends, k, True, dtype=torch.float64), np.tile(sg, (n, 1)), np.tile(sa, (n, 1)))
+    ref = make_batch(banks[1], ends, k, True, dtype=torch.float64)
+    for key in ("gyr", "acc", "q_ref", "bias_true"):
+        torch.testing.assert_close(aug[key], ref[key], rtol=0, atol=1e-9)
+    g, a = T.scale_augmentation(np.random.default_rng(0), 4000, 0.2, 0.03, 0.5)
+    on = np.any(a != 1.0, axis=1)
+    assert abs(on.mean() - 0.5) < 0.03 and np.all(g[~on] == 1.0)
+    common = a[on].mean(axis=1)
+    assert 0.77 < common.min() < 0.8 and 1.2 < common.max() < 1.23  # ±20 % common, ±3 % per axis
+    assert np.all(np.abs(g - 1) <= 0.03) and np.abs(g[on] - 1).max() > 0.029
+
+
+def test_heldout_split_files_are_never_training_data(tmp_path, capsys):
+    """Every file the split's [heldout] lists is left out, whatever glob picks it up; others stay."""
+    from tepinn_flight.model.train_data import drop_heldout
+
+    split = tmp_path / "split.toml"
+    split.write_text('[heldout]\nreal_logs = ["a.BIN"]\nbroad = ["t_03.hdf5"]\n[seen]\nbroad = ["t_01.hdf5"]\n')
+    paths = [tmp_path / n for n in ("a.BIN", "t_01.hdf5", "t_03.hdf5", "x.parquet")]
+    assert drop_heldout(paths, split) == [paths[1], paths[3]]
+    assert "2 held-out file(s)" in capsys.readouterr().err
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[heldout\n")
+    with pytest.raises(ConfigError, match="heldout_split"):
+        drop_heldout(paths, bad)
+    # the shipped recipes name the repository's split, and it holds out real files of each kind
+    import tomllib
+
+    for recipe in ("default.toml", "lstm.toml"):
+        cfg = tomllib.loads((REPO / "train" / recipe).read_text())
+        held = tomllib.loads((REPO / "train" / cfg["data"]["heldout_split"]).read_text())["heldout"]
+        assert held["real_logs"] and held["broad"]

@@ -50,7 +50,7 @@ __all__ = [
     "load_records", "resolve_records", "split_by_flight",
     "calibrate_fusion", "calibrate_with", "recalibrate",
     "lr_factor", "dist_info", "deal_to_ranks", "TrainStep", "validate", "resolve_device", "train",
-    "gyro_bias_augmentation", "add_gyro_bias",
+    "gyro_bias_augmentation", "add_gyro_bias", "scale_augmentation", "scale_sensors",
 ]  # fmt: skip
 
 
@@ -266,6 +266,24 @@ def add_gyro_bias(batch: dict, bias_rad_s: np.ndarray) -> dict:
     return {**batch, "gyr": batch["gyr"] + b[:, None, :], "bias_true": batch["bias_true"] + known * b}
 
 
+def scale_augmentation(rng: np.random.Generator, n: int, acc_common: float, per_axis: float, prob: float):
+    """(n, 3) gyro and (n, 3) accelerometer scale factors: for a ``prob`` share of windows a common
+    accelerometer factor U(1 ± acc_common) times per-axis factors U(1 ± per_axis) (gyro: per-axis
+    only), else 1."""
+    on = (rng.random(n) < prob)[:, None]
+    sg = 1.0 + per_axis * rng.uniform(-1, 1, (n, 3))
+    sa = (1.0 + acc_common * rng.uniform(-1, 1, (n, 1))) * (1.0 + per_axis * rng.uniform(-1, 1, (n, 3)))
+    return np.where(on, sg, 1.0), np.where(on, sa, 1.0)
+
+
+def scale_sensors(batch: dict, gyr_scale: np.ndarray, acc_scale: np.ndarray) -> dict:
+    """The batch as an IMU with these per-axis scale factors would have recorded it (token means are
+    linear in the samples, so they scale exactly; the reference attitude and bias targets stay)."""
+    g = torch.as_tensor(gyr_scale, dtype=batch["gyr"].dtype)[:, None, :]
+    a = torch.as_tensor(acc_scale, dtype=batch["acc"].dtype)[:, None, :]
+    return {**batch, "gyr": batch["gyr"] * g, "acc": batch["acc"] * a}
+
+
 def _on(batch: dict, dev: torch.device) -> dict:
     return batch if dev.type == "cpu" else {k: v.to(dev, non_blocking=True) for k, v in batch.items()}
 
@@ -381,6 +399,10 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
             mine = ends[pos]
             batch = make_batch(bank, mine, cfg.model.window_tokens, cfg.model.correction_layer)
             prev = make_batch(bank, mine - pair, cfg.model.window_tokens, cfg.model.correction_layer) if use_pair and bank.prev_ok.any() else None
+            if cfg.data.acc_scale_aug > 0 or cfg.data.axis_scale_aug > 0:
+                sg, sa = scale_augmentation(rng, B, cfg.data.acc_scale_aug, cfg.data.axis_scale_aug, cfg.data.scale_aug_prob)
+                sg, sa = sg[pos], sa[pos]
+                batch, prev = scale_sensors(batch, sg, sa), (None if prev is None else scale_sensors(prev, sg, sa))
             if cfg.data.gyro_bias_aug_deg_s > 0:
                 aug = gyro_bias_augmentation(rng, B, cfg.data.gyro_bias_aug_deg_s, cfg.data.gyro_bias_aug_prob)[pos]
                 batch, prev = add_gyro_bias(batch, aug), (None if prev is None else add_gyro_bias(prev, aug))

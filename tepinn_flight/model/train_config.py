@@ -32,6 +32,16 @@ class DataConfig:
     # bias — added to the input and, where the true bias is known, to the bias target (0: off)
     gyro_bias_aug_deg_s: float = 0.0
     gyro_bias_aug_prob: float = 0.5
+    # sensor-scale augmentation: with probability ``scale_aug_prob`` a window (and its partner) is
+    # read by an IMU whose accelerometer has a common scale error U(1 ± acc_scale_aug) (a real board
+    # reads |a| ≈ 7.8 m/s² at rest: −20 %) and whose gyro and accelerometer axes have their own
+    # scale errors U(1 ± axis_scale_aug) (0: off)
+    acc_scale_aug: float = 0.0
+    axis_scale_aug: float = 0.0
+    scale_aug_prob: float = 0.5
+    # a split file (TOML, relative to the config file) whose ``[heldout]`` lists name real files that
+    # are never trained on: any record or log with such a file name is left out, with a note
+    heldout_split: str = ""
 
     def __post_init__(self):
         check_range("campaign_workers", self.campaign_workers, 0, 4096)
@@ -45,6 +55,9 @@ class DataConfig:
         check_range("max_val_windows", self.max_val_windows, 1, 10**9)
         check_range("gyro_bias_aug_deg_s", self.gyro_bias_aug_deg_s, 0, 1000)
         check_range("gyro_bias_aug_prob", self.gyro_bias_aug_prob, 0, 1)
+        check_range("acc_scale_aug", self.acc_scale_aug, 0, 0.5)
+        check_range("axis_scale_aug", self.axis_scale_aug, 0, 0.5)
+        check_range("scale_aug_prob", self.scale_aug_prob, 0, 1)
 
 
 @dataclass(frozen=True)

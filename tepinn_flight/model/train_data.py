@@ -5,6 +5,7 @@ and the split into training and validation flights."""
 from __future__ import annotations
 
 import sys
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -57,6 +58,8 @@ def load_records(cfg: TrainConfig, extra_dirs=(), base: Path = Path("."), run_di
             paths += [p for p in resolve_records([pat], base) if p not in paths]
         except ConfigError as exc:
             print(f"note: optional training data skipped ({exc})", file=sys.stderr)
+    if cfg.data.heldout_split:
+        paths = drop_heldout(paths, base / cfg.data.heldout_split)
     recs += [load_record(p) for p in paths]  # records are read, logs (optional real data) ingested
     if cfg.data.synthetic_flights:
         from .synthetic import synthetic_record
@@ -66,6 +69,28 @@ def load_records(cfg: TrainConfig, extra_dirs=(), base: Path = Path("."), run_di
     if not recs:
         raise ConfigError("no training data: give --data DIR, data.records or data.synthetic_flights")
     return recs
+
+
+def heldout_names(split_path: Path) -> set[str]:
+    """The file names a split TOML's ``[heldout]`` section lists (every list in it)."""
+    try:
+        split = tomllib.loads(Path(split_path).read_text())
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigError(f"heldout_split {split_path}: {exc}") from None
+    held = split.get("heldout", {})
+    if not isinstance(held, dict):
+        raise ConfigError(f"heldout_split {split_path}: [heldout] must be a table of file-name lists")
+    return {str(n) for v in held.values() if isinstance(v, list) for n in v}
+
+
+def drop_heldout(paths: list, split_path: Path) -> list:
+    """``paths`` without the files the split holds out (matched by file name), with a note."""
+    held = heldout_names(split_path)
+    keep = [p for p in paths if Path(p).name not in held]
+    if len(keep) < len(paths):
+        print(f"note: {len(paths) - len(keep)} held-out file(s) of {Path(split_path).name} left out of training",
+              file=sys.stderr)  # fmt: skip
+    return keep
 
 
 def split_by_flight(n: int, val_fraction: float, seed: int) -> tuple[list[int], list[int]]:
