@@ -1,0 +1,57 @@
+"""The σ fit of the anchored estimator: it recovers a known noise model, and its fast scoring agrees
+with the evaluation's own uncertainty metrics on the estimator's output for a real BROAD trial."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tepinn_flight.evaluation.sigma_calibration import ErrorSamples, error_samples, fit_sigma, score
+
+from .conftest import broad_trial
+
+
+def _synthetic_files(f0_deg, c, n_files=6, n=20000, seed=0):
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n_files):
+        e = np.abs(rng.normal(0, np.radians(20), n))  # the accelerometer-disagreement input
+        s = np.sqrt(np.radians(f0_deg) ** 2 + (c * e) ** 2)
+        err = rng.normal(size=(n, 2)) * s[:, None]  # a 2-D tilt error with exactly that σ per axis
+        out.append(ErrorSamples(f"f{i}", np.sum(err**2, 1), e))
+    return out
+
+
+def test_fit_recovers_a_known_noise_model():
+    files = _synthetic_files(0.5, 0.04)
+    n, cv = score(files, 0.5, 0.04)
+    assert abs(n - 2.0) < 0.05  # E[χ²₂] = 2
+    assert abs(cv - (1 - np.exp(-4.5))) < 0.003  # P(χ²₂ ≤ 9) = 1 − e^(−9/2)
+    fit = fit_sigma(files, coverage=0.97)
+    assert abs(fit.sigma_floor_deg - 0.5) <= 0.1 and abs(fit.sigma_acc_gain - 0.04) <= 0.01
+    assert abs(fit.nees - 2.0) < 0.1 and fit.coverage_3sigma >= 0.97
+    # no grid point reaches the coverage: the fit falls back to the one with the highest
+    tight = fit_sigma(files, coverage=0.999999, floors_deg=[0.1], gains=[0.0, 0.01])
+    assert tight.sigma_acc_gain == 0.01
+    with pytest.raises(ValueError):
+        fit_sigma([ErrorSamples("x", np.zeros(0), np.zeros(0))])
+
+
+@pytest.mark.slow
+def test_fast_scoring_equals_the_evaluations_metrics_on_a_real_trial():
+    from tepinn_flight.evaluation.harness import scoring_mask
+    from tepinn_flight.evaluation.metrics import error_quat_earth, tilt_error_vector_rad, uncertainty_metrics
+    from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.model.anchor import AnchorConfig, AnchoredVQF
+    from tepinn_flight.model.streaming import TS_STEPS
+
+    rec = ingest_log(broad_trial("broad_01_*.hdf5"))
+    f = error_samples(rec, "b01")
+    cfg = AnchorConfig().learned_off  # the shipped σ model, every gate off
+    seg0 = rec.segment == rec.segment[0]
+    flt = AnchoredVQF(cfg, float(np.median(np.diff(rec.t_s[seg0][: TS_STEPS + 1]))))
+    q, _, s, _ = flt.update(rec.t_s[seg0], rec.gyr_rad_s[seg0], rec.acc_m_s2[seg0])
+    m = (scoring_mask(rec, 5.0) & seg0)[seg0]
+    u = uncertainty_metrics(tilt_error_vector_rad(error_quat_earth(q[m], rec.q_ref_wxyz[seg0][m])), s[m])
+    n, cv = score([f], cfg.sigma_floor_deg, cfg.sigma_acc_gain)
+    assert n == pytest.approx(u["nees"], rel=1e-6) and cv == pytest.approx(u["coverage_3sigma"], abs=1e-9)
