@@ -4,7 +4,7 @@ Modules
     ``messages``  pure encoders of everything the bridge and the emulator send (MAVLink 2)
     ``inputs``    pure decoders of what the bridge reads: IMU samples (units per autopilot, the
                   rules of :mod:`tepinn_flight.ingest.tlog`) and the autopilot's EKF attitude, and
-                  the EKF-vs-estimate comparison
+                  the EKF-vs-estimate comparison; the bridge's estimate read back (the emulator)
     ``router``    endpoints (``udpin:``/``udpout:``/``tcp:``/``tcpin:``/serial) through pymavlink's
                   ``mavlink_connection``, datagram-safe parsing, raw forwarding
     ``worker``    the estimator off the forwarding path: a child process (default) or a thread,
@@ -12,6 +12,7 @@ Modules
     ``bridge``    the select loop: routing, IMU/EKF inspection, estimates out, rate requests, tlog
     ``replay``    tlog playback on the messages' own clocks; DataFlash/ULog/records as a live stream
     ``status``    latency histograms, rate meters, the status line and the exit summary
+    ``view``      the live view (``--view``/``--rrd``): TE-PINN beside the autopilot's attitude in Rerun
 
 pymavlink is imported through :func:`mavutil` (its home: :mod:`tepinn_flight.mavlink_dialect`) so
 that ``MAVLINK20=1`` is always set first (``mavlink.md`` §2): without it pymavlink speaks MAVLink 1

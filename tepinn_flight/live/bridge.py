@@ -64,6 +64,7 @@ from .messages import (
 from .router import SOCKET_BUFFER_BYTES, Link
 from .sample_order import DUPLICATE, REBOOT, STALE, SampleOrder
 from .status import RateMeter, StatusPrinter, angle_histogram, format_summary, latency_histogram
+from .view import ViewConfig, open_view
 from .worker import COUNTERS, ProcessWorker, ThreadWorker, pack_sample, reset_record, unpack_estimate
 
 MAV_AUTOPILOT_INVALID = 8
@@ -99,6 +100,8 @@ class BridgeConfig:
     autopilot_timeout_s: float = 3.0
     request_grace_s: float = 2.0  # judge the IMU rate only after seeing the autopilot this long
     request_spacing_s: float = 3.0  # between MAV_CMD_SET_MESSAGE_INTERVAL attempts
+    view: bool = False  # --view: TE-PINN beside the EKF in the Rerun viewer (live/view.py)
+    rrd_path: str | None = None  # --rrd: the same recorded to a Rerun file
 
     def __post_init__(self):
         if not self.rate_hz > 0 or not self.diag_rate_hz >= 0:
@@ -172,7 +175,9 @@ class Bridge:
                 raise ConfigError("no model given")
             self.make_estimator = model_estimator_factory(config.model_path, config.runtime, config.mode)
         self.links: list[Link] = []
+        self.view = None
         try:
+            self.view = open_view(ViewConfig(spawn=config.view, rrd_path=config.rrd_path), compare=False)
             self.master = Link(config.master, "master")
             self.links.append(self.master)
             self.outs = []
@@ -183,6 +188,8 @@ class Bridge:
             self.tlog = SessionTlog(config.tlog_path) if config.tlog_path else None
         except BaseException:
             self._close_links()
+            if self.view is not None:
+                self.view.discard()
             raise
         self.m = dialect()
         self.ready = threading.Event()
@@ -375,6 +382,11 @@ class Bridge:
                     self.tlog.close()
                 except OSError:
                     pass
+            if self.view is not None:
+                try:
+                    self.view.close()
+                except Exception as exc:  # noqa: BLE001 - the summary still comes
+                    self.status.note(f"tepinn-flight bridge: the Rerun view could not be closed cleanly ({exc})")
             self._close_links()
         return self.summary()
 
@@ -588,12 +600,16 @@ class Bridge:
             return
         if self.ekf_order.accept(a[0], t_in) in (DUPLICATE, STALE):
             return
+        if self.view is not None:
+            self.view.ekf(a[0], a[2])
         for d in self.cmp.add_ekf(a[0], a[2]):
             self._diff(d)
 
     def _diff(self, d) -> None:
         self.diff_hist.add(d[3])
         self.last_diff = d
+        if self.view is not None:
+            self.view.differences([d])
 
     # ------------------------------------------------------------------ estimates out
     def _emit(self, est: dict) -> None:
@@ -607,6 +623,8 @@ class Bridge:
         ms = est["time_boot_ms"] if est["time_boot_ms"] is not None else 0
         c = self.cfg
         msgs = estimate_msgs(ms, q, rates, c.estimate_as, est["time_usec"])
+        if self.view is not None:
+            self.view.estimate(est["t_s"], q)
         for d in self.cmp.add_estimate(est["t_s"], q):
             self._diff(d)
         if c.diag_rate_hz > 0:
