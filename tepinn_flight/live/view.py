@@ -58,7 +58,8 @@ class ViewConfig:
     body_half_size_m: tuple[float, float, float] = (0.5, 0.3, 0.08)  # the box: forward, right, down
     spawn_wait_s: float = 8.0  # how long the viewer may take to listen
     # rows are sent every this many seconds of wall time: often for the eye, seldom to a file alone
-    # (each send is a chunk of ~1 KB per entity in the .rrd: 0.1 s made 950 KB of a 6.5 s flight)
+    # (each send is a chunk of ~1 KB per entity in the .rrd, 0.1 s made 950 KB of a 6.5 s flight,
+    # and ~1.8 ms of CPU: benchmarks/view_cost.py)
     view_flush_s: float = 0.1
     file_flush_s: float = 2.0
 
@@ -130,9 +131,9 @@ def _blueprint(rrb):
 class LiveView:
     """Logs estimates and EKF attitudes to a Rerun recording stream (see the module doc).
 
-    Rows are buffered and sent as columns (``send_columns``) every ``flush_s`` of wall time: one
-    ``log`` call costs ~80 µs of Python, a whole column about as much as one row (an estimate and
-    an EKF attitude cost ~13 µs together, buffered)."""
+    Rows are buffered and sent as columns (``send_columns``, one per entity) every ``flush_s`` of
+    wall time: a send costs about what one ``log`` of a single row does, so the cost is per send,
+    not per row (``benchmarks/view_cost.py``: ~1.8 ms of CPU per flush of all entities)."""
 
     def __init__(self, rec, cfg: ViewConfig = ViewConfig(), rrd_part: Path | None = None, compare: bool = True,
                  flush_s: float = 0.1, clock=time.monotonic):  # fmt: skip
