@@ -52,6 +52,10 @@ def add_arguments(p) -> None:
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     p.add_argument("--status-interval", type=float, default=None, metavar="S",
                    help="seconds between status lines (default 0.5 on a terminal, 10 otherwise)")
+    p.add_argument("--view", action="store_true",
+                   help="show TE-PINN beside the autopilot's attitude live in the Rerun viewer (3-D body, roll/pitch/heading, "
+                        "differences); needs a display and pip install 'tepinn-flight[view]'")
+    p.add_argument("--rrd", default=None, metavar="FILE", help="record the same view to a Rerun file (open it later: rerun FILE)")
     p.add_argument("--summary-json", default=None, metavar="FILE", help="also write the exit summary as JSON")
     p.add_argument("-q", "--quiet", action="store_true", help="no status line and no summary")
 
@@ -92,7 +96,7 @@ def run(args) -> int:
         diag_rate_hz=args.diag_rate, imu_instance=args.imu, min_imu_rate_hz=args.min_imu_rate,
         request_imu_rate_hz=args.request_imu_rate, sysid=args.sysid, compid=args.compid,
         estimates_to_master=args.estimates_to_master, estimate_as=args.estimate_as, worker=args.worker, max_sample_age_s=args.max_age,
-        duration_s=args.duration,
+        duration_s=args.duration, view=args.view, rrd_path=args.rrd,
     )  # fmt: skip
     status = StatusPrinter(sys.stderr, quiet=args.quiet, interval_s=args.status_interval)
     bridge = Bridge(cfg, status=status)

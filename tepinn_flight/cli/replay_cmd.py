@@ -22,6 +22,10 @@ def add_arguments(p) -> None:
     p.add_argument("--imu-message", choices=["highres", "scaled"], default="highres",
                    help="IMU message for non-tlog logs: HIGHRES_IMU (float SI, default) or SCALED_IMU (int16 mG, mrad/s)")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds of wall time")
+    p.add_argument("--view", action="store_true",
+                   help="show the autopilot's attitude it plays and the TE-PINN estimates a bridge sends back "
+                        "(bridge --estimates-to-master) in the Rerun viewer; needs a display and pip install 'tepinn-flight[view]'")
+    p.add_argument("--rrd", default=None, metavar="FILE", help="record the same view to a Rerun file (open it later: rerun FILE)")
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 
 
@@ -33,6 +37,7 @@ def run(args) -> int:
     from ..errors import ConfigError
     from ..live.replay import replay
     from ..live.router import parse_endpoint
+    from ..live.view import ViewConfig
 
     if not args.speed > 0:
         raise ConfigError("--speed must be > 0")
@@ -52,8 +57,9 @@ def run(args) -> int:
             sys.stderr.flush()
 
     try:
+        view = ViewConfig(spawn=args.view, rrd_path=args.rrd) if args.view or args.rrd else None
         out = replay(args.log, args.to, speed=args.speed, loop=args.loop, imu_message=args.imu_message,
-                     duration_s=args.duration, stop=stop, on_open=opened)  # fmt: skip
+                     duration_s=args.duration, stop=stop, on_open=opened, view=view)  # fmt: skip
     finally:
         for s, h in old.items():
             signal.signal(s, h)

@@ -1,4 +1,5 @@
-"""Pure decoders of what the bridge reads, and the live EKF-vs-estimate comparison.
+"""Pure decoders of what the bridge reads, the live EKF-vs-estimate comparison, and the bridge's
+own estimate read back from its messages (:class:`EstimateDecoder`, for the emulator's view).
 
 IMU messages and their units follow the tlog reader (:mod:`tepinn_flight.ingest.tlog`): the same
 message table (``IMU_MESSAGES``: time field and instance), the same preference
@@ -26,8 +27,8 @@ import numpy as np
 
 from ..conventions import GAUSS_TO_UT, MILLI_G_TO_M_S2, MILLIGAUSS_TO_UT, MRAD_S_TO_RAD_S, UNIX_TIME_THRESHOLD_US
 from ..ingest.tlog import IMU_MESSAGES, IMU_PREFERENCE, imu_scale_known
-from ..quat import gravity_body_f, slerp
-from .messages import euler_zyx
+from ..quat import gravity_body_f, quat_from_euler_zyx, slerp
+from .messages import ESTIMATE_VALUE_NAMES, ESTIMATE_VECT_NAME, euler_zyx
 
 _HIGHRES_ACC_GYRO = 0x003F
 _HIGHRES_MAG = 0x01C0
@@ -182,3 +183,59 @@ class EkfComparator:
             return None
         q = slerp(np.array([t]), np.array([t0, t1]), np.array([self.ekf[i][1], self.ekf[i + 1][1]]))[0]
         return tuple(float(v) for v in q)
+
+
+# ---------------------------------------------------------------------------- the bridge's estimate, read back
+class EstimateDecoder:
+    """TE-PINN's estimate read back from the messages the bridge sends it in (what a vehicle
+    emulator gets with ``bridge --estimates-to-master``), whatever ``--estimate-as`` was:
+    ATTITUDE_QUATERNION, DEBUG_VECT ``TP_RPY`` (also a diagnostic) or NAMED_VALUE_FLOAT ``tp_roll``,
+    ``tp_pitch``, ``tp_yaw`` (the three with one ``time_boot_ms``). Messages of the autopilot's own
+    component (1) are not estimates. Times are whole milliseconds since boot (DEBUG_VECT's
+    ``time_usec`` cut to them). Only estimates newer than the last one come out (the same estimate
+    in two forms once); a clock more than 1 s back (a reboot, a replay loop) starts over."""
+
+    def __init__(self, autopilot_compid: int = 1):
+        self.autopilot_compid = autopilot_compid
+        self.last_t: float | None = None
+        self._named: dict[int, dict[str, float]] = {}
+
+    def add(self, msg) -> tuple[float, tuple] | None:
+        """(t_s, q_nb_wxyz) of a new estimate carried by ``msg``, else None."""
+        if msg.get_srcComponent() == self.autopilot_compid:
+            return None
+        name = msg.get_type()
+        if name == "ATTITUDE_QUATERNION":
+            out = ekf_attitude(msg)
+            got = None if out is None else (out[0], out[2])
+        elif name == "DEBUG_VECT" and _text(msg.name) == ESTIMATE_VECT_NAME:
+            us = int(msg.time_usec)
+            if us >= UNIX_TIME_THRESHOLD_US:
+                return None
+            got = ((us // 1000) / 1e3, _rpy_deg_to_q(msg.x, msg.y, msg.z))  # on the ms grid of the other forms
+        elif name == "NAMED_VALUE_FLOAT" and _text(msg.name) in ESTIMATE_VALUE_NAMES:
+            ms = int(msg.time_boot_ms)
+            vals = self._named.setdefault(ms, {})
+            vals[_text(msg.name)] = float(msg.value)
+            if len(self._named) > 8:
+                self._named.pop(next(iter(self._named)))
+            if len(vals) < len(ESTIMATE_VALUE_NAMES):
+                return None
+            del self._named[ms]
+            got = (ms / 1e3, _rpy_deg_to_q(*(vals[n] for n in ESTIMATE_VALUE_NAMES)))
+        else:
+            return None
+        t = got[0]
+        if self.last_t is not None and t <= self.last_t and t >= self.last_t - 1.0:
+            return None
+        self.last_t = t
+        return got
+
+
+def _text(v) -> str:
+    return (v.decode(errors="replace") if isinstance(v, bytes) else str(v)).rstrip("\x00")
+
+
+def _rpy_deg_to_q(roll_deg: float, pitch_deg: float, yaw_deg: float) -> tuple:
+    q = quat_from_euler_zyx(np.radians(float(roll_deg)), np.radians(float(pitch_deg)), np.radians(float(yaw_deg)))
+    return tuple(float(v) for v in q)

@@ -305,15 +305,58 @@ def load_source(path, imu_message: str = "highres"):
 
 
 # ---------------------------------------------------------------------------- the player
-class Player:
-    """Sends (playback time, frame) items at ``speed`` × real time to a link; counts replies."""
+class ViewTap:
+    """Feeds a :class:`~tepinn_flight.live.view.LiveView` from the played stream: the autopilot's
+    attitude (ATTITUDE_QUATERNION, else ATTITUDE, of system ``sysid`` component 1) from the frames
+    sent, TE-PINN's from what a bridge sends back (``bridge --estimates-to-master``)."""
 
-    def __init__(self, link, speed: float = 1.0, clock=time.monotonic):
+    _ATTITUDE_IDS = (30, 31)  # ATTITUDE, ATTITUDE_QUATERNION
+
+    def __init__(self, view, sysid: int | None):
+        from .inputs import EstimateDecoder  # noqa: PLC0415
+
+        self.view = view
+        self.sysid = sysid
+        self.parser = mavutil().mavlink.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.estimates = EstimateDecoder(MAV_COMP_ID_AUTOPILOT1)
+        self.last_ekf_t: float | None = None
+
+    def sent(self, frame: bytes) -> None:
+        from .inputs import ekf_attitude  # noqa: PLC0415
+
+        v2 = frame[0] == 0xFD
+        msgid = int.from_bytes(frame[7:10], "little") if v2 else frame[5]
+        src = (frame[5], frame[6]) if v2 else (frame[3], frame[4])
+        if msgid not in self._ATTITUDE_IDS or src != (self.sysid, MAV_COMP_ID_AUTOPILOT1):
+            return
+        for m in self.parser.parse_buffer(frame) or []:
+            a = ekf_attitude(m) if m.get_type() != "BAD_DATA" else None
+            if a is None:
+                continue
+            t = a[0]
+            if self.last_ekf_t is not None and self.last_ekf_t - 1.0 <= t <= self.last_ekf_t:
+                continue  # the same attitude as the other message, or a stale one
+            self.last_ekf_t = t
+            self.view.ekf(t, a[2])
+
+    def received(self, msg) -> None:
+        got = self.estimates.add(msg)
+        if got is not None:
+            self.view.estimate(*got)
+
+
+class Player:
+    """Sends (playback time, frame) items at ``speed`` × real time to a link; counts replies.
+    ``tap`` (a :class:`ViewTap`) sees every frame sent and every message received."""
+
+    def __init__(self, link, speed: float = 1.0, clock=time.monotonic, tap=None):
         if not speed > 0:
             raise ValueError("speed must be > 0")
         self.link = link
         self.speed = speed
         self.clock = clock
+        self.tap = tap
         self.sent = 0
         self.late = latency_histogram()
         self.received: dict[str, int] = {}
@@ -327,6 +370,8 @@ class Player:
             for m in self.link.parse(data):
                 k = m.get_type()
                 self.received[k] = self.received.get(k, 0) + 1
+                if self.tap is not None:
+                    self.tap.received(m)
 
     def _wait(self, until: float, stop) -> bool:
         fd = self.link.fileno()
@@ -374,21 +419,34 @@ class Player:
             return False
         for fr in batch:  # one datagram per frame, as an autopilot sends them
             self.link.write(fr)
+        if self.tap is not None:
+            for fr in batch:
+                self.tap.sent(fr)
         self.sent += len(batch)
         self.late.add(max(0.0, self.clock() - due))
         return True
 
 
 def replay(path, to: str, speed: float = 1.0, loop: bool = False, imu_message: str = "highres",
-           duration_s: float | None = None, stop=None, on_open=None) -> dict:  # fmt: skip
-    """Play ``path`` to the endpoint ``to``; returns counts and timing figures."""
+           duration_s: float | None = None, stop=None, on_open=None, view=None) -> dict:  # fmt: skip
+    """Play ``path`` to the endpoint ``to``; returns counts and timing figures. ``view`` (a
+    :class:`~tepinn_flight.live.view.ViewConfig`): draw the autopilot's attitude and the estimates
+    coming back in Rerun (``--view``/``--rrd``)."""
     from .router import Link  # noqa: PLC0415
+    from .view import open_view  # noqa: PLC0415
 
     kind, make, src = load_source(path, imu_message)
-    link = Link(to, "--to")
+    live_view = open_view(view) if view is not None else None
+    try:
+        link = Link(to, "--to")
+    except BaseException:
+        if live_view is not None:
+            live_view.discard()
+        raise
     if on_open is not None:
         on_open(link)
-    player = Player(link, speed)
+    tap = ViewTap(live_view, src.sysid if kind == "tlog" else 1) if live_view is not None else None
+    player = Player(link, speed, tap=tap)
     t0 = time.monotonic()
     deadline = None if duration_s is None else t0 + duration_s
     loops = 0
@@ -401,6 +459,8 @@ def replay(path, to: str, speed: float = 1.0, loop: bool = False, imu_message: s
             time.sleep(0.05)
     finally:
         link.close()
+        if live_view is not None:
+            live_view.close()
     out = {
         "source": os.fspath(path),
         "kind": kind,

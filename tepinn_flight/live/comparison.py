@@ -1,0 +1,79 @@
+"""The live comparison: TE-PINN's estimates against the autopilot's own attitude (its EKF).
+
+The autopilot's ATTITUDE_QUATERNION is used, else its ATTITUDE (ignored while an
+ATTITUDE_QUATERNION came in the last 2 s); attitudes whose time is not newer than the newest one
+taken are dropped and counted (``imu.ekf_dropped``). Each estimate is paired with the EKF at its
+time (:class:`~tepinn_flight.live.inputs.EkfComparator`: slerped between the bracketing EKF
+samples); the inclination differences go into a histogram (``ekf_difference_deg`` in the summary),
+the latest difference into the diagnostics and the status line. A live view
+(:mod:`~tepinn_flight.live.view`), when there is one, gets every EKF attitude, every estimate and
+every difference.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .inputs import EkfComparator, ekf_attitude
+from .sample_order import DUPLICATE, STALE, SampleOrder
+from .status import angle_histogram
+
+#: ATTITUDE is ignored this long after an ATTITUDE_QUATERNION
+QUATERNION_HOLD_S = 2.0
+#: the latest difference goes into an estimate's diagnostics when it is this close in time
+DIAG_DIFF_AGE_S = 0.5
+
+
+class LiveComparison:
+    def __init__(self, view=None):
+        self.view = view
+        self.order = SampleOrder()
+        self.src_seen: dict[str, float] = {}
+        self.cmp = EkfComparator()
+        self.hist = angle_histogram()
+        self.last = None  # (t_s, droll, dpitch, dincl, dheading) of the latest difference
+
+    def on_ekf(self, m, name: str, t_in: float) -> None:
+        """The autopilot's ATTITUDE_QUATERNION or ATTITUDE."""
+        self.src_seen[name] = t_in
+        if name == "ATTITUDE" and t_in - self.src_seen.get("ATTITUDE_QUATERNION", -1e9) < QUATERNION_HOLD_S:
+            return  # ATTITUDE_QUATERNION is there: use it alone
+        a = ekf_attitude(m)
+        if a is None:
+            return
+        if self.order.accept(a[0], t_in) in (DUPLICATE, STALE):
+            return
+        if self.view is not None:
+            self.view.ekf(a[0], a[2])
+        for d in self.cmp.add_ekf(a[0], a[2]):
+            self._diff(d)
+
+    def on_estimate(self, t_s: float, q_nb_wxyz) -> None:
+        if self.view is not None:
+            self.view.estimate(t_s, q_nb_wxyz)
+        for d in self.cmp.add_estimate(t_s, q_nb_wxyz):
+            self._diff(d)
+
+    def _diff(self, d) -> None:
+        self.hist.add(d[3])
+        self.last = d
+        if self.view is not None:
+            self.view.differences([d])
+
+    def diff_near(self, t_s: float):
+        """(droll, dpitch, dincl, dheading) in rad of the latest difference when it is near
+        ``t_s``, else None (for the estimate's diagnostics)."""
+        if self.last is not None and abs(self.last[0] - t_s) < DIAG_DIFF_AGE_S:
+            return self.last[1:]
+        return None
+
+    def status(self) -> str:
+        if self.last is None:
+            return "dIncl -"
+        return f"dIncl {math.degrees(self.last[3]):.2f} deg dHead {math.degrees(self.last[4]):.1f} deg"
+
+    def summary(self) -> dict:
+        dif = self.hist.summary(math.degrees(1.0), 3)
+        if self.hist.count:
+            dif["rms"] = round(math.degrees(self.hist.rms()), 3)
+        return dif

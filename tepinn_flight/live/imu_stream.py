@@ -1,0 +1,153 @@
+"""The autopilot's IMU stream as the bridge takes it: which message, in what order, at what rate.
+
+* **which**: IMU messages become samples (:func:`~tepinn_flight.live.inputs.imu_sample`) of one
+  instance (``--imu``), HIGHRES_IMU preferred, then RAW_IMU, then SCALED_IMU; a message of unknown
+  scale (RAW_IMU of a non-ArduPilot autopilot) is refused, once said. A switch to another message
+  (a preferred one appears, or the current one is silent for 1 s) restarts its clock and asks for
+  an estimator reset.
+* **order**: samples whose own time is not newer than the newest one taken (duplicates, stale
+  copies from a redundant link, reordered UDP) are dropped here (they were forwarded already) and
+  counted; a reboot is told apart by :class:`~tepinn_flight.live.sample_order.SampleOrder`.
+* **rate**: when the autopilot has been seen for ``request_grace_s`` and its IMU stream is below
+  ``min_imu_rate_hz``, :class:`ImuRateRequests` asks for ``request_imu_rate_hz`` with
+  ``MAV_CMD_SET_MESSAGE_INTERVAL`` (up to 3 times, ``request_spacing_s`` apart) and says so, with a
+  warning that withholds the estimates, if it did not help.
+"""
+
+from __future__ import annotations
+
+from ..ingest.tlog import MAV_AUTOPILOT_ARDUPILOTMEGA
+from . import MAV_COMP_ID_AUTOPILOT1
+from .inputs import ImuSample, imu_preference, imu_sample, imu_scale_known
+from .messages import set_message_interval_msg
+from .sample_order import DUPLICATE, REBOOT, STALE, SampleOrder
+from .status import RateMeter
+
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+REQUEST_ATTEMPTS = 3
+#: the IMU messages the bridge reads
+IMU_NAMES = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
+
+
+class ImuStream:
+    def __init__(self, instance: int, note):
+        self.instance = instance
+        self.note = note
+        self.message: str | None = None
+        self.seen: dict[str, float] = {}
+        self.rate = RateMeter(2.0)
+        self.samples = 0
+        self.last_t = None
+        self.span = 0.0
+        self.intervals = 0
+        self.time_jumps = 0
+        self.order = SampleOrder()  # duplicates / out-of-order frames dropped, reboots told apart
+        self.unknown_scale_noted = False
+
+    def take(self, m, t_in: float, autopilot: int | None, autopilot_name) -> tuple[ImuSample | None, bool]:
+        """(the sample for the estimator or None, whether the stream switched to another message:
+        the estimator must then be reset before the sample)."""
+        name = m.get_type()
+        if not imu_scale_known(name, autopilot):
+            if not self.unknown_scale_noted:
+                self.unknown_scale_noted = True
+                self.note(f"tepinn-flight bridge: {name} from a {autopilot_name()} autopilot has an unknown "
+                          "scale (raw counts?): ignored")  # fmt: skip
+            return None, False
+        s = imu_sample(m, autopilot)
+        if s is None or s.instance != self.instance:
+            return None, False
+        self.seen[s.message] = t_in
+        cur = self.message
+        switched = False
+        if cur != s.message and (
+            cur is None or imu_preference(s.message) < imu_preference(cur) or t_in - self.seen.get(cur, -1e9) > 1.0
+        ):
+            self.message = s.message
+            switched = cur is not None
+            self.last_t = None
+            self.order.reset()  # another message: its own clock
+        if s.message != self.message:
+            return None, switched
+        verdict = self.order.accept(s.t_s, t_in)
+        if verdict in (DUPLICATE, STALE):
+            return None, switched  # forwarded already; never to the estimator (it would reset on the time reversal)
+        if verdict == REBOOT:
+            self.note(f"tepinn-flight bridge: {s.message} clock restarted at {s.t_s:.3f} s "
+                      "(autopilot reboot?): estimator reset")  # fmt: skip
+        self.rate.tick(t_in)
+        self.samples += 1
+        if self.last_t is not None:
+            dt = s.t_s - self.last_t
+            if 0 < dt <= 1.0:
+                self.span += dt
+                self.intervals += 1
+            else:
+                self.time_jumps += 1
+        self.last_t = s.t_s
+        return s, switched
+
+    def summary(self) -> dict:
+        return {
+            "message": self.message,
+            "rate_hz": round(self.intervals / self.span, 2) if self.span > 0 else None,
+            "samples": self.samples,
+            "time_jumps": self.time_jumps,
+            "duplicates": self.order.counts[DUPLICATE],
+            "out_of_order": self.order.counts[STALE],
+            "reboots": self.order.counts[REBOOT],
+        }
+
+
+class ImuRateRequests:
+    """Asks a slow autopilot for a faster IMU stream; ``warning`` when it was not granted."""
+
+    def __init__(self, min_rate_hz: float, request_rate_hz: float, grace_s: float, spacing_s: float, note):
+        self.min_rate_hz = min_rate_hz
+        self.request_rate_hz = request_rate_hz
+        self.grace_s = grace_s
+        self.spacing_s = spacing_s
+        self.note = note
+        self.attempts = 0
+        self.next_at = 0.0
+        self.msg = None
+        self.ack = None
+        self.warning = None
+
+    def check(self, now: float, ap, imu_rate: RateMeter, send) -> None:
+        """``ap``: the :class:`~tepinn_flight.live.autopilot.AutopilotTracker`; ``imu_rate``: the IMU
+        stream's rate meter; ``send(msg)``: to the autopilot."""
+        if ap.enc is None or ap.lost or ap.first_seen is None or self.min_rate_hz <= 0:
+            return
+        if now - ap.first_seen < self.grace_s or now - ap.last_seen > 1.0:
+            return  # too early to judge, or the autopilot itself is silent
+        rate = imu_rate.rate(now)
+        if rate >= self.min_rate_hz:
+            if self.warning:
+                self.note(f"tepinn-flight bridge: IMU now at {rate:.0f} Hz")
+                self.warning = None
+            return
+        if now < self.next_at:
+            return
+        if self.attempts < REQUEST_ATTEMPTS:
+            name = "RAW_IMU" if ap.autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA else "HIGHRES_IMU"
+            self.msg = name
+            send(set_message_interval_msg(ap.sysid, MAV_COMP_ID_AUTOPILOT1, getattr(ap.m, f"MAVLINK_MSG_ID_{name}"),
+                                          self.request_rate_hz))  # fmt: skip
+            self.attempts += 1
+            self.next_at = now + self.spacing_s
+            self.note(f"tepinn-flight bridge: IMU at {rate:.1f} Hz (< {self.min_rate_hz:.0f} Hz): asking the "
+                      f"autopilot for {name} at {self.request_rate_hz:.0f} Hz (MAV_CMD_SET_MESSAGE_INTERVAL, "
+                      f"attempt {self.attempts})")  # fmt: skip
+        elif self.warning is None:
+            ack = f"ack: {self.ack}" if self.ack else "no COMMAND_ACK"
+            self.warning = (f"IMU at {rate:.1f} Hz (< {self.min_rate_hz:.0f} Hz); asked for {self.msg} at "
+                            f"{self.request_rate_hz:.0f} Hz {REQUEST_ATTEMPTS}x ({ack}): not granted; "
+                            "estimates need >= 50 Hz (set SRx_RAW_SENS / the stream rate on the autopilot)")  # fmt: skip
+            self.note(f"tepinn-flight bridge: {self.warning}")
+
+    def on_ack(self, m, enums) -> None:
+        """A COMMAND_ACK of MAV_CMD_SET_MESSAGE_INTERVAL."""
+        res = int(m.result)
+        entry = enums.get("MAV_RESULT", {}).get(res)
+        self.ack = entry.name.removeprefix("MAV_RESULT_").lower() if entry else str(res)
