@@ -6,7 +6,8 @@ Columns (exact names; frames and units in :mod:`tepinn_flight.conventions`):
 ``t_s``                               float64     seconds from the start of the record
 ``segment``                           int32       contiguous piece (new at gap > 2.5 periods,
                                                   time reversal or reboot); ``t_s`` strictly
-                                                  increases inside a segment
+                                                  increases inside a segment; estimators bridge
+                                                  gaps ≤ 100 ms (:mod:`.record_gaps`)
 ``gyr_{x,y,z}_rad_s``                 float64     angular rate, body FRD
 ``acc_{x,y,z}_m_s2``                  float64     specific force, body FRD (level at rest z≈-9.81)
 ``mag_{x,y,z}_ut``                    float64     magnetometer µT, NaN where none

@@ -8,6 +8,9 @@ Protocol (``estimators-and-metrics.md`` §9):
   estimator that leaves more than ``1 − min_coverage`` of the base mask empty is scored on its own
   finite samples instead and flagged (``coverage`` in the results), so one broken estimator cannot
   shrink everyone's mask.
+- **Gaps**: short logging dropouts (≤ ``record_gaps.MAX_BRIDGED_GAP_S``) are bridged before any
+  estimator runs (:func:`~tepinn_flight.record_gaps.bridge_gaps`), so every estimator propagates
+  through the same filled samples (never scored: no reference there) instead of restarting.
 - **Heading**: 6-D estimators (``uses_mag`` False) get ONE constant heading alignment per run
   (segment) before heading/total/yaw metrics and plots; 9-D estimators none.
 - **Aggregation**: per record, then per dataset = mean over records of the per-record value (with
@@ -28,6 +31,7 @@ import numpy as np
 
 from ..errors import ConfigError, TepinnError
 from ..record import GYR_BIAS_COLS, FlightRecord
+from ..record_gaps import bridge_gaps
 from . import metrics as M
 from .estimators import EST_BIAS_COLS, EST_Q_COLS
 from .names import display_name
@@ -159,10 +163,13 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
         if nomag:
             notes.append(f"{len(nomag)} record(s) have no magnetometer ({', '.join(nomag[:5])}{', ...' if len(nomag) > 5 else ''}); "
                          "the 9-D estimators ran without one there and their heading is not meaningful")  # fmt: skip
-    runs = run_estimators(records, estimators, progress)
+    bridged = [bridge_gaps(r) for r in records]
+    runs = run_estimators([b.record for b in bridged], estimators, progress)
     rec_results, series = [], []
-    for i, (rec, rr) in enumerate(zip(records, runs)):
-        res, ser = score_record(rec, rr, estimators, config, names[i])
+    for i, (br, rr) in enumerate(zip(bridged, runs)):
+        res, ser = score_record(br.record, rr, estimators, config, names[i])
+        res["n_samples"] = len(records[i])
+        res["bridged_gaps"], res["bridged_samples"] = br.gaps, br.filled
         rec_results.append(res)
         if keep_series:
             series.append(ser)

@@ -11,10 +11,8 @@ from .. import __version__, conventions
 from ..errors import NoImuData
 from ..quat import quat_canonical, slerp
 from ..record import FORMAT_VERSION, MIN_ESTIMATION_RATE_HZ, FlightRecord, make_frame
+from ..record_gaps import GAP_PERIODS  # a new segment starts where the IMU step exceeds this many periods
 from .streams import ImuStream, MagStream, RawLog, RefStream, nominal_period_s
-
-#: A new segment starts where the IMU step exceeds this many nominal periods.
-GAP_PERIODS = 2.5
 
 
 # --------------------------------------------------------------------------- plausibility
