@@ -100,7 +100,9 @@ def run(args) -> int:
         for n in result.notes:
             sys.stderr.write(f"note: {n}\n")
     best = sorted((d["inclination_rmse_deg"], k) for k, d in result.dataset.items() if d["inclination_rmse_deg"] is not None)
-    print(f"{len(records)} record(s), {len(estimators)} estimator(s); inclination RMSE (mean over records): "
+    slow = sum(not r.get("estimation_ok", True) for r in result.records)
+    over = "records" if not slow or slow == len(records) else f"the {len(records) - slow} records fast enough; {slow} listed apart"
+    print(f"{len(records)} record(s), {len(estimators)} estimator(s); inclination RMSE (mean over {over}): "
           + ", ".join(f"{display_name(k)} {v:.2f}°" for v, k in best))
     print(f"report: {files[-1]} (interactive: {files[-1].with_name('report.html')})")
     return 0

@@ -97,6 +97,11 @@ def showcase_records(result, max_all: int = 3) -> list[tuple[dict, str]]:
     scored = [(score(s), s) for s in series]
     if len(series) <= max_all:
         return [(s, txt) for (_, txt), s in scored]
+    fast = [x for x in scored if by_name.get(x[1]["name"], {}).get("estimation_ok", True)]
+    if fast:  # best and worst among the records in the summary (not those too slow for estimation)
+        scored, series = fast, [s for _, s in fast]
+    if len(series) <= max_all:
+        return [(s, txt) for (_, txt), s in scored]
     ok = [(v, txt, s) for (v, txt), s in scored if v is not None]
     if not ok:
         s = max(series, key=lambda s: int(np.sum(s["mask"])))
