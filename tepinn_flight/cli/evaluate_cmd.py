@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sys
 
+from .helptext import add_examples
+
 HELP = "compare TE-PINN with baseline filters and published peers on flight records; write a report"
 DESCRIPTION = (
     "Run every estimator (TE-PINN from a checkpoint, the complementary filter, Madgwick, a "
@@ -15,6 +17,10 @@ DESCRIPTION = (
 
 
 def add_arguments(p) -> None:
+    add_examples(p,
+                 'tepinn-flight evaluate records/ -o report/       # report/report.md, report/report.html',
+                 'tepinn-flight evaluate flight.tlog 00000042.BIN -o report/ --with-mag',
+                 'tepinn-flight evaluate sims/ -o report/ --noise-sweep')
     p.add_argument("records", nargs="+", metavar="RECORD", help="flight records, logs or folders of records")
     p.add_argument("-o", "--output", "--report", dest="output", required=True, metavar="DIR",
                    help="output folder for report.md, report.html, figures, metrics.json (--report DIR: the same)")
