@@ -210,6 +210,10 @@ def fig_per_record(result, colours, path=None):
                             fontsize=6, va="center", color="#333333")  # fmt: skip
     ax.set_xticks(range(len(names)), [display_name(n) for n in names], rotation=30, ha="right")
     ax.set_ylabel("inclination RMSE per record [°]")
+    allv = np.array([r["results"][n].get("inclination_rmse_deg") or np.nan for r in result.records for n in names], np.float64)
+    allv = allv[np.isfinite(allv) & (allv > 0)]
+    if allv.size and allv.max() > 20 * allv.min():  # records an order of magnitude apart: all readable
+        ax.set_yscale("log")
     shown = "dots labelled with the record" if len(rec_names) <= LABEL_ALL_RECORDS else "best and worst record labelled"
     if (~ok).any():
         ax.legend(fontsize=7)
