@@ -6,7 +6,8 @@ Columns (exact names; frames and units in :mod:`tepinn_flight.conventions`):
 ``t_s``                               float64     seconds from the start of the record
 ``segment``                           int32       contiguous piece (new at gap > 2.5 periods,
                                                   time reversal or reboot); ``t_s`` strictly
-                                                  increases inside a segment
+                                                  increases inside a segment; estimators bridge
+                                                  gaps ≤ 100 ms (:mod:`.record_gaps`)
 ``gyr_{x,y,z}_rad_s``                 float64     angular rate, body FRD
 ``acc_{x,y,z}_m_s2``                  float64     specific force, body FRD (level at rest z≈-9.81)
 ``mag_{x,y,z}_ut``                    float64     magnetometer µT, NaN where none
@@ -55,6 +56,19 @@ SOURCE_KINDS = ("tlog", "dataflash", "ulog", "broad", "jsbsim", "synthetic")
 
 #: Below this IMU rate windowed estimation is not meaningful; records are still written.
 MIN_ESTIMATION_RATE_HZ = 20.0
+
+
+
+def estimation_ok(meta: dict) -> bool:
+    """Whether a record's IMU is fast enough for windowed estimation: the ``estimation_ok`` flag
+    ``ingest`` writes (False: "IMU rate too low for estimation"), else ``imu_rate_hz`` ≥
+    :data:`MIN_ESTIMATION_RATE_HZ`; True when neither is known."""
+    flag = meta.get("estimation_ok")
+    if flag is not None:
+        return str(flag).lower() not in ("false", "0", "no")
+    rate = meta.get("imu_rate_hz")
+    return rate is None or float(rate) >= MIN_ESTIMATION_RATE_HZ
+
 
 #: Metadata every record carries (others may be added freely).
 REQUIRED_META = ("format_version", "source_file", "source_kind", "imu_rate_hz", "reference_source")
@@ -305,7 +319,12 @@ def read_record(path: str | os.PathLike) -> FlightRecord:
     try:
         table = pq.read_table(path)
     except Exception as exc:  # pyarrow raises several types for non-Parquet input
-        raise RecordFormatError(f"not a Parquet flight record ({_first_line(exc)})", path) from None
+        with open(path, "rb") as f:
+            parquet = f.read(4) == b"PAR1"
+        if not parquet:  # pyarrow's footer talk would only confuse: say what the file is not
+            raise RecordFormatError("not a Parquet flight record (a raw log? run `tepinn-flight ingest` on it first)",
+                                    path) from None  # fmt: skip
+        raise RecordFormatError(f"damaged Parquet file ({_first_line(exc)})", path) from None
     raw = table.schema.metadata or {}
     meta: dict[str, Any] = {}
     for k, v in raw.items():

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .record import FlightRecord
+from .record_gaps import MAX_BRIDGED_GAP_S, is_bridgeable, record_period_s
 
 
 def summarize(rec: FlightRecord) -> dict:
@@ -39,13 +40,17 @@ def summarize(rec: FlightRecord) -> dict:
     seg_ids = np.unique(seg)
     durations = [float(t[seg == s][-1] - t[seg == s][0]) for s in seg_ids]
     breaks = np.flatnonzero(np.diff(seg) != 0)
-    gaps = [{"at_s": float(t[i]), "gap_s": float(t[i + 1] - t[i])} for i in breaks]
+    period = record_period_s(rec)
+    gaps = [{"at_s": float(t[i]), "gap_s": float(t[i + 1] - t[i]),
+             "bridged": is_bridgeable(float(t[i + 1] - t[i]), period)} for i in breaks]  # fmt: skip
     norm = np.linalg.norm(gyr, axis=1)
     out.update(
         duration_s=float(sum(durations)),
         span_s=float(t[-1] - t[0]),
         segments=int(len(seg_ids)),
         gaps=gaps,
+        bridged_gaps=int(sum(g["bridged"] for g in gaps)),
+        max_bridged_gap_s=MAX_BRIDGED_GAP_S,
         max_rate_deg_s=float(np.degrees(np.nanmax(norm))) if np.any(np.isfinite(norm)) else float("nan"),
         max_axis_rate_deg_s=np.degrees(np.nanmax(np.abs(gyr), axis=0)).round(1).tolist(),
         clipped_samples=int(rec.clipped.sum()),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..evaluation.ablation import VARIANTS
+from .helptext import add_examples
 
 HELP = "train and evaluate the paper's ablation (no physics, no transformer, no correction layer, ...)"
 DESCRIPTION = (
@@ -14,6 +15,8 @@ DESCRIPTION = (
 
 
 def add_arguments(p) -> None:
+    add_examples(p,
+                 'tepinn-flight ablate --config train/ablation.toml -o ablation/ --eval sims/test/')
     p.add_argument("--config", required=True, metavar="TOML", help="training recipe shared by all variants")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="folder for the runs and the table")
     p.add_argument("--data", action="append", default=[], metavar="DIR", help="training records (added to the recipe's)")
@@ -21,7 +24,7 @@ def add_arguments(p) -> None:
                    help="held-out records or folders (default: flight_sims/campaigns/heldout.toml flown into DIR/heldout)")
     p.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated subset of {', '.join(VARIANTS)}")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a recipe value for all variants")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no progress lines")
 
 
 def run(args) -> int:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sys
 
+from .helptext import add_examples
+
 HELP = "run a published benchmark protocol (BROAD) after checking the harness against published numbers"
 DESCRIPTION = (
     "broad DIR: ingest every BROAD trial (*.hdf5) in DIR, first recompute BROAD's published Madgwick "
@@ -17,6 +19,12 @@ DESCRIPTION = (
 def add_arguments(p) -> None:
     sub = p.add_subparsers(dest="suite", metavar="SUITE", required=True)
     b = sub.add_parser("broad", help="BROAD (Laidig et al. 2021), trials as HDF5", description=DESCRIPTION)
+    add_examples(b,
+                 'tepinn-flight benchmark broad broad/ --json broad.json',
+                 'tepinn-flight benchmark broad broad/ --check-only   # only the published-Madgwick reproduction')
+    add_examples(p,
+                 'tepinn-flight benchmark broad broad/ --json broad.json',
+                 'tepinn-flight benchmark broad broad/ --check-only   # only the published-Madgwick reproduction')
     b.add_argument("folder", metavar="DIR", help="folder with BROAD trial files (and published_madgwick_average_rmse.json)")
     b.add_argument("--published", metavar="JSON", help="BROAD's results_madgwick_average_rmse.json (default: DIR/published_madgwick_average_rmse.json)")
     b.add_argument("--pattern", default="*.hdf5", metavar="GLOB", help="trial files to use (default *.hdf5)")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..live.messages import DEFAULT_ESTIMATE_AS, ESTIMATE_AS
+from .helptext import add_examples
 
 HELP = "live MAVLink bridge: route autopilot <-> ground stations and add TE-PINN attitude estimates"
 DESCRIPTION = (
@@ -18,6 +19,10 @@ DESCRIPTION = (
 
 
 def add_arguments(p) -> None:
+    add_examples(p,
+                 'tepinn-flight bridge --master udpin:0.0.0.0:14550 --out udpout:127.0.0.1:14551',
+                 'tepinn-flight bridge --master /dev/ttyACM0,115200 --out udpout:127.0.0.1:14551 --tlog session.tlog',
+                 'tepinn-flight replay flight.tlog --to udpout:127.0.0.1:14550 &   # then the bridge above: a bench test')
     p.add_argument("--master", required=True, metavar="ENDPOINT",
                    help="the autopilot: udpin:0.0.0.0:14550, tcp:HOST:PORT, tcpin:, udpout: or a serial port /dev/ttyACM0,115200")
     p.add_argument("--out", action="append", default=[], metavar="ENDPOINT",

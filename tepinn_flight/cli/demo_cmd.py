@@ -7,6 +7,8 @@ every baseline filter and published peer, and writes the report to ``./tepinn-de
 
 from __future__ import annotations
 
+from .helptext import add_examples
+
 HELP = "simulate a few high-dynamic flights, run TE-PINN and every baseline, write a report (the main job)"
 
 #: (aircraft, maneuvers, seed): short, high-dynamic, one per default vehicle
@@ -18,12 +20,15 @@ DEMO_FLIGHTS = (
 
 
 def add_arguments(p) -> None:
+    add_examples(p,
+                 'tepinn-flight demo                              # simulate, estimate, compare: ./tepinn-demo/report.md',
+                 'tepinn-flight demo -o demo/ --duration 20       # a quicker run')
     p.add_argument("-o", "--output", default="tepinn-demo", metavar="DIR", help="report folder (default ./tepinn-demo)")
     p.add_argument("--duration", type=float, default=45.0, metavar="S", help="seconds per flight (default 45)")
     p.add_argument("--rate", type=float, default=200.0, metavar="HZ", help="IMU rate (default 200)")
     p.add_argument("--sensor", default="consumer", metavar="PRESET", help="sensor preset (default consumer)")
     p.add_argument("--model", default=None, metavar="CKPT", help="TE-PINN checkpoint (default: the shipped model)")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no progress lines")
 
 
 def run(args) -> int:

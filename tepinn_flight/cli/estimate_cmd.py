@@ -3,18 +3,25 @@
 from __future__ import annotations
 
 from .argtypes import threads
+from .helptext import add_examples
 
 HELP = "estimate attitude over flight records with TE-PINN (the shipped model by default)"
 DESCRIPTION = (
     "Runs causally over whole records: the network on every window (batched), then the VQF filter it "
     "corrects where the evidence says so (flight speed, gyro saturation, an uncalibrated gyro), and writes "
-    "one row per input row: t_s, q_est_w..z (body->NED), sigma_rad, gyr_bias_est_*_rad_s. "
-    "Example: tepinn-flight estimate flight.parquet -o flight_est.parquet --mode auto"
+    "one row per input row: t_s, q_est_w..z (body->NED), sigma_rad, gyr_bias_est_*_rad_s. Short logging "
+    "dropouts (<= 100 ms) are propagated through, longer gaps restart the estimator. A raw log is ingested on the fly."
 )
 
 
 def add_arguments(p) -> None:
-    p.add_argument("records", nargs="+", metavar="RECORD", help="flight records (.parquet; use `ingest` for raw logs)")
+    add_examples(p,
+                 'tepinn-flight estimate flight.parquet -o flight_est.parquet',
+                 'tepinn-flight estimate 00000042.BIN -o est.parquet --mode auto   # a log: ingested on the fly',
+                 'tepinn-flight estimate flight.tlog -o est.parquet --tlog flight_est.tlog   # overlay on ATT in MAVExplorer',
+                 'tepinn-flight estimate records/*.parquet -o estimates/ --model runs/mine/model.pt')
+    p.add_argument("records", nargs="+", metavar="RECORD",
+                   help="flight records (.parquet) or logs (.tlog, .bin, .log, .ulg: ingested on the fly, as `ingest` would)")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output file (one record) or folder")
     p.add_argument("--model", default=None, metavar="CKPT",
                    help="checkpoint or .onnx export (`tepinn-flight export`; default: the shipped model)")
@@ -27,8 +34,8 @@ def add_arguments(p) -> None:
                    help="6d: gyro + accelerometer, heading relative; 9d: with the magnetometer, heading from magnetic "
                         "north (no declination applied); auto: 9d where the record has a magnetometer "
                         "(default: the model's, 6d for the shipped one)")
-    p.add_argument("--threads", type=threads, default=0, help="CPU threads of the runtime (default: its own choice)")
-    p.add_argument("--tlog", default=None, metavar="OUT",
+    p.add_argument("--threads", type=threads, default=0, metavar="N", help="CPU threads of the runtime (default: its own choice)")
+    p.add_argument("--tlog", default=None, metavar="FILE|DIR",
                    help="also write a tlog (file for one record, folder for several): the source tlog's messages (or, for "
                         "other sources, the record's IMU and reference attitude) plus the estimate from component 191, "
                         "for MAVExplorer, UAV Log Viewer, QGroundControl or PlotJuggler")
@@ -38,7 +45,7 @@ def add_arguments(p) -> None:
                    help="estimate messages in the tlog, comma-separated: attitude_quaternion, attitude, debug_vect "
                         "(TP_RPY, deg), named_value (tp_roll/tp_pitch/tp_yaw, deg); default attitude_quaternion,debug_vect")
     p.add_argument("--tlog-rate", type=float, default=50.0, metavar="HZ", help="estimates per second of log time in the tlog (default 50)")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors and warnings (no progress bar)")
 
 
 def run(args) -> int:
@@ -54,7 +61,9 @@ def run(args) -> int:
     from ..model.checkpoint import default_model_path
     from ..model.estimate import estimate_record
     from ..model.runtime import default_onnx_path, load_runner, resolve_runtime
-    from ..record import atomic_write, check_output, read_record
+    from ..ingest import load_record
+    from ..ingest.sniff import sniff
+    from ..record import atomic_write, check_output
     from .paths import output_paths
 
     ckpt_path = Path(args.model) if args.model else default_model_path()
@@ -79,7 +88,10 @@ def run(args) -> int:
 
     for src, dst in tqdm(list(zip(paths, outs)), unit="record", file=sys.stderr, disable=args.quiet or len(paths) < 2):
         try:
-            rec = read_record(src)
+            rec = load_record(src)
+            if not args.quiet and sniff(src) != "parquet":
+                sys.stderr.write(f"tepinn-flight estimate: note: {src}: a log, ingested on the fly (`tepinn-flight ingest` "
+                                 "keeps the record)\n")  # fmt: skip
             if not rec.meta.get("estimation_ok", True):
                 rate = rec.meta.get("imu_rate_hz")
                 sys.stderr.write(f"tepinn-flight estimate: warning: {src}: IMU "

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import sys
 
+from .helptext import add_examples
+
 HELP = "compare TE-PINN with baseline filters and published peers on flight records; write a report"
 DESCRIPTION = (
     "Run every estimator (TE-PINN from a checkpoint, the complementary filter, Madgwick, a "
@@ -15,6 +17,10 @@ DESCRIPTION = (
 
 
 def add_arguments(p) -> None:
+    add_examples(p,
+                 'tepinn-flight evaluate records/ -o report/       # report/report.md, report/report.html',
+                 'tepinn-flight evaluate flight.tlog 00000042.BIN -o report/ --with-mag',
+                 'tepinn-flight evaluate sims/ -o report/ --noise-sweep')
     p.add_argument("records", nargs="+", metavar="RECORD", help="flight records, logs or folders of records")
     p.add_argument("-o", "--output", "--report", dest="output", required=True, metavar="DIR",
                    help="output folder for report.md, report.html, figures, metrics.json (--report DIR: the same)")
@@ -100,7 +106,9 @@ def run(args) -> int:
         for n in result.notes:
             sys.stderr.write(f"note: {n}\n")
     best = sorted((d["inclination_rmse_deg"], k) for k, d in result.dataset.items() if d["inclination_rmse_deg"] is not None)
-    print(f"{len(records)} record(s), {len(estimators)} estimator(s); inclination RMSE (mean over records): "
+    slow = sum(not r.get("estimation_ok", True) for r in result.records)
+    over = "records" if not slow or slow == len(records) else f"the {len(records) - slow} records fast enough; {slow} listed apart"
+    print(f"{len(records)} record(s), {len(estimators)} estimator(s); inclination RMSE (mean over {over}): "
           + ", ".join(f"{display_name(k)} {v:.2f}°" for v, k in best))
     print(f"report: {files[-1]} (interactive: {files[-1].with_name('report.html')})")
     return 0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from .helptext import add_examples
+
 HELP = "export a TE-PINN checkpoint (the shipped model by default) to ONNX for onnxruntime (no torch needed to run it)"
 DESCRIPTION = (
     "Writes the network as an ONNX graph (opset 17, float32; inputs gyr, acc, count, t_rel, dt, mag, clip with a "
@@ -12,11 +14,14 @@ DESCRIPTION = (
 
 
 def add_arguments(p) -> None:
+    add_examples(p,
+                 'tepinn-flight export -o tepinn.onnx                # the shipped model',
+                 'tepinn-flight export runs/mine/model.pt -o mine.onnx')
     p.add_argument("model", nargs="?", default=None, metavar="MODEL", help="checkpoint (default: the shipped model)")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="the .onnx file to write")
     p.add_argument("--opset", type=int, default=None, metavar="N", help="ONNX opset (default 17)")
     p.add_argument("--no-check", action="store_true", help="skip comparing onnxruntime with torch on random windows")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 
 
 def run(args) -> int:

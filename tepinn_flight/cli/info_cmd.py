@@ -4,10 +4,16 @@ from __future__ import annotations
 
 import json
 
+from .helptext import add_examples
+
 HELP = "describe raw logs or flight records, or every record in a folder (format, rates, reference, segments, clipping)"
 
 
 def add_arguments(p) -> None:
+    add_examples(p,
+                 'tepinn-flight info 00000042.BIN',
+                 'tepinn-flight info records/                     # every record in a folder',
+                 'tepinn-flight info flight.parquet --json')
     p.add_argument("files", nargs="+", metavar="FILE",
                    help="raw log or flight record (.parquet); a folder stands for the records (*.parquet) in it")
     p.add_argument("--imu", type=int, default=None, metavar="N", help="IMU instance (raw logs)")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from .helptext import add_examples
 from .paths import output_paths  # noqa: F401 - also imported from here by estimate_cmd
 
 HELP = "turn real logs (tlog, DataFlash .bin/.log, ULog, BROAD .hdf5) into flight records"
@@ -16,6 +17,10 @@ DESCRIPTION = (
 
 
 def add_arguments(p) -> None:
+    add_examples(p,
+                 'tepinn-flight ingest flight.tlog                # -> flight.parquet',
+                 'tepinn-flight ingest logs/*.BIN -o records/',
+                 'tepinn-flight ingest 00000042.BIN --imu 1 --reference XKQ')
     p.add_argument("logs", nargs="+", metavar="LOG", help="log files")
     p.add_argument("-o", "--output", metavar="OUT",
                    help="output file (one log) or folder (several logs); default: LOG name + .parquet in the current folder")

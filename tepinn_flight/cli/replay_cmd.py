@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from .helptext import add_examples
+
 HELP = "play a log back as a live MAVLink 2 vehicle (tlog frames unchanged; other logs as an autopilot stream)"
 DESCRIPTION = (
     "Vehicle emulator. A .tlog is played frame by frame, unchanged (ids, sequence numbers), with the "
@@ -14,6 +16,9 @@ DESCRIPTION = (
 
 
 def add_arguments(p) -> None:
+    add_examples(p,
+                 'tepinn-flight replay flight.tlog --to udpout:127.0.0.1:14550',
+                 'tepinn-flight replay 00000042.BIN --to udpout:127.0.0.1:14550 --speed 2 --loop')
     p.add_argument("log", metavar="LOG", help=".tlog, DataFlash .bin/.log, ULog .ulg, BROAD .hdf5 or a flight record .parquet")
     p.add_argument("--to", required=True, metavar="ENDPOINT",
                    help="where to send: udpout:HOST:PORT (e.g. udpout:127.0.0.1:14550), udpin:, tcp:, tcpin: or a serial port")

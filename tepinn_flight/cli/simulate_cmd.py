@@ -6,6 +6,8 @@ import sys
 import time
 from pathlib import Path
 
+from .helptext import add_examples
+
 HELP = "simulate flights in JSBSim with a realistic IMU error model (one flight or a campaign)"
 DESCRIPTION = (
     "Fly an aircraft in JSBSim (noise-free truth), apply a sensor error model (noise, biases, bias "
@@ -17,6 +19,10 @@ DESCRIPTION = (
 
 
 def add_arguments(p) -> None:
+    add_examples(p,
+                 'tepinn-flight simulate --list',
+                 'tepinn-flight simulate --aircraft c172x --duration 120 --seed 3 -o c172x.parquet',
+                 'tepinn-flight simulate --campaign flight_sims/campaigns/smoke.toml -o sims/')
     what = p.add_mutually_exclusive_group()
     what.add_argument("--aircraft", metavar="NAME", help="aircraft to fly (see --list), e.g. c172x, F450")
     what.add_argument("--campaign", metavar="TOML", help="campaign file (flight_sims/campaigns/*.toml)")

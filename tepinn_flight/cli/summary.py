@@ -33,9 +33,11 @@ def render_info(path, s: dict) -> str:
     add("reference", f"{s.get('reference_source')} at {_hz(s.get('reference_rate_hz'))}, "
         f"covers {100 * s.get('reference_coverage', 0):.1f}% of IMU samples")
     gaps = s.get("gaps", [])
-    add("segments", f"{s.get('segments')} ({len(gaps)} break(s))")
+    nb = s.get("bridged_gaps", 0)
+    add("segments", f"{s.get('segments')} ({len(gaps)} break(s)"
+        + (f", {nb} dropout(s) <= {1000 * s.get('max_bridged_gap_s', 0):.0f} ms bridged by the estimators)" if nb else ")"))
     for g in gaps[:10]:
-        add("", f"break at t={g['at_s']:.3f} s, step {g['gap_s']:+.3f} s")
+        add("", f"break at t={g['at_s']:.3f} s, step {g['gap_s']:+.3f} s" + ("  (bridged)" if g.get("bridged") else ""))
     if len(gaps) > 10:
         add("", f"... and {len(gaps) - 10} more")
     add("max angular rate", f"{s.get('max_rate_deg_s', 0):.0f} deg/s (per axis {s.get('max_axis_rate_deg_s')})")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from .argtypes import threads
+from .helptext import add_examples
 
 HELP = "train TE-PINN from a TOML recipe, or fine-tune a model on your own logs (--init)"
 DESCRIPTION = (
@@ -17,6 +18,10 @@ DESCRIPTION = (
 
 
 def add_arguments(p) -> None:
+    add_examples(p,
+                 'tepinn-flight train --init default --data logs/ -o runs/mine     # fine-tune on your own logs',
+                 'tepinn-flight train --config train/tiny.toml -o runs/tiny',
+                 'torchrun --nproc_per_node=4 -m tepinn_flight train --config train/default.toml -o runs/full --device cuda')
     p.add_argument("--config", default=None, metavar="TOML",
                    help="training recipe, e.g. train/tiny.toml (without it: --init fine-tunes with the built-in recipe)")
     p.add_argument("--init", default=None, metavar="MODEL",
@@ -30,7 +35,7 @@ def add_arguments(p) -> None:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a recipe value, e.g. optim.epochs=5")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"],
                    help="where to train: auto (a CUDA GPU when torch sees one, else the CPU), cpu, cuda")
-    p.add_argument("--threads", type=threads, default=0, help="torch CPU threads per process (default: torch's choice)")
+    p.add_argument("--threads", type=threads, default=0, metavar="N", help="torch CPU threads per process (default: torch's choice)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
 

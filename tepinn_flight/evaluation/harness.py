@@ -8,9 +8,15 @@ Protocol (``estimators-and-metrics.md`` §9):
   estimator that leaves more than ``1 − min_coverage`` of the base mask empty is scored on its own
   finite samples instead and flagged (``coverage`` in the results), so one broken estimator cannot
   shrink everyone's mask.
+- **Gaps**: short logging dropouts (≤ ``record_gaps.MAX_BRIDGED_GAP_S``) are bridged before any
+  estimator runs (:func:`~tepinn_flight.record_gaps.bridge_gaps`), so every estimator propagates
+  through the same filled samples (never scored: no reference there) instead of restarting.
 - **Heading**: 6-D estimators (``uses_mag`` False) get ONE constant heading alignment per run
   (segment) before heading/total/yaw metrics and plots; 9-D estimators none.
-- **Aggregation**: per record, then per dataset = mean over records of the per-record value (with
+- **Headline**: records whose IMU is too slow for windowed estimation (``ingest`` flags them "IMU
+  rate too low for estimation", :func:`~tepinn_flight.record.estimation_ok`) are run and scored like
+  the others but kept out of the dataset means and the paired comparison; the report lists them apart.
+- **Aggregation**: per record, then per dataset = mean over the headline records of the per-record value (with
   median and 95th percentile of the per-record inclination RMSE); the dynamic error pools its
   per-bin sums over records; compute cost = total time / total samples.
 - **Statistics**: paired Wilcoxon signed-rank test over records (per-record inclination RMSE) of
@@ -27,7 +33,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ConfigError, TepinnError
-from ..record import GYR_BIAS_COLS, FlightRecord
+from ..record import GYR_BIAS_COLS, FlightRecord, estimation_ok
+from ..record_gaps import bridge_gaps
 from . import metrics as M
 from .estimators import EST_BIAS_COLS, EST_Q_COLS
 from .names import display_name
@@ -159,15 +166,32 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
         if nomag:
             notes.append(f"{len(nomag)} record(s) have no magnetometer ({', '.join(nomag[:5])}{', ...' if len(nomag) > 5 else ''}); "
                          "the 9-D estimators ran without one there and their heading is not meaningful")  # fmt: skip
-    runs = run_estimators(records, estimators, progress)
+    bridged = [bridge_gaps(r) for r in records]
+    runs = run_estimators([b.record for b in bridged], estimators, progress)
     rec_results, series = [], []
-    for i, (rec, rr) in enumerate(zip(records, runs)):
-        res, ser = score_record(rec, rr, estimators, config, names[i])
+    for i, (br, rr) in enumerate(zip(bridged, runs)):
+        res, ser = score_record(br.record, rr, estimators, config, names[i])
+        res["n_samples"] = len(records[i])
+        res["bridged_gaps"], res["bridged_samples"] = br.gaps, br.filled
+        m = records[i].meta
+        res["estimation_ok"] = estimation_ok(m)
+        res["imu_rate_hz"] = m.get("imu_rate_hz")
+        res["reference_source"] = m.get("reference_source", "none")
         rec_results.append(res)
         if keep_series:
             series.append(ser)
-    dataset = aggregate(rec_results, estimators, len(config.rate_bins_deg_s) - 1)
-    comparisons = compare_learned(rec_results, estimators, dataset)
+    headline = [r for r in rec_results if r["estimation_ok"]]
+    slow = [r["name"] for r in rec_results if not r["estimation_ok"]]
+    if slow and headline:
+        notes.append(f"{len(slow)} record(s) with an IMU too slow for windowed estimation ({', '.join(slow[:5])}"
+                     f"{', ...' if len(slow) > 5 else ''}) are scored but kept out of the summary means and the paired "
+                     "comparison (listed apart)")  # fmt: skip
+    elif slow:
+        headline = rec_results
+        notes.append("every record has an IMU too slow for windowed estimation: the summary is over them all and "
+                     "is not meaningful")  # fmt: skip
+    dataset = aggregate(headline, estimators, len(config.rate_bins_deg_s) - 1)
+    comparisons = compare_learned(headline, estimators, dataset)
     info = [{"name": e.name, "kind": e.kind, "causal": bool(e.causal), "uses_mag": bool(e.uses_mag),
              "heading": "raw (9-D)" if e.uses_mag else "one constant offset per run (6-D)"} for e in estimators]  # fmt: skip
     return EvalResult(config, info, rec_results, dataset, comparisons, notes, series)
@@ -306,7 +330,7 @@ def compare_learned(rec_results, estimators, dataset) -> list[dict]:
             "a": a, "b": b, "metric": "inclination_rmse_deg (per record)", "n": two["n"],
             "mean_a": ma, "mean_b": mb,
             "relative_change": (ma - mb) / mb if ma is not None and mb else None,
-            "wins_a": int(np.sum(np.asarray(xa) < np.asarray(xb))),
+            "wins_a": int(np.sum(np.asarray(xa) < np.asarray(xb))), "n_records": len(rec_results),
             "pvalue_two_sided": two["pvalue"], "pvalue_a_less": less["pvalue"],
             "statistic_w_plus": two["statistic"], "method": two["method"],
         })  # fmt: skip

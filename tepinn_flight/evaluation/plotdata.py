@@ -88,13 +88,19 @@ def showcase_records(result, max_all: int = 3) -> list[tuple[dict, str]]:
         r = by_name.get(s["name"], {}).get("results", {})
         a = (r.get(primary) or {}).get("inclination_rmse_deg") if primary else None
         b = (r.get(ref) or {}).get("inclination_rmse_deg") if ref else None
+        slow = "" if by_name.get(s["name"], {}).get("estimation_ok", True) else " (IMU too slow, not in the summary)"
         if a is None or not math.isfinite(a):
-            return None, ""
+            return None, slow.strip(" ()")
         if b is not None and math.isfinite(b) and b > 0:
-            return a / b, f"{display_name(primary)} {a:.2f}° = {a / b:.2f}× {display_name(ref)}"
-        return a, f"{display_name(primary)} {a:.2f}°"
+            return a / b, f"{display_name(primary)} {a:.2f}° = {a / b:.2f}× {display_name(ref)}{slow}"
+        return a, f"{display_name(primary)} {a:.2f}°{slow}"
 
     scored = [(score(s), s) for s in series]
+    if len(series) <= max_all:
+        return [(s, txt) for (_, txt), s in scored]
+    fast = [x for x in scored if by_name.get(x[1]["name"], {}).get("estimation_ok", True)]
+    if fast:  # best and worst among the records in the summary (not those too slow for estimation)
+        scored, series = fast, [s for _, s in fast]
     if len(series) <= max_all:
         return [(s, txt) for (_, txt), s in scored]
     ok = [(v, txt, s) for (v, txt), s in scored if v is not None]

@@ -26,7 +26,7 @@ from ..record import atomic_write
 from .harness import EvalResult
 from .names import display_name
 from .plotdata import PAPER_COLOURS, break_wraps, colour_map, is_9d, minmax_indices, showcase_records
-from .report_html import rate_labels, write_html
+from .report_html import RECORD_COLUMNS, rate_counts, rate_labels, record_rows, slow_records, write_html
 
 FIGURES = {
     "quaternion": "fig_quaternion.png",
@@ -163,18 +163,10 @@ def fig_inclination_error(result, colours, path=None):
     return _finish(fig, path)
 
 
-def _rate_counts(result) -> list[int]:
-    """Samples per rate bin: those of the common scoring mask (an estimator scored on it)."""
-    ds = result.dataset
-    common = [d for d in ds.values() if d.get("coverage_min") is None or d["coverage_min"] >= result.config.min_coverage]
-    d = (common or list(ds.values()))[0]
-    return list(d["dynamic_error_n"])
-
-
 def fig_error_vs_rate(result, colours, path=None):
     plt = _plt()
     labels = rate_labels(result.config.rate_bins_deg_s)
-    counts = _rate_counts(result) if result.dataset else [0] * len(labels)
+    counts = rate_counts(result) if result.dataset else [0] * len(labels)
     fig, ax = plt.subplots(figsize=(8, 4.8))
     x = np.arange(len(labels))
     for name, d in result.dataset.items():
@@ -196,22 +188,35 @@ def fig_per_record(result, colours, path=None):
     plt = _plt()
     names = list(result.dataset)
     rec_names = [r["name"] for r in result.records]
+    ok = np.array([r.get("estimation_ok", True) for r in result.records], bool)
+    if not ok.any():
+        ok[:] = True  # every record too slow: the summary is over them all (harness)
     fig, ax = plt.subplots(figsize=(max(6, 1.3 * len(names) + 2), 5))
     for i, name in enumerate(names):
         vals = [r["results"][name].get("inclination_rmse_deg") for r in result.records]
         vals = np.array([np.nan if v is None else v for v in vals], np.float64)
         jitter = np.linspace(-0.15, 0.15, len(vals)) if len(vals) > 1 else np.zeros(1)
-        ax.scatter(i + jitter, vals, color=colours[name], s=14)
+        ax.scatter((i + jitter)[ok], vals[ok], color=colours[name], s=14)
+        if (~ok).any():  # too slow for estimation: hollow, not in the mean
+            ax.scatter((i + jitter)[~ok], vals[~ok], facecolors="none", edgecolors=colours[name], s=14,
+                       label="IMU too slow (not in the mean)" if i == 0 else None)  # fmt: skip
         fin = np.flatnonzero(np.isfinite(vals))
+        if np.isfinite(vals[ok]).any():
+            ax.hlines(np.nanmean(vals[ok]), i - 0.3, i + 0.3, color=colours[name], lw=2)
         if fin.size:
-            ax.hlines(np.nanmean(vals), i - 0.3, i + 0.3, color=colours[name], lw=2)
             label = fin if len(vals) <= LABEL_ALL_RECORDS else np.unique([fin[np.argmin(vals[fin])], fin[np.argmax(vals[fin])]])
             for j in label:
                 ax.annotate(rec_names[j], (i + jitter[j], vals[j]), xytext=(4, 0), textcoords="offset points",
                             fontsize=6, va="center", color="#333333")  # fmt: skip
     ax.set_xticks(range(len(names)), [display_name(n) for n in names], rotation=30, ha="right")
     ax.set_ylabel("inclination RMSE per record [°]")
+    allv = np.array([r["results"][n].get("inclination_rmse_deg") or np.nan for r in result.records for n in names], np.float64)
+    allv = allv[np.isfinite(allv) & (allv > 0)]
+    if allv.size and allv.max() > 20 * allv.min():  # records an order of magnitude apart: all readable
+        ax.set_yscale("log")
     shown = "dots labelled with the record" if len(rec_names) <= LABEL_ALL_RECORDS else "best and worst record labelled"
+    if (~ok).any():
+        ax.legend(fontsize=7)
     ax.set_title(f"Per-record inclination RMSE (bar: mean over records; {shown})")
     return _finish(fig, path)
 
@@ -312,12 +317,28 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
         L.append("")
     L.append("## Records")
     L.append("")
-    L.append("| record | kind | duration [s] | samples | scored (common) |")
-    L.append("|---|---|---:|---:|---:|")
-    for r in result.records:
-        L.append(f"| {r['name']} | {r['source_kind']} | {r['duration_s']:.1f} | {r['n_samples']} | {r['n_scored_common']} |")
+    L.append("| " + " | ".join(RECORD_COLUMNS) + " |")
+    L.append("|---|---|---:|---|---|---:|---:|---:|")
+    for row in record_rows(result):
+        L.append("| " + " | ".join(row) + " |")
     L.append("")
-    L.append("## Summary (mean over records)")
+    slow = slow_records(result)
+    fast = len(result.records) - len(slow)
+    if slow and fast:
+        L.append("## Records too slow for estimation (not in the summary)")
+        L.append("")
+        L.append("`ingest` flags these \"IMU rate too low for estimation\" (below 20 Hz, typical of telemetry links): "
+                 "windowed estimation is not meaningful there. They are scored for reference only and kept out of "
+                 "the summary means, the rate bins and the paired comparison.")  # fmt: skip
+        L.append("")
+        L.append("| record | IMU rate [Hz] | " + " | ".join(display_name(n) for n in result.dataset) + " |")
+        L.append("|---|---:|" + "---:|" * len(result.dataset))
+        for r in slow:
+            L.append(f"| {r['name']} | {_f(r.get('imu_rate_hz'), 1)} | "
+                     + " | ".join(_f(r["results"][n].get("inclination_rmse_deg")) for n in result.dataset) + " |")
+        L.append("")
+    L.append("## Summary (mean over records)" if not (slow and fast) else
+             f"## Summary (mean over the {fast} records fast enough for estimation)")  # fmt: skip
     L.append("")
     L.append("| estimator | kind | causal | mode | incl. RMSE [°] | median | p95 | roll [°] | pitch [°] | heading [°] | "
              "total [°] | \\|drift\\| [°/min] | mean q dist | mean angle [°] | gyro bias RMS [°/s] | µs/sample |")  # fmt: skip
@@ -350,7 +371,8 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     L.append("| record | " + " | ".join(display_name(n) for n in names) + " |")
     L.append("|---|" + "---:|" * len(names))
     for r in result.records:
-        L.append(f"| {r['name']} | " + " | ".join(_f(r["results"][n].get("inclination_rmse_deg")) for n in names) + " |")
+        tag = "" if r.get("estimation_ok", True) else " (IMU too slow, not in the summary)"
+        L.append(f"| {r['name']}{tag} | " + " | ".join(_f(r["results"][n].get("inclination_rmse_deg")) for n in names) + " |")
     L.append("")
     L.append(f"![per-record inclination RMSE]({figures['per_record']})")
     L.append("")
@@ -362,7 +384,7 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     L.append("|---|" + "---:|" * len(labels))
     for name, d in result.dataset.items():
         L.append(f"| {display_name(name)} | " + " | ".join(_f(v) for v in d["dynamic_error_deg"]) + " |")
-    L.append("| samples | " + " | ".join(str(n) for n in _rate_counts(result)) + " |")
+    L.append("| samples | " + " | ".join(str(n) for n in rate_counts(result)) + " |")
     L.append("")
     L.append(f"![error vs angular rate]({figures['error_vs_rate']})")
     L.append("")
@@ -393,7 +415,7 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
         for cmp_ in result.comparisons:
             ch = cmp_["relative_change"]
             L.append(f"| {display_name(cmp_['a'])} | {display_name(cmp_['b'])} | {cmp_['n']} | {_f(cmp_['mean_a'])} | {_f(cmp_['mean_b'])} | "
-                     f"{'–' if ch is None else f'{100 * ch:+.1f} %'} | {cmp_['wins_a']}/{len(result.records)} | "
+                     f"{'–' if ch is None else f'{100 * ch:+.1f} %'} | {cmp_['wins_a']}/{cmp_.get('n_records', len(result.records))} | "
                      f"{_f(cmp_['pvalue_two_sided'], 4)} | {_f(cmp_['pvalue_a_less'], 4)} |")  # fmt: skip
         if not any(e["kind"] == "learned" for e in result.estimators):
             L.append("")

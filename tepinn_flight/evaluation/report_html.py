@@ -108,6 +108,38 @@ def rate_labels(edges) -> list[str]:
     return [f"{edges[i]:g}–{edges[i + 1]:g}" if math.isfinite(edges[i + 1]) else f">{edges[i]:g}" for i in range(len(edges) - 1)]
 
 
+def rate_counts(result) -> list[int]:
+    """Samples per rate bin: those of the common scoring mask (an estimator scored on it)."""
+    ds = result.dataset
+    common = [d for d in ds.values() if d.get("coverage_min") is None or d["coverage_min"] >= result.config.min_coverage]
+    d = (common or list(ds.values()))[0]
+    return list(d["dynamic_error_n"])
+
+
+RECORD_COLUMNS = ["record", "kind", "IMU rate [Hz]", "reference", "estimation OK", "duration [s]", "samples",
+                  "scored (common)"]  # fmt: skip
+
+
+def record_rows(result) -> list[list[str]]:
+    """One row per record for the Records table (:data:`RECORD_COLUMNS`): records whose IMU is too
+    slow for estimation say so and are not in the summary means."""
+    rows = []
+    for r in result.records:
+        rate = r.get("imu_rate_hz")
+        ok = r.get("estimation_ok", True)
+        gaps = r.get("bridged_gaps", 0)
+        rows.append([r["name"], str(r["source_kind"]), "–" if rate is None else f"{rate:.1f}", str(r.get("reference_source", "–")),
+                     "yes" if ok else "no: IMU too slow, not in the summary",
+                     f"{r['duration_s']:.1f}", f"{r['n_samples']}" + (f" ({gaps} dropout(s) bridged)" if gaps else ""),
+                     str(r["n_scored_common"])])  # fmt: skip
+    return rows
+
+
+def slow_records(result) -> list[dict]:
+    """The records kept out of the summary (IMU too slow for windowed estimation)."""
+    return [r for r in result.records if not r.get("estimation_ok", True)]
+
+
 def render_html(result, title: str = "Attitude estimation report", max_points: int = MAX_POINTS) -> str:
     """The whole page as a string (plotly.js embedded once, in the first figure)."""
     colours = colour_map(list(result.dataset))
@@ -124,6 +156,7 @@ def render_html(result, title: str = "Attitude estimation report", max_points: i
         P.append("<ul class=note>" + "".join(f"<li>{html.escape(n)}</li>" for n in result.notes) + "</ul>")
     P.append("<h2>Records</h2><ul>" + "".join(f"<li><a href='#rec{i}'>{html.escape(s['name'])}</a></li>"
                                                for i, s in enumerate(result.series)) + "</ul>")  # fmt: skip
+    P.append(_table(RECORD_COLUMNS, record_rows(result), numeric_from=5))
     first = True
     for i, s in enumerate(result.series):
         P.append(f"<h2 id='rec{i}'>{html.escape(s['name'])}</h2>")
@@ -133,12 +166,21 @@ def render_html(result, title: str = "Attitude estimation report", max_points: i
     # tables
     info = {e["name"]: e for e in result.estimators}
     order = sorted(names, key=lambda n: (result.dataset[n]["inclination_rmse_deg"] is None, result.dataset[n]["inclination_rmse_deg"] or 0))
-    P.append("<h2>Summary (mean over records)</h2>")
+    slow = slow_records(result)
+    P.append("<h2>Summary (mean over records)</h2>" if not slow else
+             f"<h2>Summary (mean over the {len(result.records) - len(slow)} records fast enough for estimation)</h2>")  # fmt: skip
     P.append(_table(["estimator", "mode", "incl. RMSE [°]", "roll [°]", "pitch [°]", "heading [°]", "total [°]", "|drift| [°/min]"],
                     [[display_name(n), "9-D" if info.get(n, {}).get("uses_mag") else "6-D"] +
                      [_f(result.dataset[n][k]) for k in ("inclination_rmse_deg", "roll_rmse_deg", "pitch_rmse_deg",
                                                          "heading_rmse_deg", "total_rmse_deg", "heading_drift_abs_deg_per_min")]
                      for n in order], numeric_from=2))  # fmt: skip
+    if slow and len(slow) < len(result.records):
+        P.append("<h2>Records too slow for estimation (not in the summary)</h2>")
+        P.append("<p class=note>ingest flags these \"IMU rate too low for estimation\" (below 20 Hz, typical of "
+                 "telemetry links): windowed estimation is not meaningful there; scored for reference only.</p>")
+        P.append(_table(["record", "IMU rate [Hz]"] + [display_name(n) for n in names],
+                        [[r["name"], _f(r.get("imu_rate_hz"), 1)] + [_f(r["results"][n].get("inclination_rmse_deg")) for n in names]
+                         for r in slow]))  # fmt: skip
     P.append("<h2>Per record: inclination RMSE [°]</h2>")
     P.append(_table(["record", "scored samples"] + [display_name(n) for n in names],
                     [[r["name"], r["n_scored_common"]] + [_f(r["results"][n].get("inclination_rmse_deg")) for n in names]
@@ -147,7 +189,7 @@ def render_html(result, title: str = "Attitude estimation report", max_points: i
     labels = rate_labels(result.config.rate_bins_deg_s)
     rows = [[display_name(n)] + [_f(v) for v in result.dataset[n]["dynamic_error_deg"]] for n in names]
     if names:
-        rows.append(["samples"] + [str(v) for v in result.dataset[names[0]]["dynamic_error_n"]])
+        rows.append(["samples"] + [str(v) for v in rate_counts(result)])
     P.append(_table(["estimator"] + labels, rows))
     P.append("</body></html>")
     return "\n".join(P)
@@ -160,4 +202,5 @@ def write_html(result, path: str | os.PathLike, title: str = "Attitude estimatio
     return path
 
 
-__all__ = ["render_html", "write_html", "record_figure", "MAX_POINTS"]
+__all__ = ["render_html", "write_html", "record_figure", "MAX_POINTS", "rate_labels", "rate_counts", "record_rows",
+           "slow_records", "RECORD_COLUMNS"]

@@ -11,10 +11,19 @@ from .. import __version__, conventions
 from ..errors import NoImuData
 from ..quat import quat_canonical, slerp
 from ..record import FORMAT_VERSION, MIN_ESTIMATION_RATE_HZ, FlightRecord, make_frame
+from ..record_gaps import GAP_PERIODS  # a new segment starts where the IMU step exceeds this many periods
 from .streams import ImuStream, MagStream, RawLog, RefStream, nominal_period_s
 
-#: A new segment starts where the IMU step exceeds this many nominal periods.
-GAP_PERIODS = 2.5
+
+#: What to do about an IMU too slow for estimation, per log format (the note ``ingest`` and ``info`` show).
+SLOW_IMU_ADVICE = {
+    "tlog": "typical of a telemetry link: use the vehicle's onboard log (DataFlash .bin / ULog) instead, or raise "
+            "the IMU stream rate (ArduPilot SRn_RAW_SENS, PX4 `mavlink stream`)",
+    "dataflash": "this is the onboard log, logging the IMU slowly: raise ArduPilot's IMU logging rate "
+                 "(LOG_BITMASK: the IMU / IMU_FAST bits) and log again",
+    "ulog": "this is the onboard log with sensor_combined decimated: log it at full rate (SDLOG_PROFILE: high rate "
+            "or system identification) and log again",
+}
 
 
 # --------------------------------------------------------------------------- plausibility
@@ -312,11 +321,8 @@ def build_record(raw: RawLog, source_path: str | os.PathLike) -> FlightRecord:
     usable = rate is not None and rate >= MIN_ESTIMATION_RATE_HZ
     meta["estimation_ok"] = bool(usable)
     if not usable:
-        notes.append(
-            f"IMU rate {0 if rate is None else rate:.1f} Hz is below {MIN_ESTIMATION_RATE_HZ:.0f} Hz: "
-            "too slow for windowed attitude estimation (typical of telemetry links); "
-            "use the onboard log (DataFlash .bin / ULog) instead"
-        )
+        notes.append(f"IMU rate {0 if rate is None else rate:.1f} Hz is below {MIN_ESTIMATION_RATE_HZ:.0f} Hz: "
+                     f"too slow for windowed attitude estimation; {SLOW_IMU_ADVICE.get(meta['source_kind'], 'log the IMU faster')}")
     if raw.ref is None:
         notes.append("no reference attitude in the log: q_ref_* columns are NaN")
     meta["notes"] = notes

@@ -542,15 +542,18 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
         raise CorruptLog(reason, path) from None
 
     base = "unix" if origin_us else "boot"
-    dropouts = list(getattr(ulog, "dropouts", []) or [])
+    # a "dropout" of 0 ms lost nothing (pyulog lists them): not a dropout
+    dropouts = [d for d in (getattr(ulog, "dropouts", []) or []) if int(d.duration) > 0]
     drop_t = us_to_s(np.array([int(d.timestamp) - origin_us for d in dropouts], np.int64))
     keep, drop_info = ensure_breaks(imu_stream.t_s, drop_t)
+    t0 = float(imu_stream.t_s[0]) if len(imu_stream.t_s) else 0.0  # notes in record time, as `info` shows it
     for rec, d in zip(drop_info, dropouts):
         rec["duration_s"] = float(d.duration) * 1e-3
+        at = f"t={rec['t_s'] - t0:.3f} s (record time)"
         if not rec["inside_span"]:
-            notes.append(f"logging dropout of {d.duration} ms stamped t={rec['t_s']:.3f} s, outside the IMU samples")
+            notes.append(f"logging dropout of {d.duration} ms stamped {at}, outside the IMU samples")
         elif rec["samples_dropped"]:
-            notes.append(f"logging dropout of {d.duration} ms at t={rec['t_s']:.3f} s: "
+            notes.append(f"logging dropout of {d.duration} ms at {at}: "
                          f"{rec['samples_dropped']} IMU sample(s) dropped so that a segment ends there")  # fmt: skip
     if not keep.all():
         imu_stream = ImuStream(imu_stream.t_s[keep], imu_stream.gyr_rad_s[keep], imu_stream.acc_m_s2[keep],

@@ -14,6 +14,7 @@ import pandas as pd
 
 from ..errors import TepinnError
 from ..record import FlightRecord
+from ..record_gaps import bridge_gaps
 from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows
 from .fusion import FusionConfig, FusionRun, feedback_bias
 from .runtime import as_runner
@@ -91,7 +92,15 @@ def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | Anc
     With bias feedback (``fusion.bias_feedback_windows`` = L > 0) the windows of a segment are made
     in blocks of L: block b sees the gyro minus the fusion's bias right after the last estimate of
     block b − 1 was applied (soft-thresholded, :func:`~.fusion.feedback_bias`) — what the live
-    estimator has at hand when it makes them."""
+    estimator has at hand when it makes them.
+
+    Short logging dropouts are bridged (:func:`~tepinn_flight.record_gaps.bridge_gaps`: the
+    estimator propagates through them instead of restarting); the rows returned are the record's
+    own. Precomputed ``windows`` must come from a record without such gaps."""
+    if windows is None:
+        br = bridge_gaps(rec)
+        if br.filled:
+            return br.original(estimate_record(model, br.record, fusion, batch_size))
     if isinstance(fusion, AnchorConfig):
         return estimate_anchored(model, rec, fusion, batch_size)
     fusion = fusion or FusionConfig()

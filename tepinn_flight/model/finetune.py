@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, TepinnError
-from ..record import FlightRecord, atomic_write
+from ..record import FlightRecord, atomic_write, estimation_ok
 from .train_config import DataConfig, OptimConfig, TrainConfig
 
 #: VQF accelerometer time constants (s) the fine-tuning chooses from
@@ -64,8 +64,7 @@ def collect_logs(items) -> list[Path]:
 
 def usable(rec: FlightRecord) -> bool:
     """A log the fine-tuning can learn from: fast enough IMU and a reference on most samples."""
-    ok = str(rec.meta.get("estimation_ok", True)).lower() != "false"
-    return ok and float(np.mean(np.all(np.isfinite(rec.q_ref_wxyz), axis=1))) > 0.5
+    return estimation_ok(rec.meta) and float(np.mean(np.all(np.isfinite(rec.q_ref_wxyz), axis=1))) > 0.5
 
 
 def tune_anchor(model, anchor, records: list[FlightRecord], grid=TAU_ACC_GRID_S, warmup_s: float = 5.0):

@@ -4,7 +4,9 @@ Tokens are accumulated exactly as :mod:`tepinn_flight.model.tokens` does offline
 opens a new token, the finished token joins the window, the network runs on the window (once per
 token, 25 Hz by default) and the fusion is corrected at the finished token's last sample before
 propagating to the new one. A time reversal or a gap longer than 2.5 nominal periods starts a new
-segment (the state is reset; estimates resume when the next window is full).
+segment (the state is reset; estimates resume when the next window is full) — except a short
+logging dropout (≤ ``record_gaps.MAX_BRIDGED_GAP_S``), bridged as offline: the samples that fill it
+(interpolated between the samples on either side) are pushed first, their estimates not returned.
 
 The network runs through a :class:`~.runtime.NetworkRunner`: a :class:`~.network.TEPINN` module
 (PyTorch) or e.g. an :class:`~.runtime.OnnxRunner` (no torch).
@@ -21,6 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..record_gaps import GAP_PERIODS, filler_times, interpolate_rows, is_bridgeable
 from .anchor import AnchorConfig, AnchoredVQF, WindowOutput
 from .fusion import AttitudeFusion, FusionConfig, feedback_bias
 from .runtime import NetworkRunner, as_runner
@@ -28,7 +31,6 @@ from .runtime import NetworkRunner, as_runner
 if TYPE_CHECKING:
     from .network import TEPINN
 
-GAP_PERIODS = 2.5
 #: the anchored filter's sample period is the median of a segment's first steps (offline the same)
 TS_STEPS = 51
 
@@ -71,6 +73,8 @@ class StreamingEstimator:
             self.fusion_cfg = fusion or FusionConfig()
         self.last_imu = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))  # the last finite gyro and accelerometer sample
         self.holes = 0  # non-finite samples bridged with it
+        self.last_raw = None  # the previous sample's gyro, accelerometer, magnetometer (gap filling)
+        self.bridged_gaps = 0  # short logging dropouts propagated through
         self.delta = 1.0 / self.cfg.token_rate_hz
         if threads:
             self.runner.set_threads(threads)
@@ -113,6 +117,11 @@ class StreamingEstimator:
         else:  # a hole: bridged with the last finite sample, as offline
             gyr_rad_s, acc_m_s2 = self.last_imu
             self.holes += 1
+        mag_row = (float("nan"),) * 3 if mag_ut is None else tuple(float(v) for v in mag_ut)
+        if self.t_prev is not None and self.period is not None and self.last_raw is not None \
+                and is_bridgeable(t - self.t_prev, self.period):  # fmt: skip
+            self._bridge(t, (*gyr_rad_s, *acc_m_s2, *mag_row))
+        self.last_raw = (*gyr_rad_s, *acc_m_s2, *mag_row)
         if self._new_segment(t):
             self.reset()
             self.t0 = t
@@ -149,6 +158,16 @@ class StreamingEstimator:
             q, sigma, bias = self.fusion.step(t, gyr_rad_s, est, bool(clipped))
         self.t_prev = t
         return Estimate(t, q, sigma, bias, ran, time.perf_counter() - t0c)
+
+    def _bridge(self, t: float, row: tuple) -> None:
+        """Push the samples that fill the gap from the previous sample to ``t`` (as offline)."""
+        t_a = self.t_prev
+        tf = filler_times(t_a, t, self.period)
+        vals = interpolate_rows(t_a, np.asarray(self.last_raw), t, np.asarray(row), tf)
+        for t_i, v in zip(tf, vals):
+            m = v[6:9]
+            self.push(float(t_i), v[0:3], v[3:6], m if np.all(np.isfinite(m)) else None, False)
+        self.bridged_gaps += 1
 
     def _anchored_step(self, t, gyr, acc, mag, clipped, est):
         """The filter-anchored estimate of this sample; ``est`` (the network's window at the

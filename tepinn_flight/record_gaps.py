@@ -1,0 +1,130 @@
+"""Gaps in a record's IMU stream: when a step is a break, and which breaks are bridged.
+
+A step longer than :data:`GAP_PERIODS` nominal periods is a gap; ``ingest`` starts a new record
+segment there (and at a reboot or a time reversal). Short gaps — logging dropouts, typically 10–70 ms
+in PX4 and ArduPilot logs — are **bridged** by every estimator instead of restarting it:
+:func:`bridge_gaps` merges the two segments and fills the gap with samples at the nominal period
+whose gyro, accelerometer and magnetometer are linearly interpolated between the samples on either
+side, so filters keep propagating through it (a restart loses the attitude, re-converges and costs
+every estimator its warm-up). The filled samples carry no reference (never scored), ``clipped``
+False and ``valid`` False. Gaps longer than :data:`MAX_BRIDGED_GAP_S`, reboots and time reversals
+still restart.
+
+The live estimator (:mod:`tepinn_flight.model.streaming`) bridges the same gaps with the same
+samples (:func:`filler_times`, :func:`interpolate_rows`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from .record import ACC_BIAS_COLS, ACC_COLS, GYR_BIAS_COLS, GYR_COLS, MAG_COLS, QREF_COLS, FlightRecord
+
+#: A step longer than this many nominal sample periods is a gap (a segment break at ingest).
+GAP_PERIODS = 2.5
+
+#: Gaps up to this long (seconds) are bridged by propagating through them, not by a restart: at
+#: 100 ms the gyro integrated over a held/interpolated rate errs by well under a degree for rates
+#: a vehicle changes within a tenth of a second, while a restart loses far more (the attitude, the
+#: gyro-bias estimate and every estimator's warm-up). Longer gaps restart.
+MAX_BRIDGED_GAP_S = 0.1
+
+_INTERPOLATED = [*GYR_COLS, *ACC_COLS, *MAG_COLS, *GYR_BIAS_COLS, *ACC_BIAS_COLS]
+
+
+@dataclass(frozen=True)
+class Bridged:
+    """A record with its short gaps filled: ``record`` (segments merged across the bridged gaps),
+    ``rows`` (row in ``record`` of each original row), ``gaps`` bridged and ``filled`` samples added."""
+
+    record: FlightRecord
+    rows: np.ndarray
+    gaps: int
+    filled: int
+
+    def original(self, frame: pd.DataFrame) -> pd.DataFrame:
+        """The rows of a per-sample table of ``record`` that belong to the original samples."""
+        if self.filled == 0:
+            return frame
+        return frame.iloc[self.rows].reset_index(drop=True)
+
+
+def is_bridgeable(dt_s: float, period_s: float, max_gap_s: float = MAX_BRIDGED_GAP_S) -> bool:
+    """A forward step that is a gap (> ``GAP_PERIODS`` periods) and no longer than ``max_gap_s``."""
+    return bool(np.isfinite(period_s) and period_s > 0 and GAP_PERIODS * period_s < dt_s <= max_gap_s)
+
+
+def filler_times(t_a: float, t_b: float, period_s: float) -> np.ndarray:
+    """Times of the samples that fill the gap between samples at ``t_a`` and ``t_b``: equally spaced,
+    as close to the nominal period as a whole number of steps allows (both ends excluded)."""
+    n_steps = max(1, int(round((t_b - t_a) / period_s)))
+    return t_a + (t_b - t_a) * np.arange(1, n_steps) / n_steps
+
+
+def interpolate_rows(t_a: float, row_a: np.ndarray, t_b: float, row_b: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Values at times ``t`` on the straight line between ``row_a`` (at ``t_a``) and ``row_b`` (at
+    ``t_b``), column by column; NaN where either end is NaN."""
+    w = ((np.asarray(t, np.float64) - t_a) / (t_b - t_a))[:, None]
+    return (1.0 - w) * np.asarray(row_a, np.float64)[None, :] + w * np.asarray(row_b, np.float64)[None, :]
+
+
+def record_period_s(rec: FlightRecord) -> float:
+    """The nominal IMU sample period: from ``imu_rate_hz`` in the metadata, else the median step
+    inside segments (NaN when unknown)."""
+    rate = rec.meta.get("imu_rate_hz")
+    if rate and np.isfinite(rate) and rate > 0:
+        return 1.0 / float(rate)
+    t, seg = rec.t_s, rec.segment
+    dt = np.diff(t)[np.diff(seg) == 0]
+    return float(np.median(dt)) if dt.size else float("nan")
+
+
+def bridge_gaps(rec: FlightRecord, max_gap_s: float = MAX_BRIDGED_GAP_S) -> Bridged:
+    """``rec`` with every segment break that is a gap of at most ``max_gap_s`` bridged (see the
+    module). The record itself is returned (``filled == 0``) when there is nothing to bridge."""
+    n = len(rec)
+    ident = Bridged(rec, np.arange(n), 0, 0)
+    if n < 2:
+        return ident
+    t, seg = rec.t_s, rec.segment
+    period = record_period_s(rec)
+    breaks = np.flatnonzero(np.diff(seg) != 0) + 1  # first row of each later segment
+    bridge = [int(b) for b in breaks if is_bridgeable(t[b] - t[b - 1], period, max_gap_s)]
+    if not bridge:
+        return ident
+    data = rec.data.copy()
+    is_break = np.r_[False, np.diff(seg) != 0]
+    is_break[bridge] = False
+    data["segment"] = np.cumsum(is_break).astype(np.int32)
+    seg = data["segment"].to_numpy()
+    cols = [c for c in _INTERPOLATED if c in data.columns]
+    pieces, fill_at = [], []
+    prev = 0
+    for b in bridge:
+        pieces.append(data.iloc[prev:b])
+        tf = filler_times(t[b - 1], t[b], period)
+        vals = interpolate_rows(t[b - 1], data[cols].iloc[b - 1].to_numpy(np.float64),
+                                t[b], data[cols].iloc[b].to_numpy(np.float64), tf)  # fmt: skip
+        fill = pd.DataFrame({"t_s": tf, "segment": np.full(len(tf), seg[b - 1], np.int32)})
+        for i, c in enumerate(cols):
+            fill[c] = vals[:, i]
+        for c in QREF_COLS:
+            fill[c] = np.nan
+        fill["clipped"] = False
+        if "valid" in data.columns:
+            fill["valid"] = False
+        pieces.append(fill[[c for c in data.columns]])
+        fill_at.append((b, len(tf)))
+        prev = b
+    pieces.append(data.iloc[prev:])
+    out = pd.concat(pieces, ignore_index=True)
+    for c in data.columns:
+        out[c] = out[c].astype(data[c].dtype)
+    shift = np.zeros(n, np.int64)
+    for b, k in fill_at:
+        shift[b:] += k
+    filled = int(sum(k for _, k in fill_at))
+    return Bridged(FlightRecord(out, dict(rec.meta)), np.arange(n) + shift, len(bridge), filled)

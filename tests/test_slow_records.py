@@ -1,0 +1,59 @@
+"""Records that ingest flags "IMU rate too low for estimation" are scored but kept out of the
+evaluation's headline; the report lists them apart and its Records table says why (real logs)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.conftest import real_log
+
+
+@pytest.fixture(scope="module")
+def slow_and_fast(tmp_path_factory):
+    from tepinn_flight.evaluation.harness import HarnessConfig, evaluate
+    from tepinn_flight.evaluation.peers import VqfEstimator
+    from tepinn_flight.evaluation.suite import baseline_estimators
+    from tepinn_flight.ingest import ingest_log
+
+    slow = ingest_log(real_log("uavlv_vtol.tlog"))  # 4.2 Hz telemetry
+    fast = ingest_log(real_log("ardusub_small.BIN"))  # 25 Hz onboard log
+    assert slow.meta["estimation_ok"] is False and fast.meta["estimation_ok"] is True
+    ests = [VqfEstimator(), *baseline_estimators()[:1]]
+    res = evaluate([slow, fast], ests, HarnessConfig(warmup_s=2.0), progress=False)
+    return res, ests
+
+
+def test_the_headline_is_over_the_records_fast_enough(slow_and_fast):
+    res, ests = slow_and_fast
+    by = {r["name"]: r for r in res.records}
+    slow, fast = by["uavlv_vtol"], by["ardusub_small"]
+    assert slow["estimation_ok"] is False and fast["estimation_ok"] is True
+    assert slow["imu_rate_hz"] == pytest.approx(4.2, abs=0.1) and fast["imu_rate_hz"] == pytest.approx(25.0, abs=0.1)
+    for e in ests:
+        d = res.dataset[e.name]
+        assert d["n_records"] == 1
+        assert d["inclination_rmse_deg"] == pytest.approx(fast["results"][e.name]["inclination_rmse_deg"], rel=1e-12)
+        # and it is not the mean over both (the slow record does differ)
+        both = np.mean([slow["results"][e.name]["inclination_rmse_deg"], fast["results"][e.name]["inclination_rmse_deg"]])
+        assert abs(both - d["inclination_rmse_deg"]) > 1e-6
+    assert any("too slow" in n and "uavlv_vtol" in n for n in res.notes)
+
+
+def test_the_report_lists_them_apart(slow_and_fast, tmp_path):
+    from tepinn_flight.evaluation.report import render_markdown, FIGURES
+    from tepinn_flight.evaluation.report_html import render_html
+
+    res, _ = slow_and_fast
+    md = render_markdown(res, FIGURES)
+    records = md.split("## Records\n", 1)[1].split("\n## ", 1)[0]
+    assert "| record | kind | IMU rate [Hz] | reference | estimation OK |" in records
+    row = next(line for line in records.splitlines() if line.startswith("| uavlv_vtol "))
+    assert "| 4.2 |" in row and "| ATTITUDE |" in row and "no: IMU too slow" in row
+    assert "| yes |" in next(line for line in records.splitlines() if line.startswith("| ardusub_small "))
+    apart = md.split("## Records too slow for estimation (not in the summary)", 1)[1].split("\n## ", 1)[0]
+    assert "uavlv_vtol" in apart and "ardusub_small" not in apart
+    assert "## Summary (mean over the 1 records fast enough for estimation)" in md
+    page = render_html(res)
+    assert "Records too slow for estimation (not in the summary)" in page
+    assert "estimation OK" in page and "no: IMU too slow, not in the summary" in page
