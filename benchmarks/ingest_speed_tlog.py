@@ -20,7 +20,7 @@ Files (``--source``):
   HEARTBEATs 1 Hz; one frame in 10,000 with a flipped payload byte (CRC failure) and a few junk
   bytes every 50,000 records. Mostly IMU/attitude traffic: pymavlink's decoding dominates.
 
-Prints msg/s of both and the ratio; our peak traced memory (tracemalloc, after a warm-up) next
+Prints msg/s of both and the ratio (wall time; the CPU-time ratio too: this machine is shared); our peak traced memory (tracemalloc, after a warm-up) next
 to the output arrays' size; the one-time cost of a fresh process's first read (numba loads the
 compiled frame sync from its cache) is printed apart. Values are checked equal (counts per type,
 time fields) so the comparison is fair.
@@ -122,7 +122,7 @@ def make_repeat(path: Path, mb: float, src: Path) -> None:
 def run_pymavlink(path: Path):
     from pymavlink import mavutil
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     conn = mavutil.mavlink_connection(str(path))
     out = {n: [] for n in WANTED}
     while True:
@@ -131,8 +131,7 @@ def run_pymavlink(path: Path):
             break
         d = m.to_dict()
         out[m.get_type()].append(d)
-    dt = time.perf_counter() - t0
-    return dt, out
+    return (time.perf_counter() - t0, time.process_time() - c0), out
 
 
 def main() -> int:
@@ -174,9 +173,9 @@ def main() -> int:
             t = time.perf_counter()
             scan = scan_tlog(path, WANTED)
             t_scan = time.perf_counter() - t
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.process_time()
             raw = tlog.read(path)
-            t_read = time.perf_counter() - t
+            t_read, c_read = time.perf_counter() - t, time.process_time() - c
 
             tracemalloc.start()
             raw2 = tlog.read(path)
@@ -191,7 +190,7 @@ def main() -> int:
             )
             del raw2
 
-            t_pm, pm = run_pymavlink(path)
+            (t_pm, c_pm), pm = run_pymavlink(path)
             n_pm = sum(len(v) for v in pm.values())
             n_ours = sum(len(scan.frames[n].offset) for n in WANTED)
             # fairness: same messages, same values (counts per type and the time fields)
@@ -201,7 +200,8 @@ def main() -> int:
                     tf = "time_usec" if "time_usec" in pm[n][0] else "time_boot_ms"
                     assert np.array_equal([d[tf] for d in pm[n]], scan.frames[n].fields[tf]), n
             rows.append((src, size_mb, n_pm, t_pm, t_scan, t_read, peak, out_bytes, len(raw.imu.t_s), scan))
-            print(f"[{src}] pymavlink {t_pm:.1f} s, ours read() {t_read:.2f} s (scan {t_scan:.2f} s)", flush=True)
+            print(f"[{src}] pymavlink {t_pm:.1f} s, ours read() {t_read:.2f} s (scan {t_scan:.2f} s); "
+                  f"CPU time: pymavlink {c_pm:.1f} s, ours read() {c_read:.2f} s, ratio {c_pm / c_read:.1f}x", flush=True)
     finally:
         if not args.keep:
             shutil.rmtree(tmp, ignore_errors=True)

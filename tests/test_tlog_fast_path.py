@@ -66,8 +66,9 @@ def _kernel(data: bytes, h_lo: int, a: int, size: int):
     buf[: len(data)] = np.frombuffer(data, np.uint8)
     known, extra = ms._id_tables()
     n_starts = max(0, len(data) - ms._PAD) if a + len(data) < size else len(data)
-    i, ids = good_frames(buf, len(data), h_lo, 8 + n_starts, a, size, known, extra,
-                         ms._CRC_TABLE, ms._CRC_TABLE16, ms._MAX_ID, float(ms._TS_WINDOW_US))  # fmt: skip
+    n_max = int(np.count_nonzero(buf[h_lo : 8 + n_starts] >= 0xFD))
+    i, ids = good_frames(buf, len(data), h_lo, 8 + n_starts, n_max, a, size, known, extra,
+                         ms._CRC_TABLE, ms._CRC_SLICES, ms._MAX_ID, float(ms._TS_WINDOW_US))  # fmt: skip
     slow = _slow_good_frames(bytes(buf), len(data), h_lo, 8 + n_starts, a, size)
     return list(zip(i.tolist(), ids.tolist())), slow
 

@@ -50,7 +50,7 @@ from typing import Iterable
 import numpy as np
 
 from ..mavlink_dialect import dialect
-from .mavlink_sync import HDR_V1, HDR_V2, SIG_LEN, STX_V1, STX_V2, TS_LEN, good_frames
+from .mavlink_sync import HDR_V1, HDR_V2, SIG_LEN, STX_V1, STX_V2, TS_LEN, crc_slices, good_frames
 
 #: Longest record: timestamp + v2 header + 255 payload + CRC + signature.
 MAX_RECORD = TS_LEN + HDR_V2 + 255 + 2 + SIG_LEN
@@ -156,15 +156,7 @@ class ScanResult:
     sources: dict[tuple[int, int], int] = field(default_factory=dict)
 
 
-def _crc16_table(t8: np.ndarray) -> np.ndarray:
-    """Two bytes at a time: after 16 bits the register is ``T16[crc ^ (b0 | b1 << 8)]``."""
-    y = np.arange(1 << 16, dtype=np.uint32)
-    for _ in range(2):
-        y = (y >> 8) ^ t8[y & 0xFF]
-    return y.astype(np.uint16)
-
-
-_CRC_TABLE16 = _crc16_table(_CRC_TABLE)
+_CRC_SLICES = crc_slices(_CRC_TABLE)
 
 
 class _Acc:
@@ -236,8 +228,10 @@ def scan_tlog(
             n_starts = min(chunk_bytes, m)  # record starts handled in this chunk: [a, a + n_starts)
             last = a + chunk_bytes >= size
             # 1.-2. candidates, plausibility and CRC: the compiled frame sync (i: record starts in buf)
-            i, msgid = good_frames(buf, m, TS_LEN + max(0, covered - a), TS_LEN + n_starts, a, size,
-                                   known_tab, extra_tab, _CRC_TABLE, _CRC_TABLE16, _MAX_ID, float(_TS_WINDOW_US))  # fmt: skip
+            h_lo, h_hi = TS_LEN + max(0, covered - a), TS_LEN + n_starts
+            n_max = int(np.count_nonzero(buf[h_lo:h_hi] >= STX_V2)) if h_hi > h_lo else 0
+            i, msgid = good_frames(buf, m, h_lo, h_hi, n_max, a, size,
+                                   known_tab, extra_tab, _CRC_TABLE, _CRC_SLICES, _MAX_ID, float(_TS_WINDOW_US))  # fmt: skip
             h = i + TS_LEN
             v2 = np.take(buf, h) == STX_V2
             ln = np.take(buf, h + 1).astype(np.int64)
