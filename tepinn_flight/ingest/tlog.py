@@ -426,18 +426,25 @@ def _epoch_starts(t_s: np.ndarray, backstep_s: float = REBOOT_BACKSTEP_S, confir
     while start < len(t) - 1:
         seg = t[start:]
         cm = np.maximum.accumulate(seg)
-        cand = np.flatnonzero(seg[1:] < cm[:-1] - backstep_s) + 1
         nxt = None
-        for k in cand:  # usually the first one; no list of all candidates
-            if np.max(seg[k : k + confirm]) < cm[k - 1]:
-                nxt = k
+        for b0 in range(0, len(seg) - 1, _SCAN_BLOCK):  # candidates k block by block (memory)
+            b1 = min(b0 + _SCAN_BLOCK, len(seg) - 1)
+            for j in np.flatnonzero(seg[b0 + 1 : b1 + 1] < cm[b0:b1] - backstep_s):
+                k = int(j) + b0 + 1
+                if np.max(seg[k : k + confirm]) < cm[k - 1]:  # usually the first candidate
+                    nxt = k
+                    break
+            if nxt is not None:
                 break
-        del cm, cand
+        del cm
         if nxt is None:
             break
         start += int(nxt)
         starts.append(start)
     return np.asarray(starts, np.int64)
+
+
+_SCAN_BLOCK = 1 << 14  # samples compared at a time when looking for reboots
 
 
 def _merge_positions(offsets: list[np.ndarray]) -> list[np.ndarray] | None:
@@ -481,7 +488,7 @@ def _assign_epochs(streams: list[dict]) -> None:
     starts = _epoch_starts(t)
     del t
     for s, p in zip(boot, pos):
-        s["epoch"] = np.searchsorted(starts, p, side="right").astype(np.int64)
+        s["epoch"] = np.searchsorted(starts, p, side="right").astype(np.int64, copy=False)
 
 
 def _unknown_scale_reason(s: dict, autopilot: str) -> str:
