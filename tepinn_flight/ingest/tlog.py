@@ -1,6 +1,6 @@
 """MAVLink telemetry logs (``.tlog``) → :class:`~tepinn_flight.ingest.streams.RawLog`.
 
-Frames are found and decoded by the vectorised walker in :mod:`.mavlink_scan` (CRC-checked,
+Frames are found and decoded by the chunked walker in :mod:`.mavlink_scan` (CRC-checked,
 bit-identical to pymavlink's decoding); this module picks the autopilot's messages, converts
 units and builds the streams.
 
