@@ -1,10 +1,9 @@
 """ArduPilot DataFlash logs (binary ``.bin`` and text ``.log``) → :class:`RawLog`.
 
-Binary logs go through the numpy fast path in :mod:`.dataflash_scan` (mmap, bulk decode of the
-wanted message ids only; memory ≈ output size plus one scan chunk). Text logs are classified line
-by line with numpy and the wanted lines parsed by pandas' C CSV parser (memory ≈ a few times the
-file size: text logs are small). Both expose the same small "source" interface, so the semantics
-below are written once.
+Binary logs are read by :mod:`.dataflash_binary` (mmap, bulk decode of the wanted message ids
+only), text logs by :mod:`.dataflash_text` (numpy line classification, pandas' C CSV parser).
+Both implement the small interface of :mod:`.dataflash_source`, so the stream rules below are
+written once.
 
 Streams
     IMU   ``IMU``/``IMU2``/``IMU3`` (old logs: instances 0/1/2) or 4.x ``IMU`` with instance
@@ -33,18 +32,19 @@ Clipping rule (``ImuStream.clipped``), a sample is marked when any of:
 
 from __future__ import annotations
 
-import io
 import os
 import re
 from dataclasses import dataclass
 
 import numpy as np
-import pandas as pd
 
 from ..conventions import DEG_TO_RAD, GRAVITY_M_S2, MILLIGAUSS_TO_UT
 from ..errors import ConfigError, CorruptLog, NoImuData
 from ..quat import quat_from_euler_zyx, quat_normalize
 from . import dataflash_scan as dfs
+from .dataflash_binary import BinarySource
+from .dataflash_source import DECODE_BLOCK_ROWS, DataflashSource, instance_col
+from .dataflash_text import TextSource
 from .sniff import sniff
 from .streams import ImuStream, MagStream, RawLog, RefStream, detect_epochs, nominal_period_s
 
@@ -59,8 +59,6 @@ ACC = ("AccX", "AccY", "AccZ")
 MAGC = ("MagX", "MagY", "MagZ")
 QUAT = ("Q1", "Q2", "Q3", "Q4")
 EULER = ("Roll", "Pitch", "Yaw")
-INSTANCE_COLS = ("I", "C", "IMU")
-_BLOCK = 1 << 15  # rows per decode block
 REBOOT_BACKSTEP_S = 1.0  # time jumping back more than this (s) is a reboot (streams.detect_epochs)
 
 #: Reference message families (listing order of ``reference_candidates``) and the default choice.
@@ -71,241 +69,6 @@ DEFAULT_ORDER = ("XKQ", "NKQ1", "NKQ", "XKQ1", "ATT")
 _FIRMWARE_RE = re.compile(r"^\s*((Ardu\w+|APM:\w+|APMrover2|AntennaTracker|Blimp)\s+V?\d[^\s]*)")
 _VEHICLES = (("copter", "copter"), ("heli", "copter"), ("plane", "plane"), ("sub", "sub"),
              ("rover", "rover"), ("tracker", "antenna_tracker"), ("blimp", "blimp"))  # fmt: skip
-
-
-# --------------------------------------------------------------------------- sources
-
-
-class _BinarySource:
-    """Binary log: formats from FMT records, rows decoded in bulk from the mmap."""
-
-    kind = "binary"
-
-    def __init__(self, path: str | os.PathLike, wanted_names: set[str], counted_names: set[str]):
-        self._mm, self.buf = dfs.open_buffer(path)
-        if self._mm is None:
-            raise CorruptLog("empty file")
-        table = dfs.find_formats(self._mm)
-        res = None
-        for _ in range(3):  # a false FMT inside a payload is dropped and the chain rescanned
-            names = table.by_name
-            ids = {dfs.FMT_ID} | {names[n].type_id for n in wanted_names if n in names}
-            inst = {}
-            for n in counted_names - wanted_names:  # count rows per instance without keeping offsets
-                col = _instance_col(names[n]) if n in names else None
-                if col is not None and names[n].dtype.fields[col][0].itemsize == 1:
-                    inst[names[n].type_id] = names[n].field_offset(col)
-                elif col is not None:  # a wider instance field: keep the offsets and decode it
-                    ids.add(names[n].type_id)
-            res = dfs.scan(self.buf, table.lengths(), ids, instance_bytes=inst)
-            false_fmt = set(table.fmt_offsets.tolist()) - set(res.offsets[dfs.FMT_ID].tolist())
-            if not false_fmt:
-                break
-            table = dfs.find_formats(self._mm, exclude=false_fmt)
-        self.formats = {f.name: f for f in table.by_id.values() if f.type_id != dfs.FMT_ID}
-        self._offsets = {table.by_id[i].name: o for i, o in res.offsets.items() if i in table.by_id}
-        self.counts = {table.by_id[i].name: int(c) for i, c in enumerate(res.counts) if c and i in table.by_id}
-        self._inst_counts = {table.by_id[i].name: c for i, c in res.instance_counts.items()}
-        self.corrupt_frames = res.corrupt_regions
-        self.skipped_frames = res.unknown_id_headers + (1 if res.truncated_tail_bytes else 0)
-        self.notes = list(table.redefined)
-        if res.corrupt_regions:
-            self.notes.append(
-                f"{res.corrupt_regions} corrupt region(s), {res.skipped_bytes} bytes skipped to resynchronise"
-            )
-        if res.unknown_id_headers:
-            self.notes.append(f"{res.unknown_id_headers} message header(s) with an id that has no FMT skipped")
-        if res.truncated_tail_bytes:
-            self.notes.append(f"truncated tail: the last {res.truncated_tail_bytes} bytes are not a complete message")
-        self.banner = ""
-
-    def count(self, name: str) -> int:
-        return self.counts.get(name, 0)
-
-    def order(self, name: str) -> np.ndarray:
-        return self._offsets.get(name, np.zeros(0, np.int64))
-
-    def instance_column(self, name: str, col: str) -> np.ndarray:
-        mf = self.formats[name]
-        return dfs.scaled(dfs.decode_column(self.buf, mf, self.order(name), col), mf.multiplier(col))
-
-    def instance_counts(self, name: str, col: str) -> dict[int, int]:
-        c = self._inst_counts.get(name)
-        if c is not None:
-            return {int(i): int(c[i]) for i in np.flatnonzero(c)}
-        v, n = np.unique(self.instance_column(name, col), return_counts=True)
-        return {int(a): int(b) for a, b in zip(v, n) if np.isfinite(a)}
-
-    def table(self, name: str, cols: tuple[str, ...], rows: np.ndarray | None = None) -> np.ndarray:
-        mf = self.formats[name]
-        offs = self.order(name) if rows is None else self.order(name)[rows]
-        out = np.empty((len(offs), len(cols)))
-        for i in range(0, len(offs), _BLOCK):  # blocks keep the raw rows' memory constant
-            raw = dfs.decode_rows(self.buf, mf, offs[i : i + _BLOCK])
-            for k, c in enumerate(cols):
-                out[i : i + _BLOCK, k] = dfs.scaled(raw[c], mf.multiplier(c))
-        return out
-
-    def strings(self, name: str, col: str) -> list[str]:
-        mf = self.formats.get(name)
-        if mf is None or self.count(name) == 0 or col not in mf.columns or mf.type_char(col) not in dfs.STRING_CHARS:
-            return []
-        raw = dfs.decode_rows(self.buf, mf, self.order(name))[col]
-        return [dfs._null_term(bytes(b)) for b in raw]
-
-
-class _TextSource:
-    """Text log: ``NAME, v1, v2, ...`` lines.
-
-    Lines are classified with numpy (line starts, first comma, a key from the ≤ 4-character
-    message name), so Python touches only the FMT lines and the wanted messages' lines; numeric
-    tables are parsed by pandas' C CSV parser.
-    """
-
-    kind = "text"
-
-    def __init__(self, path: str | os.PathLike, wanted_names: set[str], counted_names: set[str] = frozenset()):
-        with open(path, "rb") as f:
-            self._raw = f.read()
-        data = np.frombuffer(self._raw, np.uint8)
-        nl = np.flatnonzero(data == 10)
-        starts = np.concatenate([[0], nl + 1]).astype(np.int64)
-        ends = np.concatenate([nl, [len(data)]]).astype(np.int64)
-        self._commas = commas = np.flatnonzero(data == 44)
-        ci = np.searchsorted(commas, starts)
-        first = commas[np.minimum(ci, max(len(commas) - 1, 0))] if len(commas) else np.full(len(starts), -1)
-        has = (ci < len(commas)) & (first < ends)
-        keys = np.full(len(starts), -1, np.int64)
-        nlen = np.where(has, first - starts, 0)
-        okn = has & (nlen >= 1) & (nlen <= 4)
-        if okn.any():
-            k = np.zeros(int(okn.sum()), np.int64)
-            s0, ln = starts[okn], nlen[okn]
-            for j in range(4):
-                k |= np.where(j < ln, data[np.minimum(s0 + j, len(data) - 1)].astype(np.int64), 0) << (8 * j)
-            keys[okn] = k | (ln << 32)
-        self._starts, self._first, self._ends, self._keys = starts, first, ends, keys
-
-        fmt_key = _name_key("FMT")
-        self.formats: dict[str, dfs.MsgFormat] = {}
-        bad_fmt = 0
-        fmt_lines = np.flatnonzero(keys == fmt_key)
-        for i in fmt_lines:
-            mf = self._parse_fmt(self._line(i, first[i] + 1), int(starts[i]))
-            if mf is None:
-                bad_fmt += 1
-            elif mf.name != "FMT" and mf.name not in self.formats:
-                self.formats[mf.name] = mf
-        body_from = int(fmt_lines[0]) if len(fmt_lines) else len(starts)
-        banner = [self._line(i, starts[i]).strip() for i in range(min(body_from, 20))]
-        self.banner = next((b for b in banner if b), "")
-        kb = keys[body_from:]
-        u, n = np.unique(kb, return_counts=True)
-        by_key = dict(zip(u.tolist(), n.tolist()))
-        self._name_keys = {name: _name_key(name) for name in self.formats}
-        self.counts = {name: by_key[k] for name, k in self._name_keys.items() if k in by_key}
-        known = sum(self.counts.values()) + by_key.get(fmt_key, 0)
-        blank = int(np.sum((ends[body_from:] - starts[body_from:]) <= 1))  # empty or a lone '\r'
-        unknown = len(kb) - known - blank
-        self._rows = {
-            name: np.flatnonzero(keys == k)
-            for name, k in self._name_keys.items()
-            if name in wanted_names or name in counted_names
-        }
-        self._cache: dict[str, np.ndarray] = {}
-        self.corrupt_frames = bad_fmt
-        self.skipped_frames = unknown
-        self.notes = []
-        if unknown:
-            self.notes.append(f"{unknown} line(s) with no FMT definition skipped")
-        if bad_fmt:
-            self.notes.append(f"{bad_fmt} malformed FMT line(s) skipped")
-
-    def _line(self, i: int, start: int) -> str:
-        return self._raw[start : self._ends[i]].decode("utf-8", "replace").rstrip("\r")
-
-    @staticmethod
-    def _parse_fmt(rest: str, pos: int) -> dfs.MsgFormat | None:
-        parts = [p.strip() for p in rest.split(",")]
-        if len(parts) < 4:
-            return None
-        try:
-            tid, length = int(parts[0]), int(parts[1])
-        except ValueError:
-            return None
-        return dfs.make_format(tid, parts[2], length, parts[3], ",".join(parts[4:]), pos)
-
-    def count(self, name: str) -> int:
-        return self.counts.get(name, 0)
-
-    def order(self, name: str) -> np.ndarray:
-        rows = self._rows.get(name)
-        return np.zeros(0, np.int64) if rows is None else self._starts[rows]
-
-    def _numeric(self, name: str) -> np.ndarray:
-        """``(n, ncols)`` float64 of one message's lines; strings and malformed rows are NaN."""
-        if name in self._cache:
-            return self._cache[name]
-        mf = self.formats[name]
-        k = len(mf.fmt)
-        rows = self._rows.get(name, np.zeros(0, np.int64))
-        out = np.full((len(rows), k), np.nan)
-        if len(rows) and k:
-            a, e = self._first[rows] + 1, self._ends[rows]
-            n_commas = np.searchsorted(self._commas, e) - np.searchsorted(self._commas, a)
-            good = n_commas == k - 1
-            if not good.all():
-                self.corrupt_frames += int((~good).sum())
-                self.notes.append(f"{int((~good).sum())} {name} line(s) with a wrong number of fields skipped")
-            raw = self._raw
-            joined = b"\n".join([raw[x:y] for x, y in zip(a[good].tolist(), e[good].tolist())])
-            num = [c for c, ch in enumerate(mf.fmt) if ch not in dfs.STRING_CHARS and ch != "a"]
-            if good.any() and num:
-                out[np.ix_(good, num)] = _parse_csv(joined, k, num)
-        self._cache[name] = out
-        return out
-
-    def instance_column(self, name: str, col: str) -> np.ndarray:
-        return self._numeric(name)[:, self.formats[name].columns.index(col)]
-
-    def instance_counts(self, name: str, col: str) -> dict[int, int]:
-        v, n = np.unique(self.instance_column(name, col), return_counts=True)
-        return {int(a): int(b) for a, b in zip(v, n) if np.isfinite(a)}
-
-    def table(self, name: str, cols: tuple[str, ...], rows: np.ndarray | None = None) -> np.ndarray:
-        arr = self._numeric(name)
-        mf = self.formats[name]
-        idx = [mf.columns.index(c) for c in cols]
-        return arr[:, idx] if rows is None else arr[np.ix_(rows, idx)]
-
-    def strings(self, name: str, col: str) -> list[str]:
-        mf = self.formats.get(name)
-        if mf is None or col not in mf.columns:
-            return []
-        i = mf.columns.index(col)
-        last = i == len(mf.columns) - 1
-        out = []
-        for r in self._rows.get(name, []):
-            parts = self._line(r, self._first[r] + 1).split(",", i if last else i + 1)
-            out.append(parts[i].strip() if len(parts) > i else "")
-        return out
-
-
-def _parse_csv(data: bytes, ncols: int, numeric: list[int]) -> np.ndarray:
-    """Numeric columns of comma-separated lines via pandas' C parser; bad cells become NaN."""
-    kw = dict(header=None, names=list(range(ncols)), usecols=numeric, skipinitialspace=True, engine="c")
-    try:
-        table = pd.read_csv(io.BytesIO(data), dtype=np.float64, **kw)
-    except ValueError:
-        table = pd.read_csv(io.BytesIO(data), dtype=object, **kw)
-        table = table.apply(lambda c: pd.to_numeric(c.astype(str).str.strip(), errors="coerce"))
-    return table[numeric].to_numpy(np.float64)
-
-
-def _name_key(name: str) -> int:
-    """The integer key of a ≤ 4-character message name used by :class:`_TextSource`."""
-    b = name.encode("ascii", "replace")[:4]
-    return int.from_bytes(b, "little") | (len(b) << 32)
 
 
 # --------------------------------------------------------------------------- streams
@@ -326,18 +89,11 @@ def _time_field(mf: dfs.MsgFormat) -> str | None:
     return None
 
 
-def _has(src, name: str, cols: tuple[str, ...]) -> bool:
+def _has(src: DataflashSource, name: str, cols: tuple[str, ...]) -> bool:
     return set(cols) <= set(src.formats[name].columns)
 
 
-def _instance_col(mf: dfs.MsgFormat) -> str | None:
-    for c in INSTANCE_COLS:
-        if c in mf.columns and mf.type_char(c) in "BbHhIi":
-            return c
-    return None
-
-
-def _instances(src, base: str, numbered: tuple[str, ...] = (), rows: bool = True) -> list[_Instance]:
+def _instances(src: DataflashSource, base: str, numbered: tuple[str, ...] = (), rows: bool = True) -> list[_Instance]:
     """Instances with rows of a multi-instance message: ``NAME[I]`` columns or NAME, NAME2, NAME3.
 
     ``rows=False`` only counts (no decoding where the scan counted instances already).
@@ -345,7 +101,7 @@ def _instances(src, base: str, numbered: tuple[str, ...] = (), rows: bool = True
     out: list[_Instance] = []
     mf = src.formats.get(base)
     if mf is not None and src.count(base) and _time_field(mf) is not None:
-        col = _instance_col(mf)
+        col = instance_col(mf)
         if col is None:
             out.append(_Instance(base, 0, src.count(base)))
         elif rows:
@@ -362,28 +118,28 @@ def _instances(src, base: str, numbered: tuple[str, ...] = (), rows: bool = True
     return sorted(out, key=lambda i: i.instance)
 
 
-def _with_rows(src, inst: _Instance) -> _Instance:
+def _with_rows(src: DataflashSource, inst: _Instance) -> _Instance:
     """The instance with its row indices resolved (for messages with an instance column)."""
-    col = _instance_col(src.formats[inst.name])
+    col = instance_col(src.formats[inst.name])
     if col is None or inst.rows is not None:
         return inst
     r = np.flatnonzero(src.instance_column(inst.name, col) == inst.instance)
     return _Instance(inst.name, inst.instance, len(r), r)
 
 
-def _timed(src, inst: _Instance, cols: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+def _timed(src: DataflashSource, inst: _Instance, cols: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
     """(t_s, values (n, len(cols))) of one instance, time field scaled to seconds."""
     tf = _time_field(src.formats[inst.name])
     arr = src.table(inst.name, (tf, *cols), inst.rows)
     return arr[:, 0] / TIME_FIELDS[tf], arr[:, 1:]
 
 
-def _order(src, inst: _Instance) -> np.ndarray:
+def _order(src: DataflashSource, inst: _Instance) -> np.ndarray:
     o = src.order(inst.name)
     return o if inst.rows is None else o[inst.rows]
 
 
-def _reference_candidates(src) -> dict[str, _Instance]:
+def _reference_candidates(src: DataflashSource) -> dict[str, _Instance]:
     """Reference streams with rows and a time field, by label (``XKQ``, ``XKQ[1]``, ``ATT``...)."""
     out: dict[str, _Instance] = {}
     for name in QUAT_REFS + EULER_REFS:
@@ -422,7 +178,7 @@ def _pick_reference(cands: dict[str, _Instance], requested: str | None) -> tuple
     raise ConfigError(f"reference {requested!r} not in this log; available: {avail}")
 
 
-def _ref_quaternions(src, inst: _Instance) -> tuple[np.ndarray, np.ndarray]:
+def _ref_quaternions(src: DataflashSource, inst: _Instance) -> tuple[np.ndarray, np.ndarray]:
     mf = src.formats[inst.name]
     if set(QUAT) <= set(mf.columns):
         t, q = _timed(src, inst, QUAT)
@@ -437,15 +193,15 @@ def _ref_quaternions(src, inst: _Instance) -> tuple[np.ndarray, np.ndarray]:
     rows = np.arange(src.count(inst.name)) if inst.rows is None else inst.rows
     t = np.empty(len(rows))
     q = np.empty((len(rows), 4))
-    for i in range(0, len(rows), _BLOCK):
-        b = src.table(inst.name, (tf, *EULER), rows[i : i + _BLOCK])
-        t[i : i + _BLOCK] = b[:, 0] / TIME_FIELDS[tf]
+    for i in range(0, len(rows), DECODE_BLOCK_ROWS):
+        b = src.table(inst.name, (tf, *EULER), rows[i : i + DECODE_BLOCK_ROWS])
+        t[i : i + DECODE_BLOCK_ROWS] = b[:, 0] / TIME_FIELDS[tf]
         e = b[:, 1:] * DEG_TO_RAD
-        q[i : i + _BLOCK] = quat_from_euler_zyx(e[:, 0], e[:, 1], e[:, 2])
+        q[i : i + DECODE_BLOCK_ROWS] = quat_from_euler_zyx(e[:, 0], e[:, 1], e[:, 2])
     return t, q
 
 
-def _clipped(src, inst: _Instance, gyr: np.ndarray, acc: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, list[str]]:
+def _clipped(src: DataflashSource, inst: _Instance, gyr: np.ndarray, acc: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, list[str]]:
     notes = []
     sat = (np.abs(gyr) >= CLIP_FRACTION * GYRO_FULL_SCALE_RAD_S).any(axis=1)
     sat |= (np.abs(acc) >= CLIP_FRACTION * ACCEL_FULL_SCALE_M_S2).any(axis=1)
@@ -489,7 +245,7 @@ def _clipped(src, inst: _Instance, gyr: np.ndarray, acc: np.ndarray, order: np.n
     return clipped, notes
 
 
-def _firmware(src, messages: list[str]) -> tuple[str, str | None]:
+def _firmware(src: DataflashSource, messages: list[str]) -> tuple[str, str | None]:
     for s in [*messages, src.banner]:
         m = _FIRMWARE_RE.match(s or "")
         if m:
@@ -519,7 +275,7 @@ def _vehicle_type(firmware: str, param_names) -> str:
     return "unknown"
 
 
-def _param(src, name: str) -> float | None:
+def _param(src: DataflashSource, name: str) -> float | None:
     """Last logged value of a parameter (None if absent)."""
     if "PARM" not in src.formats or not src.count("PARM") or not _has(src, "PARM", ("Name", "Value")):
         return None
@@ -571,7 +327,7 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     # rows are kept only for what may be decoded; the other reference candidates are only counted
     wanted = _BASE_NAMES | set(DEFAULT_ORDER) | {_requested_family(reference) or "ATT"}
     counted = set(QUAT_REFS) | set(EULER_REFS)
-    src = (_BinarySource if kind == "dataflash-bin" else _TextSource)(path, wanted, counted)
+    src: DataflashSource = (BinarySource if kind == "dataflash-bin" else TextSource)(path, wanted, counted)
     if not src.formats:
         raise CorruptLog("no valid FMT records: not a readable DataFlash log", path)
 

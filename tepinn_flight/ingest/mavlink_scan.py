@@ -11,20 +11,21 @@ The CRC is CRC-16/MCRF4XX (X.25) over everything after the start byte, then the 
 the little-endian wire layout (``unpacker.format``) and the field names in wire order
 (``ordered_fieldnames``) of each message; nothing else of pymavlink runs here.
 
-How the scan works, chunk by chunk (the file is read in fixed-size chunks, so memory is the chunk
-plus the decoded output; no Python object per frame):
+How the scan works, chunk by chunk (the file is read in fixed-size chunks of 512 kB, so memory is
+the chunk plus the decoded output; no Python object per frame):
 
 1. Every byte position ``i`` with a start byte at ``i + 8`` is a candidate record; its header
    gives the record length, hence where the next record should begin.
 2. Candidates with a known message id, allowed incompat flags and a complete frame are
-   CRC-checked, all at once (two bytes per numpy step over every frame still that long), if the
-   next record's start byte is where it should be (or the file ends there) or, failing that,
-   their receive timestamp lies within a day of the chunk's typical one (a frame before junk).
+   CRC-checked if the next record's start byte is where it should be (or the file ends there)
+   or, failing that, their receive timestamp lies within a day of the chunk's typical one (a
+   frame before junk). Steps 1–2 are one compiled loop, :func:`.mavlink_sync.good_frames`.
 3. Frames whose CRC matches are the *good* frames; a good frame inside an earlier one is
    dropped. Only the wanted message ids are decoded: payloads are zero-padded to the full
    length (MAVLink 2 truncation) and viewed as a numpy structured array.
 4. Bytes between good frames (junk, CRC-failed frames, frames of ids the dialect does not know,
-   an incomplete last record) are walked record by record, which gives the counts.
+   an incomplete last record) are walked record by record, which gives the counts (a gap that
+   is exactly one record, the usual CRC failure, is counted in bulk).
 
 Versus pymavlink (``mavutil.mavlink_connection(tlog)``, a ``mavmmaplog``): on the shared tlogs the
 decoded messages equal its ``recv_match(type=[...])`` output value for value (a test).
@@ -49,18 +50,13 @@ from typing import Iterable
 import numpy as np
 
 from ..mavlink_dialect import dialect
+from .mavlink_sync import HDR_V1, HDR_V2, SIG_LEN, STX_V1, STX_V2, TS_LEN, crc_slices, good_frames
 
-TS_LEN = 8
-HDR_V1 = 6
-HDR_V2 = 10
-SIG_LEN = 13
-STX_V1 = 0xFE
-STX_V2 = 0xFD
 #: Longest record: timestamp + v2 header + 255 payload + CRC + signature.
 MAX_RECORD = TS_LEN + HDR_V2 + 255 + 2 + SIG_LEN
 #: Look-ahead kept after a chunk: a record starting in the chunk plus the next record's header.
 _PAD = 2 * MAX_RECORD
-DEFAULT_CHUNK_BYTES = 8 << 20
+DEFAULT_CHUNK_BYTES = 512 << 10
 #: Receive timestamps of real records lie within this of the chunk's median (µs).
 _TS_WINDOW_US = 86_400 * 1_000_000
 _MAX_ID = 1 << 16  # dialect ids are below this (all: max 60053)
@@ -76,7 +72,7 @@ _CRC_TABLE = _crc_table()
 
 
 def x25_crc(data: bytes, crc: int = 0xFFFF) -> int:
-    """CRC-16/MCRF4XX of ``data`` (scalar reference; used by the gap walk and tests)."""
+    """CRC-16/MCRF4XX of ``data`` (the scalar reference, for tests)."""
     for b in data:
         crc = (crc >> 8) ^ int(_CRC_TABLE[(crc ^ b) & 0xFF])
     return crc
@@ -160,70 +156,7 @@ class ScanResult:
     sources: dict[tuple[int, int], int] = field(default_factory=dict)
 
 
-def _gather_u(buf: np.ndarray, pos: np.ndarray, nbytes: int, big_endian: bool) -> np.ndarray:
-    """Unsigned integer of ``nbytes`` bytes at each position (uint64)."""
-    out = np.zeros(len(pos), np.uint64)
-    for k in range(nbytes):
-        shift = 8 * (nbytes - 1 - k) if big_endian else 8 * k
-        out |= buf[pos + k].astype(np.uint64) << np.uint64(shift)
-    return out
-
-
-def _crc16_table(t8: np.ndarray) -> np.ndarray:
-    """Two bytes at a time: after 16 bits the register is ``T16[crc ^ (b0 | b1 << 8)]``."""
-    y = np.arange(1 << 16, dtype=np.uint32)
-    for _ in range(2):
-        y = (y >> 8) ^ t8[y & 0xFF]
-    return y.astype(np.uint16)
-
-
-_CRC_TABLE16 = _crc16_table(_CRC_TABLE)
-
-
-def _crc_many(buf: np.ndarray, start: np.ndarray, length: np.ndarray, extra: np.ndarray) -> np.ndarray:
-    """X.25 CRC of ``buf[start:start+length]`` followed by the ``extra`` byte, for many frames.
-
-    Two bytes per step through a 65536-entry table, read as little-endian uint16 from one of two
-    views of ``buf`` (even or odd start). Frames are sorted by length, longest first, so step ``j``
-    updates a prefix of the arrays: the frames with more than ``j`` words. An odd last byte and
-    ``CRC_EXTRA`` go through the byte table afterwards.
-    """
-    n = len(start)
-    out = np.empty(n, np.uint16)
-    if n == 0:
-        return out
-    nb = len(buf) - (len(buf) % 2)
-    shifted = np.zeros(nb, np.uint8)  # an aligned copy one byte on: odd starts read aligned words
-    shifted[: nb - 1] = buf[1:nb]
-    views = (buf[:nb].view("<u2"), shifted.view("<u2"))
-    t8, t16 = _CRC_TABLE, _CRC_TABLE16
-    for parity in (0, 1):
-        sel = np.flatnonzero((start & 1) == parity)
-        if len(sel) == 0:
-            continue
-        words = length[sel] // 2
-        order = np.argsort(-words, kind="stable")
-        idx = sel[order]
-        base = (start[idx] - parity) // 2
-        w = words[order]
-        crc = np.full(len(idx), 0xFFFF, np.uint16)
-        longer = len(idx) - np.cumsum(np.bincount(w, minlength=int(w[0]) + 1))
-        view = views[parity]
-        pos = np.empty(len(idx), np.intp)
-        word = np.empty(len(idx), np.uint16)
-        for j in range(int(w[0])):  # np.take with out=: no temporaries, faster than fancy indexing
-            k = int(longer[j])
-            np.add(base[:k], j, out=pos[:k])
-            np.take(view, pos[:k], out=word[:k], mode="clip")
-            np.bitwise_xor(word[:k], crc[:k], out=word[:k])
-            np.take(t16, word[:k], out=crc[:k], mode="clip")
-        odd = np.flatnonzero(length[idx] & 1)
-        if len(odd):
-            last = buf[start[idx[odd]] + length[idx[odd]] - 1]
-            crc[odd] = (crc[odd] >> 8) ^ t8[(crc[odd] ^ last) & 0xFF]
-        crc = (crc >> 8) ^ t8[(crc ^ extra[idx].astype(np.uint16)) & 0xFF]
-        out[idx] = crc
-    return out
+_CRC_SLICES = crc_slices(_CRC_TABLE)
 
 
 class _Acc:
@@ -252,8 +185,18 @@ class _Acc:
         if not self.parts:
             z = np.zeros(0, np.int64)
             return Frames(self.lay.name, z, z.astype(np.uint8), z.astype(np.uint8), np.zeros(0, self.lay.dtype))
-        o, s, c, f = (np.concatenate(x) for x in zip(*self.parts))
-        return Frames(self.lay.name, o, s, c, f)
+        # filled part by part, each part dropped once copied: memory is the result plus one part
+        n = sum(len(p[0]) for p in self.parts)
+        out = Frames(self.lay.name, np.empty(n, np.int64), np.empty(n, np.uint8), np.empty(n, np.uint8),
+                     np.empty(n, self.lay.dtype))  # fmt: skip
+        k = 0
+        self.parts.reverse()
+        while self.parts:
+            o, s, c, f = self.parts.pop()
+            out.offset[k : k + len(o)], out.sysid[k : k + len(o)], out.compid[k : k + len(o)] = o, s, c
+            out.fields[k : k + len(o)] = f
+            k += len(o)
+        return out
 
 
 def scan_tlog(
@@ -274,7 +217,7 @@ def scan_tlog(
     res = ScanResult(frames={}, file_size=size)
     src_counts = np.zeros(256 * 256, np.int64)
     covered = 0  # file offset up to which bytes belong to accepted good frames or known gaps
-    buf = np.zeros(chunk_bytes + _PAD + 32, np.uint8)  # even length: uint16 views in _crc_many
+    buf = np.zeros(chunk_bytes + _PAD + 32, np.uint8)  # zero tail: header reads past m stay inside
 
     with open(path, "rb") as f:
         a = 0
@@ -284,46 +227,18 @@ def scan_tlog(
             buf[m:] = 0
             n_starts = min(chunk_bytes, m)  # record starts handled in this chunk: [a, a + n_starts)
             last = a + chunk_bytes >= size
-            # 1. candidates: a start byte 8 bytes after the record start (h: its position)
-            win = buf[TS_LEN : TS_LEN + n_starts]
-            h = np.flatnonzero(win >= STX_V2) + TS_LEN  # FD, FE (and FF, dropped below)
-            if covered > a:
-                h = h[h >= covered - a + TS_LEN]  # inside an earlier chunk's frame: done there
-            stx = np.take(buf, h)
-            h = h[stx != 0xFF]
-            stx = stx[stx != 0xFF]
-            i = h - TS_LEN
-            v2 = stx == STX_V2
+            # 1.-2. candidates, plausibility and CRC: the compiled frame sync (i: record starts in buf)
+            h_lo, h_hi = TS_LEN + max(0, covered - a), TS_LEN + n_starts
+            n_max = int(np.count_nonzero(buf[h_lo:h_hi] >= STX_V2)) if h_hi > h_lo else 0
+            i, msgid = good_frames(buf, m, h_lo, h_hi, n_max, a, size,
+                                   known_tab, extra_tab, _CRC_TABLE, _CRC_SLICES, _MAX_ID, float(_TS_WINDOW_US))  # fmt: skip
+            h = i + TS_LEN
+            v2 = np.take(buf, h) == STX_V2
             ln = np.take(buf, h + 1).astype(np.int64)
             inc = np.take(buf, h + 2) * v2
             hdr = np.where(v2, HDR_V2, HDR_V1)
-            id2 = (
-                np.take(buf, h + 7).astype(np.int32)
-                | (np.take(buf, h + 8).astype(np.int32) << 8)
-                | (np.take(buf, h + 9).astype(np.int32) << 16)
-            )
-            msgid = np.where(v2, id2, np.take(buf, h + 5))
-            rl = TS_LEN + hdr + ln + 2 + (inc & 1) * SIG_LEN
-            nxt = i + rl
-            checkable = (nxt <= m) & ((inc & 0xFE) == 0) & np.take(known_tab, msgid & 0xFFFF) & (msgid < _MAX_ID)
-            # 2. plausibility before paying for a CRC: chained to a next record, or a sane timestamp
-            nstx = np.take(buf, np.minimum(nxt + TS_LEN, len(buf) - 1))
-            chain = ((nstx == STX_V1) | (nstx == STX_V2)) | (a + nxt == size)
-            loose = np.flatnonzero(checkable & ~chain)
-            check = checkable & chain
-            if len(loose):
-                ref = np.flatnonzero(chain)
-                if len(ref):
-                    ref = ref[:: max(1, len(ref) // 257)]
-                    med = np.median(_gather_u(buf, i[ref], TS_LEN, big_endian=True).astype(np.float64))
-                    ts = _gather_u(buf, i[loose], TS_LEN, big_endian=True).astype(np.float64)
-                    check[loose[np.abs(ts - med) < _TS_WINDOW_US]] = True
-            ci = np.flatnonzero(check)
-            crc_len = hdr[ci] - 1 + ln[ci]
-            crc = _crc_many(buf, h[ci] + 1, crc_len, np.take(extra_tab, msgid[ci]))
-            pos_crc = h[ci] + hdr[ci] + ln[ci]
-            got = np.take(buf, pos_crc).astype(np.uint16) | (np.take(buf, pos_crc + 1).astype(np.uint16) << 8)
-            good = ci[crc == got]
+            nxt = i + TS_LEN + hdr + ln + 2 + (inc & 1) * SIG_LEN
+            good = np.arange(len(i))
             # 3. good frames must not overlap (a frame inside another one is not a record)
             g_start = i[good] + a
             g_end = nxt[good] + a
@@ -333,13 +248,15 @@ def scan_tlog(
             if len(good):
                 prev_end = np.concatenate([[covered], g_end[:-1]])
                 gap = g_start > prev_end
-                _walk_gaps(f, zip(prev_end[gap].tolist(), g_start[gap].tolist()), size, res)
+                g0, g1 = _single_record_gaps(buf, a, prev_end[gap], g_start[gap], res)
+                _walk_gaps(f, zip(g0.tolist(), g1.tolist()), size, res)
                 covered = int(g_end[-1])
             res.good_frames += len(good)
             hg = h[good] + np.where(v2[good], 5, 3)
             sysid = np.take(buf, hg)
             compid = np.take(buf, hg + 1)
-            src_counts += np.bincount(sysid.astype(np.int64) * 256 + compid, minlength=65536)
+            key, n_key = np.unique(sysid.astype(np.int64) * 256 + compid, return_counts=True)
+            src_counts[key] += n_key
             # 4. decode the wanted ids (good frames have ids below _MAX_ID)
             gid = msgid[good]
             sel = np.flatnonzero(np.take(wanted, gid))
@@ -353,7 +270,11 @@ def scan_tlog(
             a += chunk_bytes
         if covered < size:
             _walk_gaps(f, [(covered, size)], size, res)
-    res.frames = {acc.lay.name: acc.result() for acc in accs.values()}
+    res.frames = {}
+    while accs:  # one message's parts at a time
+        acc = accs.pop(next(iter(accs)))
+        res.frames[acc.lay.name] = acc.result()
+        del acc
     nz = np.flatnonzero(src_counts)
     res.sources = {(int(k) // 256, int(k) % 256): int(src_counts[k]) for k in nz}
     return res
@@ -369,6 +290,38 @@ def _non_overlapping(start: np.ndarray, end: np.ndarray, covered: int) -> np.nda
         if np.array_equal(new, keep):
             return keep
         keep = new
+
+
+def _single_record_gaps(buf, a, g0, g1, res):
+    """Count the gaps that are exactly one record (a CRC-failed frame, an unknown id), all at once.
+
+    The commonest gap is one damaged frame between two good ones; :func:`_walk_gaps` would find
+    the same record first and classify it the same way (its start byte at ``g0 + 8``, its length
+    landing on ``g1``). Only gaps inside the chunk in ``buf`` (file offset ``a``) are looked at;
+    the others are returned, for :func:`_walk_gaps`.
+    """
+    inside = g0 >= a
+    p = g0[inside] - a
+    stx = np.take(buf, p + TS_LEN)
+    v2 = stx == STX_V2
+    is_stx = v2 | (stx == STX_V1)
+    ln = np.take(buf, p + TS_LEN + 1).astype(np.int64)
+    inc = np.take(buf, p + TS_LEN + 2) * v2
+    id2 = (
+        np.take(buf, p + TS_LEN + 7).astype(np.int64)
+        | (np.take(buf, p + TS_LEN + 8).astype(np.int64) << 8)
+        | (np.take(buf, p + TS_LEN + 9).astype(np.int64) << 16)
+    )
+    msgid = np.where(v2, id2, np.take(buf, p + TS_LEN + 5))
+    rl = TS_LEN + np.where(v2, HDR_V2, HDR_V1) + ln + 2 + (inc & 1) * SIG_LEN
+    one = is_stx & (rl == g1[inside] - g0[inside])
+    known_tab, _ = _id_tables()
+    unknown = one & ((inc & 0xFE) == 0) & ~((msgid < _MAX_ID) & np.take(known_tab, msgid & 0xFFFF))
+    res.unknown_frames += int(unknown.sum())
+    res.corrupt_frames += int(one.sum() - unknown.sum())
+    rest = np.ones(len(g0), bool)
+    rest[np.flatnonzero(inside)[one]] = False
+    return g0[rest], g1[rest]
 
 
 _GAP_WINDOW = 4 << 20

@@ -1,6 +1,6 @@
 """MAVLink telemetry logs (``.tlog``) → :class:`~tepinn_flight.ingest.streams.RawLog`.
 
-Frames are found and decoded by the vectorised walker in :mod:`.mavlink_scan` (CRC-checked,
+Frames are found and decoded by the chunked walker in :mod:`.mavlink_scan` (CRC-checked,
 bit-identical to pymavlink's decoding); this module picks the autopilot's messages, converts
 units and builds the streams.
 
@@ -105,7 +105,8 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
 
     frames = {}
     other_src = 0
-    for name in names:
+    del scan.frames["HEARTBEAT"]  # used by _autopilot only
+    for name in (n for n in names if n != "HEARTBEAT"):
         fr = scan.frames.pop(name)  # drop the scan's copy as we go (memory)
         mine = (fr.sysid == sysid) & (fr.compid == MAV_COMP_ID_AUTOPILOT1)
         if name not in META_MESSAGES:
@@ -135,10 +136,6 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     refs = _ref_streams(frames)
     del frames
 
-    # ---- boot epochs from every boot-clock time stamp of the autopilot's data messages
-    clocked = [s for s in live] + list(refs.values())
-    _assign_epochs(clocked)
-
     # ---- select the IMU
     usable = {k: s for k, s in by_inst.items() if s["scale_known"]}
     if imu is None:
@@ -161,20 +158,8 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     if sel["clock"] == "unix":
         notes.append(f"{sel['name']} time_usec is UNIX time (above 1e15 µs)")
 
-    order = _time_order(sel["t_s"], sel["epoch"])
-    imu_stream = ImuStream(
-        t_s=sel["t_s"][order],
-        gyr_rad_s=sel["gyr"][order],
-        acc_m_s2=sel["acc"][order],
-        epoch=sel["epoch"][order],
-    )
-    mag = None
-    if np.any(sel["mag"] != 0):
-        mag = MagStream(t_s=imu_stream.t_s, mag_ut=sel["mag"][order], epoch=imu_stream.epoch)
-    del streams, live, by_inst, usable, clocked
 
-    # ---- select the reference
-    ref = None
+    # ---- select the reference (by name; its quaternions are made below)
     cand = [n for n in REF_MESSAGES if n in refs]
     if reference is not None:
         want = reference.strip().upper()
@@ -185,13 +170,47 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
         rname = want
     else:
         rname = cand[0] if cand else None
+
+    # memory: the rows of the streams not selected are no longer needed (their times are)
+    for s in streams:
+        if s is not sel:
+            s.pop("fields")
+    for n, r in refs.items():
+        if n != rname:
+            r.pop("fields")
+
+    # ---- boot epochs from every boot-clock time stamp of the autopilot's data messages
+    clocked = [s for s in live] + list(refs.values())
+    _assign_epochs(clocked)
+
+    # ---- the IMU's arrays
+    order = _time_order(sel["t_s"], sel["epoch"])
+    ff = sel.pop("fields")
+    gyr, acc, mag_ut = _imu_si(sel["name"], ff)
+    del ff
+    imu_stream = ImuStream(
+        t_s=sel["t_s"][order],
+        gyr_rad_s=gyr[order],
+        acc_m_s2=acc[order],
+        epoch=sel["epoch"][order],
+    )
+    del gyr, acc
+    mag = None
+    if np.any(mag_ut != 0):
+        mag = MagStream(t_s=imu_stream.t_s, mag_ut=mag_ut[order], epoch=imu_stream.epoch)
+    del streams, live, by_inst, usable, clocked, mag_ut
+
+    # ---- the reference's arrays
+    ref = None
     if rname is not None:
         r = refs[rname]
         if r["clock"] != sel["clock"]:
             notes.append(f"{rname} and {sel['name']} use different clocks (boot vs UNIX): no reference")
         else:
             o = _time_order(r["t_s"], r["epoch"])
-            ref = RefStream(t_s=r["t_s"][o], q_nb_wxyz=r["q"][o], source=rname, epoch=r["epoch"][o])
+            q = _ref_quaternions(rname, r.pop("fields"), r["norm"])
+            ref = RefStream(t_s=r["t_s"][o], q_nb_wxyz=q[o], source=rname, epoch=r["epoch"][o])
+    del refs
 
     meta = {
         "source_kind": "tlog",
@@ -268,55 +287,93 @@ def imu_scale_known(name: str, autopilot_id: int | None) -> bool:
 
 
 def _imu_streams(frames, autopilot_id) -> list[dict]:
+    """IMU candidate streams: times, offsets and the raw rows (SI arrays only for the one selected)."""
     out = []
     for name, (tfield, fixed) in IMU_MESSAGES.items():
-        off, f = frames[name]
+        off, f = frames.pop(name)
         if len(off) == 0:
             continue
         inst = np.full(len(off), fixed, np.int64) if fixed is not None else f["id"].astype(np.int64)
         for k in np.unique(inst).tolist():
             m = inst == k
             ff, offs = (f, off) if m.all() else (f[m], off[m])
-            acc = _columns(ff, ("xacc", "yacc", "zacc"))
-            gyr = _columns(ff, ("xgyro", "ygyro", "zgyro"))
-            mag = _columns(ff, ("xmag", "ymag", "zmag"))
-            all_zero = not (np.any(acc != 0) or np.any(gyr != 0))
-            if name == "HIGHRES_IMU":
-                scale_known = True
-                mag *= GAUSS_TO_UT
-            else:
-                scale_known = imu_scale_known(name, autopilot_id)
-                acc *= MILLI_G_TO_M_S2
-                gyr *= MRAD_S_TO_RAD_S
-                mag *= MILLIGAUSS_TO_UT
+            all_zero = not any(np.any(ff[c] != 0) for c in (*_ACC, *_GYR))
             t_s, clock = _time_s(ff[tfield], tfield)
             out.append({
                 "name": name, "instance": int(k), "offset": offs, "t_s": t_s, "clock": clock,
-                "acc": acc, "gyr": gyr, "mag": mag, "all_zero": all_zero,
-                "scale_known": scale_known, "rate_hz": _rate_hz(t_s),
+                "fields": None if all_zero else ff, "all_zero": all_zero,
+                "scale_known": True if name == "HIGHRES_IMU" else imu_scale_known(name, autopilot_id),
+                "rate_hz": _rate_hz(t_s),
             })  # fmt: skip
+        del f
     return out
 
 
+_ACC = ("xacc", "yacc", "zacc")
+_GYR = ("xgyro", "ygyro", "zgyro")
+_MAG = ("xmag", "ymag", "zmag")
+
+
+def _imu_si(name: str, ff: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(gyr rad/s, acc m/s², mag µT) of an IMU message's rows (see the module docstring's units)."""
+    acc = _columns(ff, _ACC)
+    gyr = _columns(ff, _GYR)
+    mag = _columns(ff, _MAG)
+    if name == "HIGHRES_IMU":
+        mag *= GAUSS_TO_UT
+    else:
+        acc *= MILLI_G_TO_M_S2
+        gyr *= MRAD_S_TO_RAD_S
+        mag *= MILLIGAUSS_TO_UT
+    return gyr, acc, mag
+
+
+#: Rows converted at a time (Euler angles → quaternions): the temporaries stay one block in size.
+_BLOCK = 1 << 12
+
+
+def _raw_quaternions(name: str, f: np.ndarray) -> np.ndarray:
+    """(n, 4) float64 quaternions of ATTITUDE_QUATERNION / ATTITUDE rows, not normalised."""
+    if name == "ATTITUDE_QUATERNION":
+        return np.stack([f["q1"], f["q2"], f["q3"], f["q4"]], axis=1).astype(np.float64)
+    q = np.empty((len(f), 4))
+    for i in range(0, len(f), _BLOCK):
+        b = f[i : i + _BLOCK]
+        q[i : i + _BLOCK] = quat_from_euler_zyx(
+            b["roll"].astype(np.float64), b["pitch"].astype(np.float64), b["yaw"].astype(np.float64)
+        )
+    return q
+
+
 def _ref_streams(frames) -> dict[str, dict]:
+    """Reference candidates: rows whose quaternion is set (norm > 0.5), times and offsets.
+
+    The quaternions themselves are made for the selected one only (:func:`_ref_quaternions`).
+    """
     refs = {}
     for name in REF_MESSAGES:
-        off, f = frames[name]
+        off, f = frames.pop(name)
         if len(off) == 0:
             continue
-        if name == "ATTITUDE_QUATERNION":
-            q = np.stack([f["q1"], f["q2"], f["q3"], f["q4"]], axis=1).astype(np.float64)
-        else:
-            q = quat_from_euler_zyx(
-                f["roll"].astype(np.float64), f["pitch"].astype(np.float64), f["yaw"].astype(np.float64)
-            )
-        norm = np.linalg.norm(q, axis=1)
+        norm = np.empty(len(f))
+        for i in range(0, len(f), _BLOCK):
+            norm[i : i + _BLOCK] = np.linalg.norm(_raw_quaternions(name, f[i : i + _BLOCK]), axis=1)
         ok = np.isfinite(norm) & (norm > 0.5)  # a zero quaternion means "not set"
         if not np.any(ok):
             continue
-        t_s, clock = _time_s(f["time_boot_ms"][ok], "time_boot_ms")
-        refs[name] = {"name": name, "offset": off[ok], "t_s": t_s, "clock": clock, "q": q[ok] / norm[ok, None]}
+        if not ok.all():
+            f, off, norm = f[ok], off[ok], norm[ok]
+        t_s, clock = _time_s(f["time_boot_ms"], "time_boot_ms")
+        refs[name] = {"name": name, "offset": off, "t_s": t_s, "clock": clock, "fields": f, "norm": norm}
     return refs
+
+
+def _ref_quaternions(name: str, f: np.ndarray, norm: np.ndarray) -> np.ndarray:
+    """Unit quaternions (w, x, y, z, body → NED) of the reference rows, block by block."""
+    q = np.empty((len(f), 4))
+    for i in range(0, len(f), _BLOCK):
+        q[i : i + _BLOCK] = _raw_quaternions(name, f[i : i + _BLOCK]) / norm[i : i + _BLOCK, None]
+    return q
 
 
 def _columns(f: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
@@ -355,45 +412,83 @@ def boot_epochs(t_s: np.ndarray, backstep_s: float = REBOOT_BACKSTEP_S, confirm:
     A reboot starts at ``k`` when ``t[k]`` lies more than ``backstep_s`` below the latest time of
     the current epoch and the next ``confirm`` samples all stay below it.
     """
-    t = np.asarray(t_s, np.float64)
-    epoch = np.zeros(len(t), np.int64)
-    start = 0
-    e = 0
-    while start < len(t) - 1:
-        seg = t[start:]
-        cm = np.maximum.accumulate(seg)
-        cand = np.flatnonzero(seg[1:] < cm[:-1] - backstep_s) + 1
-        nxt = None
-        for k in cand:  # usually the first one; no list of all candidates
-            if np.max(seg[k : k + confirm]) < cm[k - 1]:
-                nxt = k
-                break
-        if nxt is None:
-            break
-        start += nxt
-        e += 1
+    epoch = np.zeros(len(t_s), np.int64)
+    for e, start in enumerate(_epoch_starts(t_s, backstep_s, confirm).tolist(), start=1):
         epoch[start:] = e
     return epoch
 
 
+def _epoch_starts(t_s: np.ndarray, backstep_s: float = REBOOT_BACKSTEP_S, confirm: int = REBOOT_CONFIRM) -> np.ndarray:
+    """Indices where a new boot epoch begins (the rule of :func:`boot_epochs`), ascending."""
+    t = np.asarray(t_s, np.float64)
+    starts = []
+    start = 0
+    while start < len(t) - 1:
+        seg = t[start:]
+        cm = np.maximum.accumulate(seg)
+        nxt = None
+        for b0 in range(0, len(seg) - 1, _SCAN_BLOCK):  # candidates k block by block (memory)
+            b1 = min(b0 + _SCAN_BLOCK, len(seg) - 1)
+            for j in np.flatnonzero(seg[b0 + 1 : b1 + 1] < cm[b0:b1] - backstep_s):
+                k = int(j) + b0 + 1
+                if np.max(seg[k : k + confirm]) < cm[k - 1]:  # usually the first candidate
+                    nxt = k
+                    break
+            if nxt is not None:
+                break
+        del cm
+        if nxt is None:
+            break
+        start += int(nxt)
+        starts.append(start)
+    return np.asarray(starts, np.int64)
+
+
+_SCAN_BLOCK = 1 << 14  # samples compared at a time when looking for reboots
+
+
+def _merge_positions(offsets: list[np.ndarray]) -> list[np.ndarray] | None:
+    """Where each element of several sorted offset arrays lands in their merged, stably sorted order.
+
+    Equal offsets keep the order of the arrays (as a stable sort of the concatenation would);
+    None when an array is not sorted.
+    """
+    if any(len(o) > 1 and np.any(o[1:] < o[:-1]) for o in offsets):
+        return None
+    out = []
+    for a, o_a in enumerate(offsets):
+        pos = np.arange(len(o_a), dtype=np.int64)
+        for b, o_b in enumerate(offsets):
+            if b != a:
+                pos += np.searchsorted(o_b, o_a, side="right" if b < a else "left")
+        out.append(pos)
+    return out
+
+
 def _assign_epochs(streams: list[dict]) -> None:
-    """Give every stream an ``epoch`` array from the merged boot clock (file order)."""
+    """Give every stream an ``epoch`` array from the merged boot clock (file order).
+
+    The merged clock is one float per sample; no argsort and no merged offset array (memory).
+    """
     boot = [s for s in streams if s["clock"] == "boot"]
     for s in streams:
         s["epoch"] = np.zeros(len(s["t_s"]), np.int64)
     if not boot:
         return
-    off = np.concatenate([s["offset"] for s in boot])
-    t = np.concatenate([s["t_s"] for s in boot])
-    order = np.argsort(off, kind="stable")
-    ep_sorted = boot_epochs(t[order])
-    ep = np.empty_like(ep_sorted)
-    ep[order] = ep_sorted
-    i = 0
-    for s in boot:
-        n = len(s["t_s"])
-        s["epoch"] = ep[i : i + n]
-        i += n
+    pos = _merge_positions([s["offset"] for s in boot])
+    if pos is None:  # not in file order: sort the concatenation
+        order = np.argsort(np.concatenate([s["offset"] for s in boot]), kind="stable")
+        rank = np.empty_like(order)
+        rank[order] = np.arange(len(order))
+        bounds = np.cumsum([0] + [len(s["t_s"]) for s in boot])
+        pos = [rank[bounds[k] : bounds[k + 1]] for k in range(len(boot))]
+    t = np.empty(sum(len(p) for p in pos))
+    for s, p in zip(boot, pos):
+        t[p] = s["t_s"]
+    starts = _epoch_starts(t)
+    del t
+    for s, p in zip(boot, pos):
+        s["epoch"] = np.searchsorted(starts, p, side="right").astype(np.int64, copy=False)
 
 
 def _unknown_scale_reason(s: dict, autopilot: str) -> str:
