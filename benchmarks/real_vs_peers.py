@@ -10,7 +10,7 @@ Inclination RMSE per file (5 s warm-up, the same samples for every estimator), t
 ratios to VQF side by side, the per-file check of the issue (TE-PINN ≤ max(1.5× VQF, VQF + 0.5°)),
 and TE-PINN's σ calibration on the real files (mean NEES, share within 3σ, per file averaged).
 
-    python benchmarks/real_vs_peers.py [--shared ../shared] [--sim-every 4] [--model CKPT]
+    python benchmarks/real_vs_peers.py [--shared ../shared] [--sim-every 4] [--model CKPT] [--lstm CKPT]
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ def main() -> int:
     ap.add_argument("--sim", default=str(REPO / "runs/heldout"), help="folder of the held-out campaign")
     ap.add_argument("--sim-every", type=int, default=4, help="every N-th held-out flight (0: none)")
     ap.add_argument("--model", default=None, help="TE-PINN checkpoint (default: shipped)")
+    ap.add_argument("--lstm", default=None, help="LSTM baseline checkpoint (default: shipped)")
     args = ap.parse_args()
 
     import torch
@@ -73,7 +74,7 @@ def main() -> int:
         return 2
 
     ests = [TepinnEstimator.from_checkpoint(args.model or default_model_path(), "tepinn"), VqfEstimator(),
-            TepinnEstimator.from_checkpoint(default_lstm_path(), "lstm"), FilterEstimator(Ekf(), name="ekf")]  # fmt: skip
+            TepinnEstimator.from_checkpoint(args.lstm or default_lstm_path(), "lstm"), FilterEstimator(Ekf(), name="ekf")]  # fmt: skip
     names = [e.name for e in ests]
     rows = []
     t0 = time.perf_counter()
