@@ -1,0 +1,97 @@
+"""Every config dataclass's defaults are the shipped model: read from the shipped checkpoint file
+itself (``torch.load``, not the package's loader) and from ``train/default.toml``, its recipe."""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from pathlib import Path
+
+import pytest
+import torch
+
+from tepinn_flight.config import to_dict
+from tepinn_flight.model.anchor import AnchorConfig
+from tepinn_flight.model.checkpoint import (ANCHOR_CONFIG_BEFORE, MODEL_CONFIG_BEFORE, default_model_path,
+                                            estimator_settings, load_model)  # fmt: skip
+from tepinn_flight.model.config import ModelConfig
+from tepinn_flight.model.losses import LossConfig
+from tepinn_flight.model.train_config import DataConfig, TrainConfig, load_train_config
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_TOML = REPO / "train" / "default.toml"
+#: keys of train/default.toml that are not the defaults on purpose: a recipe names its own data
+#: (paths relative to the recipe file)
+INTENTIONALLY_DIFFERENT = {("data", "campaign"), ("data", "optional_records")}
+
+
+@pytest.fixture(scope="module")
+def shipped() -> dict:
+    return torch.load(default_model_path(), map_location="cpu", weights_only=True)
+
+
+def test_model_config_defaults_are_the_shipped_model(shipped):
+    assert shipped["model_config"] == dataclasses.asdict(ModelConfig())
+
+
+#: loss options removed since the shipped model was trained (measured worse, kept off): their off value
+REMOVED_LOSS_OPTIONS = {"skip_clipped": False}
+
+
+def test_loss_config_defaults_are_the_shipped_model(shipped):
+    stored = dict(shipped["loss_config"])
+    for key, off in REMOVED_LOSS_OPTIONS.items():
+        assert stored.pop(key) == off and not hasattr(LossConfig(), key)
+    assert stored == dataclasses.asdict(LossConfig())
+
+
+def test_anchor_config_defaults_are_the_shipped_model(shipped):
+    default = {k: v for k, v in dataclasses.asdict(AnchorConfig()).items() if k != "fusion_config"}
+    assert shipped["anchor_config"] == default
+
+
+def test_training_defaults_are_the_shipped_run(shipped):
+    assert list(DataConfig().rate_factors) == shipped["training"]["rate_factors"]
+    assert TrainConfig().seed == shipped["training"]["seed"]
+
+
+def test_default_recipe_is_the_defaults_and_the_shipped_model(shipped):
+    """Every key train/default.toml sets is the default (but its data), and what it builds is what
+    the shipped checkpoint stores."""
+    raw = tomllib.loads(DEFAULT_TOML.read_text())
+    defaults = to_dict(TrainConfig())
+    differ = []
+    for table, value in raw.items():
+        items = value.items() if isinstance(value, dict) else [(None, value)]
+        for key, v in items:
+            d = defaults[table] if key is None else defaults[table].get(key)
+            if (table, key) not in INTENTIONALLY_DIFFERENT and v != d:
+                differ.append(f"{table}.{key} = {v!r} (default {d!r})")
+    assert not differ, differ
+    for table, key in INTENTIONALLY_DIFFERENT:  # still there (else the exception list is stale)
+        assert key in raw[table]
+    cfg = load_train_config(DEFAULT_TOML)
+    assert dataclasses.asdict(cfg.model) == shipped["model_config"]
+    assert dataclasses.asdict(cfg.loss) == {k: v for k, v in shipped["loss_config"].items() if k not in REMOVED_LOSS_OPTIONS}
+    assert {k: v for k, v in dataclasses.asdict(cfg.anchor).items() if k != "fusion_config"} == shipped["anchor_config"]
+
+
+def test_before_values_are_not_the_defaults():
+    """The fill-ins for old checkpoints are the settings they ran with, not today's defaults (else
+    an old checkpoint would silently load as a different model)."""
+    model, anchor = dataclasses.asdict(ModelConfig()), dataclasses.asdict(AnchorConfig())
+    assert all(model[k] != v for k, v in MODEL_CONFIG_BEFORE.items())
+    assert all(anchor[k] != v for k, v in ANCHOR_CONFIG_BEFORE.items())
+
+
+def test_old_anchor_config_loads_with_its_old_settings(shipped, tmp_path):
+    """An anchor_config written before tau_acc_flight_s and the fusion-bias gate existed runs with
+    VQF's own time constant in flight and without that gate (0 = off), not with today's 10 s / 3 °/s."""
+    old = {**shipped, "anchor_config": {k: v for k, v in shipped["anchor_config"].items()
+                                        if k not in ("tau_acc_flight_s", "bias_gate_fusion_deg_s")}}  # fmt: skip
+    a = estimator_settings(old)
+    assert isinstance(a, AnchorConfig) and a.tau_acc_flight_s == 0.0 and a.bias_gate_fusion_deg_s == 0.0
+    assert a.pull_gain == shipped["anchor_config"]["pull_gain"]
+    torch.save(old, tmp_path / "old.pt")
+    _, a2, _ = load_model(tmp_path / "old.pt")
+    assert a2 == a and a2.fusion_config == a.fusion_config
