@@ -342,7 +342,8 @@ def gravity_body(q_nb: Array, g: float = 1.0) -> Array:
     The accelerometer of a vehicle at rest reads the negative of ``gravity_body(q, 9.81)``.
     """
     o = _ops(q_nb)
-    return g * o.stack(list(_down_in_body(*_split(q_nb))))
+    down = o.stack(list(_down_in_body(*_split(q_nb))))
+    return down if g == 1.0 else g * down
 
 
 def gravity_body_f(q) -> tuple[float, float, float]:

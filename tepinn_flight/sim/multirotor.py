@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tepinn_flight.quat import gravity_body_f
 from tepinn_flight.sim.jsbsim_env import FT_TO_M, getter, setter
 
 G0 = 9.80665
@@ -228,8 +229,7 @@ class QuadController:
 
     def tilt(self) -> float:
         """Angle between body z and earth down, rad."""
-        w, x, y, z = self.q
-        c = 1.0 - 2.0 * (x * x + y * y)
+        c = gravity_body_f(self.q)[2]
         return math.acos(max(-1.0, min(1.0, c)))
 
     def level_quat(self, yaw: float) -> tuple[float, float, float, float]:
