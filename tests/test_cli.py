@@ -137,20 +137,63 @@ def test_abbreviated_options_are_refused(argv, bad, capsys):
     assert "unrecognized arguments" in err and bad in err and len(err.strip().splitlines()) == 1
 
 
-def test_a_command_whose_module_fails_to_import_stays_listed_and_fails_loudly(monkeypatch, capsys):
+def test_the_verbs_are_the_command_modules():
+    """The parser's verbs, read from the parser, are exactly the ``cli/*_cmd.py`` modules: a module
+    dropped from COMMANDS (a lost command) or a verb without its module fails here."""
+    from pathlib import Path
+
     from tepinn_flight.cli import main as cli_main
 
-    monkeypatch.setattr(cli_main, "COMMANDS", cli_main.COMMANDS + [("ghost", "ghost_cmd_does_not_exist")])
+    modules = sorted(p.stem for p in (Path(cli_main.__file__).parent).glob("*_cmd.py"))
+    verbs = cli_main.command_names(cli_main.build_parser())
+    assert sorted(f"{v}_cmd" for v in verbs) == modules
+    assert [m for _, m in cli_main.COMMANDS] == [f"{v}_cmd" for v in verbs]
+
+
+def _break_import(monkeypatch, module: str):
+    """Make ``cli/<module>.py`` fail to import as a bug in it would (ImportError from inside it)."""
+    import importlib
+
+    from tepinn_flight.cli import main as cli_main
+
+    real = importlib.import_module
+
+    def fake(name, *a, **kw):
+        if name == f"tepinn_flight.cli.{module}":
+            raise ImportError(f"cannot import name 'gone' from 'tepinn_flight.{module}'")
+        return real(name, *a, **kw)
+
+    monkeypatch.setattr(cli_main.importlib, "import_module", fake)
     monkeypatch.delenv("TEPINN_DEBUG", raising=False)
+
+
+@pytest.mark.parametrize("argv", [["info", "--help"], ["info", "x.bin"], ["info"]], ids=["help", "run", "bare"])
+def test_a_verb_whose_module_fails_to_import_fails_loudly(monkeypatch, capsys, argv):
+    """A broken verb module is neither hidden nor given a usage text: the verb, --help included,
+    fails with exit 1 and one line naming the module and the import error; the other verbs work."""
+    from tepinn_flight.cli import main as cli_main
+
+    _break_import(monkeypatch, "info_cmd")
     parser = cli_main.build_parser()
-    assert "ghost" in cli_main.command_names(parser) and "ghost" in cli_main.UNAVAILABLE
-    assert "ghost" in parser.format_help() and "UNAVAILABLE" in parser.format_help()
-    assert main(["ghost", "anything", "--at-all"]) == 2
+    assert "info" in cli_main.command_names(parser) and "BROKEN" in parser.format_help()
+    assert main(argv) == 1
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "tepinn-flight ghost: error: command unavailable" in err and "ModuleNotFoundError" in err
+    assert err.count("\n") == 1 and err.startswith("tepinn-flight info: internal error:"), err
+    assert "cli/info_cmd.py failed to import" in err and "ImportError" in err and "gone" in err
+    with pytest.raises(SystemExit) as exc:  # its neighbours are unaffected
+        main(["ingest", "--help"])
+    assert exc.value.code == 0
     monkeypatch.setenv("TEPINN_DEBUG", "1")
     with pytest.raises(ImportError):
         cli_main.build_parser()
+
+
+def test_a_broken_verb_fails_the_help_check(monkeypatch, capsys):
+    """The check every verb's --help gets above fails for a broken module (it cannot pass by
+    printing a stand-in usage text)."""
+    _break_import(monkeypatch, "export_cmd")
+    with pytest.raises((AssertionError, pytest.fail.Exception)):  # "DID NOT RAISE SystemExit": main returned 1
+        test_every_verb_has_working_help("export", capsys)
 
 
 def test_estimate_warns_once_when_the_imu_is_too_slow(tmp_path, capsys):
