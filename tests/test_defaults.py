@@ -12,8 +12,9 @@ import torch
 
 from tepinn_flight.config import to_dict
 from tepinn_flight.model.anchor import AnchorConfig
-from tepinn_flight.model.checkpoint import (ANCHOR_CONFIG_BEFORE, MODEL_CONFIG_BEFORE, default_model_path,
-                                            estimator_settings, load_model)  # fmt: skip
+from tepinn_flight.model.checkpoint import (ANCHOR_CONFIG_BEFORE, MODEL_CONFIG_BEFORE, REMOVED_ANCHOR_OPTIONS,
+                                            CheckpointError, default_model_path, estimator_settings, load_model)  # fmt: skip
+from tepinn_flight.cli.main import main
 from tepinn_flight.model.config import ModelConfig
 from tepinn_flight.model.losses import LossConfig
 from tepinn_flight.model.train_config import DataConfig, TrainConfig, load_train_config
@@ -47,7 +48,10 @@ def test_loss_config_defaults_are_the_shipped_model(shipped):
 
 def test_anchor_config_defaults_are_the_shipped_model(shipped):
     default = {k: v for k, v in dataclasses.asdict(AnchorConfig()).items() if k != "fusion_config"}
-    assert shipped["anchor_config"] == default
+    stored = dict(shipped["anchor_config"])
+    for key, (kept, _) in REMOVED_ANCHOR_OPTIONS.items():
+        assert stored.pop(key) == kept and key not in default
+    assert stored == default
 
 
 def test_training_defaults_are_the_shipped_run(shipped):
@@ -73,7 +77,8 @@ def test_default_recipe_is_the_defaults_and_the_shipped_model(shipped):
     cfg = load_train_config(DEFAULT_TOML)
     assert dataclasses.asdict(cfg.model) == shipped["model_config"]
     assert dataclasses.asdict(cfg.loss) == {k: v for k, v in shipped["loss_config"].items() if k not in REMOVED_LOSS_OPTIONS}
-    assert {k: v for k, v in dataclasses.asdict(cfg.anchor).items() if k != "fusion_config"} == shipped["anchor_config"]
+    assert {k: v for k, v in dataclasses.asdict(cfg.anchor).items() if k != "fusion_config"} == {
+        k: v for k, v in shipped["anchor_config"].items() if k not in REMOVED_ANCHOR_OPTIONS}
 
 
 def test_before_values_are_not_the_defaults():
@@ -95,3 +100,34 @@ def test_old_anchor_config_loads_with_its_old_settings(shipped, tmp_path):
     torch.save(old, tmp_path / "old.pt")
     _, a2, _ = load_model(tmp_path / "old.pt")
     assert a2 == a and a2.fusion_config == a.fusion_config
+
+
+@pytest.mark.parametrize("stored", ["window", None], ids=["window", "written-before-the-key"])
+def test_a_checkpoint_with_a_removed_option_on_is_refused_in_one_line(shipped, tmp_path, capsys, stored):
+    """pull_target = "window" (removed, measured worse) cannot run as it was made: refused, naming
+    the file and the option, by the loader and by the CLI (exit 2, one line). Held at the kept
+    value ("fusion", the shipped model) the key is dropped and the checkpoint loads."""
+    anchor = {k: v for k, v in shipped["anchor_config"].items() if k != "pull_target"}
+    if stored is not None:
+        anchor["pull_target"] = stored
+    path = tmp_path / "old.pt"
+    torch.save({**shipped, "anchor_config": anchor}, path)
+    with pytest.raises(CheckpointError, match="pull_target = 'window', an option removed"):
+        load_model(path)
+    rec = tmp_path / "r.parquet"
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    write_record(synthetic_record(seed=1, duration_s=5.0, rate_hz=100.0), rec)
+    assert main(["estimate", str(rec), "--model", str(path), "-o", str(tmp_path / "e.parquet"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(path) in err and "pull_target" in err, err
+    assert not (tmp_path / "e.parquet").exists()
+    disabled = {**shipped, "anchor_config": {**anchor, "enabled": False}}  # not run: nothing to refuse
+    assert not isinstance(estimator_settings(disabled), AnchorConfig)
+
+
+def test_a_removed_option_at_its_kept_value_is_dropped(shipped):
+    assert shipped["anchor_config"]["pull_target"] == "fusion"
+    a = estimator_settings(shipped)
+    assert isinstance(a, AnchorConfig) and not hasattr(a, "pull_target")

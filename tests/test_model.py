@@ -457,7 +457,7 @@ def test_sensor_model_limits():
     v = {k: t.detach() for k, t in s.values().items()}
     assert float(v["S_g"].abs().max()) <= 0.05 + 1e-6 and float(v["b_g"].abs().max()) == 0.0
     torch.testing.assert_close(v["b_a"], torch.full((3,), 1e-4), rtol=1e-6, atol=0)  # ≈ raw near 0
-    with pytest.raises(Exception, match="'sensor_scale_max' must be in \\[0, 1\\], got -1.0"):
+    with pytest.raises(Exception, match="'sensor_scale_max' must be finite and in \\[0, 1\\], got -1.0"):
         ModelConfig(sensor_scale_max=-1.0)
 
 

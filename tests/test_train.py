@@ -263,7 +263,7 @@ def recipe_with(table: str, line: str) -> str:
         ("model", 'encoder = "gru"', "'model.encoder' must be one of 'transformer', 'lstm', 'mlp', got 'gru'"),
         ("model", "physics = false", "centripetal needs physics = true"),  # the defaults are TE-PINN's
         ("anchor", 'mode = "7d"', "'anchor.mode' must be one of '6d', '9d', 'auto', got '7d'"),
-        ("anchor", 'pull_target = "vqf"', "'anchor.pull_target' must be one of 'fusion', 'window', got 'vqf'"),
+        ("anchor", 'pull_target = "fusion"', "unknown key 'anchor.pull_target'"),  # removed (measured worse)
         ("anchor", "pull_gain = 1.5", "'pull_gain' must be finite and in [0, 1], got 1.5"),
         ("anchor", "tau_acc_s = nan", "'tau_acc_s' must be finite and > 0, got nan"),
         ("anchor", "speed_hi_m_s = 10.0", "'speed_hi_m_s' must be finite and > 20, got 10.0"),

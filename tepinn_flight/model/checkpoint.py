@@ -51,7 +51,11 @@ MODEL_CONFIG_BEFORE = {
 }  # fmt: skip
 #: ... and of the filter-anchored estimator's settings (``anchor_config``): VQF's own accelerometer time
 #: constant in flight (0), no uncalibrated-gyro evidence from the older fusion (0: off)
-ANCHOR_CONFIG_BEFORE = {"tau_acc_flight_s": 0.0, "pull_target": "window", "bias_gate_fusion_deg_s": 0.0}
+ANCHOR_CONFIG_BEFORE = {"tau_acc_flight_s": 0.0, "bias_gate_fusion_deg_s": 0.0}
+#: Anchor options removed after they measured worse: key → (the value kept, the one this tepinn-flight
+#: runs and drops from the checkpoint; the value of checkpoints written before the key existed).
+#: Any other value, the older one included, is refused: the checkpoint would run differently.
+REMOVED_ANCHOR_OPTIONS = {"pull_target": ("fusion", "window")}
 
 
 def model_config_from(meta: dict) -> ModelConfig:
@@ -67,9 +71,14 @@ def anchor_config_from(meta: dict) -> AnchorConfig | None:
     raw = meta.get("anchor_config")
     if raw is None:
         return None
+    raw = {k: v for k, v in raw.items() if k != "fusion_config"}
+    for key, (kept, before) in REMOVED_ANCHOR_OPTIONS.items():
+        value = raw.pop(key, before)
+        if value != kept and raw.get("enabled", True):
+            raise CheckpointError(f"its anchored estimator has {key} = {value!r}, an option removed after it measured "
+                                  f"worse; this tepinn-flight runs only {key} = {kept!r}")  # fmt: skip
     fusion = FusionConfig(**(meta.get("fusion_config") or {}))
-    return AnchorConfig(**{**ANCHOR_CONFIG_BEFORE, **{k: v for k, v in raw.items() if k != "fusion_config"}},
-                        fusion_config=fusion)  # fmt: skip
+    return AnchorConfig(**{**ANCHOR_CONFIG_BEFORE, **raw}, fusion_config=fusion)
 
 
 def estimator_settings(meta: dict) -> FusionConfig | AnchorConfig:
@@ -146,9 +155,11 @@ def load_model(path: str | os.PathLike) -> tuple[TEPINN, FusionConfig | AnchorCo
 
     ckpt = read_checkpoint(path)
     try:
+        fusion = estimator_settings(ckpt)
         model = TEPINN(model_config_from(ckpt))
         model.load_state_dict(ckpt["state_dict"])
-        fusion = estimator_settings(ckpt)
+    except CheckpointError as exc:  # a removed option: say which file
+        raise CheckpointError(exc.reason, path) from None
     except (TypeError, KeyError, RuntimeError) as exc:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
         raise CheckpointError(f"checkpoint does not match this model ({first})", path) from None
