@@ -49,7 +49,7 @@ def test_loss_config_defaults_are_the_shipped_model(shipped):
 def test_anchor_config_defaults_are_the_shipped_model(shipped):
     default = {k: v for k, v in dataclasses.asdict(AnchorConfig()).items() if k != "fusion_config"}
     stored = dict(shipped["anchor_config"])
-    for key, (kept, _) in REMOVED_ANCHOR_OPTIONS.items():
+    for key, (kept, _, _) in REMOVED_ANCHOR_OPTIONS.items():
         assert stored.pop(key) == kept and key not in default
     assert stored == default
 
@@ -110,6 +110,8 @@ def test_a_checkpoint_with_a_removed_option_on_is_refused_in_one_line(shipped, t
     anchor = {k: v for k, v in shipped["anchor_config"].items() if k != "pull_target"}
     if stored is not None:
         anchor["pull_target"] = stored
+    else:  # as written before pull_target existed: without the keys added after it either
+        del anchor["bias_gate_fusion_deg_s"]
     path = tmp_path / "old.pt"
     torch.save({**shipped, "anchor_config": anchor}, path)
     with pytest.raises(CheckpointError, match="pull_target = 'window', an option removed"):
@@ -131,3 +133,17 @@ def test_a_removed_option_at_its_kept_value_is_dropped(shipped):
     assert shipped["anchor_config"]["pull_target"] == "fusion"
     a = estimator_settings(shipped)
     assert isinstance(a, AnchorConfig) and not hasattr(a, "pull_target")
+
+
+def test_a_checkpoint_written_after_the_removal_loads_as_the_kept_value(tmp_path):
+    """save_checkpoint writes no pull_target any more: such a checkpoint is not mistaken for one
+    written before the option existed."""
+    from tepinn_flight.model.checkpoint import save_checkpoint
+    from tepinn_flight.model.fusion import FusionConfig
+    from tepinn_flight.model.network import TEPINN
+
+    model = TEPINN(ModelConfig(window_tokens=12, d_model=8, n_heads=2, n_layers=1, d_ff=16))
+    save_checkpoint(tmp_path / "new.pt", model, FusionConfig(), AnchorConfig())
+    assert "pull_target" not in torch.load(tmp_path / "new.pt", weights_only=True)["anchor_config"]
+    _, settings, _ = load_model(tmp_path / "new.pt")
+    assert settings == AnchorConfig()

@@ -53,9 +53,11 @@ MODEL_CONFIG_BEFORE = {
 #: constant in flight (0), no uncalibrated-gyro evidence from the older fusion (0: off)
 ANCHOR_CONFIG_BEFORE = {"tau_acc_flight_s": 0.0, "bias_gate_fusion_deg_s": 0.0}
 #: Anchor options removed after they measured worse: key → (the value kept, the one this tepinn-flight
-#: runs and drops from the checkpoint; the value of checkpoints written before the key existed).
-#: Any other value, the older one included, is refused: the checkpoint would run differently.
-REMOVED_ANCHOR_OPTIONS = {"pull_target": ("fusion", "window")}
+#: runs and drops from the checkpoint; the value of checkpoints written before the key existed; a key
+#: added while the option existed). A checkpoint lacking the option ran with the kept value if it has
+#: that later key (written after the removal), else with the value before. Any value but the kept one
+#: is refused: the checkpoint would run differently.
+REMOVED_ANCHOR_OPTIONS = {"pull_target": ("fusion", "window", "bias_gate_fusion_deg_s")}
 
 
 def model_config_from(meta: dict) -> ModelConfig:
@@ -72,8 +74,8 @@ def anchor_config_from(meta: dict) -> AnchorConfig | None:
     if raw is None:
         return None
     raw = {k: v for k, v in raw.items() if k != "fusion_config"}
-    for key, (kept, before) in REMOVED_ANCHOR_OPTIONS.items():
-        value = raw.pop(key, before)
+    for key, (kept, before, later) in REMOVED_ANCHOR_OPTIONS.items():
+        value = raw.pop(key, kept if later in raw else before)
         if value != kept and raw.get("enabled", True):
             raise CheckpointError(f"its anchored estimator has {key} = {value!r}, an option removed after it measured "
                                   f"worse; this tepinn-flight runs only {key} = {kept!r}")  # fmt: skip
