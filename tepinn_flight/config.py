@@ -35,7 +35,7 @@ T = TypeVar("T")
 
 __all__ = [
     "load_toml", "from_dict", "load_config", "to_dict", "apply_overrides", "parse_override", "check",
-    "finite_nonneg", "check_range",
+    "finite_nonneg", "check_range", "check_choice",
 ]
 
 
@@ -267,3 +267,10 @@ def check_range(name: str, value: float, lo: float | None = None, hi: float | No
     if not ok:
         finite = "" if allowed == "finite" or isinstance(value, int) else "finite and "
         raise ConfigError(f"'{name}' must be {finite}{allowed}, got {value!r}")
+
+
+def check_choice(name: str, value, choices) -> None:
+    """Enum check for ``__post_init__`` (a dataclass built in code, not only from TOML): the
+    ConfigError names the key and the allowed values, e.g. ``'yaw' must be one of 'gyro', 'zero', got 'x'``."""
+    if not isinstance(value, str) or value not in choices:
+        raise ConfigError(f"'{name}' must be one of {', '.join(map(repr, choices))}, got {value!r}")

@@ -12,6 +12,7 @@ gradients stay finite at 0 and at π.
 
 from __future__ import annotations
 
+import math
 import sys
 from typing import Any
 
@@ -287,14 +288,24 @@ def quat_from_euler_zyx(roll: Array, pitch: Array, yaw: Array) -> Array:
     cr, sr = o.cos(0.5 * roll), o.sin(0.5 * roll)
     cp, sp = o.cos(0.5 * pitch), o.sin(0.5 * pitch)
     cy, sy = o.cos(0.5 * yaw), o.sin(0.5 * yaw)
-    return o.stack(
-        [
-            cr * cp * cy + sr * sp * sy,
-            sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy,
-            cr * cp * sy - sr * sp * cy,
-        ]
+    return o.stack(list(_euler_zyx_half_angles(cr, sr, cp, sp, cy, sy)))
+
+
+def _euler_zyx_half_angles(cr, sr, cp, sp, cy, sy):
+    """The formula of :func:`quat_from_euler_zyx` on the half angles' cosines and sines: arrays or floats."""
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
     )
+
+
+def quat_from_euler_zyx_f(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """:func:`quat_from_euler_zyx` for one set of float angles, without numpy (per-step loops: the
+    simulated multirotor's controller)."""
+    return _euler_zyx_half_angles(math.cos(0.5 * roll), math.sin(0.5 * roll), math.cos(0.5 * pitch),
+                                  math.sin(0.5 * pitch), math.cos(0.5 * yaw), math.sin(0.5 * yaw))  # fmt: skip
 
 
 def quat_to_euler_zyx(q: Array) -> tuple[Array, Array, Array]:
@@ -342,7 +353,8 @@ def gravity_body(q_nb: Array, g: float = 1.0) -> Array:
     The accelerometer of a vehicle at rest reads the negative of ``gravity_body(q, 9.81)``.
     """
     o = _ops(q_nb)
-    return g * o.stack(list(_down_in_body(*_split(q_nb))))
+    down = o.stack(list(_down_in_body(*_split(q_nb))))
+    return down if g == 1.0 else g * down
 
 
 def gravity_body_f(q) -> tuple[float, float, float]:

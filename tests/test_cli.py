@@ -137,20 +137,63 @@ def test_abbreviated_options_are_refused(argv, bad, capsys):
     assert "unrecognized arguments" in err and bad in err and len(err.strip().splitlines()) == 1
 
 
-def test_a_command_whose_module_fails_to_import_stays_listed_and_fails_loudly(monkeypatch, capsys):
+def test_the_verbs_are_the_command_modules():
+    """The parser's verbs, read from the parser, are exactly the ``cli/*_cmd.py`` modules: a module
+    dropped from COMMANDS (a lost command) or a verb without its module fails here."""
+    from pathlib import Path
+
     from tepinn_flight.cli import main as cli_main
 
-    monkeypatch.setattr(cli_main, "COMMANDS", cli_main.COMMANDS + [("ghost", "ghost_cmd_does_not_exist")])
+    modules = sorted(p.stem for p in (Path(cli_main.__file__).parent).glob("*_cmd.py"))
+    verbs = cli_main.command_names(cli_main.build_parser())
+    assert sorted(f"{v}_cmd" for v in verbs) == modules
+    assert [m for _, m in cli_main.COMMANDS] == [f"{v}_cmd" for v in verbs]
+
+
+def _break_import(monkeypatch, module: str):
+    """Make ``cli/<module>.py`` fail to import as a bug in it would (ImportError from inside it)."""
+    import importlib
+
+    from tepinn_flight.cli import main as cli_main
+
+    real = importlib.import_module
+
+    def fake(name, *a, **kw):
+        if name == f"tepinn_flight.cli.{module}":
+            raise ImportError(f"cannot import name 'gone' from 'tepinn_flight.{module}'")
+        return real(name, *a, **kw)
+
+    monkeypatch.setattr(cli_main.importlib, "import_module", fake)
     monkeypatch.delenv("TEPINN_DEBUG", raising=False)
+
+
+@pytest.mark.parametrize("argv", [["info", "--help"], ["info", "x.bin"], ["info"]], ids=["help", "run", "bare"])
+def test_a_verb_whose_module_fails_to_import_fails_loudly(monkeypatch, capsys, argv):
+    """A broken verb module is neither hidden nor given a usage text: the verb, --help included,
+    fails with exit 1 and one line naming the module and the import error; the other verbs work."""
+    from tepinn_flight.cli import main as cli_main
+
+    _break_import(monkeypatch, "info_cmd")
     parser = cli_main.build_parser()
-    assert "ghost" in cli_main.command_names(parser) and "ghost" in cli_main.UNAVAILABLE
-    assert "ghost" in parser.format_help() and "UNAVAILABLE" in parser.format_help()
-    assert main(["ghost", "anything", "--at-all"]) == 2
+    assert "info" in cli_main.command_names(parser) and "BROKEN" in parser.format_help()
+    assert main(argv) == 1
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "tepinn-flight ghost: error: command unavailable" in err and "ModuleNotFoundError" in err
+    assert err.count("\n") == 1 and err.startswith("tepinn-flight info: internal error:"), err
+    assert "cli/info_cmd.py failed to import" in err and "ImportError" in err and "gone" in err
+    with pytest.raises(SystemExit) as exc:  # its neighbours are unaffected
+        main(["ingest", "--help"])
+    assert exc.value.code == 0
     monkeypatch.setenv("TEPINN_DEBUG", "1")
     with pytest.raises(ImportError):
         cli_main.build_parser()
+
+
+def test_a_broken_verb_fails_the_help_check(monkeypatch, capsys):
+    """The check every verb's --help gets above fails for a broken module (it cannot pass by
+    printing a stand-in usage text)."""
+    _break_import(monkeypatch, "export_cmd")
+    with pytest.raises((AssertionError, pytest.fail.Exception)):  # "DID NOT RAISE SystemExit": main returned 1
+        test_every_verb_has_working_help("export", capsys)
 
 
 def test_estimate_warns_once_when_the_imu_is_too_slow(tmp_path, capsys):
@@ -186,3 +229,256 @@ def test_info_accepts_a_folder_like_evaluate(tmp_path, capsys):
     assert str(tmp_path / "syn1.parquet") in out and str(tmp_path / "syn2.parquet") in out and "notes.txt" not in out
     assert main(["info", str(tmp_path), "--json"]) == 0
     assert sorted(json.loads(capsys.readouterr().out)) == [str(tmp_path / "syn1.parquet"), str(tmp_path / "syn2.parquet")]
+
+
+# ----------------------------------------------------------------------------- one real run of each verb
+# Small real inputs: the Erle copter log (ArduPilot DataFlash, 50 Hz) cut to its first 26 s, a short
+# simulated flight, the shipped model; each result checked against something the verb did not make.
+
+N_CROP = 1300  # rows of the Erle record kept (the pinned rows 0 and 1266 inside)
+
+
+@pytest.fixture(scope="module")
+def erle(tmp_path_factory):
+    """``ingest`` of the real Erle log (the verb's real run), and that record cut to N_CROP rows."""
+    from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.record import FlightRecord, read_record, write_record
+
+    log = real_log("erle_pxf_copter_15-12-2014_16.BIN")
+    d = tmp_path_factory.mktemp("erle")
+    assert main(["ingest", str(log), "-o", str(d / "full.parquet"), "-q"]) == 0
+    full = read_record(d / "full.parquet")
+    crop = FlightRecord(full.data.iloc[:N_CROP].reset_index(drop=True), dict(full.meta))
+    write_record(crop, d / "crop.parquet")
+    return {"log": log, "dir": d, "full": full, "crop": d / "crop.parquet", "direct": ingest_log(log)}
+
+
+def test_ingest_real_log(erle):
+    """The record ``ingest`` wrote is the log as the library reads it: 7600 IMU samples at 50 Hz,
+    the autopilot's attitude as the reference, unit quaternions."""
+    import numpy as np
+
+    rec, direct = erle["full"], erle["direct"]
+    assert len(rec) == 7600 and rec.meta["imu_rate_hz"] == pytest.approx(50.0, abs=0.1)
+    np.testing.assert_array_equal(rec.gyr_rad_s, direct.gyr_rad_s)
+    np.testing.assert_array_equal(rec.q_ref_wxyz, direct.q_ref_wxyz)
+    np.testing.assert_allclose(np.linalg.norm(rec.q_ref_wxyz, axis=1), 1.0, atol=1e-6)
+
+
+def test_info_real_record_and_log(erle, capsys):
+    assert main(["info", str(erle["crop"]), str(erle["log"])]) == 0
+    out = capsys.readouterr().out
+    assert f"samples              {N_CROP}" in out and "samples              7600" in out  # the cut record, the log
+    assert "ArduCopter V3.3-dev" in out and "50.0 Hz" in out
+
+
+@pytest.mark.slow
+def test_estimate_real_record_equals_the_pinned_estimates(erle, tmp_path):
+    """The shipped model through the verb: the pinned values of tests/test_pinned_estimates.py
+    (the estimator is causal, so the cut record gives the full log's estimates)."""
+    import numpy as np
+    import pandas as pd
+
+    from tests.test_pinned_estimates import PINNED
+
+    out = tmp_path / "est.parquet"
+    assert main(["estimate", str(erle["crop"]), "-o", str(out), "-q"]) == 0
+    est = pd.read_parquet(out)
+    assert len(est) == N_CROP
+    for row in (r for r in PINNED if r < N_CROP):
+        q_pin, s_pin = PINNED[row]
+        np.testing.assert_allclose(est.loc[row, ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy(float), q_pin,
+                                   rtol=0, atol=1e-9)  # fmt: skip
+        assert est.loc[row, "sigma_rad"] == pytest.approx(s_pin, abs=1e-9)
+
+
+@pytest.mark.slow
+def test_evaluate_real_record_matches_an_independent_inclination_error(erle, tmp_path):
+    """The report's TE-PINN inclination RMSE is the angle between the estimated and the reference
+    gravity directions (scipy rotations) over the samples after the 5 s warm-up."""
+    import json
+
+    import numpy as np
+    import pandas as pd
+    from scipy.spatial.transform import Rotation
+
+    from tepinn_flight.record import read_record
+
+    assert main(["estimate", str(erle["crop"]), "-o", str(tmp_path / "est.parquet"), "-q"]) == 0
+    assert main(["evaluate", str(erle["crop"]), "-o", str(tmp_path / "rep"), "--no-peers", "-q"]) == 0
+    assert (tmp_path / "rep" / "report.md").exists() and (tmp_path / "rep" / "report.html").exists()
+    metrics = json.loads((tmp_path / "rep" / "metrics.json").read_text())
+    got = metrics["records"][0]["results"]["tepinn"]["inclination_rmse_deg"]
+    rec = read_record(erle["crop"])
+    q_est = pd.read_parquet(tmp_path / "est.parquet")[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+    m = rec.t_s - rec.t_s[0] >= 5.0
+    down = [Rotation.from_quat(q[m][:, [1, 2, 3, 0]]).inv().apply([0.0, 0.0, 1.0]) for q in (q_est, rec.q_ref_wxyz)]
+    angle = np.arccos(np.clip(np.sum(down[0] * down[1], axis=1), -1.0, 1.0))
+    assert got == pytest.approx(np.degrees(np.sqrt(np.mean(angle**2))), rel=1e-6)
+
+
+@pytest.mark.slow
+def test_simulate_a_short_flight(tmp_path, capsys):
+    """JSBSim F450, 3 s at 200 Hz: the gyro agrees with rates differentiated from the true attitude."""
+    import numpy as np
+
+    from tepinn_flight.record import read_record
+    from tests.consistency import rate_consistency
+
+    out = tmp_path / "f450.parquet"
+    assert main(["simulate", "--aircraft", "F450", "--duration", "3", "--rate", "200", "--seed", "3",
+                 "--sensor", "tactical", "--sensor-set", "gyro.range_deg_s=2000", "-o", str(out), "-q"]) == 0  # fmt: skip
+    rec = read_record(out)
+    assert len(rec) == 600 and rec.meta["reference_source"] == "jsbsim-truth"
+    rc = rate_consistency(rec)
+    assert np.all(rc.corr[rc.moving] > 0.99)
+
+
+@pytest.mark.slow
+def test_train_tiny_recipe(tmp_path):
+    """train/tiny.toml made smaller: model.pt is written, loads, and is the recipe's model."""
+    from pathlib import Path
+
+    from tepinn_flight.model.checkpoint import load_model
+    from tepinn_flight.model.train_config import load_train_config
+
+    tiny = Path(__file__).resolve().parents[1] / "train" / "tiny.toml"
+    sets = ["model.d_model=8", "model.d_ff=16", "model.window_tokens=12", "data.synthetic_flights=3",
+            "data.synthetic_duration_s=5.0", "optim.batch_size=8", "optim.steps_per_epoch=2", "optim.epochs=1"]  # fmt: skip
+    argv = ["train", "--config", str(tiny), "-o", str(tmp_path / "run"), "-q"]
+    for s in sets:
+        argv += ["--set", s]
+    assert main(argv) == 0
+    model, _, ck = load_model(tmp_path / "run" / "model.pt")
+    assert model.config == load_train_config(tiny, sets).model and ck["metrics"]["epoch"] == 1
+
+
+@pytest.mark.slow
+def test_export_the_shipped_model(tmp_path):
+    """The ONNX graph carries the checkpoint's configs and gives the network's outputs."""
+    import json
+
+    import numpy as np
+    import onnxruntime as ort
+    import torch
+
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+
+    out = tmp_path / "m.onnx"
+    assert main(["export", "-o", str(out), "-q"]) == 0
+    sess = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+    model, _, ck = load_model(default_model_path())
+    assert json.loads(sess.get_modelmeta().custom_metadata_map["model_config"]) == ck["model_config"]
+    k, rng = model.config.window_tokens, np.random.default_rng(0)
+    feed = {"gyr": rng.normal(0, 0.5, (2, k, 3)), "acc": rng.normal(0, 1, (2, k, 3)) + [0, 0, -9.81],
+            "count": np.full((2, k), 8.0), "t_rel": np.tile((np.arange(k) - k + 1) * 0.04, (2, 1)),
+            "dt": np.full((2, k), 0.04), "mag": np.zeros((2, k, 3)), "clip": np.zeros((2, k))}  # fmt: skip
+    names = [i.name for i in sess.get_inputs()]
+    q_onnx = sess.run(["q"], {n: feed[n].astype(np.float32) for n in names})[0]
+    with torch.inference_mode():
+        q_torch = model(*[torch.as_tensor(feed[n], dtype=torch.float32) for n in
+                          ("gyr", "acc", "count", "t_rel", "dt", "mag", "clip")])["q"].numpy()  # fmt: skip
+    np.testing.assert_allclose(np.abs(np.sum(q_onnx * q_torch, axis=1)), 1.0, atol=1e-5)
+
+
+def test_replay_a_small_tlog(tmp_path):
+    """Every frame of the tlog arrives at the UDP endpoint, unchanged and in order."""
+    import time
+
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.tlog_writer import write_tlog
+    from tests.test_replay import UdpListener, tlog_records
+
+    path = tmp_path / "s.tlog"
+    write_tlog(path, synthetic_record(seed=2, duration_s=1.0, rate_hz=100.0))
+    lis = UdpListener()
+    try:
+        assert main(["replay", str(path), "--to", f"udpout:127.0.0.1:{lis.port}", "--speed", "4", "-q"]) == 0
+        time.sleep(0.3)
+    finally:
+        lis.close()
+    assert [d for _, d in lis.datagrams] == [fr for _, fr in tlog_records(path)]
+
+
+@pytest.mark.slow
+def test_bridge_estimates_a_replayed_flight(tmp_path):
+    """replay → bridge (the shipped model) for a 3 s synthetic flight: the bridge counts every IMU
+    sample the tlog holds and publishes estimates."""
+    import json
+    import signal
+    import time
+
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.tlog_writer import write_tlog
+    from tests.test_replay import CLI, free_udp_port, tlog_records
+
+    path = tmp_path / "s.tlog"
+    write_tlog(path, synthetic_record(seed=3, duration_s=6.0, rate_hz=100.0))
+    from tepinn_flight.live import dialect
+
+    rx = dialect().MAVLink(None)
+    n_imu = sum(m.get_type() == "HIGHRES_IMU" for _, fr in tlog_records(path) for m in rx.parse_buffer(fr) or [])
+    port, summary = free_udp_port(), tmp_path / "summary.json"
+    env = {k: v for k, v in os.environ.items() if k != "TEPINN_DEBUG"}
+    bridge = subprocess.Popen([*CLI, "bridge", "--master", f"udpin:127.0.0.1:{port}", "--summary-json", str(summary),
+                               "--max-age", "5", "-q"], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True, env=env)  # fmt: skip
+    try:
+        time.sleep(8.0)  # model loaded, worker started
+        r = subprocess.run([*CLI, "replay", str(path), "--to", f"udpout:127.0.0.1:{port}"], capture_output=True,
+                           text=True, timeout=120, env=env)  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        time.sleep(2.0)
+    finally:
+        bridge.send_signal(signal.SIGTERM)
+        _, err = bridge.communicate(timeout=30)
+    assert bridge.returncode == 0, err
+    s = json.loads(summary.read_text())
+    assert s["imu"]["samples"] == n_imu and s["estimates"]["count"] > 0, s
+
+
+@pytest.mark.slow
+def test_ablate_two_variants_on_a_tiny_recipe(erle, tmp_path):
+    """Two variants trained from train/tiny.toml, evaluated on the real record: one table row each."""
+    import json
+    from pathlib import Path
+
+    from tepinn_flight.model.checkpoint import read_checkpoint
+
+    tiny = Path(__file__).resolve().parents[1] / "train" / "tiny.toml"
+    argv = ["ablate", "--config", str(tiny), "-o", str(tmp_path / "abl"), "--eval", str(erle["crop"]),
+            "--variants", "full,no-uncertainty", "-q"]  # fmt: skip
+    for s in ("model.d_model=8", "model.d_ff=16", "model.window_tokens=12", "data.synthetic_flights=3",
+              "data.synthetic_duration_s=5.0", "optim.batch_size=8", "optim.steps_per_epoch=2", "optim.epochs=1"):
+        argv += ["--set", s]
+    assert main(argv) == 0
+    rows = {r["variant"]: r for r in json.loads((tmp_path / "abl" / "ablation.json").read_text())}
+    assert list(rows) == ["full", "no-uncertainty", "vqf"] and rows["full"]["vs_full"] == 1.0
+    cfgs = {v: read_checkpoint(tmp_path / "abl" / v / "model.pt")["model_config"] for v in ("full", "no-uncertainty")}
+    assert cfgs["full"]["uncertainty"] is True and cfgs["no-uncertainty"]["uncertainty"] is False  # trained as named
+    table = (tmp_path / "abl" / "ablation.md").read_text()
+    assert "evaluated on 1 held-out flights" in table and table.count("\n| ") == 1 + 3  # header + 3 rows
+
+
+@pytest.mark.slow
+def test_benchmark_broad_one_trial(capsys):
+    """BROAD trial 01: the harness reproduces BROAD's published Madgwick errors on it (the verb's
+    own check against the published numbers; exit 3 if it did not). Scoring every estimator on a
+    trial takes minutes: tests/test_broad_benchmark.py."""
+    from tests.conftest import broad_trial
+
+    trial = broad_trial("broad_01_*.hdf5")
+    code = main(["benchmark", "broad", str(trial.parent), "--pattern", trial.name, "--check-only", "-q"])
+    out = capsys.readouterr().out
+    assert code == 0 and "01" in out, out
+
+
+@pytest.mark.slow
+def test_demo_short(tmp_path):
+    """The demo's report: simulated flights, TE-PINN and the baselines, a report with figures."""
+    import json
+
+    out = tmp_path / "demo"
+    assert main(["demo", "-o", str(out), "--duration", "12", "--rate", "100", "-q"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert "tepinn" in metrics["dataset"] and (out / "report.md").exists()

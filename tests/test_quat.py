@@ -222,3 +222,22 @@ def test_euler_at_gimbal_lock_keeps_the_rotation(pitch):
     assert np.all(y == 0) and np.all(np.abs(r) <= np.pi)
     ref = Rotation.from_euler("ZYX", np.stack([yaw, np.full(50, pitch), roll], 1)).as_quat()[:, [3, 0, 1, 2]]
     np.testing.assert_allclose(Q.quat_canonical(Q.quat_from_euler_zyx(r, p, y)), Q.quat_canonical(ref), atol=1e-7)
+
+
+def test_scalar_euler_is_the_array_formula_bit_for_bit():
+    """quat_from_euler_zyx_f (math, per step) and quat_from_euler_zyx (numpy) share one formula:
+    equal to the last bit where math and numpy agree on cos/sin, and equal to scipy's ZYX."""
+    import math
+
+    from scipy.spatial.transform import Rotation
+
+    from tepinn_flight.quat import quat_from_euler_zyx, quat_from_euler_zyx_f
+
+    rng = np.random.default_rng(7)
+    for roll, pitch, yaw in rng.uniform(-3.0, 3.0, (50, 3)):
+        q = np.array(quat_from_euler_zyx_f(roll, pitch, yaw))
+        half = [0.5 * roll, 0.5 * pitch, 0.5 * yaw]
+        if all(np.cos(h) == math.cos(h) and np.sin(h) == math.sin(h) for h in half):
+            assert np.array_equal(q, quat_from_euler_zyx(roll, pitch, yaw))
+        ref = Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_quat()[[3, 0, 1, 2]]
+        np.testing.assert_allclose(q * np.sign(q[0] * ref[0]), ref, atol=1e-12)

@@ -247,6 +247,62 @@ def test_out_of_range_config_is_a_one_line_error(tmp_path, capsys, override, key
     assert not out.exists(), "nothing may be written on a config error"
 
 
+def recipe_with(table: str, line: str) -> str:
+    """train/tiny.toml with ``line`` added to ``[table]`` (the table appended where tiny has none)."""
+    text = TINY.read_text()
+    head = f"[{table}]\n"
+    return text.replace(head, head + line + "\n") if head in text else text + f"\n{head}{line}\n"
+
+
+@pytest.mark.parametrize(
+    "table, line, expect",
+    [
+        ("loss", "base_cauchy_rad = -0.1", "'base_cauchy_rad' must be finite and in [0, 10], got -0.1"),
+        ("loss", "lambda_base = inf", "'lambda_base' must be finite and in [0, 1000000], got inf"),
+        ("loss", "skip_clipped = true", "unknown key 'loss.skip_clipped'"),  # removed (measured worse)
+        ("model", 'encoder = "gru"', "'model.encoder' must be one of 'transformer', 'lstm', 'mlp', got 'gru'"),
+        ("model", "physics = false", "centripetal needs physics = true"),  # the defaults are TE-PINN's
+        ("anchor", 'mode = "7d"', "'anchor.mode' must be one of '6d', '9d', 'auto', got '7d'"),
+        ("anchor", 'pull_target = "fusion"', "unknown key 'anchor.pull_target'"),  # removed (measured worse)
+        ("anchor", "pull_gain = 1.5", "'pull_gain' must be finite and in [0, 1], got 1.5"),
+        ("anchor", "tau_acc_s = nan", "'tau_acc_s' must be finite and > 0, got nan"),
+        ("anchor", "speed_hi_m_s = 10.0", "'speed_hi_m_s' must be finite and > 20, got 10.0"),
+        ("anchor", "sigma_floor_deg = -0.1", "'sigma_floor_deg' must be finite and >= 0, got -0.1"),
+    ],
+)
+def test_bad_recipe_values_are_one_line_errors(tmp_path, capsys, table, line, expect):
+    """``train --config bad.toml``: each bad value is refused in one line naming the key and what
+    it may be; nothing is written."""
+    bad = tmp_path / "bad.toml"
+    bad.write_text(recipe_with(table, line))
+    out = tmp_path / "run"
+    err = one_line_error(capsys, main(["train", "--config", str(bad), "-o", str(out), "-q"]))
+    assert expect in err and str(bad) in err, err
+    assert not out.exists()
+
+
+def test_bad_recipe_value_through_the_console_script(tmp_path):
+    """The same through ``python -m tepinn_flight`` (the console script's code): one line, exit 2."""
+    bad = tmp_path / "bad.toml"
+    bad.write_text(recipe_with("anchor", 'mode = "7d"'))
+    env = {k: v for k, v in os.environ.items() if k != "TEPINN_DEBUG"}
+    p = subprocess.run([sys.executable, "-m", "tepinn_flight", "train", "--config", str(bad), "-o", str(tmp_path / "run")],
+                       capture_output=True, text=True, env=env, timeout=300)  # fmt: skip
+    assert p.returncode == 2 and p.stderr.count("\n") == 1 and "'anchor.mode' must be one of" in p.stderr, p.stderr
+
+
+def test_estimator_configs_built_in_code_are_checked_too():
+    """Not only TOML: a config built in code (or from a checkpoint's dict) is checked the same way."""
+    from tepinn_flight.model.anchor import AnchorConfig
+    from tepinn_flight.model.config import ModelConfig
+    from tepinn_flight.model.losses import LossConfig
+
+    for make, key in ((lambda: AnchorConfig(mode="7d"), "'mode'"), (lambda: AnchorConfig(pull_gain=float("nan")), "'pull_gain'"),
+                      (lambda: ModelConfig(encoder="gru"), "'encoder'"), (lambda: LossConfig(acc_norm_tol_g=0.0), "'acc_norm_tol_g'")):  # fmt: skip
+        with pytest.raises(ConfigError, match=key):
+            make()
+
+
 def test_recipes_in_range():
     for recipe in sorted((REPO / "train").glob("*.toml")):
         T.load_train_config(recipe)  # every shipped recipe stays valid

@@ -17,7 +17,9 @@ from .. import __version__
 from ..errors import TepinnError
 
 #: (command, module) in the order ``--help`` lists them. Every one is always listed: a module that
-#: fails to import leaves its command in place, marked unavailable (see :func:`build_parser`).
+#: fails to import leaves its command in place, marked BROKEN, and the command (its ``--help`` too)
+#: fails with exit code 1 (see :func:`build_parser`). tests/test_cli.py checks this list against
+#: the ``cli/*_cmd.py`` files.
 COMMANDS = [
     ("demo", "demo_cmd"),
     ("ingest", "ingest_cmd"),
@@ -51,22 +53,19 @@ class _Parser(argparse.ArgumentParser):
 UNAVAILABLE: dict[str, str] = {}
 
 
-def _unavailable_run(reason: str):
-    def run(args) -> int:
-        raise TepinnError(_unavailable_message(reason))
-
-    return run
-
-
-def _unavailable_message(reason: str) -> str:
-    return f"command unavailable: its module failed to import ({reason}); set TEPINN_DEBUG=1 for the traceback"
+def _unavailable_message(name: str, reason: str) -> str:
+    module = dict(COMMANDS).get(name, name)
+    return (f"internal error: the command's module cli/{module}.py failed to import ({reason}); "
+            "set TEPINN_DEBUG=1 for the traceback")
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The parser with every command of :data:`COMMANDS`.
 
-    A command module that fails to import stays listed, its help saying why, and running it fails
-    with that reason (exit 2); with ``TEPINN_DEBUG=1`` the import error is raised instead."""
+    A command module that fails to import (a bug or a broken installation, never bad input: the
+    modules keep their heavy imports inside ``run``) stays listed as BROKEN, and :func:`main` fails
+    that command, ``--help`` included, with the reason and exit code 1; with ``TEPINN_DEBUG=1`` the
+    import error is raised instead."""
     parser = _Parser(
         prog="tepinn-flight",
         description="Attitude estimation for drones and aircraft with TE-PINN, checked against the autopilot.",
@@ -83,8 +82,7 @@ def build_parser() -> argparse.ArgumentParser:
             first = (str(exc).strip().splitlines() or [""])[0]
             reason = f"{type(exc).__name__}: {first}"
             UNAVAILABLE[name] = reason
-            p = sub.add_parser(name, help=f"UNAVAILABLE ({reason})", description=f"UNAVAILABLE: {reason}")
-            p.set_defaults(_run=_unavailable_run(reason))
+            sub.add_parser(name, help=f"BROKEN ({reason})", add_help=False)
             continue
         p = sub.add_parser(name, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP))
         mod.add_arguments(p)
@@ -103,9 +101,9 @@ def command_names(parser: argparse.ArgumentParser) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)
-    if argv and argv[0] in UNAVAILABLE and not {"-h", "--help"} & set(argv[1:]):  # whatever its arguments
-        sys.stderr.write(f"tepinn-flight {argv[0]}: error: {_unavailable_message(UNAVAILABLE[argv[0]])}\n")
-        return 2
+    if argv and argv[0] in UNAVAILABLE:  # whatever its arguments, --help too: loud, not a usage text
+        sys.stderr.write(f"tepinn-flight {argv[0]}: {_unavailable_message(argv[0], UNAVAILABLE[argv[0]])}\n")
+        return 1
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
         parser.print_help()

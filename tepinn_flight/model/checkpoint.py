@@ -8,6 +8,11 @@ A checkpoint is a plain dict saved with ``torch.save`` and loadable with
 ``conventions``, ``training`` (data summary, seed, epochs), ``metrics``, plus, for resumable
 training checkpoints, ``optimizer``/``loss_state``/``rng``/``epoch``.
 
+Settings a checkpoint lacks (written before they existed) are filled with the values it was made
+with (:data:`MODEL_CONFIG_BEFORE`, :data:`ANCHOR_CONFIG_BEFORE`), not with today's defaults.
+``loss_config`` records how the network was trained; nothing rebuilds a loss from it, so an option
+removed since (``skip_clipped``, off in every shipped model) stays in old files as written.
+
 torch is imported where a checkpoint is read or written, not at import (the paths below and the
 runtime without torch need this module).
 """
@@ -23,6 +28,7 @@ from .. import conventions
 from ..errors import TepinnError
 from ..record import atomic_write
 from .anchor import AnchorConfig
+from .config import ModelConfig
 from .fusion import FusionConfig
 
 if TYPE_CHECKING:
@@ -34,6 +40,57 @@ VERSION = 1
 
 class CheckpointError(TepinnError):
     """A checkpoint that cannot be used (corrupt, foreign, or from an unknown version)."""
+
+
+#: Settings a version-1 checkpoint may lack because it was written before they existed, with the
+#: values it was trained or run with then. The dataclass defaults are the shipped model's, not these:
+#: a missing key is filled from here so that an old checkpoint loads as it always ran.
+MODEL_CONFIG_BEFORE = {
+    "clip_aware": False, "sensor_scale_max": 0.0, "sensor_gyro_bias_max_rad_s": 0.0, "sensor_accel_bias_max_m_s2": 0.0,
+    "declip": False, "learned_pooling": False, "centripetal": False, "centripetal_rate": False,
+}  # fmt: skip
+#: ... and of the filter-anchored estimator's settings (``anchor_config``): VQF's own accelerometer time
+#: constant in flight (0), no uncalibrated-gyro evidence from the older fusion (0: off)
+ANCHOR_CONFIG_BEFORE = {"tau_acc_flight_s": 0.0, "bias_gate_fusion_deg_s": 0.0}
+#: Anchor options removed after they measured worse: key → (the value kept, the one this tepinn-flight
+#: runs and drops from the checkpoint; the value of checkpoints written before the key existed; a key
+#: added while the option existed). A checkpoint lacking the option ran with the kept value if it has
+#: that later key (written after the removal), else with the value before. Any value but the kept one
+#: is refused: the checkpoint would run differently.
+REMOVED_ANCHOR_OPTIONS = {"pull_target": ("fusion", "window", "bias_gate_fusion_deg_s")}
+
+
+def model_config_from(meta: dict) -> ModelConfig:
+    """The :class:`ModelConfig` of a checkpoint dict or an export's metadata; keys it lacks take
+    their :data:`MODEL_CONFIG_BEFORE` values."""
+    return ModelConfig(**{**MODEL_CONFIG_BEFORE, **meta["model_config"]})
+
+
+def anchor_config_from(meta: dict) -> AnchorConfig | None:
+    """The :class:`AnchorConfig` of a checkpoint dict or an export's metadata (None where it has
+    none), keys it lacks taking their :data:`ANCHOR_CONFIG_BEFORE` values, its ``fusion_config``
+    the checkpoint's."""
+    raw = meta.get("anchor_config")
+    if raw is None:
+        return None
+    raw = {k: v for k, v in raw.items() if k != "fusion_config"}
+    for key, (kept, before, later) in REMOVED_ANCHOR_OPTIONS.items():
+        value = raw.pop(key, kept if later in raw else before)
+        if value != kept and raw.get("enabled", True):
+            raise CheckpointError(f"its anchored estimator has {key} = {value!r}, an option removed after it measured "
+                                  f"worse; this tepinn-flight runs only {key} = {kept!r}")  # fmt: skip
+    fusion = FusionConfig(**(meta.get("fusion_config") or {}))
+    return AnchorConfig(**{**ANCHOR_CONFIG_BEFORE, **raw}, fusion_config=fusion)
+
+
+def estimator_settings(meta: dict) -> FusionConfig | AnchorConfig:
+    """The estimator a checkpoint dict or an export's metadata runs in: an enabled ``anchor_config``
+    (:class:`AnchorConfig`, the filter-anchored VQF, its pull target the checkpoint's fusion) or
+    else its ``fusion_config`` (:class:`FusionConfig`)."""
+    anchor = anchor_config_from(meta)
+    if anchor is not None and anchor.enabled:
+        return anchor
+    return FusionConfig(**(meta.get("fusion_config") or {}))
 
 
 def save_checkpoint(path: str | os.PathLike, model: TEPINN, fusion: FusionConfig, anchor: AnchorConfig | None = None,
@@ -97,13 +154,14 @@ def load_model(path: str | os.PathLike) -> tuple[TEPINN, FusionConfig | AnchorCo
     :class:`AnchorConfig` (filter-anchored VQF, the shipped model) where the checkpoint has an
     enabled ``anchor_config``, else its :class:`FusionConfig` (network-centred fusion)."""
     from .network import TEPINN
-    from .runtime import estimator_settings, model_config_from
 
     ckpt = read_checkpoint(path)
     try:
+        fusion = estimator_settings(ckpt)
         model = TEPINN(model_config_from(ckpt))
         model.load_state_dict(ckpt["state_dict"])
-        fusion = estimator_settings(ckpt)
+    except CheckpointError as exc:  # a removed option: say which file
+        raise CheckpointError(exc.reason, path) from None
     except (TypeError, KeyError, RuntimeError) as exc:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
         raise CheckpointError(f"checkpoint does not match this model ({first})", path) from None

@@ -1,12 +1,16 @@
-"""TE-PINN model configuration: one frozen dataclass, every paper component switchable."""
+"""TE-PINN model configuration: one frozen dataclass, every paper component switchable; the
+defaults are the shipped model's (``assets/tepinn_default.pt``)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from typing import Literal
 
-from ..config import check_range
+from ..config import check_choice, check_range
 from ..errors import ConfigError
+
+
+ENCODERS = ("transformer", "lstm", "mlp")
 
 
 @dataclass(frozen=True)
@@ -33,21 +37,23 @@ class ModelConfig:
     clip_aware: bool = True  # RK4-rotated inputs across a saturated sample are marked untrusted
     # a saturated gyro reads less than the true rate: clipped tokens' rates are scaled by a learned
     # (1 + κ·clipped fraction), κ ∈ [0, declip_max], starting at 1 (a global sensor-model parameter)
-    declip: bool = False
+    declip: bool = True
     declip_max: float = 2.0
     # the physics baseline's tilt is a learned softmax pooling of the RK4-rotated specific forces
     # (logits from each token's encoding; starts as their plain mean) instead of their trusted mean
-    learned_pooling: bool = False
-    # (both off here for old checkpoints and ablations; on in train/default.toml: together they cut
-    # the error on flights whose gyro saturates through flips by a third, at a cost on fixed wing)
+    learned_pooling: bool = True
+    # (together they cut the error on flights whose gyro saturates through flips by a third, at a
+    # cost on fixed wing; checkpoints written before they existed are read with both off:
+    # model/checkpoint.py)
     # velocity-aided gravity (transport theorem): the specific force of token j is compensated by
     # the centripetal acceleration ω_j × v of a body-frame velocity v the network estimates per
     # window (an aircraft flies along its x axis at tens of m/s: in a turn or a loop, ω × v, not
     # gravity, dominates what the accelerometer reads); inputs gain R_{K←j}(ω_j × e_k), k = x, y, z
-    centripetal: bool = False  # (off here for old checkpoints)
+    # (needs physics: models without it, the LSTM baseline, set it false)
+    centripetal: bool = True
     # ... and the body velocity may change linearly over the window, v(t) = v̂ + (t − t_K)·â (a dive
     # or a pull-up changes the speed by tens of m/s in seconds): the compensation adds ω × â·(t − t_K) + â
-    centripetal_rate: bool = False
+    centripetal_rate: bool = True
     # plausible limits of the learned global sensor model (tanh-bounded; 0: unbounded): scale and
     # misalignment (fraction), gyro bias (rad/s), accelerometer bias (m/s²)
     sensor_scale_max: float = 0.05
@@ -64,14 +70,14 @@ class ModelConfig:
         check_range("pe_min_wavelength_s", self.pe_min_wavelength_s, 0, None, lo_open=True)
         check_range("pe_max_wavelength_s", self.pe_max_wavelength_s, self.pe_min_wavelength_s, None)
         check_range("declip_max", self.declip_max, 1, 1000, lo_open=True)  # κ starts at 1
+        check_choice("encoder", self.encoder, ENCODERS)
         if self.encoder == "transformer" and self.d_model % self.n_heads:
             raise ConfigError("d_model must be a multiple of n_heads")
-        if min(self.sensor_scale_max, self.sensor_gyro_bias_max_rad_s, self.sensor_accel_bias_max_m_s2) < 0:
-            raise ConfigError("sensor limits must be >= 0 (0: unbounded)")
         if self.centripetal_rate and not self.centripetal:
             raise ConfigError("centripetal_rate needs centripetal = true")
         if self.centripetal and not self.physics:
             raise ConfigError("centripetal needs physics = true (it compensates the RK4-rotated specific forces)")
+        # the sensor limits (0: unbounded)
         check_range("sensor_scale_max", self.sensor_scale_max, 0, 1)
         check_range("sensor_gyro_bias_max_rad_s", self.sensor_gyro_bias_max_rad_s, 0, 100)
         check_range("sensor_accel_bias_max_m_s2", self.sensor_accel_bias_max_m_s2, 0, 1000)

@@ -227,8 +227,7 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     anchor = anchor or AnchorConfig()
     rec, _ = bridge_holes(rec)
     if windows is None:
-        fus = (anchor.fusion_config or FusionConfig()) if anchor.pull_target == "fusion" else None
-        windows = anchored_windows(model, rec, batch_size, fus)
+        windows = anchored_windows(model, rec, batch_size, anchor.fusion_config or FusionConfig())
     idx, out = windows
     q_pull = out.get("q_target", out["q"])
     b_fus = out.get("bias_target")

@@ -22,6 +22,7 @@ import numpy as np
 
 from ..errors import ConfigError, TepinnError
 from ..record import FlightRecord, atomic_write, estimation_ok
+from .losses import LossConfig
 from .train_config import DataConfig, OptimConfig, TrainConfig
 
 #: VQF accelerometer time constants (s) the fine-tuning chooses from
@@ -29,13 +30,15 @@ TAU_ACC_GRID_S = (1.0, 2.0, 3.0, 5.0, 8.0, 12.0)
 
 
 def finetune_config(model_config, records: list[str], minutes: float = 6.0, seed: int = 0) -> TrainConfig:
-    """The built-in fine-tuning recipe: small learning rate, no rate augmentation, a quarter of the
-    files (at least one, when there are two or more) held out for validation."""
+    """The built-in fine-tuning recipe: small learning rate, no rate or gyro-bias augmentation, no
+    baseline loss, constant learning rate after the warm-up, a quarter of the files (at least one,
+    when there are two or more) held out for validation."""
     return TrainConfig(
-        seed=seed, init="", model=model_config,
-        data=DataConfig(records=tuple(records), val_fraction=0.25, rate_factors=(1,), max_val_windows=1024),
+        seed=seed, init="", model=model_config, loss=LossConfig(base_cauchy_rad=0.0),
+        data=DataConfig(records=tuple(records), val_fraction=0.25, rate_factors=(1,), max_val_windows=1024,
+                        gyro_bias_aug_deg_s=0.0, acc_scale_aug=0.0, axis_scale_aug=0.0),
         optim=OptimConfig(batch_size=32, epochs=30, steps_per_epoch=40, lr=2e-4, lr_physics=5e-5,
-                          early_stop_patience=4, max_minutes=minutes, warmup_steps=40),
+                          early_stop_patience=4, max_minutes=minutes, warmup_steps=40, cosine_decay=False),
     )  # fmt: skip
 
 

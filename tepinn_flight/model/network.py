@@ -41,7 +41,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from ..conventions import GRAVITY_M_S2
-from ..quat import quat_conj, quat_from_euler_zyx, quat_mul, quat_normalize, quat_rotate
+from ..quat import gravity_body, quat_conj, quat_from_euler_zyx, quat_mul, quat_normalize, quat_rotate
 from .config import ModelConfig
 from .physics import RigidBody, SensorModel, prefix_products, rk4_delta
 
@@ -57,10 +57,7 @@ def zero_yaw(q: torch.Tensor) -> torch.Tensor:
     Computed from the gravity direction in body axes (equal to the Euler route
     q → (φ, θ, ψ) → (φ, θ, 0) → q, but with bounded gradients at ±90° pitch).
     """
-    w, x, y, z = q.unbind(-1)
-    # R_nbᵀ e_z = (−sinθ, sinφ cosθ, cosφ cosθ)
-    g = torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], dim=-1)
-    return gravity_tilt(g)
+    return gravity_tilt(gravity_body(q))  # R_nbᵀ e_z = (−sinθ, sinφ cosθ, cosφ cosθ)
 
 
 def gravity_tilt(g_body: torch.Tensor) -> torch.Tensor:

@@ -22,8 +22,6 @@ it when there is one). This module imports neither torch nor onnxruntime at impo
 
 from __future__ import annotations
 
-import dataclasses
-
 import importlib.util
 import json
 import math
@@ -32,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
+from .checkpoint import estimator_settings, model_config_from
 from .config import ModelConfig
 
 INPUTS = ("gyr", "acc", "count", "t_rel", "dt", "mag", "clip")
@@ -172,30 +171,6 @@ class OnnxRunner(NetworkRunner):
         feed = {k: np.ascontiguousarray(arrays[k], dtype=np.float32) for k in self.input_names}
         res = self.session.run(self.output_names, feed)
         return _complete(dict(zip(self.output_names, res)), self.present, len(gyr))
-
-
-def model_config_from(meta: dict) -> ModelConfig:
-    """The :class:`ModelConfig` of a checkpoint dict or an export's metadata. Version-1 checkpoints
-    written before ``clip_aware``, the sensor limits, ``declip`` and ``learned_pooling`` existed
-    were trained without them."""
-    before = {"clip_aware": False, "sensor_scale_max": 0.0, "sensor_gyro_bias_max_rad_s": 0.0,
-              "sensor_accel_bias_max_m_s2": 0.0, "declip": False, "learned_pooling": False}  # fmt: skip
-    return ModelConfig(**{**before, **meta["model_config"]})
-
-
-def estimator_settings(meta: dict):
-    """The estimator a checkpoint dict or an export's metadata runs in: an enabled ``anchor_config``
-    (:class:`~.anchor.AnchorConfig`, the filter-anchored VQF) or else its ``fusion_config``
-    (:class:`~.fusion.FusionConfig`)."""
-    from .anchor import AnchorConfig
-    from .fusion import FusionConfig
-
-    fusion = FusionConfig(**(meta.get("fusion_config") or {}))
-    if meta.get("anchor_config") is not None:
-        anchor = AnchorConfig(**{k: v for k, v in meta["anchor_config"].items() if k != "fusion_config"})
-        if anchor.enabled:  # the pulls' target, the older fusion, runs with the checkpoint's settings
-            return dataclasses.replace(anchor, fusion_config=fusion)
-    return fusion
 
 
 def resolve_runtime(path, runtime: str = "auto") -> str:

@@ -67,8 +67,8 @@ class StreamingEstimator:
         self.runner = as_runner(self.model)
         self.cfg = self.runner.config
         self.anchor_cfg = a = fusion if isinstance(fusion, AnchorConfig) else None
-        if a is not None:  # the older fusion runs alongside as the pulls' target (or not at all)
-            self.fusion_cfg = (a.fusion_config or FusionConfig()) if a.pull_target == "fusion" else FusionConfig()
+        if a is not None:  # the older fusion runs alongside as the pulls' target
+            self.fusion_cfg = a.fusion_config or FusionConfig()
         else:
             self.fusion_cfg = fusion or FusionConfig()
         self.last_imu = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0))  # the last finite gyro and accelerometer sample
@@ -172,15 +172,15 @@ class StreamingEstimator:
     def _anchored_step(self, t, gyr, acc, mag, clipped, est):
         """The filter-anchored estimate of this sample; ``est`` (the network's window at the
         previous sample, or None) is applied first."""
-        if self.anchor_cfg.pull_target == "fusion":  # pull toward the older fusion's estimate before this window
-            target, b_target = self.old_q, self.old_bias
-            old = None if est is None else (list(est.q_nb_wxyz), est.sigma_rad, list(est.gyr_bias_rad_s))
-            self.old_q, _, self.old_bias = self.fusion.step(t, gyr, old, clipped)
-            if est is not None:
-                b = np.nan_to_num(np.asarray(b_target if b_target is not None else (0.0, 0.0, 0.0), np.float64))
-                est = dataclasses.replace(est, fusion_bias_rad_s=b)
-                if target is not None and all(math.isfinite(v) for v in target):
-                    est = dataclasses.replace(est, q_nb_wxyz=np.asarray(target, np.float64))
+        # pull toward the older fusion's estimate before this window
+        target, b_target = self.old_q, self.old_bias
+        old = None if est is None else (list(est.q_nb_wxyz), est.sigma_rad, list(est.gyr_bias_rad_s))
+        self.old_q, _, self.old_bias = self.fusion.step(t, gyr, old, clipped)
+        if est is not None:
+            b = np.nan_to_num(np.asarray(b_target if b_target is not None else (0.0, 0.0, 0.0), np.float64))
+            est = dataclasses.replace(est, fusion_bias_rad_s=b)
+            if target is not None and all(math.isfinite(v) for v in target):
+                est = dataclasses.replace(est, q_nb_wxyz=np.asarray(target, np.float64))
         if self.anchored is None:
             self.pending.append((t, gyr, acc, mag, clipped, est))
             if len(self.pending) <= TS_STEPS:

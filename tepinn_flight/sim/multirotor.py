@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tepinn_flight.quat import gravity_body_f, quat_from_euler_zyx_f
 from tepinn_flight.sim.jsbsim_env import FT_TO_M, getter, setter
 
 G0 = 9.80665
@@ -119,19 +120,6 @@ AGILE_QUAD = QuadParams(
 )
 
 
-def euler_to_quat(phi: float, theta: float, psi: float) -> tuple[float, float, float, float]:
-    """ZYX Euler -> q_nb (w, x, y, z), scalar Python."""
-    cr, sr = math.cos(0.5 * phi), math.sin(0.5 * phi)
-    cp, sp = math.cos(0.5 * theta), math.sin(0.5 * theta)
-    cy, sy = math.cos(0.5 * psi), math.sin(0.5 * psi)
-    return (
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    )
-
-
 def _mixer_inverse(p: QuadParams) -> list[list[float]]:
     """Inverse of [T, L, M, N] = A @ thrusts for the four motors."""
     rows = [
@@ -205,7 +193,7 @@ class QuadController:
 
     # -------------------------------------------------------------- helpers for maneuvers
     def read_state(self) -> None:
-        self.q = euler_to_quat(self._phi(), self._theta(), self._psi())
+        self.q = quat_from_euler_zyx_f(self._phi(), self._theta(), self._psi())
         self.w = (self._p(), self._q(), self._r())
         h = self._h() * FT_TO_M
         self.agl_m = h
@@ -228,8 +216,7 @@ class QuadController:
 
     def tilt(self) -> float:
         """Angle between body z and earth down, rad."""
-        w, x, y, z = self.q
-        c = 1.0 - 2.0 * (x * x + y * y)
+        c = gravity_body_f(self.q)[2]
         return math.acos(max(-1.0, min(1.0, c)))
 
     def level_quat(self, yaw: float) -> tuple[float, float, float, float]:
