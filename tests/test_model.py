@@ -186,7 +186,7 @@ def test_fusion_tilt_update_moves_gravity_by_the_gain():
     np.testing.assert_allclose(Q.gravity_body(np.array(full)), Q.gravity_body(np.array(q_meas)), atol=1e-12)
     half = tilt_toward(q, q_meas, 0.5)
     a = tilt_angle(torch.tensor([q]), torch.tensor([q_meas])).item()
-    b = tilt_angle(torch.tensor([half]), torch.tensor([q_meas])).item()
+    b = tilt_angle(torch.tensor([half], dtype=torch.float64), torch.tensor([q_meas])).item()
     assert abs(b - a / 2) < 1e-9
 
 

@@ -229,6 +229,7 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     s_out = np.full(n, np.nan)
     b_out = np.full((n, 3), np.nan)
     t, gyr, acc, mag, clipped = rec.t_s, rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut, rec.clipped
+    cols = (t, gyr, acc, mag, clipped)  # read from the frame once (each property access copies)
     seg = rec.segment
     bounds = np.flatnonzero(np.diff(seg)) + 1
     for a, b in zip(np.r_[0, bounds], np.r_[bounds, n]):
@@ -238,18 +239,18 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
         for j in np.flatnonzero((idx >= a) & (idx < b)):
             i = int(idx[j]) + 1
             if i > cur:
-                _put(flt, rec, cur, i, q_out, s_out, b_out, use_mag)
+                _put(flt, cols, cur, i, q_out, s_out, b_out, use_mag)
                 cur = i
             flt.correct(WindowOutput(q_pull[j], float(out["sigma"][j]), out["bias"][j], out["vel"][j], out["acc_v"][j],
                                      None if b_fus is None else b_fus[j]))  # fmt: skip
         if cur < b:
-            _put(flt, rec, cur, b, q_out, s_out, b_out, use_mag)
+            _put(flt, cols, cur, b, q_out, s_out, b_out, use_mag)
     return _frame(t, q_out, s_out, b_out)
 
 
-def _put(flt, rec, a, b, q_out, s_out, b_out, use_mag):
-    q6, q9, s, bias = flt.update(rec.t_s[a:b], rec.gyr_rad_s[a:b], rec.acc_m_s2[a:b],
-                                 rec.mag_ut[a:b] if use_mag else None, rec.clipped[a:b])  # fmt: skip
+def _put(flt, cols, a, b, q_out, s_out, b_out, use_mag):
+    t, gyr, acc, mag, clipped = cols
+    q6, q9, s, bias = flt.update(t[a:b], gyr[a:b], acc[a:b], mag[a:b] if use_mag else None, clipped[a:b])
     q_out[a:b] = q9 if use_mag else q6
     s_out[a:b] = s
     b_out[a:b] = bias
