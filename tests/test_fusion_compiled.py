@@ -114,3 +114,16 @@ def test_compiled_fusion_equals_the_reference_on_a_real_log_with_the_shipped_net
 def test_fusion_config_refuses_bad_values_with_a_config_error(bad):
     with pytest.raises(ConfigError, match="fusion"):
         dataclasses.replace(FusionConfig(), **bad)
+
+
+def test_fusion_config_defaults_are_the_shipped_model():
+    import torch
+
+    from tepinn_flight.model.checkpoint import default_model_path
+
+    path = default_model_path()
+    if not path.exists():
+        pytest.skip(f"shipped model not available ({path})")
+    stored = torch.load(path, weights_only=True)["fusion_config"]
+    assert set(stored) == {f.name for f in dataclasses.fields(FusionConfig)}
+    assert FusionConfig(**stored) == FusionConfig()

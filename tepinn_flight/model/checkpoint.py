@@ -56,6 +56,13 @@ def save_checkpoint(path: str | os.PathLike, model: TEPINN, fusion: FusionConfig
     atomic_write(path, lambda tmp: torch.save(ckpt, tmp))
 
 
+def fusion_config_from(stored: dict | None) -> FusionConfig:
+    """The :class:`FusionConfig` a checkpoint stored. A field it lacks (written before the field
+    existed) gets the value it ran with then: :meth:`FusionConfig.uncalibrated`'s, never today's
+    defaults (the shipped model's)."""
+    return FusionConfig.uncalibrated(**(stored or {}))
+
+
 def read_checkpoint(path: str | os.PathLike) -> dict:
     import torch
 

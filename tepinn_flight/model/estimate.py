@@ -85,8 +85,9 @@ def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | Anc
     """One output row per record row: ``t_s``, ``q_est_*`` (body→NED), ``sigma_rad``,
     ``gyr_bias_est_*``. An :class:`AnchorConfig` runs :func:`estimate_anchored`; with a
     :class:`FusionConfig`, NaN until the first window of a segment is full. ``windows`` takes the
-    result of :func:`window_estimates` when it is already at hand (fusion tuning; not with bias
-    feedback, whose windows depend on the fusion).
+    result of :func:`window_estimates` when it is already at hand (fusion tuning; with bias feedback,
+    a block whose fed-back offset is zero takes its windows from there, equal up to the float32
+    rounding of a different batch, and the others are made again).
 
     With bias feedback (``fusion.bias_feedback_windows`` = L > 0) the windows of a segment are made
     in blocks of L: block b sees the gyro minus the fusion's bias right after the last estimate of
@@ -96,12 +97,12 @@ def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | Anc
         return estimate_anchored(model, rec, fusion, batch_size)
     fusion = fusion or FusionConfig()
     feedback = fusion.bias_feedback_windows
-    if feedback > 0 and windows is not None:
-        raise ValueError("precomputed windows cannot be used with bias feedback")
     if feedback > 0:
         tok = tokenize_record(rec, model.config.token_rate_hz)
         ends = tok.windows_ending(model.config.window_tokens)
         idx = tok.last_index[ends]
+        if windows is not None:
+            q, sigma, bias = windows[1:]
     else:
         idx, q, sigma, bias = windows if windows is not None else window_estimates(model, rec, batch_size)
     n = len(rec)
@@ -117,11 +118,16 @@ def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | Anc
         m = (idx >= a) & (idx < b)
         run = FusionRun(t[a:b], gyr[a:b], fusion, clipped[a:b])
         if feedback > 0:
-            e_seg, i_seg = ends[m], idx[m] - a
+            e_seg, i_seg, pos = ends[m], idx[m] - a, np.flatnonzero(m)
             for s0 in range(0, len(e_seg), feedback):
                 blk = slice(s0, s0 + feedback)
-                fb = np.tile(feedback_bias(fusion, run.fusion.bias), (len(e_seg[blk]), 1))
-                run.add(i_seg[blk], *network_on_windows(model, tok, e_seg[blk], fb, batch_size))
+                off = feedback_bias(fusion, run.fusion.bias)
+                if windows is not None and not any(off):
+                    p = pos[blk]
+                    run.add(i_seg[blk], q[p], sigma[p], bias[p])
+                else:
+                    fb = np.tile(off, (len(e_seg[blk]), 1))
+                    run.add(i_seg[blk], *network_on_windows(model, tok, e_seg[blk], fb, batch_size))
                 run.advance(int(i_seg[blk][-1]) + 2)  # through the sample that applies the block's last
         else:
             run.add(idx[m] - a, q[m], sigma[m], bias[m])

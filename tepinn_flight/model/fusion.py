@@ -46,40 +46,51 @@ from ..small_linalg import mm, solve
 
 @dataclass(frozen=True)
 class FusionConfig:
+    """The older fusion's settings. Defaults are the shipped model's (its checkpoint's calibrated
+    ``fusion_config``: the bias-state Kalman update with bias feedback); :meth:`uncalibrated` gives
+    the settings calibration starts from, which are also what a checkpoint written before a field
+    existed ran with (:func:`~.checkpoint.fusion_config_from` fills them in)."""
+
     enabled: bool = True  # False: take each window estimate as is (then propagate to the next)
     process_noise_rad2_s: float = 1e-4  # tilt variance growth of the propagation (gyro noise + bias)
     # ... plus this much per radian turned (rad²/rad): a gyro's scale-factor and misalignment errors
     # grow the attitude error with the angle rotated, not with time (a 1 % scale error is 3.6° per
     # aileron roll and nothing in level flight)
     process_noise_rate_rad: float = 0.0
-    bias_time_constant_s: float = 10.0  # low-pass of the network's per-window bias estimates
-    sigma_scale: float = 1.0  # calibration factor applied to the network's σ
+    bias_time_constant_s: float = 10.0  # low-pass of the network's per-window bias estimates (low-pass update)
+    sigma_scale: float = 3.0  # calibration factor applied to the network's σ
     clip_inflation_rad: float = 0.35  # a saturated gyro/accel sample adds this σ to the propagation
-    clip_rate_gain: float = 0.0  # a saturated sample is propagated at (1 + gain)× its reading (κ)
-    output_sigma_scale: float = 1.0  # calibration of the reported σ (fitted on validation flights)
-    adaptive_nis: float = 0.0  # > 0: innovation-adaptive P (see AttitudeFusion._update); 0: off
+    clip_rate_gain: float = 0.8397  # a saturated sample is propagated at (1 + gain)× its reading (κ)
+    output_sigma_scale: float = 1.4134260780354513  # calibration of the reported σ (fitted on validation flights)
+    adaptive_nis: float = 0.0  # > 0: innovation-adaptive P (see the low-pass update); 0: off
     yaw: str = "gyro"  # "gyro": heading from gyro integration; "zero": yaw := 0 on the output
-    bias_states: bool = False  # True: 6-state Kalman update with gyro-bias states (see module doc)
-    bias_sigma_rad_s: float = 0.02  # σ of the network's per-window bias as a measurement (bias_states)
-    bias_rw_rad_s_sqrt_s: float = 1e-3  # random walk of the gyro bias (bias_states)
-    bias_init_sigma_rad_s: float = 0.1  # σ of the first bias estimate (bias_states)
+    bias_states: bool = True  # True: the 6-state Kalman update with gyro-bias states; False: the low-pass update
+    bias_sigma_rad_s: float = 0.3  # σ of the network's per-window bias as a measurement (bias_states)
+    bias_rw_rad_s_sqrt_s: float = 1e-4  # random walk of the gyro bias (bias_states)
+    bias_init_sigma_rad_s: float = 0.3  # σ of the first bias estimate (bias_states)
     # after a saturated sample the attitude stays untrusted for this long (the inflation above goes
     # on for every sample up to clip_hold_s after the last clipped one), and with clip_skip_updates
     # the window estimates made in that time are not applied: a window that saw the saturation
     # mid-flip is as wrong as the gyro (the network's σ rarely says so), while the first estimates
     # after it, from tokens after the flip, are not — they should meet an open covariance
-    clip_hold_s: float = 0.0
+    clip_hold_s: float = 2.0
     clip_skip_updates: bool = False
     # bias feedback (> 0): the network sees the gyro minus the fusion's current bias estimate, as
     # an EKF propagates with its bias-corrected gyro; the estimate is refreshed every this many
     # windows (one network batch: offline and live take the same values). The network's own bias
     # output is then a correction to it. 0: the raw gyro (a turn-on bias of 15–20 °/s rotates the
     # window's physics by tens of degrees and the network follows it)
-    bias_feedback_windows: int = 0
+    bias_feedback_windows: int = 25
     # only the part of each bias component beyond this is fed back (soft threshold): the network
     # handles the small biases it was trained with, and a calibrated gyro's estimate, which wanders
-    # with the tilt errors of long turns, is then not fed back at all
-    bias_feedback_deadzone_rad_s: float = 0.0
+    # with the tilt errors of long turns, is then not fed back at all (2 °/s)
+    bias_feedback_deadzone_rad_s: float = 0.03490658503988659
+
+    @classmethod
+    def uncalibrated(cls, **changes) -> "FusionConfig":
+        """The low-pass update with nothing calibrated and every option off: where calibration
+        starts (``TrainConfig.fusion``), and the value of any field a checkpoint lacks."""
+        return cls(**{**UNCALIBRATED, **changes})
 
     def __post_init__(self):
         if self.yaw not in ("gyro", "zero"):
@@ -120,6 +131,13 @@ class FusionConfig:
         p[_P_CLIP_SKIP] = self.clip_skip_updates
         return p
 
+
+#: FusionConfig.uncalibrated(): the defaults before they became the shipped model's
+UNCALIBRATED = dict(enabled=True, process_noise_rad2_s=1e-4, process_noise_rate_rad=0.0, bias_time_constant_s=10.0,
+                    sigma_scale=1.0, clip_inflation_rad=0.35, clip_rate_gain=0.0, output_sigma_scale=1.0,
+                    adaptive_nis=0.0, yaw="gyro", bias_states=False, bias_sigma_rad_s=0.02,
+                    bias_rw_rad_s_sqrt_s=1e-3, bias_init_sigma_rad_s=0.1, clip_hold_s=0.0, clip_skip_updates=False,
+                    bias_feedback_windows=0, bias_feedback_deadzone_rad_s=0.0)  # fmt: skip
 
 # settings vector (FusionConfig.kernel_params)
 (_P_ENABLED, _P_PN, _P_PN_RATE, _P_BIAS_TAU, _P_SIGMA_SCALE, _P_CLIP_INFL, _P_CLIP_GAIN, _P_OUT_SCALE, _P_NIS, _P_YAW_ZERO,

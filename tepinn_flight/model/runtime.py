@@ -188,9 +188,9 @@ def estimator_settings(meta: dict):
     (:class:`~.anchor.AnchorConfig`, the filter-anchored VQF) or else its ``fusion_config``
     (:class:`~.fusion.FusionConfig`)."""
     from .anchor import AnchorConfig
-    from .fusion import FusionConfig
+    from .checkpoint import fusion_config_from
 
-    fusion = FusionConfig(**(meta.get("fusion_config") or {}))
+    fusion = fusion_config_from(meta.get("fusion_config"))
     if meta.get("anchor_config") is not None:
         anchor = AnchorConfig(**{k: v for k, v in meta["anchor_config"].items() if k != "fusion_config"})
         if anchor.enabled:  # the pulls' target, the older fusion, runs with the checkpoint's settings

@@ -455,9 +455,9 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
         anchor = None
         if init_ck is not None:  # fine-tuning keeps the init's estimator settings (finetune.py tunes them)
             from .anchor import AnchorConfig
-            from .fusion import FusionConfig
+            from .checkpoint import fusion_config_from
 
-            fusion, fus_metrics = FusionConfig(**init_ck.get("fusion_config", {})), {}
+            fusion, fus_metrics = fusion_config_from(init_ck.get("fusion_config")), {}
             anchor = AnchorConfig(**init_ck["anchor_config"]) if init_ck.get("anchor_config") else None
         else:
             fusion, fus_metrics = calibrate_with(cfg, best_model, val_recs, train_recs)
