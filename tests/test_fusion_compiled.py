@@ -110,9 +110,11 @@ def test_compiled_fusion_equals_the_reference_on_a_real_log_with_the_shipped_net
 
 @pytest.mark.parametrize("bad", [{"yaw": "north"}, {"sigma_scale": 0.0}, {"process_noise_rad2_s": -1.0},
                                  {"bias_time_constant_s": float("nan")}, {"bias_states": "yes"},
-                                 {"bias_feedback_windows": 2.5}, {"clip_hold_s": float("inf")}])  # fmt: skip
+                                 {"bias_feedback_windows": 2.5}, {"bias_feedback_windows": -1},
+                                 {"clip_hold_s": float("inf")}, {"output_sigma_scale": 0.0}])  # fmt: skip
 def test_fusion_config_refuses_bad_values_with_a_config_error(bad):
-    with pytest.raises(ConfigError, match="fusion"):
+    (key,) = bad
+    with pytest.raises(ConfigError, match=f"'{key}' must be"):
         dataclasses.replace(FusionConfig(), **bad)
 
 

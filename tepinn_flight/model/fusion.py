@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from ..config import check_range
 from ..errors import ConfigError
 from ..quat_scalar import down_in_body, exp_rotvec, qmul, qnorm
 from ..small_linalg import mm, solve
@@ -94,21 +95,17 @@ class FusionConfig:
 
     def __post_init__(self):
         if self.yaw not in ("gyro", "zero"):
-            raise ConfigError(f"fusion yaw must be gyro or zero, not {self.yaw!r}")
+            raise ConfigError(f"fusion 'yaw' must be gyro or zero, got {self.yaw!r}")
         for name in ("enabled", "bias_states", "clip_skip_updates"):
             if not isinstance(getattr(self, name), bool):
-                raise ConfigError(f"fusion {name} must be true or false, not {getattr(self, name)!r}")
-        if isinstance(self.bias_feedback_windows, bool) or not isinstance(self.bias_feedback_windows, int) \
-                or self.bias_feedback_windows < 0:  # fmt: skip
-            raise ConfigError(f"fusion bias_feedback_windows must be an integer >= 0, not {self.bias_feedback_windows!r}")
+                raise ConfigError(f"fusion {name!r} must be true or false, got {getattr(self, name)!r}")
+        if not isinstance(self.bias_feedback_windows, int):
+            raise ConfigError(f"fusion 'bias_feedback_windows' must be an integer, got {self.bias_feedback_windows!r}")
+        check_range("bias_feedback_windows", self.bias_feedback_windows, 0, 10**6)
         for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if f.type != "float":
-                continue
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise ConfigError(f"fusion {f.name} must be a finite number >= 0, not {v!r}")
-        if self.bias_time_constant_s <= 0 or self.sigma_scale <= 0:
-            raise ConfigError("fusion bias_time_constant_s and sigma_scale must be > 0")
+            if f.type == "float":
+                strict = f.name in ("bias_time_constant_s", "sigma_scale", "output_sigma_scale")
+                check_range(f.name, getattr(self, f.name), 0, None, lo_open=strict)
 
     def kernel_params(self) -> np.ndarray:
         """The settings as the compiled loop reads them (float64, indices ``_P_*``)."""
