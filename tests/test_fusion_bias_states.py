@@ -25,7 +25,7 @@ def test_covariance_propagation_matches_the_error_dynamics(w):
     expm(A T) P₀ expm(A T)ᵀ with A = [[−[ω×], −I], [0, 0]] (δθ̇ = −ω×δθ − δb, δḃ = 0). The second
     estimate carries a huge σ so it leaves the propagated covariance (almost) as it is. The state
     covariance after the first estimate is replaced by a random full one (all blocks coupled)."""
-    cfg = FusionConfig(bias_states=True, process_noise_rad2_s=0.0, bias_rw_rad_s_sqrt_s=0.0,
+    cfg = FusionConfig.uncalibrated(bias_states=True, process_noise_rad2_s=0.0, bias_rw_rad_s_sqrt_s=0.0,
                        bias_sigma_rad_s=0.0, bias_init_sigma_rad_s=0.2)  # fmt: skip
     f = AttitudeFusion(cfg)
     sigma0, n, rate = 0.05, 16, 400.0  # one token at 400 Hz: 40 ms
@@ -66,8 +66,8 @@ def test_bias_states_find_an_unreported_gyro_bias():
     drifts away, the bias states find the bias on the two level axes from the tilt innovations;
     the vertical axis (rotation about gravity) leaves no trace in the tilt and stays unestimated."""
     bad = np.radians([8.0, -5.0, 3.0])
-    lowpass, _ = _fuse(FusionConfig(process_noise_rad2_s=1e-6), bad)
-    kf_cfg = FusionConfig(bias_states=True, process_noise_rad2_s=1e-6, bias_sigma_rad_s=0.0, bias_init_sigma_rad_s=0.3)
+    lowpass, _ = _fuse(FusionConfig.uncalibrated(process_noise_rad2_s=1e-6), bad)
+    kf_cfg = FusionConfig.uncalibrated(bias_states=True, process_noise_rad2_s=1e-6, bias_sigma_rad_s=0.0, bias_init_sigma_rad_s=0.3)
     tilt, b = _fuse(kf_cfg, bad)
     assert lowpass > np.radians(20.0)
     assert tilt < np.radians(0.5)
@@ -79,7 +79,7 @@ def test_bias_states_weigh_the_network_bias_by_its_sigma():
     """With a true, unreported gyro bias and the network insisting on 0: a tight network σ keeps the
     estimate near 0 (then the tilt errs), a loose one lets the innovations win."""
     bad = np.radians([6.0, 0.0, 0.0])
-    base = FusionConfig(bias_states=True, process_noise_rad2_s=1e-6, bias_init_sigma_rad_s=0.3,
+    base = FusionConfig.uncalibrated(bias_states=True, process_noise_rad2_s=1e-6, bias_init_sigma_rad_s=0.3,
                         bias_rw_rad_s_sqrt_s=1e-4)  # fmt: skip
     tight_tilt, tight = _fuse(dataclasses.replace(base, bias_sigma_rad_s=1e-4), bad)
     loose_tilt, loose = _fuse(dataclasses.replace(base, bias_sigma_rad_s=1.0), bad)
@@ -105,7 +105,7 @@ def test_calibration_picks_bias_states_for_a_gyro_bias_the_network_never_saw():
     model = TEPINN(ModelConfig(window_tokens=16, d_model=16, n_heads=2, n_layers=1, d_ff=32)).eval()
     recs = [synthetic_record(seed=s, duration_s=30.0, rate_hz=100.0, max_rate_rad_s=1.0, gyr_bias_rad_s=0.3)
             for s in (2, 4)]  # fmt: skip
-    fusion, metrics = calibrate_fusion(model, recs, FusionConfig(), max_records=2, bias_state_sweeps=1,
+    fusion, metrics = calibrate_fusion(model, recs, FusionConfig.uncalibrated(), max_records=2, bias_state_sweeps=1,
                                        feedback_deadzones_rad_s=(0.02,), feedback_windows=10)  # fmt: skip
     assert fusion.bias_states
     assert metrics["fusion_val_tilt_rmse_mean_deg"] < 0.8 * min(metrics["fusion_grid"].values())
@@ -115,6 +115,6 @@ def test_calibration_picks_bias_states_for_a_gyro_bias_the_network_never_saw():
     est = estimate_record(model, recs[0], fusion)
     b = est[["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]].to_numpy()[-100:]
     b_true = recs[0].data[["gyr_bias_x_rad_s", "gyr_bias_y_rad_s", "gyr_bias_z_rad_s"]].to_numpy()[-100:]
-    lowpass_b = estimate_record(model, recs[0], FusionConfig())
+    lowpass_b = estimate_record(model, recs[0], FusionConfig.uncalibrated())
     lowpass_b = lowpass_b[["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]].to_numpy()[-100:]
     assert np.linalg.norm(b - b_true, axis=1).mean() < 0.5 * np.linalg.norm(lowpass_b - b_true, axis=1).mean()

@@ -186,11 +186,11 @@ def test_fusion_tilt_update_moves_gravity_by_the_gain():
     np.testing.assert_allclose(Q.gravity_body(np.array(full)), Q.gravity_body(np.array(q_meas)), atol=1e-12)
     half = tilt_toward(q, q_meas, 0.5)
     a = tilt_angle(torch.tensor([q]), torch.tensor([q_meas])).item()
-    b = tilt_angle(torch.tensor([half]), torch.tensor([q_meas])).item()
+    b = tilt_angle(torch.tensor([half], dtype=torch.float64), torch.tensor([q_meas])).item()
     assert abs(b - a / 2) < 1e-9
 
 
-FEEDBACK = FusionConfig(bias_states=True, bias_init_sigma_rad_s=0.3, bias_sigma_rad_s=0.3, bias_feedback_windows=3,
+FEEDBACK = FusionConfig.uncalibrated(bias_states=True, bias_init_sigma_rad_s=0.3, bias_sigma_rad_s=0.3, bias_feedback_windows=3,
                         bias_feedback_deadzone_rad_s=0.002, clip_hold_s=0.1)  # fmt: skip
 
 
@@ -387,10 +387,14 @@ def test_checkpoints_from_before_clip_awareness_still_load(tmp_path):
     for key in ("clip_aware", "sensor_scale_max", "sensor_gyro_bias_max_rad_s", "sensor_accel_bias_max_m_s2",
                 "declip", "declip_max", "learned_pooling", "centripetal", "centripetal_rate"):
         del ck["model_config"][key]  # as written by the first release
-    del ck["fusion_config"]["adaptive_nis"]
+    for key in ("adaptive_nis", "bias_states", "bias_feedback_windows", "clip_hold_s", "clip_rate_gain"):
+        del ck["fusion_config"][key]  # fields the first release did not have
     torch.save(ck, tmp_path / "old.pt")
     m2, f2, _ = load_model(tmp_path / "old.pt")
     assert m2.config == old_cfg and f2.adaptive_nis == 0.0  # not today's defaults (the shipped model)
+    # ... filled with what that checkpoint ran with (the low-pass, no feedback), not today's defaults
+    assert not f2.bias_states and f2.bias_feedback_windows == 0 and f2.clip_hold_s == 0.0 and f2.clip_rate_gain == 0.0
+    assert FusionConfig().bias_states and FusionConfig().bias_feedback_windows == 25
     x = [t.float() for t in random_window(SMALL, dtype=torch.float32)]
     m.eval()
     torch.testing.assert_close(m(*x)["q"], m2(*x)["q"], rtol=0, atol=0)
@@ -401,7 +405,7 @@ def _fuse_biased_gyro(adaptive_nis, gyro_bias, sigma=0.05, seconds=30.0):
     unknown constant bias: returns the final tilt error (rad) of the fused output."""
     from tepinn_flight.model.fusion import AttitudeFusion
 
-    f = AttitudeFusion(FusionConfig(process_noise_rad2_s=1e-6, adaptive_nis=adaptive_nis))
+    f = AttitudeFusion(FusionConfig.uncalibrated(process_noise_rad2_s=1e-6, adaptive_nis=adaptive_nis))
     level = (1.0, 0.0, 0.0, 0.0)
     q = None
     n = int(seconds * 400)
@@ -427,7 +431,7 @@ def test_fusion_propagates_saturated_samples_at_the_declipping_gain():
     from tepinn_flight.model.fusion import AttitudeFusion
 
     def roll_after(gain, clipped):
-        f = AttitudeFusion(FusionConfig(clip_rate_gain=gain))
+        f = AttitudeFusion(FusionConfig.uncalibrated(clip_rate_gain=gain))
         q = None
         for i in range(101):  # t = 0 … 0.25 s; the estimate (level) arrives with the 2nd sample
             est = ((1.0, 0.0, 0.0, 0.0), 0.01, (0.0, 0.0, 0.0)) if i == 1 else None
@@ -509,7 +513,7 @@ def test_fusion_keeps_the_attitude_open_after_saturation_for_the_hold_time(bias_
     roll30 = (tuple(Q.quat_from_euler_zyx(np.radians(30.0), 0.0, 0.0)), 0.01, (0.0, 0.0, 0.0))
 
     def roll_deg_at(t_end, **kw):
-        f = AttitudeFusion(FusionConfig(clip_inflation_rad=0.35, process_noise_rad2_s=1e-6, bias_states=bias_states, **kw))
+        f = AttitudeFusion(FusionConfig.uncalibrated(clip_inflation_rad=0.35, process_noise_rad2_s=1e-6, bias_states=bias_states, **kw))
         dt, q = 0.0025, None
         for i in range(int(round(t_end / dt)) + 1):
             t = i * dt
@@ -537,7 +541,7 @@ def test_process_noise_grows_with_the_angle_turned():
     from tepinn_flight.model.fusion import AttitudeFusion
 
     def p_after(w, q_r, seconds=0.5):
-        f = AttitudeFusion(FusionConfig(process_noise_rad2_s=1e-5, process_noise_rate_rad=q_r))
+        f = AttitudeFusion(FusionConfig.uncalibrated(process_noise_rad2_s=1e-5, process_noise_rate_rad=q_r))
         for i in range(int(seconds * 400) + 1):
             est = ((1.0, 0.0, 0.0, 0.0), 0.02, (0.0, 0.0, 0.0)) if i == 1 else None
             f.step(i / 400.0, w, est)

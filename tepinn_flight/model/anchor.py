@@ -46,12 +46,15 @@ from ..config import check_choice, check_range
 from ..conventions import Q_ENU_FROM_NED_WXYZ
 from .fusion import FusionConfig
 from ..quat import gravity_body, quat_conj, quat_mul, quat_normalize, quat_to_rotmat
+from ..quat_scalar import qmul, qnorm
 
 #: q_SB (180° about x) and q_NE (ENU-type z-up earth → NED), as in evaluation/peers.py
 Q_SENSOR_BODY = np.array([0.0, 1.0, 0.0, 0.0])
 Q_NED_ENU = quat_conj(np.asarray(Q_ENU_FROM_NED_WXYZ, np.float64))
 _FLIP = np.array([1.0, -1.0, -1.0])
 _EZ = np.array([0.0, 0.0, 1.0])
+_Q_SB = tuple(float(v) for v in Q_SENSOR_BODY)
+_Q_NE = tuple(float(v) for v in Q_NED_ENU)
 BIAS_EVIDENCE_S = 2.0  # the older fusion's bias must stay beyond its gate this long
 MODES = ("6d", "9d", "auto")
 
@@ -136,6 +139,12 @@ def q_nb_from_vqf(q_es: np.ndarray) -> np.ndarray:
     return quat_normalize(quat_mul(np.broadcast_to(Q_NED_ENU, sh), quat_mul(q_es, np.broadcast_to(Q_SENSOR_BODY, sh))))
 
 
+def _q_nb_from_vqf_f(q_es) -> tuple:
+    """:func:`q_nb_from_vqf` of one quaternion, in plain floats."""
+    a = qmul(float(q_es[0]), float(q_es[1]), float(q_es[2]), float(q_es[3]), *_Q_SB)
+    return qnorm(*qmul(*_Q_NE, *a))
+
+
 def tilt_pull_quat(q_es: np.ndarray, up_s: np.ndarray, fraction: float) -> np.ndarray:
     """Earth-frame rotation that turns the filter attitude ``q_es`` by ``fraction`` of the tilt
     between it and a target whose up direction in sensor axes is ``up_s``; about a horizontal
@@ -216,6 +225,51 @@ class AnchoredVQF:
         if n:
             self.t = float(t_s[-1])
         return q6, q9, sig, bias
+
+    def update_one(self, t_s: float, gyr_b, acc_b, mag=None, clipped: bool = False):
+        """:meth:`update` of one sample in plain floats (the live path: numpy's per-call overhead
+        on one row cost 10× the arithmetic) → (q_nb, q_nb_9d or None, sigma, bias_b) as tuples and
+        a float; the numbers of a one-row :meth:`update` (tested)."""
+        if clipped:
+            self.t_clip = max(self.t_clip, float(t_s))
+        g = [float(v) for v in gyr_b]
+        a = [float(v) for v in acc_b]
+        if not all(math.isfinite(v) for v in (*g, *a)):  # a hole: bridged with the last finite sample
+            g, a = [float(v) for v in self.last_imu[0]], [float(v) for v in self.last_imu[1]]
+            self.holes += 1
+        self.last_imu = (np.array(g), np.array(a))
+        gc, v, av = self.gyr_corr, self.vel, self.acc_v
+        gx, gy, gz = g[0] - gc[0], g[1] - gc[1], g[2] - gc[2]
+        ax, ay, az = a
+        if self.cfg.centripetal and (v.any() or av.any()):  # a − (ω × v̂ + â)
+            ax = ax - ((g[1] * v[2] - g[2] * v[1]) + av[0])
+            ay = ay - ((g[2] * v[0] - g[0] * v[2]) + av[1])
+            az = az - ((g[0] * v[1] - g[1] * v[0]) + av[2])
+        a_s = (ax, -ay, -az)  # VQF's z-up sensor frame
+        if self.use_mag:
+            m = [0.0, 0.0, 0.0] if mag is None else [float(x) if math.isfinite(float(x)) else 0.0 for x in mag]
+            self.f.update(np.array([gx, -gy, -gz]), np.array(a_s), np.array([m[0], -m[1], -m[2]]))
+        else:
+            self.f.update(np.array([gx, -gy, -gz]), np.array(a_s))
+        q_es = self.f.getQuat6D()
+        q6 = _q_nb_from_vqf_f(q_es)
+        q9 = _q_nb_from_vqf_f(self.f.getQuat9D()) if self.use_mag else None
+        b = self.f.getBiasEstimate()[0]
+        bias = (b[0] + gc[0], -b[1] + gc[1], -b[2] + gc[2])
+        # σ: as _sigma for one row
+        c = self.cfg
+        w, x, y, z = float(q_es[0]), -float(q_es[1]), -float(q_es[2]), -float(q_es[3])  # conj: earth up in sensor axes
+        up = (2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y))
+        an = math.sqrt(a_s[0] * a_s[0] + a_s[1] * a_s[1] + a_s[2] * a_s[2])
+        cosang = (up[0] * a_s[0] + up[1] * a_s[1] + up[2] * a_s[2]) / max(an, 1e-9)
+        ang = math.acos(min(1.0, max(-1.0, cosang)))
+        alpha = min(1.0, self.ts / c.sigma_acc_tau_s)
+        beta = 1.0 - alpha
+        self.e_acc = e = beta * self.e_acc + alpha * ang if beta > 0 else ang
+        var = math.radians(c.sigma_floor_deg) ** 2 + (c.sigma_acc_gain * e) ** 2
+        var += self.gate * (c.sigma_net_scale * self.sigma_net) ** 2
+        self.t = float(t_s)
+        return q6, q9, math.sqrt(var), bias
 
     def _sigma(self, q_es, a_s):
         """Per-sample σ (rad) of the tilt error for the rows just filtered (``a_s``: the

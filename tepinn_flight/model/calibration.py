@@ -48,7 +48,7 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
     def run(cand, recs=recs, wins=wins):
         errs, sig, berr = [], [], []
         for r, w in zip(recs, wins):
-            est = estimate_record(model, r, cand, windows=None if cand.bias_feedback_windows else w)
+            est = estimate_record(model, r, cand, windows=w)
             q = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
             ok = np.all(np.isfinite(q), 1) & np.all(np.isfinite(r.q_ref_wxyz), 1) & (est["sigma_rad"].to_numpy() > 0)
             inc, _ = inclination_heading_split(quat_mul(q[ok], quat_conj(r.q_ref_wxyz[ok])))
@@ -119,7 +119,8 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
         clipping = [r for r in fallback_records if (r.meta.get("imu_rate_hz") or 0) >= 20 and bool(np.any(r.clipped))]
         clipping, source = clipping[:: max(1, -(-len(clipping) // 6))], "training"  # at most 6, spread
     if clipping:
-        cwins = [window_estimates(model, r) for r in clipping]
+        made = {id(r): w for r, w in zip(recs, wins)}  # validation flights' windows are at hand
+        cwins = [made[id(r)] if id(r) in made else window_estimates(model, r) for r in clipping]
         base_err = mean_rmse_deg(run(best, clipping, cwins)[0])
         clip_table, pick_clip = {"off": base_err}, None
         for infl in (best.clip_inflation_rad, 0.15, 0.05):

@@ -79,7 +79,7 @@ def anchor_config_from(meta: dict) -> AnchorConfig | None:
         if value != kept and raw.get("enabled", True):
             raise CheckpointError(f"its anchored estimator has {key} = {value!r}, an option removed after it measured "
                                   f"worse; this tepinn-flight runs only {key} = {kept!r}")  # fmt: skip
-    fusion = FusionConfig(**(meta.get("fusion_config") or {}))
+    fusion = fusion_config_from(meta.get("fusion_config"))
     return AnchorConfig(**{**ANCHOR_CONFIG_BEFORE, **raw}, fusion_config=fusion)
 
 
@@ -90,7 +90,7 @@ def estimator_settings(meta: dict) -> FusionConfig | AnchorConfig:
     anchor = anchor_config_from(meta)
     if anchor is not None and anchor.enabled:
         return anchor
-    return FusionConfig(**(meta.get("fusion_config") or {}))
+    return fusion_config_from(meta.get("fusion_config"))
 
 
 def save_checkpoint(path: str | os.PathLike, model: TEPINN, fusion: FusionConfig, anchor: AnchorConfig | None = None,
@@ -111,6 +111,13 @@ def save_checkpoint(path: str | os.PathLike, model: TEPINN, fusion: FusionConfig
         **extra,
     }
     atomic_write(path, lambda tmp: torch.save(ckpt, tmp))
+
+
+def fusion_config_from(stored: dict | None) -> FusionConfig:
+    """The :class:`FusionConfig` a checkpoint stored. A field it lacks (written before the field
+    existed) gets the value it ran with then: :meth:`FusionConfig.uncalibrated`'s, never today's
+    defaults (the shipped model's)."""
+    return FusionConfig.uncalibrated(**(stored or {}))
 
 
 def read_checkpoint(path: str | os.PathLike) -> dict:

@@ -86,8 +86,9 @@ def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | Anc
     """One output row per record row: ``t_s``, ``q_est_*`` (body→NED), ``sigma_rad``,
     ``gyr_bias_est_*``. An :class:`AnchorConfig` runs :func:`estimate_anchored`; with a
     :class:`FusionConfig`, NaN until the first window of a segment is full. ``windows`` takes the
-    result of :func:`window_estimates` when it is already at hand (fusion tuning; not with bias
-    feedback, whose windows depend on the fusion).
+    result of :func:`window_estimates` when it is already at hand (fusion tuning; with bias feedback,
+    a block whose fed-back offset is zero takes its windows from there, equal up to the float32
+    rounding of a different batch, and the others are made again).
 
     With bias feedback (``fusion.bias_feedback_windows`` = L > 0) the windows of a segment are made
     in blocks of L: block b sees the gyro minus the fusion's bias right after the last estimate of
@@ -105,12 +106,12 @@ def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | Anc
         return estimate_anchored(model, rec, fusion, batch_size)
     fusion = fusion or FusionConfig()
     feedback = fusion.bias_feedback_windows
-    if feedback > 0 and windows is not None:
-        raise ValueError("precomputed windows cannot be used with bias feedback")
     if feedback > 0:
         tok = tokenize_record(rec, model.config.token_rate_hz)
         ends = tok.windows_ending(model.config.window_tokens)
         idx = tok.last_index[ends]
+        if windows is not None:
+            q, sigma, bias = windows[1:]
     else:
         idx, q, sigma, bias = windows if windows is not None else window_estimates(model, rec, batch_size)
     n = len(rec)
@@ -126,11 +127,16 @@ def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | Anc
         m = (idx >= a) & (idx < b)
         run = FusionRun(t[a:b], gyr[a:b], fusion, clipped[a:b])
         if feedback > 0:
-            e_seg, i_seg = ends[m], idx[m] - a
+            e_seg, i_seg, pos = ends[m], idx[m] - a, np.flatnonzero(m)
             for s0 in range(0, len(e_seg), feedback):
                 blk = slice(s0, s0 + feedback)
-                fb = np.tile(feedback_bias(fusion, run.fusion.bias), (len(e_seg[blk]), 1))
-                run.add(i_seg[blk], *network_on_windows(model, tok, e_seg[blk], fb, batch_size))
+                off = feedback_bias(fusion, run.fusion.bias)
+                if windows is not None and not any(off):
+                    p = pos[blk]
+                    run.add(i_seg[blk], q[p], sigma[p], bias[p])
+                else:
+                    fb = np.tile(off, (len(e_seg[blk]), 1))
+                    run.add(i_seg[blk], *network_on_windows(model, tok, e_seg[blk], fb, batch_size))
                 run.advance(int(i_seg[blk][-1]) + 2)  # through the sample that applies the block's last
         else:
             run.add(idx[m] - a, q[m], sigma[m], bias[m])
@@ -237,6 +243,7 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     s_out = np.full(n, np.nan)
     b_out = np.full((n, 3), np.nan)
     t, gyr, acc, mag, clipped = rec.t_s, rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut, rec.clipped
+    cols = (t, gyr, acc, mag, clipped)  # read from the frame once (each property access copies)
     seg = rec.segment
     bounds = np.flatnonzero(np.diff(seg)) + 1
     for a, b in zip(np.r_[0, bounds], np.r_[bounds, n]):
@@ -246,18 +253,18 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
         for j in np.flatnonzero((idx >= a) & (idx < b)):
             i = int(idx[j]) + 1
             if i > cur:
-                _put(flt, rec, cur, i, q_out, s_out, b_out, use_mag)
+                _put(flt, cols, cur, i, q_out, s_out, b_out, use_mag)
                 cur = i
             flt.correct(WindowOutput(q_pull[j], float(out["sigma"][j]), out["bias"][j], out["vel"][j], out["acc_v"][j],
                                      None if b_fus is None else b_fus[j]))  # fmt: skip
         if cur < b:
-            _put(flt, rec, cur, b, q_out, s_out, b_out, use_mag)
+            _put(flt, cols, cur, b, q_out, s_out, b_out, use_mag)
     return _frame(t, q_out, s_out, b_out)
 
 
-def _put(flt, rec, a, b, q_out, s_out, b_out, use_mag):
-    q6, q9, s, bias = flt.update(rec.t_s[a:b], rec.gyr_rad_s[a:b], rec.acc_m_s2[a:b],
-                                 rec.mag_ut[a:b] if use_mag else None, rec.clipped[a:b])  # fmt: skip
+def _put(flt, cols, a, b, q_out, s_out, b_out, use_mag):
+    t, gyr, acc, mag, clipped = cols
+    q6, q9, s, bias = flt.update(t[a:b], gyr[a:b], acc[a:b], mag[a:b] if use_mag else None, clipped[a:b])
     q_out[a:b] = q9 if use_mag else q6
     s_out[a:b] = s
     b_out[a:b] = bias

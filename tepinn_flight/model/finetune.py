@@ -101,9 +101,8 @@ def inclination_rmse_deg(rec: FlightRecord, est, warmup_s: float = 5.0) -> float
 def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = True, seed: int = 0) -> dict:
     """Fine-tune ``init`` (a checkpoint path or "default") on the logs in ``items``; see module doc."""
     from ..ingest import load_record
-    from .checkpoint import default_model_path, load_model, save_checkpoint
+    from .checkpoint import default_model_path, fusion_config_from, load_model, save_checkpoint
     from .anchor import AnchorConfig
-    from .fusion import FusionConfig
     from .train import train
     from .train_data import split_by_flight
 
@@ -132,7 +131,7 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     val = [recs[i] for i in va] or [recs[i] for i in tr]
     model1, _, ck = load_model(out / "model.pt")
     anchor, table = tune_anchor(model1, est0, [recs[i] for i in tr])
-    save_checkpoint(out / "model.pt", model1, FusionConfig(**ck.get("fusion_config", {})), anchor,
+    save_checkpoint(out / "model.pt", model1, fusion_config_from(ck.get("fusion_config")), anchor,
                     **{k: v for k, v in ck.items() if k not in ("format", "version", "model_config", "fusion_config",
                                                                  "anchor_config", "state_dict", "conventions")})  # fmt: skip
     before = [inclination_rmse_deg(r, _est(model0, est0, r)) for r in val]

@@ -24,124 +24,189 @@ innovations themselves estimate the bias — as VQF and an EKF do — and the ne
 (σ ``bias_sigma_rad_s``). A bias far outside what the network was trained on (an uncalibrated
 gyro: 15–20 °/s) is then found from the drift, not followed blindly.
 
-Pure numpy/float math, one sample at a time, so the offline estimator and the live bridge share it.
+One sample at a time, compiled (numba, float64): the offline estimator runs the loop over a whole
+segment in one call (:class:`FusionRun`), the live bridge one sample per call (:class:`AttitudeFusion`);
+both are the same kernel. ``tests/fusion_reference.py`` keeps the pure-Python implementation it
+replaced as the reference it is tested against.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
-from ..quat import gravity_body_f, quat_to_rotmat, quat_to_rotvec
+from ..config import check_range
+from ..errors import ConfigError
+from ..quat_scalar import down_in_body, exp_rotvec, qmul, qnorm
+from ..small_linalg import mm, solve
 
 
 @dataclass(frozen=True)
 class FusionConfig:
+    """The older fusion's settings. Defaults are the shipped model's (its checkpoint's calibrated
+    ``fusion_config``: the bias-state Kalman update with bias feedback); :meth:`uncalibrated` gives
+    the settings calibration starts from, which are also what a checkpoint written before a field
+    existed ran with (:func:`~.checkpoint.fusion_config_from` fills them in)."""
+
     enabled: bool = True  # False: take each window estimate as is (then propagate to the next)
     process_noise_rad2_s: float = 1e-4  # tilt variance growth of the propagation (gyro noise + bias)
     # ... plus this much per radian turned (rad²/rad): a gyro's scale-factor and misalignment errors
     # grow the attitude error with the angle rotated, not with time (a 1 % scale error is 3.6° per
     # aileron roll and nothing in level flight)
     process_noise_rate_rad: float = 0.0
-    bias_time_constant_s: float = 10.0  # low-pass of the network's per-window bias estimates
-    sigma_scale: float = 1.0  # calibration factor applied to the network's σ
+    bias_time_constant_s: float = 10.0  # low-pass of the network's per-window bias estimates (low-pass update)
+    sigma_scale: float = 3.0  # calibration factor applied to the network's σ
     clip_inflation_rad: float = 0.35  # a saturated gyro/accel sample adds this σ to the propagation
-    clip_rate_gain: float = 0.0  # a saturated sample is propagated at (1 + gain)× its reading (κ)
-    output_sigma_scale: float = 1.0  # calibration of the reported σ (fitted on validation flights)
-    adaptive_nis: float = 0.0  # > 0: innovation-adaptive P (see AttitudeFusion._update); 0: off
+    clip_rate_gain: float = 0.8397  # a saturated sample is propagated at (1 + gain)× its reading (κ)
+    output_sigma_scale: float = 1.4134260780354513  # calibration of the reported σ (fitted on validation flights)
+    adaptive_nis: float = 0.0  # > 0: innovation-adaptive P (see the low-pass update); 0: off
     yaw: str = "gyro"  # "gyro": heading from gyro integration; "zero": yaw := 0 on the output
-    bias_states: bool = False  # True: 6-state Kalman update with gyro-bias states (see module doc)
-    bias_sigma_rad_s: float = 0.02  # σ of the network's per-window bias as a measurement (bias_states)
-    bias_rw_rad_s_sqrt_s: float = 1e-3  # random walk of the gyro bias (bias_states)
-    bias_init_sigma_rad_s: float = 0.1  # σ of the first bias estimate (bias_states)
+    bias_states: bool = True  # True: the 6-state Kalman update with gyro-bias states; False: the low-pass update
+    bias_sigma_rad_s: float = 0.3  # σ of the network's per-window bias as a measurement (bias_states)
+    bias_rw_rad_s_sqrt_s: float = 1e-4  # random walk of the gyro bias (bias_states)
+    bias_init_sigma_rad_s: float = 0.3  # σ of the first bias estimate (bias_states)
     # after a saturated sample the attitude stays untrusted for this long (the inflation above goes
     # on for every sample up to clip_hold_s after the last clipped one), and with clip_skip_updates
     # the window estimates made in that time are not applied: a window that saw the saturation
     # mid-flip is as wrong as the gyro (the network's σ rarely says so), while the first estimates
     # after it, from tokens after the flip, are not — they should meet an open covariance
-    clip_hold_s: float = 0.0
+    clip_hold_s: float = 2.0
     clip_skip_updates: bool = False
     # bias feedback (> 0): the network sees the gyro minus the fusion's current bias estimate, as
     # an EKF propagates with its bias-corrected gyro; the estimate is refreshed every this many
     # windows (one network batch: offline and live take the same values). The network's own bias
     # output is then a correction to it. 0: the raw gyro (a turn-on bias of 15–20 °/s rotates the
     # window's physics by tens of degrees and the network follows it)
-    bias_feedback_windows: int = 0
+    bias_feedback_windows: int = 25
     # only the part of each bias component beyond this is fed back (soft threshold): the network
     # handles the small biases it was trained with, and a calibrated gyro's estimate, which wanders
-    # with the tilt errors of long turns, is then not fed back at all
-    bias_feedback_deadzone_rad_s: float = 0.0
+    # with the tilt errors of long turns, is then not fed back at all (2 °/s)
+    bias_feedback_deadzone_rad_s: float = 0.03490658503988659
+
+    @classmethod
+    def uncalibrated(cls, **changes) -> "FusionConfig":
+        """The low-pass update with nothing calibrated and every option off: where calibration
+        starts (``TrainConfig.fusion``), and the value of any field a checkpoint lacks."""
+        return cls(**{**UNCALIBRATED, **changes})
+
+    def __post_init__(self):
+        if self.yaw not in ("gyro", "zero"):
+            raise ConfigError(f"fusion 'yaw' must be gyro or zero, got {self.yaw!r}")
+        for name in ("enabled", "bias_states", "clip_skip_updates"):
+            if not isinstance(getattr(self, name), bool):
+                raise ConfigError(f"fusion {name!r} must be true or false, got {getattr(self, name)!r}")
+        if not isinstance(self.bias_feedback_windows, int):
+            raise ConfigError(f"fusion 'bias_feedback_windows' must be an integer, got {self.bias_feedback_windows!r}")
+        check_range("bias_feedback_windows", self.bias_feedback_windows, 0, 10**6)
+        for f in dataclasses.fields(self):
+            if f.type == "float":
+                strict = f.name in ("bias_time_constant_s", "sigma_scale", "output_sigma_scale")
+                check_range(f.name, getattr(self, f.name), 0, None, lo_open=strict)
+
+    def kernel_params(self) -> np.ndarray:
+        """The settings as the compiled loop reads them (float64, indices ``_P_*``)."""
+        p = np.zeros(_NP)
+        p[_P_ENABLED] = self.enabled
+        p[_P_PN] = self.process_noise_rad2_s
+        p[_P_PN_RATE] = self.process_noise_rate_rad
+        p[_P_BIAS_TAU] = self.bias_time_constant_s
+        p[_P_SIGMA_SCALE] = self.sigma_scale
+        p[_P_CLIP_INFL] = self.clip_inflation_rad
+        p[_P_CLIP_GAIN] = self.clip_rate_gain
+        p[_P_OUT_SCALE] = self.output_sigma_scale
+        p[_P_NIS] = self.adaptive_nis
+        p[_P_YAW_ZERO] = self.yaw == "zero"
+        p[_P_KF] = self.bias_states and self.enabled
+        p[_P_BIAS_SIGMA] = self.bias_sigma_rad_s
+        p[_P_BIAS_RW] = self.bias_rw_rad_s_sqrt_s
+        p[_P_BIAS_INIT] = self.bias_init_sigma_rad_s
+        p[_P_CLIP_HOLD] = self.clip_hold_s
+        p[_P_CLIP_SKIP] = self.clip_skip_updates
+        return p
 
 
-def _qmul(a, b):
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
+#: FusionConfig.uncalibrated(): the defaults before they became the shipped model's
+UNCALIBRATED = dict(enabled=True, process_noise_rad2_s=1e-4, process_noise_rate_rad=0.0, bias_time_constant_s=10.0,
+                    sigma_scale=1.0, clip_inflation_rad=0.35, clip_rate_gain=0.0, output_sigma_scale=1.0,
+                    adaptive_nis=0.0, yaw="gyro", bias_states=False, bias_sigma_rad_s=0.02,
+                    bias_rw_rad_s_sqrt_s=1e-3, bias_init_sigma_rad_s=0.1, clip_hold_s=0.0, clip_skip_updates=False,
+                    bias_feedback_windows=0, bias_feedback_deadzone_rad_s=0.0)  # fmt: skip
+
+# settings vector (FusionConfig.kernel_params)
+(_P_ENABLED, _P_PN, _P_PN_RATE, _P_BIAS_TAU, _P_SIGMA_SCALE, _P_CLIP_INFL, _P_CLIP_GAIN, _P_OUT_SCALE, _P_NIS, _P_YAW_ZERO,
+ _P_KF, _P_BIAS_SIGMA, _P_BIAS_RW, _P_BIAS_INIT, _P_CLIP_HOLD, _P_CLIP_SKIP, _NP) = range(17)  # fmt: skip
+# state vector (NaN: not yet known)
+_S_Q = 0  # (4) attitude body→NED
+_S_B = 4  # (3) gyro bias
+_S_P = 7  # propagated tilt variance
+_S_T = 8  # time of the last sample
+_S_W = 9  # (3) its gyro (times the declipping gain)
+_S_TEST = 12  # time of the last window estimate applied
+_S_QE = 13  # (4) bias states: attitude right after the last update
+_S_QACC = 17  # bias states: tilt variance added by the propagation since the update
+_S_TCLIP = 18  # time of the last saturated sample
+_S_COV = 19  # (36) bias states: 6×6 covariance of (δθ, δb) at the last update, row-major
+_NS = _S_COV + 36
 
 
-def _qnorm(q):
-    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
+def new_state() -> np.ndarray:
+    s = np.full(_NS, np.nan)
+    s[_S_B : _S_B + 3] = 0.0
+    s[_S_P] = 0.0
+    s[_S_QACC] = 0.0
+    return s
 
 
-def _qdot(q, w):
-    return _scale(_qmul(q, (0.0, w[0], w[1], w[2])), 0.5)
+# ---------------------------------------------------------------------------------- the compiled loop
 
 
-def _scale(q, s):
-    return (q[0] * s, q[1] * s, q[2] * s, q[3] * s)
-
-
-def _add(q, p, s):
-    return (q[0] + s * p[0], q[1] + s * p[1], q[2] + s * p[2], q[3] + s * p[3])
-
-
+@njit(cache=True)
 def rk4(q, w0, w1, dt):
-    """RK4 of q̇ = ½ q ⊗ (0, ω) with ω linear from w0 to w1 over dt."""
-    wm = ((w0[0] + w1[0]) * 0.5, (w0[1] + w1[1]) * 0.5, (w0[2] + w1[2]) * 0.5)
-    k1 = _qdot(q, w0)
-    k2 = _qdot(_add(q, k1, 0.5 * dt), wm)
-    k3 = _qdot(_add(q, k2, 0.5 * dt), wm)
-    k4 = _qdot(_add(q, k3, dt), w1)
+    """RK4 of q̇ = ½ q ⊗ (0, ω) with ω linear from w0 to w1 over dt (4-/3-tuples of floats)."""
+    q0, q1, q2, q3 = q
+    wm0, wm1, wm2 = (w0[0] + w1[0]) * 0.5, (w0[1] + w1[1]) * 0.5, (w0[2] + w1[2]) * 0.5
+    h = 0.5 * dt
+    a0, a1, a2, a3 = qmul(q0, q1, q2, q3, 0.0, w0[0], w0[1], w0[2])
+    a0, a1, a2, a3 = a0 * 0.5, a1 * 0.5, a2 * 0.5, a3 * 0.5
+    b0, b1, b2, b3 = qmul(q0 + h * a0, q1 + h * a1, q2 + h * a2, q3 + h * a3, 0.0, wm0, wm1, wm2)
+    b0, b1, b2, b3 = b0 * 0.5, b1 * 0.5, b2 * 0.5, b3 * 0.5
+    c0, c1, c2, c3 = qmul(q0 + h * b0, q1 + h * b1, q2 + h * b2, q3 + h * b3, 0.0, wm0, wm1, wm2)
+    c0, c1, c2, c3 = c0 * 0.5, c1 * 0.5, c2 * 0.5, c3 * 0.5
+    d0, d1, d2, d3 = qmul(q0 + dt * c0, q1 + dt * c1, q2 + dt * c2, q3 + dt * c3, 0.0, w1[0], w1[1], w1[2])
+    d0, d1, d2, d3 = d0 * 0.5, d1 * 0.5, d2 * 0.5, d3 * 0.5
     s = dt / 6.0
-    return _qnorm(tuple(q[i] + s * (k1[i] + 2 * k2[i] + 2 * k3[i] + k4[i]) for i in range(4)))
+    return qnorm(q0 + s * (a0 + 2 * b0 + 2 * c0 + d0), q1 + s * (a1 + 2 * b1 + 2 * c1 + d1),
+                 q2 + s * (a2 + 2 * b2 + 2 * c2 + d2), q3 + s * (a3 + 2 * b3 + 2 * c3 + d3))  # fmt: skip
 
 
-def _exp(r):
-    th = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
-    if th < 1e-12:
-        return (1.0, 0.5 * r[0], 0.5 * r[1], 0.5 * r[2])
-    k = math.sin(0.5 * th) / th
-    return (math.cos(0.5 * th), k * r[0], k * r[1], k * r[2])
-
-
+@njit(cache=True)
 def _tilt_axis_angle(q, p):
     """(gp × gm, |gp × gm|, angle) between the gravity directions of two attitudes (body axes of q)."""
-    gp = gravity_body_f(q)
-    gm = gravity_body_f(p)
+    gp = down_in_body(q[0], q[1], q[2], q[3])
+    gm = down_in_body(p[0], p[1], p[2], p[3])
     c = (gp[1] * gm[2] - gp[2] * gm[1], gp[2] * gm[0] - gp[0] * gm[2], gp[0] * gm[1] - gp[1] * gm[0])
     s = math.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
     return c, s, math.atan2(s, gp[0] * gm[0] + gp[1] * gm[1] + gp[2] * gm[2])
 
 
+@njit(cache=True)
 def tilt_toward(q, q_meas, gain):
     """Rotate q (in its body frame) so its gravity direction moves ``gain`` of the way to q_meas's."""
     c, s, ang = _tilt_axis_angle(q, q_meas)
     if s < 1e-12:
-        return q
+        return (q[0], q[1], q[2], q[3])
     k = -gain * ang / s  # rotation by -gain·ang about n = gp × gm (body frame)
-    return _qnorm(_qmul(q, _exp((k * c[0], k * c[1], k * c[2]))))
+    e = exp_rotvec(k * c[0], k * c[1], k * c[2])
+    return qnorm(*qmul(q[0], q[1], q[2], q[3], e[0], e[1], e[2], e[3]))
 
 
+@njit(cache=True)
 def zero_yaw_np(q):
-    g = gravity_body_f(q)
+    g = down_in_body(q[0], q[1], q[2], q[3])
     roll = math.atan2(g[1], g[2])
     pitch = math.atan2(-g[0], math.sqrt(g[1] * g[1] + g[2] * g[2]))
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
@@ -149,24 +214,279 @@ def zero_yaw_np(q):
     return (cr * cp, sr * cp, cr * sp, -sr * sp)
 
 
+@njit(cache=True)
+def _q(s, i):
+    return (s[i], s[i + 1], s[i + 2], s[i + 3])
+
+
+@njit(cache=True)
+def _set_q(s, i, q):
+    s[i], s[i + 1], s[i + 2], s[i + 3] = q[0], q[1], q[2], q[3]
+
+
+@njit(cache=True)
+def _update_lowpass(s, p, q_m, sigma, b_m):
+    """The low-pass fusion's window update: Kalman-weighted tilt pull, bias low-pass (module doc)."""
+    enabled = p[_P_ENABLED] != 0.0
+    r = (p[_P_SIGMA_SCALE] * sigma) ** 2
+    if math.isnan(s[_S_Q]):
+        _set_q(s, _S_Q, q_m)
+        s[_S_P] = r
+        s[_S_B], s[_S_B + 1], s[_S_B + 2] = b_m[0], b_m[1], b_m[2]
+    else:
+        q = _q(s, _S_Q)
+        if enabled and p[_P_NIS] > 0:
+            e = _tilt_axis_angle(q, q_m)[2]
+            s[_S_P] = max(s[_S_P], e * e / p[_P_NIS] - r)
+        gain = s[_S_P] / (s[_S_P] + r) if enabled else 1.0
+        _set_q(s, _S_Q, tilt_toward(q, q_m, gain))
+        s[_S_P] = (1 - gain) * s[_S_P]
+        if enabled and not math.isnan(s[_S_TEST]):
+            a = min(1.0, max(0.0, s[_S_T] - s[_S_TEST]) / p[_P_BIAS_TAU])
+            for i in range(3):
+                s[_S_B + i] = s[_S_B + i] + a * (b_m[i] - s[_S_B + i])
+        elif not enabled:
+            s[_S_B], s[_S_B + 1], s[_S_B + 2] = b_m[0], b_m[1], b_m[2]
+    s[_S_TEST] = s[_S_T]
+
+
+@njit(cache=True)
+def _rotvec(q):
+    """quat_to_rotvec (canonical w >= 0, Taylor branch below 1e-4) of a unit quaternion."""
+    w, x, y, z = q
+    if w < 0:
+        w, x, y, z = -w, -x, -y, -z
+    n2 = x * x + y * y + z * z
+    if n2 < 1e-8:
+        ws = max(abs(w), 1e-12) * (-1.0 if w < 0 else 1.0)
+        k = 2.0 / ws * (1.0 - n2 / (3.0 * ws * ws))
+    else:
+        n = math.sqrt(n2)
+        k = 2.0 * math.atan2(n, w) / n
+    return x * k, y * k, z * k
+
+
+@njit(cache=True)
+def _integral_of_exp(phi):
+    """∫₀¹ Exp(s φ) ds = I + (1 − cos θ)/θ² [φ×] + (θ − sin θ)/θ³ [φ×]² (θ = |φ|)."""
+    th = math.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
+    X = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
+    if th < 1e-6:
+        return np.eye(3) + 0.5 * X + mm(X, X) / 6.0
+    return np.eye(3) + (1 - math.cos(th)) / th**2 * X + mm((th - math.sin(th)) / th**3 * X, X)
+
+
+@njit(cache=True)
+def _dot3(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True)
+def _quad3(e, P):
+    """eᵀ P[:3, :3] e."""
+    acc = 0.0
+    for j in range(3):
+        acc += (e[0] * P[0, j] + e[1] * P[1, j] + e[2] * P[2, j]) * e[j]
+    return acc
+
+
+@njit(cache=True)
+def _kalman(P, H, z, r):
+    """One linear Kalman update of the error state (measurement noise r·I); returns (dx, P⁺)."""
+    HP = mm(H, P)
+    S = mm(HP, H.T.copy())
+    for i in range(S.shape[0]):
+        S[i, i] += r
+    K = solve(S, HP).T.copy()
+    dx = np.zeros(P.shape[0])
+    for i in range(P.shape[0]):
+        for j in range(len(z)):
+            dx[i] += K[i, j] * z[j]
+    return dx, P - mm(K, HP)
+
+
+@njit(cache=True)
+def _update_kf(s, p, q_m, sigma, b_m):
+    """The bias-state fusion's window update: a 6-state error Kalman filter (module doc)."""
+    r = (p[_P_SIGMA_SCALE] * sigma) ** 2
+    cov = s[_S_COV : _S_COV + 36].reshape(6, 6)  # a view: written in place
+    if math.isnan(s[_S_Q]):
+        _set_q(s, _S_Q, q_m)
+        s[_S_B], s[_S_B + 1], s[_S_B + 2] = b_m[0], b_m[1], b_m[2]
+        cov[:] = 0.0
+        for i in range(3):
+            cov[i, i] = r
+            cov[3 + i, 3 + i] = p[_P_BIAS_INIT] ** 2
+        s[_S_P] = r
+        _set_q(s, _S_QE, q_m)
+        s[_S_TEST] = s[_S_T]
+        s[_S_QACC] = 0.0
+        return
+    q = _q(s, _S_Q)
+    qe = _q(s, _S_QE)
+    # covariance from the last update to now: δθ⁺ = ΔRᵀ δθ − J δb (ΔR = Exp φ over the interval)
+    dt = max(0.0, s[_S_T] - s[_S_TEST])
+    w, x, y, z = qmul(qe[0], -qe[1], -qe[2], -qe[3], q[0], q[1], q[2], q[3])
+    F = np.eye(6)
+    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                  [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                  [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])  # fmt: skip
+    phi = _rotvec((w, x, y, z))
+    J = _integral_of_exp((-phi[0], -phi[1], -phi[2]))
+    for i in range(3):
+        for j in range(3):
+            F[i, j] = R[j, i]
+            F[i, 3 + j] = -dt * J[i, j]
+    P = mm(mm(F, cov), F.T.copy())
+    for i in range(3):
+        P[i, i] += s[_S_QACC]
+        P[3 + i, 3 + i] += p[_P_BIAS_RW] ** 2 * dt
+    # tilt measurement: the 2 components of the error rotation perpendicular to gravity
+    gp = down_in_body(q[0], q[1], q[2], q[3])
+    cx, sn, ang = _tilt_axis_angle(q, q_m)
+    ax = (1.0, 0.0, 0.0) if abs(gp[0]) < 0.9 else (0.0, 1.0, 0.0)
+    e1 = np.array([gp[1] * ax[2] - gp[2] * ax[1], gp[2] * ax[0] - gp[0] * ax[2], gp[0] * ax[1] - gp[1] * ax[0]])
+    e1 /= math.sqrt(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
+    e2 = np.array([gp[1] * e1[2] - gp[2] * e1[1], gp[2] * e1[0] - gp[0] * e1[2], gp[0] * e1[1] - gp[1] * e1[0]])
+    res = np.zeros(3)
+    if sn > 1e-12:  # δθ that moves gp onto gm
+        k = -ang / sn
+        res[0], res[1], res[2] = k * cx[0], k * cx[1], k * cx[2]
+    H = np.zeros((2, 6))
+    H[0, :3] = e1
+    H[1, :3] = e2
+    zt = np.array([_dot3(e1, res), _dot3(e2, res)])
+    if p[_P_NIS] > 0:  # innovation-adaptive: the propagation was worse than P says
+        p_tilt = 0.5 * (_quad3(e1, P) + _quad3(e2, P))
+        extra = ang * ang / p[_P_NIS] - r - p_tilt
+        if extra > 0:
+            for i in range(3):
+                P[i, i] += extra
+    dx, P = _kalman(P, H, zt, r)
+    if p[_P_BIAS_SIGMA] > 0:  # the network's bias estimate, a direct measurement of b
+        Hb = np.zeros((3, 6))
+        for i in range(3):
+            Hb[i, 3 + i] = 1.0
+        zb = np.array([b_m[i] - (s[_S_B + i] + dx[3 + i]) for i in range(3)])
+        dxb, P = _kalman(P, Hb, zb, p[_P_BIAS_SIGMA] ** 2)
+        dx = dx + dxb  # sequential update: the innovation is taken after the tilt correction
+    e = exp_rotvec(dx[0], dx[1], dx[2])
+    q = qnorm(*qmul(q[0], q[1], q[2], q[3], e[0], e[1], e[2], e[3]))
+    _set_q(s, _S_Q, q)
+    for i in range(3):
+        s[_S_B + i] = s[_S_B + i] + dx[3 + i]
+    cov[:] = 0.5 * (P + P.T)
+    g = down_in_body(q[0], q[1], q[2], q[3])
+    tr = cov[0, 0] + cov[1, 1] + cov[2, 2]
+    gPg = 0.0
+    for i in range(3):
+        for j in range(3):
+            gPg += g[i] * cov[i, j] * g[j]
+    s[_S_P] = 0.5 * (tr - gPg)  # per-axis tilt variance
+    _set_q(s, _S_QE, q)
+    s[_S_TEST] = s[_S_T]
+    s[_S_QACC] = 0.0
+
+
+@njit(cache=True)
+def _step(s, p, t, w_in, clipped, has_est, q_m, sigma_m, b_m, out):
+    """One sample (see :meth:`AttitudeFusion.step`); writes (q, σ, bias) into ``out`` (8) and
+    returns whether q is known."""
+    k = 1.0 + p[_P_CLIP_GAIN] if clipped else 1.0  # a saturated gyro reads less than the rate
+    w0, w1, w2 = k * w_in[0], k * w_in[1], k * w_in[2]
+    hold = p[_P_CLIP_HOLD]
+    held = not math.isnan(s[_S_TCLIP]) and not math.isnan(s[_S_T]) and s[_S_T] - s[_S_TCLIP] <= hold
+    if clipped:
+        s[_S_TCLIP] = t
+    if has_est and not (p[_P_CLIP_SKIP] != 0.0 and held and not math.isnan(s[_S_Q])):
+        if p[_P_KF] != 0.0:  # (the estimate belongs to the previous sample: `held` is judged there)
+            _update_kf(s, p, q_m, sigma_m, b_m)
+        else:
+            _update_lowpass(s, p, q_m, sigma_m, b_m)
+    if not math.isnan(s[_S_Q]) and not math.isnan(s[_S_T]):
+        dt = t - s[_S_T]
+        if dt > 0:
+            b0, b1, b2 = s[_S_B], s[_S_B + 1], s[_S_B + 2]
+            pw0, pw1, pw2 = s[_S_W], s[_S_W + 1], s[_S_W + 2]
+            q = rk4(_q(s, _S_Q), (pw0 - b0, pw1 - b1, pw2 - b2), (w0 - b0, w1 - b1, w2 - b2), dt)
+            _set_q(s, _S_Q, q)
+            dP = p[_P_PN] * dt
+            if p[_P_PN_RATE] > 0:
+                m0, m1, m2 = 0.5 * (pw0 + w0) - b0, 0.5 * (pw1 + w1) - b1, 0.5 * (pw2 + w2) - b2
+                dP += p[_P_PN_RATE] * math.sqrt(m0 * m0 + m1 * m1 + m2 * m2) * dt
+            if clipped or (hold > 0 and not math.isnan(s[_S_TCLIP]) and t - s[_S_TCLIP] <= hold):
+                dP += p[_P_CLIP_INFL] ** 2  # a saturated sensor: the attitude is no longer trusted
+            s[_S_P] += dP
+            s[_S_QACC] += dP
+    s[_S_T] = t
+    s[_S_W], s[_S_W + 1], s[_S_W + 2] = w0, w1, w2
+    out[4] = p[_P_OUT_SCALE] * math.sqrt(s[_S_P])
+    out[5], out[6], out[7] = s[_S_B], s[_S_B + 1], s[_S_B + 2]
+    if math.isnan(s[_S_Q]):
+        return False
+    q = _q(s, _S_Q)
+    if p[_P_YAW_ZERO] != 0.0:
+        q = zero_yaw_np(q)
+    out[0], out[1], out[2], out[3] = q[0], q[1], q[2], q[3]
+    return True
+
+
+@njit(cache=True)
+def _run(s, p, t_s, gyr, clipped, est_at, est_q, est_sigma, est_bias, q_out, s_out, b_out, start, stop):
+    """Samples ``start:stop`` of a segment; ``est_at[i]`` ≥ 0: the window estimate (row of the
+    ``est_*`` arrays) applied when sample i arrives."""
+    out = np.empty(8)
+    none = np.zeros(4)
+    for i in range(start, stop):
+        j = est_at[i]
+        if j >= 0:
+            ok = _step(s, p, t_s[i], gyr[i], clipped[i], True, est_q[j], est_sigma[j], est_bias[j], out)
+        else:
+            ok = _step(s, p, t_s[i], gyr[i], clipped[i], False, none, 0.0, none, out)
+        if ok:
+            q_out[i, 0], q_out[i, 1], q_out[i, 2], q_out[i, 3] = out[0], out[1], out[2], out[3]
+            s_out[i] = out[4]
+            b_out[i, 0], b_out[i, 1], b_out[i, 2] = out[5], out[6], out[7]
+
+
+# ---------------------------------------------------------------------------------- Python side
+
+
 class AttitudeFusion:
-    """State of one causal pass: call :meth:`step` for every IMU sample in order."""
+    """State of one causal pass: call :meth:`step` for every IMU sample in order (the compiled
+    per-sample update; the state lives in one float64 vector)."""
 
     def __init__(self, config: FusionConfig):
         self.c = config
+        self.p = config.kernel_params()
+        self._out = np.empty(8)
+        self._none = np.zeros(4)
         self.reset()
 
     def reset(self) -> None:
-        self.q = None  # full attitude body→NED (tuple), None until the first window estimate
-        self.bias = (0.0, 0.0, 0.0)
-        self.P = 0.0
-        self.t = None
-        self.w = None
-        self.t_est = None
-        self.cov6 = None  # bias_states: 6×6 covariance of (δθ, δb) at the last update
-        self.q_est = None  # bias_states: attitude right after the last update
-        self.Q_acc = 0.0  # bias_states: tilt variance added by the propagation since the update
-        self.t_clip = None  # time of the last saturated sample
+        self.s = new_state()
+
+    @property
+    def q(self):
+        """Full attitude body→NED (tuple), None until the first window estimate."""
+        return None if math.isnan(self.s[_S_Q]) else tuple(float(v) for v in self.s[_S_Q : _S_Q + 4])
+
+    @property
+    def bias(self) -> tuple:
+        return tuple(float(v) for v in self.s[_S_B : _S_B + 3])
+
+    @property
+    def P(self) -> float:
+        return float(self.s[_S_P])
+
+    @property
+    def cov6(self):
+        """Bias states: 6×6 covariance of (δθ, δb) at the last update (a view; None before it)."""
+        return None if math.isnan(self.s[_S_COV]) else self.s[_S_COV : _S_COV + 36].reshape(6, 6)
+
+    @cov6.setter
+    def cov6(self, value) -> None:
+        self.s[_S_COV : _S_COV + 36] = np.asarray(value, np.float64).reshape(36)
 
     def step(self, t: float, w_rad_s, est=None, clipped: bool = False):
         """Advance to sample time ``t`` with gyro ``w`` and return (q or None, σ, bias) for it.
@@ -175,121 +495,18 @@ class AttitudeFusion:
         (a token is known to be complete only when the next sample arrives): it corrects the state
         at that time, before the propagation to ``t``. Offline and live runs therefore agree.
         """
-        c = self.c
-        k = 1.0 + c.clip_rate_gain if clipped else 1.0  # a saturated gyro reads less than the rate
-        w = (k * float(w_rad_s[0]), k * float(w_rad_s[1]), k * float(w_rad_s[2]))
-        held = self.t_clip is not None and self.t is not None and self.t - self.t_clip <= c.clip_hold_s
-        if clipped:
-            self.t_clip = t
-        if est is not None and not (c.clip_skip_updates and held and self.q is not None):
-            self._update(est)  # (the estimate belongs to the previous sample: `held` is judged there)
-        if self.q is not None and self.t is not None:
-            dt = t - self.t
-            if dt > 0:
-                b = self.bias
-                self.q = rk4(self.q, (self.w[0] - b[0], self.w[1] - b[1], self.w[2] - b[2]),
-                             (w[0] - b[0], w[1] - b[1], w[2] - b[2]), dt)  # fmt: skip
-                dP = c.process_noise_rad2_s * dt
-                if c.process_noise_rate_rad > 0:
-                    wm = (0.5 * (self.w[0] + w[0]) - b[0], 0.5 * (self.w[1] + w[1]) - b[1], 0.5 * (self.w[2] + w[2]) - b[2])
-                    dP += c.process_noise_rate_rad * math.sqrt(wm[0] * wm[0] + wm[1] * wm[1] + wm[2] * wm[2]) * dt
-                if clipped or (c.clip_hold_s > 0 and self.t_clip is not None and t - self.t_clip <= c.clip_hold_s):
-                    dP += c.clip_inflation_rad**2  # a saturated sensor: the attitude is no longer trusted
-                self.P += dP
-                self.Q_acc += dP
-        self.t, self.w = t, w
-        if self.q is None:
-            return None, float("nan"), self.bias
-        q = zero_yaw_np(self.q) if c.yaw == "zero" else self.q
-        return q, c.output_sigma_scale * math.sqrt(self.P), self.bias
-
-    def _update(self, est) -> None:
-        c = self.c
-        if c.bias_states and c.enabled:
-            return self._update_kf(est)
-        q_m, sigma, b_m = est
-        r = (c.sigma_scale * float(sigma)) ** 2
-        t = self.t
-        if self.q is None:
-            self.q, self.P = tuple(float(v) for v in q_m), r
-            self.bias = tuple(float(v) for v in b_m)
+        w = np.asarray(w_rad_s, np.float64)
+        out = self._out
+        if est is None:
+            ok = _step(self.s, self.p, float(t), w, bool(clipped), False, self._none, 0.0, self._none, out)
         else:
-            if c.enabled and c.adaptive_nis > 0:
-                e = _tilt_axis_angle(self.q, q_m)[2]
-                self.P = max(self.P, e * e / c.adaptive_nis - r)
-            gain = self.P / (self.P + r) if c.enabled else 1.0
-            self.q = tilt_toward(self.q, q_m, gain)
-            self.P = (1 - gain) * self.P
-            if c.enabled and self.t_est is not None:
-                a = min(1.0, max(0.0, t - self.t_est) / c.bias_time_constant_s)
-                self.bias = tuple(self.bias[i] + a * (float(b_m[i]) - self.bias[i]) for i in range(3))
-            elif not c.enabled:
-                self.bias = tuple(float(v) for v in b_m)
-        self.t_est = t
-
-    def _update_kf(self, est) -> None:
-        c = self.c
-        q_m, sigma, b_m = est
-        r = (c.sigma_scale * float(sigma)) ** 2
-        b_m = np.asarray(b_m, dtype=float)
-        if self.q is None:
-            self.q = tuple(float(v) for v in q_m)
-            self.bias = tuple(float(v) for v in b_m)
-            self.cov6 = np.diag([r] * 3 + [c.bias_init_sigma_rad_s**2] * 3)
-            self.P, self.q_est, self.t_est, self.Q_acc = r, self.q, self.t, 0.0
-            return
-        # covariance from the last update to now: δθ⁺ = ΔRᵀ δθ − J δb (ΔR = Exp φ over the interval)
-        dt = max(0.0, self.t - self.t_est)
-        q_rel = np.array(_qmul((self.q_est[0], -self.q_est[1], -self.q_est[2], -self.q_est[3]), self.q))
-        F = np.eye(6)
-        F[:3, :3] = quat_to_rotmat(q_rel).T
-        F[:3, 3:] = -dt * _integral_of_exp(-quat_to_rotvec(q_rel))
-        P = F @ self.cov6 @ F.T
-        P[:3, :3] += self.Q_acc * np.eye(3)
-        P[3:, 3:] += c.bias_rw_rad_s_sqrt_s**2 * dt * np.eye(3)
-        # tilt measurement: the 2 components of the error rotation perpendicular to gravity
-        gp = np.array(gravity_body_f(self.q))
-        cx, s, ang = _tilt_axis_angle(self.q, q_m)
-        e1 = np.cross(gp, [1.0, 0.0, 0.0] if abs(gp[0]) < 0.9 else [0.0, 1.0, 0.0])
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(gp, e1)
-        res = -ang / s * np.array(cx) if s > 1e-12 else np.zeros(3)  # δθ that moves gp onto gm
-        H = np.zeros((2, 6))
-        H[0, :3], H[1, :3] = e1, e2
-        zt = H[:, :3] @ res
-        if c.adaptive_nis > 0:  # innovation-adaptive: the propagation was worse than P says
-            p_tilt = 0.5 * (e1 @ P[:3, :3] @ e1 + e2 @ P[:3, :3] @ e2)
-            extra = ang * ang / c.adaptive_nis - r - p_tilt
-            if extra > 0:
-                P[:3, :3] += extra * np.eye(3)
-        dx, P = _kalman(P, H, zt, r)
-        if c.bias_sigma_rad_s > 0:  # the network's bias estimate, a direct measurement of b
-            Hb = np.zeros((3, 6))
-            Hb[:, 3:] = np.eye(3)
-            dxb, P = _kalman(P, Hb, b_m - (np.asarray(self.bias) + dx[3:]), c.bias_sigma_rad_s**2)
-            dx = dx + dxb  # sequential update: the innovation is taken after the tilt correction
-        self.q = _qnorm(_qmul(self.q, _exp(tuple(dx[:3]))))
-        self.bias = tuple(float(v) for v in np.asarray(self.bias) + dx[3:])
-        self.cov6 = 0.5 * (P + P.T)
-        g = np.array(gravity_body_f(self.q))
-        self.P = 0.5 * (np.trace(self.cov6[:3, :3]) - g @ self.cov6[:3, :3] @ g)  # per-axis tilt variance
-        self.q_est, self.t_est, self.Q_acc = self.q, self.t, 0.0
-
-
-def _integral_of_exp(phi):
-    """∫₀¹ Exp(s φ) ds = I + (1 − cos θ)/θ² [φ×] + (θ − sin θ)/θ³ [φ×]² (θ = |φ|)."""
-    th = float(np.linalg.norm(phi))
-    X = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
-    if th < 1e-6:
-        return np.eye(3) + 0.5 * X + X @ X / 6.0
-    return np.eye(3) + (1 - math.cos(th)) / th**2 * X + (th - math.sin(th)) / th**3 * X @ X
-
-
-def _kalman(P, H, z, r):
-    """One linear Kalman update of the error state (measurement noise r·I); returns (dx, P⁺)."""
-    S = H @ P @ H.T + r * np.eye(len(z))
-    K = np.linalg.solve(S, H @ P).T
-    return K @ z, P - K @ H @ P
+            q_m, sigma, b_m = est
+            ok = _step(self.s, self.p, float(t), w, bool(clipped), True, np.asarray(q_m, np.float64), float(sigma),
+                       np.asarray(b_m, np.float64), out)  # fmt: skip
+        bias = (float(out[5]), float(out[6]), float(out[7]))
+        if not ok:
+            return None, float("nan"), bias
+        return (float(out[0]), float(out[1]), float(out[2]), float(out[3])), float(out[4]), bias
 
 
 def feedback_bias(config: FusionConfig, bias) -> tuple[float, float, float]:
@@ -308,26 +525,34 @@ class FusionRun:
 
     def __init__(self, t_s, gyr, config: FusionConfig, clipped=None):
         n = len(t_s)
-        self.t_s, self.gyr, self.clipped = t_s, gyr, clipped
+        self.t_s = np.ascontiguousarray(t_s, np.float64)
+        self.gyr = np.ascontiguousarray(gyr, np.float64)
+        self.clipped = np.zeros(n, bool) if clipped is None else np.ascontiguousarray(clipped, bool)
         self.q = np.full((n, 4), np.nan)
         self.sigma = np.full(n, np.nan)
         self.bias = np.full((n, 3), np.nan)
         self.fusion = AttitudeFusion(config)
-        self.pending: dict[int, tuple] = {}
+        self.est_at = np.full(n, -1, np.int64)
+        self.est_q = np.zeros((0, 4))
+        self.est_sigma = np.zeros(0)
+        self.est_bias = np.zeros((0, 3))
         self.i = 0
 
     def add(self, est_index, est_q, est_sigma, est_bias) -> None:
-        for k, i in enumerate(est_index):
-            self.pending[int(i) + 1] = (est_q[k], float(est_sigma[k]), est_bias[k])
+        est_index = np.asarray(est_index, np.int64)
+        if not len(est_index):
+            return
+        k0 = len(self.est_sigma)
+        self.est_q = np.concatenate([self.est_q, np.asarray(est_q, np.float64).reshape(-1, 4)])
+        self.est_sigma = np.concatenate([self.est_sigma, np.asarray(est_sigma, np.float64).reshape(-1)])
+        self.est_bias = np.concatenate([self.est_bias, np.asarray(est_bias, np.float64).reshape(-1, 3)])
+        at = est_index + 1
+        keep = at < len(self.t_s)
+        self.est_at[at[keep]] = k0 + np.flatnonzero(keep)
 
     def advance(self, stop: int) -> None:
-        f, clipped = self.fusion, self.clipped
-        for i in range(self.i, min(stop, len(self.t_s))):
-            est = self.pending.pop(i, None)
-            q, s, b = f.step(float(self.t_s[i]), self.gyr[i], est, bool(clipped[i]) if clipped is not None else False)
-            if q is not None:
-                self.q[i] = q
-                self.sigma[i] = s
-                self.bias[i] = b
-        self.i = max(self.i, min(stop, len(self.t_s)))
-
+        stop = min(stop, len(self.t_s))
+        if stop > self.i:
+            _run(self.fusion.s, self.fusion.p, self.t_s, self.gyr, self.clipped, self.est_at, self.est_q, self.est_sigma,
+                 self.est_bias, self.q, self.sigma, self.bias, self.i, stop)  # fmt: skip
+        self.i = max(self.i, stop)

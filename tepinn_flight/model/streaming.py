@@ -197,12 +197,12 @@ class StreamingEstimator:
         for t_i, g_i, a_i, m_i, c_i, e_i in pending:
             if e_i is not None:
                 self.anchored.correct(e_i)
-            out = self.anchored.update([t_i], [g_i], [a_i], None if m_i is None else [m_i], [c_i])
+            out = self.anchored.update_one(t_i, g_i, a_i, m_i, c_i)
         q6, q9, sig, bias = out
-        q = (q9 if q9 is not None else q6)[0]
-        if not np.all(np.isfinite(q)):
-            return None, float(sig[0]), tuple(bias[0])
-        return tuple(float(v) for v in q), float(sig[0]), tuple(float(v) for v in bias[0])
+        q = q9 if q9 is not None else q6
+        if not all(math.isfinite(v) for v in q):
+            return None, sig, bias
+        return q, sig, bias
 
     def _close_token(self):
         tok = self.cur

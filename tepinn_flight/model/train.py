@@ -476,10 +476,9 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
         best_model, _, ck = load_model(out / "best.pt") if (out / "best.pt").exists() else (model.cpu().eval(), None, {})
         anchor = None
         if init_ck is not None:  # fine-tuning keeps the init's estimator settings (finetune.py tunes them)
-            from .checkpoint import anchor_config_from
-            from .fusion import FusionConfig
-
-            fusion, fus_metrics = FusionConfig(**init_ck.get("fusion_config", {})), {}
+            from .checkpoint import anchor_config_from, fusion_config_from
+            
+            fusion, fus_metrics = fusion_config_from(init_ck.get("fusion_config")), {}
             anchor = anchor_config_from(init_ck)
         else:
             fusion, fus_metrics = calibrate_with(cfg, best_model, val_recs, train_recs)

@@ -118,7 +118,7 @@ class TrainConfig:
     loss: LossConfig = field(default_factory=LossConfig)
     data: DataConfig = field(default_factory=DataConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
-    fusion: FusionConfig = field(default_factory=FusionConfig)
+    fusion: FusionConfig = field(default_factory=FusionConfig.uncalibrated)  # where calibration starts
     calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
     # the estimator model.pt runs: the filter-anchored VQF with these settings (its pull target, the
     # older fusion, is the one calibrated above); enabled = false: the older fusion alone
@@ -129,7 +129,7 @@ class TrainConfig:
         if self.loss.gyro_pair_tokens >= self.model.window_tokens:
             raise ConfigError(f"loss: 'gyro_pair_tokens' must be < model.window_tokens ({self.model.window_tokens}), "
                               f"got {self.loss.gyro_pair_tokens}")  # fmt: skip
-        # the fusion's numbers (FusionConfig has no checks of its own): ranges for a training recipe
+        # the fusion's numbers: ranges for a training recipe (FusionConfig checks them too)
         f = self.fusion
         for name in ("process_noise_rad2_s", "process_noise_rate_rad", "clip_inflation_rad", "clip_rate_gain",
                      "adaptive_nis", "bias_sigma_rad_s", "bias_rw_rad_s_sqrt_s", "bias_init_sigma_rad_s",

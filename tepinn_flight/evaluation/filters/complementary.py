@@ -14,9 +14,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ...errors import ConfigError
-from ...quat import gravity_body_f
+from ...quat_scalar import down_in_body
 from .common import as_tuple4, check_inputs, initial_attitude
 
 
@@ -42,19 +43,22 @@ class Complementary:
         gyr, acc, dt, mag = check_inputs(gyr, acc, t_s, mag)
         if q0 is None:
             q0 = initial_attitude(acc[0], None if mag is None else mag[0]) if len(acc) else [1, 0, 0, 0]
-        q = _run(gyr.tolist(), acc.tolist(), None if mag is None else mag.tolist(), dt.tolist(),
-                 self.params.tau_acc_s, self.params.tau_mag_s, as_tuple4(q0))  # fmt: skip
+        q = _run(gyr, acc, np.zeros((0, 3)) if mag is None else mag, dt, self.params.tau_acc_s, self.params.tau_mag_s,
+                 as_tuple4(q0))  # fmt: skip
         return {"q_nb_wxyz": q}
 
 
+@njit(cache=True)
 def _run(gyr, acc, mag, dt, tau_acc, tau_mag, q):
+    """The per-sample loop (compiled; float64 arrays in, (n, 4) out). ``mag`` with no rows: 6-D."""
     n = len(gyr)
-    out = [None] * n
+    out = np.empty((n, 4))
     w, x, y, z = q
     sqrt, sin, cos, atan2 = math.sqrt, math.sin, math.cos, math.atan2
+    has_mag = len(mag) > 0
     for i in range(n):
         h = dt[i]
-        gx, gy, gz = gyr[i]
+        gx, gy, gz = gyr[i, 0], gyr[i, 1], gyr[i, 2]
         # --- gyro propagation: q ⊗ exp(ω h)
         rx, ry, rz = gx * h, gy * h, gz * h
         th = sqrt(rx * rx + ry * ry + rz * rz)
@@ -65,12 +69,12 @@ def _run(gyr, acc, mag, dt, tau_acc, tau_mag, q):
             w, x, y, z = (w * c - x * dx - y * dy - z * dz, w * dx + x * c + y * dz - z * dy,
                           w * dy - x * dz + y * c + z * dx, w * dz + x * dy - y * dx + z * c)  # fmt: skip
         # --- tilt correction toward the accelerometer
-        ax, ay, az = acc[i]
+        ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
         na = ax * ax + ay * ay + az * az
         if na > 0.0:
             na = -1.0 / sqrt(na)
             ax, ay, az = ax * na, ay * na, az * na  # measured down, body
-            vx, vy, vz = gravity_body_f((w, x, y, z))  # predicted down, body
+            vx, vy, vz = down_in_body(w, x, y, z)  # predicted down, body
             ex, ey, ez = ay * vz - az * vy, az * vx - ax * vz, ax * vy - ay * vx  # d × v
             ne = sqrt(ex * ex + ey * ey + ez * ez)
             if ne > 1e-12:
@@ -84,8 +88,8 @@ def _run(gyr, acc, mag, dt, tau_acc, tau_mag, q):
                 w, x, y, z = (w * c - x * dx - y * dy - z * dz, w * dx + x * c + y * dz - z * dy,
                               w * dy - x * dz + y * c + z * dx, w * dz + x * dy - y * dx + z * c)  # fmt: skip
         # --- heading correction toward magnetic north (9-D)
-        if mag is not None:
-            mx, my, mz = mag[i]
+        if has_mag:
+            mx, my, mz = mag[i, 0], mag[i, 1], mag[i, 2]
             if mx != 0.0 or my != 0.0 or mz != 0.0:
                 # horizontal field in NED: R m (first two rows)
                 hx = (1 - 2 * (y * y + z * z)) * mx + 2 * (x * y - w * z) * my + 2 * (x * z + w * y) * mz
@@ -99,5 +103,5 @@ def _run(gyr, acc, mag, dt, tau_acc, tau_mag, q):
                     w, x, y, z = c * w - s * z, c * x - s * y, c * y + s * x, c * z + s * w
         r = 1.0 / sqrt(w * w + x * x + y * y + z * z)
         w, x, y, z = w * r, x * r, y * r, z * r
-        out[i] = (w, x, y, z)
-    return np.array(out, np.float64).reshape(n, 4)
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = w, x, y, z
+    return out

@@ -38,10 +38,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ...conventions import GRAVITY_M_S2
 from ...errors import ConfigError
-from ...quat import gravity_body_f
+from ...quat_scalar import down_in_body, qmul
+from ...small_linalg import mm, solve
 from .common import as_tuple4, check_inputs, initial_attitude
 
 
@@ -86,6 +88,7 @@ class Ekf:
         return {"q_nb_wxyz": q, "bias_rad_s": b, "sigma_rad": s}
 
 
+@njit(cache=True)
 def _rotate_body(w, x, y, z, rx, ry, rz):
     """``q ⊗ exp(r)`` for a body-frame rotation vector ``r`` (rad), scalars for the per-sample loop.
     Returns (the new q, the increment exp(r)) as (w, x, y, z) tuples."""
@@ -95,120 +98,132 @@ def _rotate_body(w, x, y, z, rx, ry, rz):
         dw, dx, dy, dz = math.cos(0.5 * th), rx * s, ry * s, rz * s
     else:
         dw, dx, dy, dz = 1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz
-    q = (w * dw - x * dx - y * dy - z * dz, w * dx + x * dw + y * dz - z * dy,
-         w * dy - x * dz + y * dw + z * dx, w * dz + x * dy - y * dx + z * dw)  # fmt: skip
-    return q, (dw, dx, dy, dz)
+    return qmul(w, x, y, z, dw, dx, dy, dz), (dw, dx, dy, dz)
 
 
 def _run(gyr, acc, dt, p: EkfParams, q, b):
+    return _loop(gyr, acc, dt, q, b, p.init_attitude_sigma_rad, p.init_bias_sigma_rad_s, p.gyro_noise_rad_s_sqrt_hz,
+                 p.bias_walk_rad_s_sqrt_s, p.bias_limit_rad_s, p.acc_lowpass_tau_s, p.rest_gyr_sigma_rad_s,
+                 p.rest_gyr_dev_rad_s, p.rest_acc_dev_m_s2, p.rest_min_s, p.acc_noise_m_s2, p.acc_dynamic_gain,
+                 p.acc_gate_m_s2, GRAVITY_M_S2)  # fmt: skip
+
+
+@njit(cache=True)
+def _loop(gyr, acc, dt, q, b, init_att, init_bias, gyro_noise, bias_walk, lim, lp_tau, rest_sigma, rest_gyr_dev,
+          rest_acc_dev, rest_min_s, acc_noise, acc_dyn, acc_gate, g):  # fmt: skip
+    """The per-sample loop (compiled; float64 arrays in): (q (n, 4), bias (n, 3), σ (n,))."""
     n = len(gyr)
-    q_out = [None] * n
-    b_out = [None] * n
-    s_out = [0.0] * n
+    q_out = np.empty((n, 4))
+    b_out = np.empty((n, 3))
+    s_out = np.empty(n)
     w, x, y, z = q
     bx, by, bz = b
-    P = np.diag([p.init_attitude_sigma_rad**2] * 3 + [p.init_bias_sigma_rad_s**2] * 3)
+    P = np.zeros((6, 6))
+    for k in range(3):
+        P[k, k] = init_att**2
+        P[3 + k, 3 + k] = init_bias**2
     F = np.eye(6)
-    qd = np.zeros((6, 6))
-    sg2, sb2 = p.gyro_noise_rad_s_sqrt_hz**2, p.bias_walk_rad_s_sqrt_s**2
-    g = GRAVITY_M_S2
-    lim = p.bias_limit_rad_s
-    lp_tau = p.acc_lowpass_tau_s
-    lp = None
+    sg2, sb2 = gyro_noise**2, bias_walk**2
+    have_lp = False
+    lp0 = lp1 = lp2 = 0.0
     qi = (1.0, 0.0, 0.0, 0.0)
-    rest_sigma = p.rest_gyr_sigma_rad_s
-    rest_r = np.eye(3) * rest_sigma**2
-    rest_g2, rest_a2 = p.rest_gyr_dev_rad_s**2, p.rest_acc_dev_m_s2**2
+    rest_var = rest_sigma**2
+    rest_g2, rest_a2 = rest_gyr_dev**2, rest_acc_dev**2
     rest_t = 0.0
-    lg = la = None
+    have_l = False
+    lg0 = lg1 = lg2 = la0 = la1 = la2 = 0.0
     sqrt = math.sqrt
-    inv = np.linalg.inv
-    gyr_l, acc_l, dt_l = gyr.tolist(), acc.tolist(), dt.tolist()
+    vxm = np.zeros((3, 3))
     for i in range(n):
-        h = dt_l[i]
-        gx, gy, gz = gyr_l[i]
+        h = dt[i]
+        gx, gy, gz = gyr[i, 0], gyr[i, 1], gyr[i, 2]
         (w, x, y, z), (dw, dx, dy, dz) = _rotate_body(w, x, y, z, (gx - bx) * h, (gy - by) * h, (gz - bz) * h)
         dw0, dx0, dy0, dz0 = dw, dx, dy, dz
         # F: attitude block = R(dq)ᵀ, bias coupling −I·h
-        F[0:3, 0:3] = (
-            (1 - 2 * (dy * dy + dz * dz), 2 * (dx * dy + dw * dz), 2 * (dx * dz - dw * dy)),
-            (2 * (dx * dy - dw * dz), 1 - 2 * (dx * dx + dz * dz), 2 * (dy * dz + dw * dx)),
-            (2 * (dx * dz + dw * dy), 2 * (dy * dz - dw * dx), 1 - 2 * (dx * dx + dy * dy)),
-        )
+        F[0, 0], F[0, 1], F[0, 2] = 1 - 2 * (dy * dy + dz * dz), 2 * (dx * dy + dw * dz), 2 * (dx * dz - dw * dy)
+        F[1, 0], F[1, 1], F[1, 2] = 2 * (dx * dy - dw * dz), 1 - 2 * (dx * dx + dz * dz), 2 * (dy * dz + dw * dx)
+        F[2, 0], F[2, 1], F[2, 2] = 2 * (dx * dz + dw * dy), 2 * (dy * dz - dw * dx), 1 - 2 * (dx * dx + dy * dy)
         F[0, 3] = F[1, 4] = F[2, 5] = -h
-        qd[0, 0] = qd[1, 1] = qd[2, 2] = sg2 * h
-        qd[3, 3] = qd[4, 4] = qd[5, 5] = sb2 * h
-        P = F @ P @ F.T + qd
-        ax, ay, az = acc_l[i]
+        P = mm(mm(F, P), F.T.copy())
+        for k in range(3):
+            P[k, k] += sg2 * h
+            P[3 + k, 3 + k] += sb2 * h
+        ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
         if rest_sigma > 0.0:
             al = 1.0 - math.exp(-h / 0.5)
-            if lg is None:
-                lg, la = [gx, gy, gz], [ax, ay, az]
+            if not have_l:
+                lg0, lg1, lg2, la0, la1, la2 = gx, gy, gz, ax, ay, az
+                have_l = True
             else:
-                lg[0] += al * (gx - lg[0])
-                lg[1] += al * (gy - lg[1])
-                lg[2] += al * (gz - lg[2])
-                la[0] += al * (ax - la[0])
-                la[1] += al * (ay - la[1])
-                la[2] += al * (az - la[2])
-            dg = (gx - lg[0]) ** 2 + (gy - lg[1]) ** 2 + (gz - lg[2]) ** 2
-            da = (ax - la[0]) ** 2 + (ay - la[1]) ** 2 + (az - la[2]) ** 2
+                lg0 += al * (gx - lg0)
+                lg1 += al * (gy - lg1)
+                lg2 += al * (gz - lg2)
+                la0 += al * (ax - la0)
+                la1 += al * (ay - la1)
+                la2 += al * (az - la2)
+            dg = (gx - lg0) ** 2 + (gy - lg1) ** 2 + (gz - lg2) ** 2
+            da = (ax - la0) ** 2 + (ay - la1) ** 2 + (az - la2) ** 2
             rest_t = rest_t + h if (dg < rest_g2 and da < rest_a2) else 0.0
-            if rest_t >= p.rest_min_s:
+            if rest_t >= rest_min_s:
                 # zero-angular-rate update: the low-passed gyro measures the bias, H = [0, I]
-                pb = P[:, 3:6]
-                S = pb[3:6] + rest_r
-                K = pb @ inv(S)
-                d = K @ (lg[0] - bx, lg[1] - by, lg[2] - bz)
-                P = P - K @ pb.T
+                pb = P[:, 3:6].copy()
+                S = pb[3:6].copy()
+                for k in range(3):
+                    S[k, k] += rest_var
+                K = solve(S.T.copy(), pb.T.copy()).T.copy()  # pb S⁻¹
+                res = np.array([lg0 - bx, lg1 - by, lg2 - bz])
+                P = P - mm(K, pb.T.copy())
                 P = 0.5 * (P + P.T)
-                ex, ey, ez, b0, b1, b2 = d.tolist()
+                b0 = K[3, 0] * res[0] + K[3, 1] * res[1] + K[3, 2] * res[2]
+                b1 = K[4, 0] * res[0] + K[4, 1] * res[1] + K[4, 2] * res[2]
+                b2 = K[5, 0] * res[0] + K[5, 1] * res[1] + K[5, 2] * res[2]
                 bx = min(lim, max(-lim, bx + b0))
                 by = min(lim, max(-lim, by + b1))
                 bz = min(lim, max(-lim, bz + b2))
         # predicted down direction in body
-        vx, vy, vz = gravity_body_f((w, x, y, z))
+        vx, vy, vz = down_in_body(w, x, y, z)
         if lp_tau > 0.0 and (ax != 0.0 or ay != 0.0 or az != 0.0):
             # VQF's idea: low-pass the specific force in an inertial frame I that follows the
             # bias-corrected gyro only (no corrections), so zero-mean linear accelerations cancel
-            gw, gx_, gy_, gz_ = qi
-            qi = (gw * dw0 - gx_ * dx0 - gy_ * dy0 - gz_ * dz0, gw * dx0 + gx_ * dw0 + gy_ * dz0 - gz_ * dy0,
-                  gw * dy0 - gx_ * dz0 + gy_ * dw0 + gz_ * dx0, gw * dz0 + gx_ * dy0 - gy_ * dx0 + gz_ * dw0)  # fmt: skip
+            qi = qmul(qi[0], qi[1], qi[2], qi[3], dw0, dx0, dy0, dz0)
             gw, gx_, gy_, gz_ = qi
             r00, r01, r02 = 1 - 2 * (gy_ * gy_ + gz_ * gz_), 2 * (gx_ * gy_ - gw * gz_), 2 * (gx_ * gz_ + gw * gy_)
             r10, r11, r12 = 2 * (gx_ * gy_ + gw * gz_), 1 - 2 * (gx_ * gx_ + gz_ * gz_), 2 * (gy_ * gz_ - gw * gx_)
             r20, r21, r22 = 2 * (gx_ * gz_ - gw * gy_), 2 * (gy_ * gz_ + gw * gx_), 1 - 2 * (gx_ * gx_ + gy_ * gy_)
             nx, ny, nz = r00 * ax + r01 * ay + r02 * az, r10 * ax + r11 * ay + r12 * az, r20 * ax + r21 * ay + r22 * az
-            if lp is None:
-                lp = [nx, ny, nz]
+            if not have_lp:
+                lp0, lp1, lp2 = nx, ny, nz
+                have_lp = True
             else:
                 al = 1.0 - math.exp(-h / lp_tau)
-                lp[0] += al * (nx - lp[0])
-                lp[1] += al * (ny - lp[1])
-                lp[2] += al * (nz - lp[2])
-            ax = r00 * lp[0] + r10 * lp[1] + r20 * lp[2]
-            ay = r01 * lp[0] + r11 * lp[1] + r21 * lp[2]
-            az = r02 * lp[0] + r12 * lp[1] + r22 * lp[2]
+                lp0 += al * (nx - lp0)
+                lp1 += al * (ny - lp1)
+                lp2 += al * (nz - lp2)
+            ax = r00 * lp0 + r10 * lp1 + r20 * lp2
+            ay = r01 * lp0 + r11 * lp1 + r21 * lp2
+            az = r02 * lp0 + r12 * lp1 + r22 * lp2
             if i % 1000 == 999:  # keep q_I normalised
                 nq = 1.0 / sqrt(gw * gw + gx_ * gx_ + gy_ * gy_ + gz_ * gz_)
                 qi = (gw * nq, gx_ * nq, gy_ * nq, gz_ * nq)
         na = sqrt(ax * ax + ay * ay + az * az)
         dev = abs(na - g)
-        if na > 0.0 and dev <= p.acc_gate_m_s2:
-            sa = (p.acc_noise_m_s2 + p.acc_dynamic_gain * dev) / g
-            vx_ = np.array(((0.0, -vz, vy), (vz, 0.0, -vx), (-vy, vx, 0.0)))  # [v]×
-            pht = P[:, 0:3] @ vx_  # P Hᵀ, Hᵀ = [[v]×; 0]
-            S = -(vx_ @ pht[0:3])  # H P Hᵀ
+        if na > 0.0 and dev <= acc_gate:
+            sa = (acc_noise + acc_dyn * dev) / g
+            vxm[0, 1], vxm[0, 2], vxm[1, 0], vxm[1, 2], vxm[2, 0], vxm[2, 1] = -vz, vy, vz, -vx, -vy, vx  # [v]×
+            pht = mm(P[:, 0:3].copy(), vxm)  # P Hᵀ, Hᵀ = [[v]×; 0]
+            S = -mm(vxm, pht[0:3].copy())  # H P Hᵀ
             S[0, 0] += sa * sa
             S[1, 1] += sa * sa
             S[2, 2] += sa * sa
-            K = pht @ inv(S)
+            K = solve(S.T.copy(), pht.T.copy()).T.copy()  # pht S⁻¹
             r = 1.0 / na
-            res = (ax * r + vx, ay * r + vy, az * r + vz)  # z − h, h = −v
-            d = K @ res
-            P = P - K @ pht.T
+            res0, res1, res2 = ax * r + vx, ay * r + vy, az * r + vz  # z − h, h = −v
+            d = np.empty(6)
+            for k in range(6):
+                d[k] = K[k, 0] * res0 + K[k, 1] * res1 + K[k, 2] * res2
+            P = P - mm(K, pht.T.copy())
             P = 0.5 * (P + P.T)
-            ex, ey, ez, b0, b1, b2 = d.tolist()
+            ex, ey, ez, b0, b1, b2 = d[0], d[1], d[2], d[3], d[4], d[5]
             # the accelerometer cannot observe heading: drop the correction's earth-vertical part
             # (its component along the body-frame down vector v), so heading comes from the gyro only
             pv = ex * vx + ey * vy + ez * vz
@@ -217,18 +232,17 @@ def _run(gyr, acc, dt, p: EkfParams, q, b):
             bx = min(lim, max(-lim, bx + b0))
             by = min(lim, max(-lim, by + b1))
             bz = min(lim, max(-lim, bz + b2))
-            vx, vy, vz = gravity_body_f((w, x, y, z))
+            vx, vy, vz = down_in_body(w, x, y, z)
         r = 1.0 / sqrt(w * w + x * x + y * y + z * z)
         w, x, y, z = w * r, x * r, y * r, z * r
-        q_out[i] = (w, x, y, z)
-        b_out[i] = (bx, by, bz)
+        q_out[i, 0], q_out[i, 1], q_out[i, 2], q_out[i, 3] = w, x, y, z
+        b_out[i, 0], b_out[i, 1], b_out[i, 2] = bx, by, bz
         # tilt σ per axis: (tr Pθθ − vᵀ Pθθ v) / 2
         t00, t01, t02, t11, t12, t22 = P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2]
         vpv = (vx * vx * t00 + vy * vy * t11 + vz * vz * t22
                + 2.0 * (vx * vy * t01 + vx * vz * t02 + vy * vz * t12))  # fmt: skip
         s_out[i] = sqrt(max(0.0, 0.5 * (t00 + t11 + t22 - vpv)))
-    return (np.array(q_out, np.float64).reshape(n, 4), np.array(b_out, np.float64).reshape(n, 3),
-            np.array(s_out, np.float64))  # fmt: skip
+    return q_out, b_out, s_out
 
 
 #: Default tuning grid (the three noise parameters that matter most; 3 × 3 × 3 = 27 runs).

@@ -22,6 +22,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from ...errors import ConfigError
 from .common import as_tuple4, check_inputs, initial_attitude
@@ -49,21 +50,22 @@ class Madgwick:
             i = int(np.argmax(np.linalg.norm(acc, axis=1) > 0)) if len(acc) else 0
             q0 = initial_attitude(acc[i], None if mag is None else mag[i]) if len(acc) else [1, 0, 0, 0]
         k = 1.0 if self.params.original_quirk else 2.0
-        down = (-acc).tolist()
-        q = _run(gyr.tolist(), down, None if mag is None else mag.tolist(), dt.tolist(),
-                 float(self.params.beta), k, as_tuple4(q0))  # fmt: skip
+        q = _run(gyr, -acc, np.zeros((0, 3)) if mag is None else mag, dt, float(self.params.beta), k, as_tuple4(q0))
         return {"q_nb_wxyz": q}
 
 
+@njit(cache=True)
 def _run(gyr, acc, mag, dt, beta, k, q):
-    """The per-sample loop (plain floats). ``acc`` is the gravity direction (earth +z in body)."""
+    """The per-sample loop (compiled; float64 arrays in, (n, 4) out). ``acc`` is the gravity
+    direction (earth +z in body); ``mag`` with no rows: 6-D."""
     n = len(gyr)
-    out = [None] * n
+    out = np.empty((n, 4))
     q0, q1, q2, q3 = q
     sqrt = math.sqrt
+    has_mag = len(mag) > 0
     for i in range(n):
-        gx, gy, gz = gyr[i]
-        ax, ay, az = acc[i]
+        gx, gy, gz = gyr[i, 0], gyr[i, 1], gyr[i, 2]
+        ax, ay, az = acc[i, 0], acc[i, 1], acc[i, 2]
         h = dt[i]
         qd1 = 0.5 * (-q1 * gx - q2 * gy - q3 * gz)
         qd2 = 0.5 * (q0 * gx + q2 * gz - q3 * gy)
@@ -74,8 +76,8 @@ def _run(gyr, acc, mag, dt, beta, k, q):
             ax *= r
             ay *= r
             az *= r
-            if mag is not None:
-                mx, my, mz = mag[i]
+            if has_mag:
+                mx, my, mz = mag[i, 0], mag[i, 1], mag[i, 2]
             else:
                 mx = my = mz = 0.0
             if mx != 0.0 or my != 0.0 or mz != 0.0:
@@ -153,5 +155,5 @@ def _run(gyr, acc, mag, dt, beta, k, q):
         q1 *= r
         q2 *= r
         q3 *= r
-        out[i] = (q0, q1, q2, q3)
-    return np.array(out, np.float64).reshape(n, 4)
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = q0, q1, q2, q3
+    return out

@@ -1,0 +1,141 @@
+"""TE-PINN speed beside VQF, measured in the same run: offline ``estimate`` throughput (samples/s) and
+streaming cost per pushed sample (mean and p99 µs), for the network in PyTorch and in onnxruntime.
+
+Offline: :func:`~tepinn_flight.model.estimate.estimate_record` of the shipped model over the
+record (the network on every window, batched; 2 threads), beside VQF's offline batch
+(``evaluate``'s VQF peer) on the same record. Streaming: :class:`StreamingEstimator` one sample per
+``push`` on one thread (what the bridge runs), beside ``vqf.VQF.update`` called once per sample
+from Python. The first pushes (until the first full window) are left out of the streaming figures;
+everything is run once before timing (numba's compile or cache load is a start-up cost).
+
+The machine may be shared: compare the ratios, not the absolute times.
+
+Usage: python benchmarks/estimate_speed.py [--record PATH] [--seconds 120] [--stream-seconds 30]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from tepinn_flight.ingest import load_record  # noqa: E402
+from tepinn_flight.model.estimate import estimate_record  # noqa: E402
+from tepinn_flight.model.runtime import OnnxRunner, TorchRunner, default_onnx_path  # noqa: E402
+from tepinn_flight.model.streaming import StreamingEstimator  # noqa: E402
+from tepinn_flight.record import FlightRecord  # noqa: E402
+
+DEFAULT_RECORD = REPO.parent / "shared" / "broad" / "broad_06_undisturbed_fast_rotation_A.hdf5"
+
+
+def head(rec: FlightRecord, seconds: float) -> FlightRecord:
+    t = rec.t_s
+    n = int(np.searchsorted(t, t[0] + seconds))
+    return FlightRecord(rec.data.iloc[:n].reset_index(drop=True), dict(rec.meta))
+
+
+def offline(runner, settings, rec) -> tuple[float, float]:
+    """(samples per wall second, samples per CPU second of this process)."""
+    c0, t0 = time.process_time(), time.perf_counter()
+    estimate_record(runner, rec, settings)
+    return len(rec) / (time.perf_counter() - t0), len(rec) / (time.process_time() - c0)
+
+
+def vqf_offline(rec) -> tuple[float, float]:
+    from tepinn_flight.evaluation.peers import make_peer
+
+    peer = make_peer("vqf", [])
+    c0, t0 = time.process_time(), time.perf_counter()
+    peer.estimate(rec)
+    return len(rec) / (time.perf_counter() - t0), len(rec) / (time.process_time() - c0)
+
+
+def streaming(runner, settings, rec, skip: int) -> tuple[np.ndarray, float]:
+    """(wall µs of each push after the first ``skip``, CPU µs per push over those)."""
+    se = StreamingEstimator(runner, settings, threads=1)
+    t, g, a = rec.t_s, rec.gyr_rad_s, rec.acc_m_s2
+    cost = np.empty(len(t))
+    for i in range(len(t)):
+        if i == skip:
+            cpu0 = time.process_time()
+        c0 = time.perf_counter()
+        se.push(t[i], g[i], a[i])
+        cost[i] = time.perf_counter() - c0
+    return cost[skip:] * 1e6, 1e6 * (time.process_time() - cpu0) / max(1, len(t) - skip)
+
+
+def vqf_streaming(rec) -> np.ndarray:
+    import vqf
+
+    t, g, a = rec.t_s, rec.gyr_rad_s, rec.acc_m_s2
+    f = vqf.VQF(float(np.median(np.diff(t))))
+    g = np.ascontiguousarray(g * [1.0, -1.0, -1.0])  # VQF's z-up sensor frame (as the peers)
+    a = np.ascontiguousarray(a * [1.0, -1.0, -1.0])
+    cost = np.empty(len(t))
+    cpu0 = time.process_time()
+    for i in range(len(t)):
+        c0 = time.perf_counter()
+        f.update(g[i], a[i])
+        f.getQuat6D()
+        cost[i] = time.perf_counter() - c0
+    return cost * 1e6, 1e6 * (time.process_time() - cpu0) / len(t)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--record", default=str(DEFAULT_RECORD), help="a record or log (default: BROAD trial 06)")
+    ap.add_argument("--seconds", type=float, default=120.0, help="offline: the record's first seconds")
+    ap.add_argument("--stream-seconds", type=float, default=30.0, help="streaming: the record's first seconds")
+    ap.add_argument("--runtime", choices=["torch", "onnx", "both"], default="both")
+    args = ap.parse_args()
+    import torch
+
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+
+    rec = load_record(args.record)
+    model, settings, _ = load_model(default_model_path())
+    runners = {}
+    if args.runtime in ("torch", "both"):
+        runners["torch"] = TorchRunner(model)
+    if args.runtime in ("onnx", "both") and default_onnx_path().exists():
+        runners["onnx"] = OnnxRunner(default_onnx_path())
+    off_rec, st_rec = head(rec, args.seconds), head(rec, args.stream_seconds)
+    rate = float(1.0 / np.median(np.diff(rec.t_s)))
+    skip = int(rate * (model.config.window_tokens / model.config.token_rate_hz + 0.5))
+    warm = head(rec, 6.0)
+    for r in runners.values():  # compile / cache-load the compiled loops, warm the runtimes
+        estimate_record(r, warm, settings)
+        streaming(r, settings, warm, 1)
+    print(f"{Path(args.record).name}: {rate:.0f} Hz; offline {len(off_rec)} samples, streaming {len(st_rec)} "
+          f"(first {skip} left out)")  # fmt: skip
+    torch.set_num_threads(2)
+    v_off, v_cpu = vqf_offline(off_rec)
+    print(f"offline, 2 threads   {'samples/s':>12s} {'per CPU s':>12s} {'× real time':>12s} {'VQF / it':>9s}")
+    print(f"  VQF                {v_off:12.0f} {v_cpu:12.0f} {v_off / rate:12.0f} {1.0:9.1f}")
+    for name, r in runners.items():
+        r.set_threads(2)
+        s, s_cpu = offline(r, settings, off_rec)
+        print(f"  TE-PINN ({name:5s})    {s:12.0f} {s_cpu:12.0f} {s / rate:12.0f} {v_off / s:9.1f}")
+    torch.set_num_threads(1)
+    v, v_cpu = vqf_streaming(st_rec)
+    v = v[skip:]
+    print(f"streaming, 1 thread  {'mean µs':>12s} {'median µs':>10s} {'p99 µs':>10s} {'CPU µs':>9s} {'× real time':>12s} "
+          f"{'/ VQF':>7s}")  # fmt: skip
+    print(f"  VQF                {v.mean():12.2f} {np.median(v):10.2f} {np.percentile(v, 99):10.2f} {v_cpu:9.2f} "
+          f"{1e6 / rate / v.mean():12.0f} {1.0:7.1f}")  # fmt: skip
+    for name, r in runners.items():
+        c, c_cpu = streaming(r, settings, st_rec, skip)
+        print(f"  TE-PINN ({name:5s})    {c.mean():12.2f} {np.median(c):10.2f} {np.percentile(c, 99):10.2f} {c_cpu:9.2f} "
+              f"{1e6 / rate / c.mean():12.0f} {c.mean() / v.mean():7.1f}")  # fmt: skip
+    print("/ VQF: TE-PINN's mean over VQF's (offline: VQF's samples/s over TE-PINN's); CPU µs: process CPU time per push")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
