@@ -56,31 +56,3 @@ def test_fast_scoring_equals_the_evaluations_metrics_on_a_real_trial():
     n, cv = score([f], cfg.sigma_floor_deg, cfg.sigma_acc_gain)
     assert n == pytest.approx(u["nees"], rel=1e-6) and cv == pytest.approx(u["coverage_3sigma"], abs=1e-9)
 
-
-@pytest.mark.slow
-def test_calibrate_checkpoint_writes_the_fit_and_skips_untrusted_references(tmp_path):
-    import shutil
-
-    from tepinn_flight.ingest import ingest_log
-    from tepinn_flight.evaluation.sigma_calibration import calibrate_checkpoint
-    from tepinn_flight.model.checkpoint import default_model_path, read_checkpoint
-    from tepinn_flight.model.synthetic import synthetic_record
-
-    ck = tmp_path / "model.pt"
-    shutil.copy(default_model_path(), ck)
-    before = read_checkpoint(ck)
-    # a synthetic record's reference is not measured truth: nothing is fitted, nothing written
-    assert calibrate_checkpoint(ck, [("syn", synthetic_record(seed=1, duration_s=20.0))]) is None
-    assert read_checkpoint(ck)["anchor_config"] == before["anchor_config"]
-    recs = [(p.name, ingest_log(p)) for p in (broad_trial("broad_01_*.hdf5"), broad_trial("broad_10_*.hdf5"))]
-    fit = calibrate_checkpoint(ck, recs, coverage=0.97)
-    after = read_checkpoint(ck)
-    assert after["anchor_config"]["sigma_floor_deg"] == fit.sigma_floor_deg
-    assert after["anchor_config"]["sigma_acc_gain"] == fit.sigma_acc_gain
-    assert after["sigma_calibration"]["files"] == [n for n, _ in recs]
-    # the written σ scores what the fit says on the same files (independent of the fit's search)
-    files = [error_samples(r, n) for n, r in recs]
-    n, cv = score(files, fit.sigma_floor_deg, fit.sigma_acc_gain)
-    assert n == pytest.approx(fit.nees) and cv == pytest.approx(fit.coverage_3sigma) and cv >= 0.97
-    assert {k: v for k, v in after.items() if k not in ("anchor_config", "sigma_calibration")}.keys() == \
-        {k for k in before if k != "anchor_config"}

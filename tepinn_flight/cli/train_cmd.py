@@ -75,16 +75,6 @@ def run(args) -> int:
     # a place that cannot be written is a one-line error before any work (creates nothing);
     # train() refuses a folder holding a run (last.pt) without --resume
     out = check_output(args.output, folder=True)
-    base = Path(args.config).resolve().parent
-    train(cfg, out, data_dirs=args.data, resume=args.resume, config_base=base, progress=not args.quiet,
-          device=args.device)  # fmt: skip
-    if cfg.anchor.enabled and (out / "model.pt").exists():  # σ of the anchored estimator, on real truth
-        from ..evaluation.sigma_calibration import calibrate_checkpoint
-        from ..ingest import load_record
-        from ..model.train_data import optional_real_paths
-
-        fit = calibrate_checkpoint(out / "model.pt", [(p.name, load_record(p)) for p in optional_real_paths(cfg, base)])
-        if fit is not None:
-            print(f"σ calibrated on the recipe's real files with measured truth: σ₀ {fit.sigma_floor_deg:g}°, "
-                  f"c {fit.sigma_acc_gain:g} (NEES {fit.nees:.2f}, {100 * fit.coverage_3sigma:.1f} % within 3σ)")  # fmt: skip
+    train(cfg, out, data_dirs=args.data, resume=args.resume, config_base=Path(args.config).resolve().parent,
+          progress=not args.quiet, device=args.device)  # fmt: skip
     return 0

@@ -82,38 +82,3 @@ def fit_sigma(files: list[ErrorSamples], coverage: float = 0.97, nees_target: fl
                 best, best_key = SigmaFit(round(float(f0), 4), round(float(c), 4), n, cv), key
     return best
 
-
-# what a real file's reference must be to calibrate σ against: measured truth (motion capture), not
-# another estimator (an autopilot's estimate) and not a simulation
-TRUSTED_REFERENCES = ("optitrack", "vicon", "optical", "mocap", "qualisys")
-
-
-def trusted_reference(rec: FlightRecord) -> bool:
-    src = str(rec.meta.get("reference_source", "")).lower()
-    return any(src.startswith(t) for t in TRUSTED_REFERENCES)
-
-
-def calibrate_checkpoint(path, records: list[tuple[str, FlightRecord]], coverage: float = 0.98) -> SigmaFit | None:
-    """Fit σ₀ and c on ``records`` (name, record) whose reference is measured truth (real files:
-    BROAD's optical truth) and write them into the anchored checkpoint at ``path`` (atomically),
-    with the fit's figures under ``sigma_calibration``. ``coverage`` 0.98: one point above the
-    97 % target, the margin a leave-one-file-out check on BROAD showed the fit needs to hold it on
-    files it did not see. Returns None (checkpoint untouched) without such records or without an
-    ``anchor_config``."""
-    import torch
-
-    from ..model.checkpoint import read_checkpoint
-    from ..record import atomic_write
-
-    ck = read_checkpoint(path)
-    use = [(n, r) for n, r in records if trusted_reference(r) and len(r)]
-    if "anchor_config" not in ck or not use:
-        return None
-    base = AnchorConfig(**{k: v for k, v in ck["anchor_config"].items() if k in AnchorConfig.__dataclass_fields__})
-    files = [error_samples(r, n, base) for n, r in use]
-    fit = fit_sigma(files, coverage=coverage)
-    ck["anchor_config"] = {**ck["anchor_config"], "sigma_floor_deg": fit.sigma_floor_deg, "sigma_acc_gain": fit.sigma_acc_gain}
-    ck["sigma_calibration"] = {"files": [n for n, _ in use], "coverage_floor": coverage, "nees": fit.nees,
-                               "coverage_3sigma": fit.coverage_3sigma}  # fmt: skip
-    atomic_write(path, lambda tmp: torch.save(ck, tmp))
-    return fit

@@ -36,7 +36,7 @@ def finetune_config(model_config, records: list[str], minutes: float = 6.0, seed
     return TrainConfig(
         seed=seed, init="", model=model_config, loss=LossConfig(base_cauchy_rad=0.0),
         data=DataConfig(records=tuple(records), val_fraction=0.25, rate_factors=(1,), max_val_windows=1024,
-                        gyro_bias_aug_deg_s=0.0, acc_scale_aug=0.0, axis_scale_aug=0.0),
+                        gyro_bias_aug_deg_s=0.0),
         optim=OptimConfig(batch_size=32, epochs=30, steps_per_epoch=40, lr=2e-4, lr_physics=5e-5,
                           early_stop_patience=4, max_minutes=minutes, warmup_steps=40, cosine_decay=False),
     )  # fmt: skip

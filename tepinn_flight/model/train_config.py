@@ -27,7 +27,7 @@ class DataConfig:
     synthetic_flights: int = 0  # closed-form synthetic flights (tests, tiny runs)
     synthetic_duration_s: float = 20.0
     val_fraction: float = 0.15  # share of flights held out for validation (at least one)
-    rate_factors: tuple[int, ...] = (1, 4, 8, 16)  # IMU decimation factors: rate augmentation
+    rate_factors: tuple[int, ...] = (1, 4, 16)  # IMU decimation factors: rate augmentation
     max_val_windows: int = 2048
     # sensor-error augmentation: with this probability a training window (and its L_gyro partner)
     # gets an extra constant gyro bias drawn per axis from N(0, σ) — an uncalibrated IMU's turn-on
@@ -37,9 +37,10 @@ class DataConfig:
     # sensor-scale augmentation: with probability ``scale_aug_prob`` a window (and its partner) is
     # read by an IMU whose accelerometer has a common scale error U(1 ± acc_scale_aug) (a real board
     # reads |a| ≈ 7.8 m/s² at rest: −20 %) and whose gyro and accelerometer axes have their own
-    # scale errors U(1 ± axis_scale_aug) (0: off)
-    acc_scale_aug: float = 0.2
-    axis_scale_aug: float = 0.03
+    # scale errors U(1 ± axis_scale_aug) (0: off; session 7 retrained with 0.2 / 0.03 together with a
+    # 50 Hz rate factor and 6 BROAD trials held out: held-out simulations 6.08° -> 6.82°, not shipped)
+    acc_scale_aug: float = 0.0
+    axis_scale_aug: float = 0.0
     scale_aug_prob: float = 0.5
     # a split file (TOML, relative to the config file) whose ``[heldout]`` lists name real files that
     # are never trained on: any record or log with such a file name is left out, with a note

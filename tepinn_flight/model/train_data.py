@@ -71,17 +71,6 @@ def load_records(cfg: TrainConfig, extra_dirs=(), base: Path = Path("."), run_di
     return recs
 
 
-def optional_real_paths(cfg: TrainConfig, base: Path) -> list[Path]:
-    """The recipe's real files (``optional_records`` where present) less the held-out ones."""
-    paths: list[Path] = []
-    for pat in cfg.data.optional_records:
-        try:
-            paths += [p for p in resolve_records([pat], base) if p not in paths]
-        except ConfigError:
-            pass
-    return drop_heldout(paths, base / cfg.data.heldout_split) if cfg.data.heldout_split else paths
-
-
 def heldout_names(split_path: Path) -> set[str]:
     """The file names a split TOML's ``[heldout]`` section lists (every list in it)."""
     try:
