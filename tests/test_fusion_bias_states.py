@@ -102,7 +102,9 @@ def test_calibration_picks_bias_states_for_a_gyro_bias_the_network_never_saw():
     from tepinn_flight.model.calibration import calibrate_fusion
 
     torch.manual_seed(0)
-    model = TEPINN(ModelConfig(window_tokens=16, d_model=16, n_heads=2, n_layers=1, d_ff=32)).eval()
+    # the untrained physics baseline this test reasons about: the clip-trusted mean, no v̂ compensation
+    model = TEPINN(ModelConfig(window_tokens=16, d_model=16, n_heads=2, n_layers=1, d_ff=32, declip=False,
+                               learned_pooling=False, centripetal=False, centripetal_rate=False)).eval()
     recs = [synthetic_record(seed=s, duration_s=30.0, rate_hz=100.0, max_rate_rad_s=1.0, gyr_bias_rad_s=0.3)
             for s in (2, 4)]  # fmt: skip
     fusion, metrics = calibrate_fusion(model, recs, FusionConfig.uncalibrated(), max_records=2, bias_state_sweeps=1,
