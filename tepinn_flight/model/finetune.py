@@ -74,8 +74,11 @@ def tune_anchor(model, anchor, records: list[FlightRecord], grid=TAU_ACC_GRID_S,
     """The VQF accelerometer time constant with the lowest mean per-file inclination RMSE on
     ``records``; returns (anchor, {tau: mean RMSE °})."""
     from .estimate import anchored_windows, estimate_anchored
+    from .fusion import FusionConfig
 
-    wins = [anchored_windows(model, r) for r in records]
+    # the windows as the estimator it writes makes them: the older fusion alongside as the pulls' target
+    fusion = anchor.fusion_config or FusionConfig()
+    wins = [anchored_windows(model, r, fusion=fusion) for r in records]
     table = {}
     for tau in grid:
         cand = dataclasses.replace(anchor, tau_acc_s=tau)
