@@ -159,7 +159,8 @@ def run_phase(items, model: str | None, worker: str | None, seconds: float) -> d
             bridge = subprocess.Popen(
                 [sys.executable, "-m", "tepinn_flight", "bridge", "--master", f"udpin:127.0.0.1:{port}",
                  "--out", f"udpout:127.0.0.1:{rx.port}", "--model", model, "--worker", worker,
-                 "--summary-json", str(summ), "--status-interval", "1000", "--min-imu-rate", "0"],
+                 "--summary-json", str(summ), "--status-interval", "1000", "--min-imu-rate", "0",
+                 "--estimate-as", "attitude_quaternion"],  # what the receiver decodes (cost as named_value)
                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=ROOT,
             )  # fmt: skip
             for line in bridge.stderr:
@@ -234,13 +235,26 @@ def run_phase(items, model: str | None, worker: str | None, seconds: float) -> d
     return out
 
 
+def _burn() -> None:
+    """A stress-like load: one core kept busy with arithmetic until the benchmark ends."""
+    x = 0
+    while True:
+        x = (x * 1103515245 + 12345) & 0x7FFFFFFF
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=15.0, help="traffic per phase (default 15)")
     ap.add_argument("--model", default=None, help="checkpoint (default: shipped model, else untrained default size)")
+    ap.add_argument("--busy", type=int, default=0, metavar="N",
+                    help="also run N processes that keep a core busy during every phase (the issue's loaded machine)")
     a = ap.parse_args()
 
     from tepinn_flight.model.checkpoint import default_model_path
+
+    burners = [mp.get_context("spawn").Process(target=_burn, daemon=True) for _ in range(max(0, a.busy))]
+    for b in burners:
+        b.start()
 
     tmpdir = tempfile.mkdtemp(prefix="bridge-bench-model-")
     if a.model:
@@ -259,7 +273,8 @@ def main() -> int:
         model = str(Path(tmpdir) / "default_size.pt")
         save_checkpoint(model, TEPINN(ModelConfig()).eval(), FusionConfig())
         label = "untrained, default size"
-    print(f"model: {label}; {os.cpu_count()} CPU cores; {a.seconds:g} s of traffic per phase\n")
+    print(f"model: {label}; {os.cpu_count()} CPU cores; {a.seconds:g} s of traffic per phase; "
+          f"{len(burners)} busy process(es) beside it\n")
     traffic = make_traffic(a.seconds, None)
     busy = make_traffic(a.seconds, 2000.0)
     res = {
