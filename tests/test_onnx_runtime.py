@@ -238,3 +238,20 @@ def test_bridge_end_to_end_with_the_onnx_model(tmp_path, exported):
     q_live = np.array([[m.q1, m.q2, m.q3, m.q4] for m in aq])
     np.testing.assert_allclose(q_live, np.array([ref[int(k)] for k in ms]), atol=1e-5)
     assert summary["estimates"]["errors"] == 0
+
+
+def test_auto_runs_the_shipped_model_in_onnxruntime_and_user_checkpoints_in_torch(tmp_path):
+    """`auto`: the shipped checkpoint runs its shipped export (kept in sync above), a user's checkpoint
+    (no export of its own) PyTorch; an explicit choice wins."""
+    import shutil
+
+    from tepinn_flight.model.runtime import OnnxRunner, TorchRunner, resolve_runtime
+
+    assert resolve_runtime(default_model_path(), "auto") == "onnx"
+    runner, _, _ = load_runner(default_model_path())
+    assert isinstance(runner, OnnxRunner)
+    assert isinstance(load_runner(default_model_path(), "torch")[0], TorchRunner)
+    mine = tmp_path / "mine.pt"
+    shutil.copy(default_model_path(), mine)
+    assert resolve_runtime(mine, "auto") == "torch"
+    assert isinstance(load_runner(mine)[0], TorchRunner)
