@@ -240,18 +240,27 @@ def test_bridge_end_to_end_with_the_onnx_model(tmp_path, exported):
     assert summary["estimates"]["errors"] == 0
 
 
-def test_auto_runs_the_shipped_model_in_onnxruntime_and_user_checkpoints_in_torch(tmp_path):
-    """`auto`: the shipped checkpoint runs its shipped export (kept in sync above), a user's checkpoint
-    (no export of its own) PyTorch; an explicit choice wins."""
+def test_auto_runs_a_checkpoint_with_its_export_in_sync_in_onnxruntime(tmp_path):
+    """`auto`: a checkpoint runs the export beside it only while that export was made from exactly
+    that file (the shipped model: its export ships beside it); alone, or with a stale export beside
+    it, PyTorch; an explicit choice wins."""
     import shutil
 
-    from tepinn_flight.model.runtime import OnnxRunner, TorchRunner, resolve_runtime
+    import torch
 
+    from tepinn_flight.model.runtime import OnnxRunner, TorchRunner, export_in_sync, resolve_runtime
+
+    assert export_in_sync(default_model_path()) == default_onnx_path()
     assert resolve_runtime(default_model_path(), "auto") == "onnx"
-    runner, _, _ = load_runner(default_model_path())
-    assert isinstance(runner, OnnxRunner)
+    assert isinstance(load_runner(default_model_path())[0], OnnxRunner)
     assert isinstance(load_runner(default_model_path(), "torch")[0], TorchRunner)
     mine = tmp_path / "mine.pt"
     shutil.copy(default_model_path(), mine)
-    assert resolve_runtime(mine, "auto") == "torch"
-    assert isinstance(load_runner(mine)[0], TorchRunner)
+    assert resolve_runtime(mine, "auto") == "torch"  # no export beside it
+    shutil.copy(default_onnx_path(), tmp_path / "mine.onnx")
+    assert resolve_runtime(mine, "auto") == "onnx"  # the same bytes as the shipped pair
+    assert isinstance(load_runner(mine)[0], OnnxRunner)
+    ck = torch.load(mine, weights_only=True)
+    ck["metrics"] = {"note": "retrained"}  # another checkpoint now, the export beside it is stale
+    torch.save(ck, mine)
+    assert export_in_sync(mine) is None and resolve_runtime(mine, "auto") == "torch"

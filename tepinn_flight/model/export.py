@@ -9,7 +9,9 @@ the window length K is fixed by the model config (``window_tokens``). Opset :dat
 ``model_config``, ``fusion_config``, ``anchor_config`` (when the checkpoint has one),
 ``conventions``, ``outputs_present`` (the heads the model has: the others are zeros in the graph
 and the runner replaces them with the estimators' defaults), ``opset``, ``source`` (checkpoint
-file name), ``training`` and ``metrics`` where JSON-serialisable. :func:`~.runtime.load_runner`
+file name), ``source_sha256`` (of the checkpoint file: a checkpoint with an export of the same name
+beside it runs that export only while they match), ``training`` and ``metrics`` where
+JSON-serialisable. :func:`~.runtime.load_runner`
 rebuilds from them the same estimator settings as :func:`~.checkpoint.load_model`.
 
 Needs torch and the ``onnx`` package (the ``[torch]`` extra).
@@ -76,7 +78,7 @@ def example_inputs(config, batch: int = 2, seed: int = 0) -> tuple:
     return gyr, acc, count, t_rel, dt, mag, clip
 
 
-def _metadata(ckpt: dict, model: nn.Module, source: str, opset: int) -> dict[str, str]:
+def _metadata(ckpt: dict, model: nn.Module, source: str, opset: int, source_sha256: str) -> dict[str, str]:
     meta = {
         "format": ONNX_FORMAT,
         "version": ONNX_VERSION,
@@ -86,6 +88,7 @@ def _metadata(ckpt: dict, model: nn.Module, source: str, opset: int) -> dict[str
         "outputs_present": present_outputs(model),
         "opset": opset,
         "source": source,
+        "source_sha256": source_sha256,
         "inputs": list(INPUTS),
         "outputs": list(OUTPUTS),
     }
@@ -124,7 +127,9 @@ def export_bytes(ckpt_path: str | os.PathLike, opset: int = OPSET) -> bytes:
         torch.backends.mha.set_fastpath_enabled(fast)
     proto = onnx.load_from_string(buf.getvalue())
     del proto.metadata_props[:]
-    for k, v in _metadata(ckpt, model, Path(ckpt_path).name, opset).items():
+    from .runtime import file_sha256
+
+    for k, v in _metadata(ckpt, model, Path(ckpt_path).name, opset, file_sha256(ckpt_path)).items():
         proto.metadata_props.add(key=k, value=v)
     proto.producer_name = "tepinn-flight"
     return proto.SerializeToString()

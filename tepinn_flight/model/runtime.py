@@ -22,6 +22,7 @@ it when there is one). This module imports neither torch nor onnxruntime at impo
 
 from __future__ import annotations
 
+import functools
 import importlib.util
 import json
 import math
@@ -179,7 +180,7 @@ def resolve_runtime(path, runtime: str = "auto") -> str:
         raise ConfigError(f"runtime must be one of {', '.join(RUNTIMES)}, not {runtime!r}")
     onnx_file = is_onnx_path(path)
     if runtime == "auto":
-        return "onnx" if onnx_file or not torch_available() or _is_shipped(path) else "torch"
+        return "onnx" if onnx_file or not torch_available() or export_in_sync(path) is not None else "torch"
     if runtime == "torch" and onnx_file:
         raise ConfigError(f"{path}: an .onnx model runs with the onnx runtime (--runtime onnx or auto)")
     if runtime == "torch" and not torch_available():
@@ -187,13 +188,32 @@ def resolve_runtime(path, runtime: str = "auto") -> str:
     return runtime
 
 
-def _is_shipped(path) -> bool:
-    """The shipped checkpoint, whose export ships beside it (kept in sync by a test)."""
-    from .checkpoint import default_model_path
+def file_sha256(path) -> str:
+    import hashlib
 
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def export_in_sync(ckpt_path) -> Path | None:
+    """The ``.onnx`` of the same name beside a checkpoint when it was exported from exactly that file
+    (its ``source_sha256``), else None — e.g. the shipped model, whose export ships beside it."""
+    beside = Path(ckpt_path).with_suffix(".onnx")
     try:
-        return Path(path).resolve() == default_model_path().resolve() and default_onnx_path().is_file()
+        if is_onnx_path(ckpt_path) or not beside.is_file():
+            return None
+        a, b = Path(ckpt_path).resolve().stat(), beside.resolve().stat()
+        stamp = (a.st_mtime_ns, a.st_size, b.st_mtime_ns, b.st_size)
     except OSError:
+        return None
+    return beside if _in_sync(str(ckpt_path), str(beside), *stamp) else None
+
+
+@functools.lru_cache(maxsize=16)
+def _in_sync(ckpt: str, onnx: str, *_stamp) -> bool:
+    """(cached per file state: ``auto`` and the loader ask in turn)"""
+    try:
+        return read_onnx_metadata(onnx).get("source_sha256") == file_sha256(ckpt)
+    except (ConfigError, OSError):
         return False
 
 
@@ -202,9 +222,10 @@ def load_runner(path, runtime: str = "auto", threads: int | None = None):
 
     ``runtime``: ``torch`` (a checkpoint in PyTorch), ``onnx`` (an ``.onnx`` file in onnxruntime; a
     checkpoint is exported in memory first where torch is installed, else the ``.onnx`` of the same
-    name beside it is run — the shipped checkpoint always runs its shipped export) or ``auto``
-    (``onnx`` for an ``.onnx`` file, for the shipped model — 13× faster offline than PyTorch here, equal
-    to it to 1e-5 — or when torch is absent, else ``torch``). The settings are those :func:`~.checkpoint.load_model` gives for the checkpoint."""
+    name beside it is run; an export beside it made from exactly that file — :func:`export_in_sync` — is
+    always used) or ``auto`` (``onnx`` for an ``.onnx`` file, for a checkpoint with an export in sync
+    beside it — the shipped model: 13× faster offline than PyTorch here, equal to it to 1e-5 — or when
+    torch is absent, else ``torch``). The settings are those :func:`~.checkpoint.load_model` gives for the checkpoint."""
     path = Path(path)
     rt = resolve_runtime(path, runtime)
     if rt == "torch":
@@ -219,13 +240,15 @@ def load_runner(path, runtime: str = "auto", threads: int | None = None):
             raise ConfigError(f"{path}: no such model")
         runner = OnnxRunner(path, threads)
     else:
-        beside = path.with_suffix(".onnx")
-        if beside.is_file() and (not torch_available() or _is_shipped(path)):
-            runner = OnnxRunner(beside, threads)
+        synced, beside = export_in_sync(path), path.with_suffix(".onnx")
+        if synced is not None:
+            runner = OnnxRunner(synced, threads)
         elif torch_available():
             from .export import export_bytes
 
             runner = OnnxRunner(export_bytes(path), threads)
+        elif beside.is_file():  # without torch the export beside it is all there is
+            runner = OnnxRunner(beside, threads)
         else:
             raise ConfigError(f"{path}: a checkpoint needs PyTorch to be read; without it, export it once where torch is "
                               f"installed (tepinn-flight export {path.name} -o model.onnx) and pass the .onnx")  # fmt: skip
