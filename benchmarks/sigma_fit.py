@@ -40,8 +40,10 @@ def main() -> int:
         return 2
     fit_files = [error_samples(ingest_log(p), p.name) for p in seen]
     fit = fit_sigma(fit_files, coverage=args.coverage)
-    loo = [score([f], *(lambda g: (g.sigma_floor_deg, g.sigma_acc_gain))(fit_sigma(fit_files[:i] + fit_files[i + 1:],
-           coverage=args.coverage))) for i, f in enumerate(fit_files)]  # fmt: skip
+    loo = []  # each trial scored with the fit on the others
+    for i, f in enumerate(fit_files):
+        g = fit_sigma(fit_files[:i] + fit_files[i + 1 :], coverage=args.coverage)
+        loo.append(score([f], g.sigma_floor_deg, g.sigma_acc_gain))
     ship = AnchorConfig()
     print(f"fit on {len(fit_files)} seen BROAD trials: σ₀ {fit.sigma_floor_deg:g}°, c {fit.sigma_acc_gain:g} "
           f"(NEES {fit.nees:.2f}, {100 * fit.coverage_3sigma:.1f} % within 3σ)")  # fmt: skip

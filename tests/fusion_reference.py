@@ -1,33 +1,7 @@
 """The slow, obviously-correct reference of :mod:`tepinn_flight.model.fusion` (the pure-Python
 per-sample implementation it replaced, kept verbatim): the compiled fusion must equal it.
 
-Causal per-sample attitude output: RK4 gyro propagation fused with TE-PINN window estimates.
-
-The network gives a tilt estimate with a calibrated σ at each token end (25 Hz by default). Between
-them, and to carry heading, the attitude is propagated sample by sample with RK4 quaternion
-kinematics of the bias-corrected gyro ``ω − b̂``. At each window estimate, the tilt is pulled
-toward the network's by a Kalman gain ``K = P / (P + σ²)`` (P: propagated tilt variance), and the
-bias follows the network's per-window bias estimate through a first-order low-pass (the bias is a
-slow random walk). Heading comes from gyro integration only (6-D) and starts at 0. A saturated
-gyro sample reads less than the true rate: it is propagated at ``(1 + clip_rate_gain)``× its
-reading (the model's learned declipping gain κ, when calibration finds that it helps) and adds
-``clip_inflation_rad`` to the propagated σ.
-
-Innovation-adaptive covariance (``adaptive_nis`` = ν > 0): when the squared tilt innovation e²
-exceeds ν·(P + σ²), the propagation was worse than P says (an uncalibrated gyro, a bias the
-network has not found yet, an unflagged saturation), so P is raised to e²/ν − σ² before the
-update. With a good gyro this never fires; with a bad one the output falls back toward the
-network's window estimates instead of drifting away with the gyro.
-
-Bias states (``bias_states`` = True): instead of the low-pass, a 6-state error Kalman filter
-(tilt/heading error δθ in body axes, gyro-bias error δb) is updated at each window estimate. Its
-covariance is carried between estimates with the exact rotation of the interval
-(``δθ⁺ = ΔRᵀ δθ − J δb``, ``J = ∫₀ᵀ Exp(−φ u/T) du``, exact for a constant rate), so the tilt
-innovations themselves estimate the bias — as VQF and an EKF do — and the network's per-window bias is a second measurement of it
-(σ ``bias_sigma_rad_s``). A bias far outside what the network was trained on (an uncalibrated
-gyro: 15–20 °/s) is then found from the drift, not followed blindly.
-
-Pure numpy/float math, one sample at a time, so the offline estimator and the live bridge share it.
+The method is described in that module's docstring; this is pure numpy/float math, one sample at a time.
 """
 
 from __future__ import annotations

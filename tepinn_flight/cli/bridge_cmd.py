@@ -32,8 +32,9 @@ def add_arguments(p) -> None:
                    help="6d, 9d (heading from the magnetometer: magnetic north) or auto (9-D when the vehicle sends "
                         "magnetometer data); default: the model's own (6d for the shipped model)")
     p.add_argument("--runtime", choices=["auto", "torch", "onnx"], default="auto",
-                   help="run the network in PyTorch or onnxruntime (auto: onnx for an .onnx model, for the shipped "
-                        "model (its export ships beside it) or where torch is not installed, else torch)")
+                   help="run the network in PyTorch or onnxruntime (auto: onnx for an .onnx model, for a checkpoint "
+                        "whose export made from it lies beside it — the shipped model — or where torch is not "
+                        "installed, else torch)")
     p.add_argument("--tlog", default=None, metavar="FILE", help="write the whole session (autopilot, ground stations, estimates) as a tlog")
     p.add_argument("--rate", type=float, default=50.0, metavar="HZ", help="estimates per second of autopilot time (default 50)")
     p.add_argument("--diag-rate", type=float, default=10.0, metavar="HZ", help="diagnostics per second (default 10; 0 = none)")

@@ -26,8 +26,9 @@ def add_arguments(p) -> None:
     p.add_argument("--model", default=None, metavar="CKPT",
                    help="checkpoint or .onnx export (`tepinn-flight export`; default: the shipped model)")
     p.add_argument("--runtime", choices=["auto", "torch", "onnx"], default="auto",
-                   help="run the network in PyTorch or onnxruntime (auto: onnx for an .onnx model, for the shipped "
-                        "model (its export ships beside it) or where torch is not installed, else torch)")
+                   help="run the network in PyTorch or onnxruntime (auto: onnx for an .onnx model, for a checkpoint "
+                        "whose export made from it lies beside it — the shipped model — or where torch is not "
+                        "installed, else torch)")
     p.add_argument("--yaw", choices=["gyro", "zero"], default=None,
                    help="heading of the output: integrated gyro (default) or 0 (the paper's 6-D correction)")
     p.add_argument("--mode", choices=["6d", "9d", "auto"], default=None,
