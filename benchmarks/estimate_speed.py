@@ -27,7 +27,7 @@ sys.path.insert(0, str(REPO))
 
 from tepinn_flight.ingest import load_record  # noqa: E402
 from tepinn_flight.model.estimate import estimate_record  # noqa: E402
-from tepinn_flight.model.runtime import OnnxRunner, TorchRunner, default_onnx_path  # noqa: E402
+from tepinn_flight.model.runtime import OnnxRunner, TorchRunner  # noqa: E402
 from tepinn_flight.model.streaming import StreamingEstimator  # noqa: E402
 from tepinn_flight.record import FlightRecord  # noqa: E402
 
@@ -93,18 +93,22 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=120.0, help="offline: the record's first seconds")
     ap.add_argument("--stream-seconds", type=float, default=30.0, help="streaming: the record's first seconds")
     ap.add_argument("--runtime", choices=["torch", "onnx", "both"], default="both")
+    ap.add_argument("--model", default=None, help="checkpoint (default: shipped; onnx: its export beside it, if in sync)")
     args = ap.parse_args()
     import torch
 
     from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.runtime import export_in_sync
 
     rec = load_record(args.record)
-    model, settings, _ = load_model(default_model_path())
+    ckpt = args.model or default_model_path()
+    model, settings, _ = load_model(ckpt)
+    onnx_path = export_in_sync(ckpt)
     runners = {}
     if args.runtime in ("torch", "both"):
         runners["torch"] = TorchRunner(model)
-    if args.runtime in ("onnx", "both") and default_onnx_path().exists():
-        runners["onnx"] = OnnxRunner(default_onnx_path())
+    if args.runtime in ("onnx", "both") and onnx_path is not None:
+        runners["onnx"] = OnnxRunner(onnx_path)
     off_rec, st_rec = head(rec, args.seconds), head(rec, args.stream_seconds)
     rate = float(1.0 / np.median(np.diff(rec.t_s)))
     skip = int(rate * (model.config.window_tokens / model.config.token_rate_hz + 0.5))

@@ -261,3 +261,69 @@ def test_live_nine_d_equals_offline(mode):
     assert have.sum() > len(rec) - 60
     np.testing.assert_allclose(q_live[have], off[have], atol=1e-6)
     assert _heading_err_deg(_frame_q(q_live[have]), yaw[have])[-100:].max() < 1.0  # absolute heading live
+
+
+def _with_clipped(rec, t0_s, t1_s):
+    """``rec`` with its samples in [t0_s, t1_s) marked saturated."""
+    from tepinn_flight.record import FlightRecord
+
+    data = rec.data.copy()
+    data["clipped"] = (data["t_s"] >= t0_s) & (data["t_s"] < t1_s)
+    return FlightRecord(data, dict(rec.meta))
+
+
+def test_live_equals_offline_with_quiet_blocks_busy_blocks_and_a_saturated_stretch():
+    """Quiet blocks: live and offline run the same windows (the blocks' first ones, every window of
+    a block a gate may open in, every window holding a saturated token) and give the same estimate."""
+    from tepinn_flight.model.estimate import anchored_windows
+
+    rec = _with_clipped(synthetic_record(seed=2, duration_s=24.0, rate_hz=100.0), 15.0, 15.3)
+    model, _, _ = load_model(default_model_path())
+    # the fusion's bias on this record crosses 2.5 °/s in some blocks and not in others
+    cfg = dataclasses.replace(_shipped(), quiet_blocks=True, quiet_bias_deg_s=2.5)
+    idx, _ = anchored_windows(model, rec, fusion=cfg.fusion_config, anchor=cfg)
+    full, _ = anchored_windows(model, rec, fusion=cfg.fusion_config)
+    live = StreamingEstimator(model, cfg)
+    q_live = np.full((len(rec), 4), np.nan)
+    ran = []
+    for i in range(len(rec)):
+        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]))
+        if e.model_ran:
+            ran.append(i - 1)  # a window is made when the next token's first sample arrives
+        if e.q_nb_wxyz is not None:
+            q_live[i] = e.q_nb_wxyz
+    np.testing.assert_array_equal(np.asarray(ran), idx)
+    blocks = -(-len(full) // cfg.fusion_config.bias_feedback_windows)
+    assert blocks + 20 < len(idx) < len(full) - 50  # quiet blocks and busy ones
+    t_win = rec.t_s[idx]
+    # every window holding a saturated token ran (those ending up to a window length after the stretch)
+    after = rec.t_s[full][(rec.t_s[full] >= 15.0) & (rec.t_s[full] < 15.3 + model.config.window_s - 0.1)]
+    assert np.isin(after, t_win).all()
+    off = estimate_anchored(model, rec, cfg)[Q].to_numpy()
+    have = np.all(np.isfinite(q_live), 1)
+    assert have.sum() > len(rec) - 60
+    np.testing.assert_allclose(q_live[have], off[have], atol=1e-6)
+
+
+def test_quiet_blocks_change_nothing_where_no_gate_opens_on_a_real_log():
+    """On a real flight where no gate opens, the estimate with quiet blocks is the full one (VQF's,
+    σ included) while the network runs on about one window in 25 after the segment's first blocks."""
+    from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.model.estimate import anchored_windows
+
+    from tests.conftest import real_log
+
+    rec = ingest_log(real_log("erle_pxf_copter_15-12-2014_16.BIN"))
+    model, _, _ = load_model(default_model_path())
+    full_cfg = dataclasses.replace(_shipped(), quiet_blocks=False)
+    quiet_cfg = dataclasses.replace(_shipped(), quiet_blocks=True)
+    idx_full, _ = anchored_windows(model, rec, fusion=full_cfg.fusion_config, anchor=full_cfg)
+    idx_quiet, _ = anchored_windows(model, rec, fusion=quiet_cfg.fusion_config, anchor=quiet_cfg)
+    start = quiet_cfg.quiet_after_blocks * quiet_cfg.fusion_config.bias_feedback_windows  # all of them run
+    assert len(idx_quiet) - start <= (len(idx_full) - start) / 20
+    full = estimate_anchored(model, rec, full_cfg)
+    quiet = estimate_anchored(model, rec, quiet_cfg)
+    cols = Q + ["sigma_rad"]
+    np.testing.assert_allclose(quiet[cols].to_numpy(), full[cols].to_numpy(), rtol=0, atol=1e-12)
+    plain = estimate_anchored(model, rec, full_cfg.learned_off)
+    np.testing.assert_allclose(quiet[Q].to_numpy(), plain[Q].to_numpy(), rtol=0, atol=1e-12)

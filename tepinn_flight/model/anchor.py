@@ -21,6 +21,16 @@ and its rate ``â``. Each enters only where there is run-time evidence that VQF'
   ``bias_deadzone_deg_s`` is removed from the gyro VQF sees, and its tilt pulls with weight
   ``bias_gate_weight``.
 
+**Quiet blocks** (``quiet_blocks``): where every gate stays shut the estimate is VQF's whatever the
+windows say, so the network need not run there. Windows come in the older fusion's bias-feedback
+blocks (``bias_feedback_windows`` tokens, 1 s); a block whose first window and those of the last
+``quiet_memory_blocks`` blocks show |v̂| below ``quiet_speed_m_s`` (the network reads a fixed wing's
+speed only while it turns) and the older fusion's gyro bias below ``quiet_bias_deg_s`` (so
+neither the flight-speed nor the bias gate can open before the next block) runs only that window,
+and those holding a saturated token (the clip gate); a segment's first ``quiet_after_blocks`` and any
+other block run every window. Decided from what has been seen, so live and offline run the same
+windows.
+
 A *pull* by a fraction k turns VQF's attitude about a horizontal earth axis by k times its tilt
 difference to the network's (heading untouched). VQF keeps its tilt in the low-passed
 accelerometer, so the pull rotates that filter state with it (``accLpState``, ``lastAccLp``) —
@@ -88,6 +98,15 @@ class AnchorConfig:
     sigma_acc_gain: float = 0.025  # c
     sigma_net_scale: float = 1.0  # s
     sigma_acc_tau_s: float = 1.0
+    # quiet blocks (speed): the windows matter only where a gate may open. A block of the older
+    # fusion's bias feedback (its bias_feedback_windows tokens) whose first window shows |v̂| below
+    # quiet_speed_m_s and a fusion gyro bias below quiet_bias_deg_s on every axis runs only that window
+    # (and those holding a saturated token); False: the network runs on every token
+    quiet_blocks: bool = False
+    quiet_speed_m_s: float = 15.0  # ... on the windows of the last quiet_memory_blocks blocks too
+    quiet_memory_blocks: int = 10
+    quiet_bias_deg_s: float = 1.5
+    quiet_after_blocks: int = 10  # a segment's first blocks run every window (the older fusion's bias converges)
     # the older fusion's settings (the checkpoint's fusion_config; filled in when loaded)
     fusion_config: FusionConfig | None = field(default=None, compare=False)
 
@@ -101,10 +120,24 @@ class AnchorConfig:
         check_range("pull_gain", self.pull_gain, 0, 1)
         check_range("bias_gate_weight", self.bias_gate_weight, 0, 1)
         check_range("speed_lo_m_s", self.speed_lo_m_s, 0, None)
+        check_range("quiet_after_blocks", self.quiet_after_blocks, 0, 10**6)
+        check_range("quiet_memory_blocks", self.quiet_memory_blocks, 0, 10**6)
         check_range("speed_hi_m_s", self.speed_hi_m_s, self.speed_lo_m_s, None, lo_open=True)
-        for name in ("clip_hold_s", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "sigma_floor_deg", "sigma_acc_gain",
+        for name in ("quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "sigma_floor_deg", "sigma_acc_gain",
                      "sigma_net_scale"):  # fmt: skip
             check_range(name, getattr(self, name), 0, None)
+
+    def quiet_in(self, fusion: FusionConfig) -> int:
+        """Tokens per quiet block with the older fusion ``fusion`` alongside (0: no quiet blocks)."""
+        return fusion.bias_feedback_windows if self.quiet_blocks else 0
+
+    def block_busy(self, block: int, speed_m_s: float, fusion_bias_rad_s) -> bool:
+        """Whether block ``block`` (0: a segment's first) runs every window: too early in the segment,
+        or |v̂| (``speed_m_s``: the largest on the windows of the last ``quiet_memory_blocks`` blocks and
+        this block's first) or the older fusion's gyro bias then (body axes) say a gate may open in it."""
+        if block < self.quiet_after_blocks or speed_m_s >= self.quiet_speed_m_s:
+            return True
+        return bool(np.max(np.abs(np.asarray(fusion_bias_rad_s, np.float64))) >= math.radians(self.quiet_bias_deg_s))
 
     @property
     def learned_off(self) -> "AnchorConfig":

@@ -7,6 +7,7 @@ fusion (:func:`estimate_record` with a :class:`FusionConfig`).
 
 from __future__ import annotations
 
+from collections import deque
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -163,50 +164,83 @@ def bridge_holes(rec: FlightRecord) -> tuple[FlightRecord, int]:
     return FlightRecord(data, dict(rec.meta)), int(bad.sum())
 
 
-def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fusion: FusionConfig | None = None):
-    """(sample_index (W,), outputs dict) of every full window: what :func:`estimate_anchored` needs.
+def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fusion: FusionConfig | None = None,
+                     anchor: AnchorConfig | None = None):  # fmt: skip
+    """(sample_index (W,), outputs dict) of the windows :func:`estimate_anchored` applies.
     With ``fusion`` (the pull target ``"fusion"``), the older network-centred fusion runs alongside:
     the windows are made as its bias feedback makes them and ``outputs["q_target"]`` is its
-    estimate at each window's last sample (before that window is applied: causal)."""
+    estimate at each window's last sample (before that window is applied: causal). With ``anchor``'s
+    quiet blocks on, a quiet block runs only its first window and those holding a saturated token
+    (:meth:`AnchorConfig.block_busy`; the live estimator decides the same way)."""
     rec, _ = bridge_holes(rec)
     tok = tokenize_record(rec, model.config.token_rate_hz)
     ends = tok.windows_ending(model.config.window_tokens)
     idx = tok.last_index[ends]
     if fusion is None:
         return idx, network_outputs(model, tok, ends, batch_size=batch_size)
+    quiet = anchor.quiet_in(fusion) if anchor is not None else 0
+    clip_win = _clip_in_window(tok, ends, as_runner(model).config.window_tokens) if quiet else None
     n = len(rec)
     q_old = np.full((n, 4), np.nan)
     b_old = np.full((n, 3), np.nan)
-    parts = []
+    parts, chosen = [], []
     t, gyr, clipped = rec.t_s, rec.gyr_rad_s, rec.clipped
     bounds = np.flatnonzero(np.diff(rec.segment)) + 1
     for a, b in zip(np.r_[0, bounds], np.r_[bounds, n]):
-        m = (idx >= a) & (idx < b)
-        e_seg, i_seg = ends[m], idx[m] - a
+        pos = np.flatnonzero((idx >= a) & (idx < b))
+        e_seg, i_seg = ends[pos], idx[pos] - a
         run = FusionRun(t[a:b], gyr[a:b], fusion, clipped[a:b])
         step = fusion.bias_feedback_windows or max(len(e_seg), 1)
-        for s0 in range(0, len(e_seg), step):
-            blk = slice(s0, s0 + step)
-            fb = None
-            if fusion.bias_feedback_windows:
-                fb = np.tile(feedback_bias(fusion, run.fusion.bias), (len(e_seg[blk]), 1))
-            o = network_outputs(model, tok, e_seg[blk], fb, batch_size)
+        if quiet:  # the blocks' first windows with no feedback, batched (used where the feedback is zero)
+            first = network_outputs(model, tok, e_seg[::step], None, batch_size)
+            v_blocks = deque(maxlen=max(anchor.quiet_memory_blocks, 1))  # the largest |v̂| of recent blocks
+        for bi, s0 in enumerate(range(0, len(e_seg), step)):
+            sel = np.arange(s0, min(s0 + step, len(e_seg)))
+            off = feedback_bias(fusion, run.fusion.bias) if fusion.bias_feedback_windows else None
+            if quiet:
+                if off is not None and any(off):
+                    o = network_outputs(model, tok, e_seg[s0 : s0 + 1], np.tile(off, (1, 1)), batch_size)
+                else:
+                    o = {k: v[bi : bi + 1] for k, v in first.items()}
+                rest = sel[1:]
+                speed = float(np.linalg.norm(o["vel"][0]))
+                recent = max(v_blocks) if v_blocks and anchor.quiet_memory_blocks else 0.0
+                if not anchor.block_busy(bi, max(recent, speed), run.fusion.bias):
+                    rest = rest[clip_win[pos[rest]]]
+                if len(rest):
+                    fb = None if off is None else np.tile(off, (len(rest), 1))
+                    o2 = network_outputs(model, tok, e_seg[rest], fb, batch_size)
+                    o = {k: np.concatenate([o[k], o2[k]]) for k in o}
+                sel = np.r_[s0, rest]
+                v_blocks.append(float(np.linalg.norm(o["vel"], axis=1).max()))
+            else:
+                fb = None if off is None else np.tile(off, (len(sel), 1))
+                o = network_outputs(model, tok, e_seg[sel], fb, batch_size)
             parts.append(o)
-            run.add(i_seg[blk], o["q"], o["sigma"], o["bias"])
-            run.advance(int(i_seg[blk][-1]) + 2)
+            chosen.append(pos[sel])
+            run.add(i_seg[sel], o["q"], o["sigma"], o["bias"])
+            run.advance(int(i_seg[sel][-1]) + 2)
         run.advance(b - a)
         q_old[a:b] = run.q
         b_old[a:b] = run.bias
     if parts:
         out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+        idx = idx[np.concatenate(chosen)]
     else:
         out = network_outputs(model, tok, ends[:0], batch_size=batch_size)
+        idx = idx[:0]
     target = q_old[idx]
     bad = ~np.all(np.isfinite(target), axis=1)
     target[bad] = out["q"][bad]
     out["q_target"] = target
     out["bias_target"] = np.nan_to_num(b_old[idx])  # its gyro-bias estimate then (uncalibrated-gyro evidence)
     return idx, out
+
+
+def _clip_in_window(tok, ends: np.ndarray, window_tokens: int) -> np.ndarray:
+    """(W,) whether the window ending at each token of ``ends`` holds a token with a saturated sample."""
+    c = np.r_[0, np.cumsum(tok.clip > 0)]
+    return c[ends + 1] - c[np.maximum(ends - window_tokens + 1, 0)] > 0
 
 
 class MissingMagnetometer(TepinnError):
@@ -233,7 +267,7 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     anchor = anchor or AnchorConfig()
     rec, _ = bridge_holes(rec)
     if windows is None:
-        windows = anchored_windows(model, rec, batch_size, anchor.fusion_config or FusionConfig())
+        windows = anchored_windows(model, rec, batch_size, anchor.fusion_config or FusionConfig(), anchor)
     idx, out = windows
     q_pull = out.get("q_target", out["q"])
     b_fus = out.get("bias_target")

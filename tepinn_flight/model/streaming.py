@@ -2,8 +2,8 @@
 
 Tokens are accumulated exactly as :mod:`tepinn_flight.model.tokens` does offline; when a sample
 opens a new token, the finished token joins the window, the network runs on the window (once per
-token, 25 Hz by default) and the fusion is corrected at the finished token's last sample before
-propagating to the new one. A time reversal or a gap longer than 2.5 nominal periods starts a new
+token, 25 Hz by default; with quiet blocks, once per block where no gate may open) and the fusion
+is corrected at the finished token's last sample before propagating to the new one. A time reversal or a gap longer than 2.5 nominal periods starts a new
 segment (the state is reset; estimates resume when the next window is full) — except a short
 logging dropout (≤ ``record_gaps.MAX_BRIDGED_GAP_S``), bridged as offline: the samples that fill it
 (interpolated between the samples on either side) are pushed first, their estimates not returned.
@@ -96,8 +96,12 @@ class StreamingEstimator:
         k = self.cfg.window_tokens
         self.win = deque(maxlen=k)  # finished tokens: (t, g(3), a(3), m(3), count)
         self.last_means = None
-        self.n_windows = 0  # windows run in this segment (bias feedback refreshes every L of them)
+        self.n_windows = 0  # full windows closed in this segment (bias feedback refreshes every L of them)
         self.feedback = (0.0, 0.0, 0.0)  # the fusion's bias the current block of windows sees
+        self.busy = True  # the current block runs every window (quiet blocks: AnchorConfig.block_busy)
+        self.block_speed = 0.0  # the largest |v̂| on the current block's windows ...
+        self.speeds = deque(maxlen=max(self.anchor_cfg.quiet_memory_blocks, 1)) if self.anchor_cfg else None  # ... of the last blocks
+        self.quiet = self.anchor_cfg.quiet_in(self.fusion_cfg) if self.anchor_cfg is not None else 0
 
     def _new_segment(self, t: float) -> bool:
         if self.t_prev is None:
@@ -222,9 +226,12 @@ class StreamingEstimator:
         w = list(self.win)
         t = np.array([x[0] for x in w])
         fb_every = self.fusion_cfg.bias_feedback_windows
-        if fb_every > 0 and self.n_windows % fb_every == 0:
+        first = fb_every > 0 and self.n_windows % fb_every == 0
+        if first:
             self.feedback = feedback_bias(self.fusion_cfg, self.fusion.bias)  # after the previous estimate
         self.n_windows += 1
+        if self.quiet and not first and not self.busy and not any(x[5] > 0 for x in w):
+            return None  # a quiet block: only its first window (and those holding a saturated token) run
         fb = self.feedback if fb_every > 0 else (0.0, 0.0, 0.0)
         g = np.array([[x[1][i] - fb[i] for i in range(3)] for x in w])[None]
         a = np.array([x[2] for x in w])[None]
@@ -236,6 +243,17 @@ class StreamingEstimator:
         out = self.runner.run(g, a, n, t_rel, dt, m, cl)
         sigma = float(out["sigma"][0])
         bias = [v + fb[i] for i, v in enumerate(out["bias"][0].tolist())]
+        if self.quiet:
+            speed = float(np.linalg.norm(out["vel"][0]))
+            if first:
+                block = (self.n_windows - 1) // fb_every
+                if block > 0:
+                    self.speeds.append(self.block_speed)
+                recent = max(self.speeds) if self.speeds and self.anchor_cfg.quiet_memory_blocks else 0.0
+                self.busy = self.anchor_cfg.block_busy(block, max(recent, speed), self.fusion.bias)
+                self.block_speed = speed
+            else:
+                self.block_speed = max(self.block_speed, speed)
         if self.anchor_cfg is not None:
             return WindowOutput(out["q"][0], sigma, np.array(bias), out["vel"][0], out["acc_v"][0])
         return (out["q"][0].tolist(), sigma, bias)
