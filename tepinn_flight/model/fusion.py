@@ -42,7 +42,7 @@ from numba import njit
 from ..config import check_range
 from ..errors import ConfigError
 from ..quat_scalar import down_in_body, exp_rotvec, qmul, qnorm
-from ..small_linalg import mm, solve
+from ..small_linalg import mul, mul_bt, solve_in_place
 
 
 @dataclass(frozen=True)
@@ -267,13 +267,28 @@ def _rotvec(q):
 
 
 @njit(cache=True)
-def _integral_of_exp(phi):
-    """∫₀¹ Exp(s φ) ds = I + (1 − cos θ)/θ² [φ×] + (θ − sin θ)/θ³ [φ×]² (θ = |φ|)."""
-    th = math.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
-    X = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
+def _integral_of_exp(phi0, phi1, phi2, J):
+    """J ← ∫₀¹ Exp(s φ) ds = I + (1 − cos θ)/θ² [φ×] + (θ − sin θ)/θ³ [φ×]² (θ = |φ|; J 3×3)."""
+    X = np.empty((3, 3))
+    th = math.sqrt(phi0 * phi0 + phi1 * phi1 + phi2 * phi2)
+    X[0, 0], X[0, 1], X[0, 2] = 0.0, -phi2, phi1
+    X[1, 0], X[1, 1], X[1, 2] = phi2, 0.0, -phi0
+    X[2, 0], X[2, 1], X[2, 2] = -phi1, phi0, 0.0
     if th < 1e-6:
-        return np.eye(3) + 0.5 * X + mm(X, X) / 6.0
-    return np.eye(3) + (1 - math.cos(th)) / th**2 * X + mm((th - math.sin(th)) / th**3 * X, X)
+        XX = np.empty((3, 3))
+        mul(X, X, XX)
+        for i in range(3):
+            for j in range(3):
+                J[i, j] = ((1.0 if i == j else 0.0) + 0.5 * X[i, j]) + XX[i, j] / 6.0
+        return
+    c1 = (1 - math.cos(th)) / th**2
+    c2 = (th - math.sin(th)) / th**3
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for l in range(3):
+                acc += (c2 * X[i, l]) * X[l, j]
+            J[i, j] = ((1.0 if i == j else 0.0) + c1 * X[i, j]) + acc
 
 
 @njit(cache=True)
@@ -291,53 +306,78 @@ def _quad3(e, P):
 
 
 @njit(cache=True)
-def _kalman(P, H, z, r):
-    """One linear Kalman update of the error state (measurement noise r·I); returns (dx, P⁺)."""
-    HP = mm(H, P)
-    S = mm(HP, H.T.copy())
-    for i in range(S.shape[0]):
+def _kalman(P, H, z, r, dx):
+    """One linear Kalman update of the 6-state error with the m×6 H (measurement noise r·I):
+    ``dx ← K z`` and ``P ← P − K H P`` in place (K = P Hᵀ S⁻¹, S = H P Hᵀ + r I)."""
+    m = H.shape[0]
+    HP = np.empty((m, 6))
+    S = np.empty((m, m))
+    X = np.empty((m, 6))
+    mul(H, P, HP)
+    mul_bt(HP, H, S)
+    for i in range(m):
         S[i, i] += r
-    K = solve(S, HP).T.copy()
-    dx = np.zeros(P.shape[0])
-    for i in range(P.shape[0]):
-        for j in range(len(z)):
-            dx[i] += K[i, j] * z[j]
-    return dx, P - mm(K, HP)
+    for i in range(m):
+        for j in range(6):
+            X[i, j] = HP[i, j]
+    solve_in_place(S, X)  # X = S⁻¹ H P = Kᵀ
+    for i in range(6):
+        acc = 0.0
+        for j in range(m):
+            acc += X[j, i] * z[j]
+        dx[i] = acc
+    for i in range(6):
+        for j in range(6):
+            acc = 0.0
+            for l in range(m):
+                acc += X[l, i] * HP[l, j]
+            P[i, j] = P[i, j] - acc
 
 
 @njit(cache=True)
 def _update_kf(s, p, q_m, sigma, b_m):
     """The bias-state fusion's window update: a 6-state error Kalman filter (module doc)."""
     r = (p[_P_SIGMA_SCALE] * sigma) ** 2
-    cov = s[_S_COV : _S_COV + 36].reshape(6, 6)  # a view: written in place
     if math.isnan(s[_S_Q]):
         _set_q(s, _S_Q, q_m)
         s[_S_B], s[_S_B + 1], s[_S_B + 2] = b_m[0], b_m[1], b_m[2]
-        cov[:] = 0.0
+        for k in range(36):
+            s[_S_COV + k] = 0.0
         for i in range(3):
-            cov[i, i] = r
-            cov[3 + i, 3 + i] = p[_P_BIAS_INIT] ** 2
+            s[_S_COV + 7 * i] = r
+            s[_S_COV + 7 * (3 + i)] = p[_P_BIAS_INIT] ** 2
         s[_S_P] = r
         _set_q(s, _S_QE, q_m)
         s[_S_TEST] = s[_S_T]
         s[_S_QACC] = 0.0
         return
+    F = np.empty((6, 6))  # work buffers (once per window estimate)
+    C = np.empty((6, 6))
+    T = np.empty((6, 6))
+    P = np.empty((6, 6))
+    J = np.empty((3, 3))
+    dx = np.empty(6)
     q = _q(s, _S_Q)
     qe = _q(s, _S_QE)
     # covariance from the last update to now: δθ⁺ = ΔRᵀ δθ − J δb (ΔR = Exp φ over the interval)
     dt = max(0.0, s[_S_T] - s[_S_TEST])
-    w, x, y, z = qmul(qe[0], -qe[1], -qe[2], -qe[3], q[0], q[1], q[2], q[3])
-    F = np.eye(6)
-    R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                  [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                  [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])  # fmt: skip
-    phi = _rotvec((w, x, y, z))
-    J = _integral_of_exp((-phi[0], -phi[1], -phi[2]))
+    w, x, y, z_ = qmul(qe[0], -qe[1], -qe[2], -qe[3], q[0], q[1], q[2], q[3])
+    phi = _rotvec((w, x, y, z_))
+    _integral_of_exp(-phi[0], -phi[1], -phi[2], J)
+    # F = [[ΔRᵀ, −dt J], [0, I]] (ΔR's rows below, transposed into F)
+    F[0, 0], F[1, 0], F[2, 0] = 1 - 2 * (y * y + z_ * z_), 2 * (x * y - w * z_), 2 * (x * z_ + w * y)
+    F[0, 1], F[1, 1], F[2, 1] = 2 * (x * y + w * z_), 1 - 2 * (x * x + z_ * z_), 2 * (y * z_ - w * x)
+    F[0, 2], F[1, 2], F[2, 2] = 2 * (x * z_ - w * y), 2 * (y * z_ + w * x), 1 - 2 * (x * x + y * y)
     for i in range(3):
         for j in range(3):
-            F[i, j] = R[j, i]
             F[i, 3 + j] = -dt * J[i, j]
-    P = mm(mm(F, cov), F.T.copy())
+            F[3 + i, j] = 0.0
+            F[3 + i, 3 + j] = 1.0 if i == j else 0.0
+    for i in range(6):
+        for j in range(6):
+            C[i, j] = s[_S_COV + 6 * i + j]
+    mul(F, C, T)
+    mul_bt(T, F, P)  # F C Fᵀ
     for i in range(3):
         P[i, i] += s[_S_QACC]
         P[3 + i, 3 + i] += p[_P_BIAS_RW] ** 2 * dt
@@ -345,43 +385,51 @@ def _update_kf(s, p, q_m, sigma, b_m):
     gp = down_in_body(q[0], q[1], q[2], q[3])
     cx, sn, ang = _tilt_axis_angle(q, q_m)
     ax = (1.0, 0.0, 0.0) if abs(gp[0]) < 0.9 else (0.0, 1.0, 0.0)
-    e1 = np.array([gp[1] * ax[2] - gp[2] * ax[1], gp[2] * ax[0] - gp[0] * ax[2], gp[0] * ax[1] - gp[1] * ax[0]])
-    e1 /= math.sqrt(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
-    e2 = np.array([gp[1] * e1[2] - gp[2] * e1[1], gp[2] * e1[0] - gp[0] * e1[2], gp[0] * e1[1] - gp[1] * e1[0]])
-    res = np.zeros(3)
+    e1 = (gp[1] * ax[2] - gp[2] * ax[1], gp[2] * ax[0] - gp[0] * ax[2], gp[0] * ax[1] - gp[1] * ax[0])
+    n1 = math.sqrt(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
+    e1 = (e1[0] / n1, e1[1] / n1, e1[2] / n1)
+    e2 = (gp[1] * e1[2] - gp[2] * e1[1], gp[2] * e1[0] - gp[0] * e1[2], gp[0] * e1[1] - gp[1] * e1[0])
+    res = (0.0, 0.0, 0.0)
     if sn > 1e-12:  # δθ that moves gp onto gm
         k = -ang / sn
-        res[0], res[1], res[2] = k * cx[0], k * cx[1], k * cx[2]
+        res = (k * cx[0], k * cx[1], k * cx[2])
     H = np.zeros((2, 6))
-    H[0, :3] = e1
-    H[1, :3] = e2
-    zt = np.array([_dot3(e1, res), _dot3(e2, res)])
+    for j in range(3):
+        H[0, j] = e1[j]
+        H[1, j] = e2[j]
+    z = np.empty(2)
+    z[0], z[1] = _dot3(e1, res), _dot3(e2, res)
     if p[_P_NIS] > 0:  # innovation-adaptive: the propagation was worse than P says
         p_tilt = 0.5 * (_quad3(e1, P) + _quad3(e2, P))
         extra = ang * ang / p[_P_NIS] - r - p_tilt
         if extra > 0:
             for i in range(3):
                 P[i, i] += extra
-    dx, P = _kalman(P, H, zt, r)
+    _kalman(P, H, z, r, dx)
     if p[_P_BIAS_SIGMA] > 0:  # the network's bias estimate, a direct measurement of b
         Hb = np.zeros((3, 6))
+        zb = np.empty(3)
         for i in range(3):
             Hb[i, 3 + i] = 1.0
-        zb = np.array([b_m[i] - (s[_S_B + i] + dx[3 + i]) for i in range(3)])
-        dxb, P = _kalman(P, Hb, zb, p[_P_BIAS_SIGMA] ** 2)
-        dx = dx + dxb  # sequential update: the innovation is taken after the tilt correction
+            zb[i] = b_m[i] - (s[_S_B + i] + dx[3 + i])
+        dxb = np.empty(6)
+        _kalman(P, Hb, zb, p[_P_BIAS_SIGMA] ** 2, dxb)
+        for i in range(6):  # sequential update: the innovation is taken after the tilt correction
+            dx[i] = dx[i] + dxb[i]
     e = exp_rotvec(dx[0], dx[1], dx[2])
     q = qnorm(*qmul(q[0], q[1], q[2], q[3], e[0], e[1], e[2], e[3]))
     _set_q(s, _S_Q, q)
     for i in range(3):
         s[_S_B + i] = s[_S_B + i] + dx[3 + i]
-    cov[:] = 0.5 * (P + P.T)
+    for i in range(6):
+        for j in range(6):
+            s[_S_COV + 6 * i + j] = 0.5 * (P[i, j] + P[j, i])
     g = down_in_body(q[0], q[1], q[2], q[3])
-    tr = cov[0, 0] + cov[1, 1] + cov[2, 2]
+    tr = s[_S_COV] + s[_S_COV + 7] + s[_S_COV + 14]
     gPg = 0.0
     for i in range(3):
         for j in range(3):
-            gPg += g[i] * cov[i, j] * g[j]
+            gPg += g[i] * s[_S_COV + 6 * i + j] * g[j]
     s[_S_P] = 0.5 * (tr - gPg)  # per-axis tilt variance
     _set_q(s, _S_QE, q)
     s[_S_TEST] = s[_S_T]
@@ -439,10 +487,12 @@ def _run(s, p, t_s, gyr, clipped, est_at, est_q, est_sigma, est_bias, q_out, s_o
     none = np.zeros(4)
     for i in range(start, stop):
         j = est_at[i]
-        if j >= 0:
-            ok = _step(s, p, t_s[i], gyr[i], clipped[i], True, est_q[j], est_sigma[j], est_bias[j], out)
+        has_est = j >= 0  # one call with a run-time flag: _step is compiled once, for the live path too
+        if has_est:
+            q_m, sigma_m, b_m = est_q[j], est_sigma[j], est_bias[j]
         else:
-            ok = _step(s, p, t_s[i], gyr[i], clipped[i], False, none, 0.0, none, out)
+            q_m, sigma_m, b_m = none, 0.0, none
+        ok = _step(s, p, t_s[i], gyr[i], clipped[i], has_est, q_m, sigma_m, b_m, out)
         if ok:
             q_out[i, 0], q_out[i, 1], q_out[i, 2], q_out[i, 3] = out[0], out[1], out[2], out[3]
             s_out[i] = out[4]
@@ -460,7 +510,11 @@ class AttitudeFusion:
         self.c = config
         self.p = config.kernel_params()
         self._out = np.empty(8)
-        self._none = np.zeros(4)
+        # the kernel's array arguments, always float64, C-contiguous and writable (the types the
+        # offline loop passes): one compiled signature for both paths
+        self._w = np.zeros(3)
+        self._q_m = np.zeros(4)
+        self._b_m = np.zeros(3)
         self.reset()
 
     def reset(self) -> None:
@@ -495,14 +549,15 @@ class AttitudeFusion:
         (a token is known to be complete only when the next sample arrives): it corrects the state
         at that time, before the propagation to ``t``. Offline and live runs therefore agree.
         """
-        w = np.asarray(w_rad_s, np.float64)
+        self._w[:] = w_rad_s
         out = self._out
         if est is None:
-            ok = _step(self.s, self.p, float(t), w, bool(clipped), False, self._none, 0.0, self._none, out)
+            ok = _step(self.s, self.p, float(t), self._w, bool(clipped), False, self._q_m, 0.0, self._b_m, out)
         else:
             q_m, sigma, b_m = est
-            ok = _step(self.s, self.p, float(t), w, bool(clipped), True, np.asarray(q_m, np.float64), float(sigma),
-                       np.asarray(b_m, np.float64), out)  # fmt: skip
+            self._q_m[:] = q_m
+            self._b_m[:] = b_m
+            ok = _step(self.s, self.p, float(t), self._w, bool(clipped), True, self._q_m, float(sigma), self._b_m, out)
         bias = (float(out[5]), float(out[6]), float(out[7]))
         if not ok:
             return None, float("nan"), bias
@@ -525,9 +580,11 @@ class FusionRun:
 
     def __init__(self, t_s, gyr, config: FusionConfig, clipped=None):
         n = len(t_s)
-        self.t_s = np.ascontiguousarray(t_s, np.float64)
-        self.gyr = np.ascontiguousarray(gyr, np.float64)
-        self.clipped = np.zeros(n, bool) if clipped is None else np.ascontiguousarray(clipped, bool)
+        # copies (C-contiguous, writable: a record's columns are read-only views), so the kernel
+        # is compiled for one signature whatever the caller passes
+        self.t_s = np.array(t_s, np.float64, order="C")
+        self.gyr = np.array(gyr, np.float64, order="C")
+        self.clipped = np.zeros(n, bool) if clipped is None else np.array(clipped, bool, order="C")
         self.q = np.full((n, 4), np.nan)
         self.sigma = np.full(n, np.nan)
         self.bias = np.full((n, 3), np.nan)

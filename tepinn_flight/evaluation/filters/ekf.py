@@ -43,7 +43,7 @@ from numba import njit
 from ...conventions import GRAVITY_M_S2
 from ...errors import ConfigError
 from ...quat_scalar import down_in_body, qmul
-from ...small_linalg import mm, solve
+from ...small_linalg import mul, mul_bt, solve_in_place, symmetrize
 from .common import as_tuple4, check_inputs, initial_attitude
 
 
@@ -101,6 +101,17 @@ def _rotate_body(w, x, y, z, rx, ry, rz):
     return qmul(w, x, y, z, dw, dx, dy, dz), (dw, dx, dy, dz)
 
 
+@njit(cache=True)
+def _subtract_k_pt(P, X, pb):
+    """P ← P − K pbᵀ in place, with K = Xᵀ (6×3) and pb (6×3)."""
+    for i in range(6):
+        for j in range(6):
+            acc = 0.0
+            for l in range(3):
+                acc += X[l, i] * pb[j, l]
+            P[i, j] = P[i, j] - acc
+
+
 def _run(gyr, acc, dt, p: EkfParams, q, b):
     return _loop(gyr, acc, dt, q, b, p.init_attitude_sigma_rad, p.init_bias_sigma_rad_s, p.gyro_noise_rad_s_sqrt_hz,
                  p.bias_walk_rad_s_sqrt_s, p.bias_limit_rad_s, p.acc_lowpass_tau_s, p.rest_gyr_sigma_rad_s,
@@ -123,6 +134,10 @@ def _loop(gyr, acc, dt, q, b, init_att, init_bias, gyro_noise, bias_walk, lim, l
         P[k, k] = init_att**2
         P[3 + k, 3 + k] = init_bias**2
     F = np.eye(6)
+    T = np.empty((6, 6))  # work buffers, reused for every sample: no allocation in the loop
+    pb = np.empty((6, 3))
+    S = np.empty((3, 3))
+    X = np.empty((3, 6))
     sg2, sb2 = gyro_noise**2, bias_walk**2
     have_lp = False
     lp0 = lp1 = lp2 = 0.0
@@ -144,7 +159,8 @@ def _loop(gyr, acc, dt, q, b, init_att, init_bias, gyro_noise, bias_walk, lim, l
         F[1, 0], F[1, 1], F[1, 2] = 2 * (dx * dy - dw * dz), 1 - 2 * (dx * dx + dz * dz), 2 * (dy * dz + dw * dx)
         F[2, 0], F[2, 1], F[2, 2] = 2 * (dx * dz + dw * dy), 2 * (dy * dz - dw * dx), 1 - 2 * (dx * dx + dy * dy)
         F[0, 3] = F[1, 4] = F[2, 5] = -h
-        P = mm(mm(F, P), F.T.copy())
+        mul(F, P, T)
+        mul_bt(T, F, P)  # F P Fᵀ
         for k in range(3):
             P[k, k] += sg2 * h
             P[3 + k, 3 + k] += sb2 * h
@@ -166,17 +182,21 @@ def _loop(gyr, acc, dt, q, b, init_att, init_bias, gyro_noise, bias_walk, lim, l
             rest_t = rest_t + h if (dg < rest_g2 and da < rest_a2) else 0.0
             if rest_t >= rest_min_s:
                 # zero-angular-rate update: the low-passed gyro measures the bias, H = [0, I]
-                pb = P[:, 3:6].copy()
-                S = pb[3:6].copy()
+                for k in range(6):
+                    for l in range(3):
+                        pb[k, l] = P[k, 3 + l]  # P Hᵀ
+                        X[l, k] = P[k, 3 + l]
                 for k in range(3):
+                    for l in range(3):
+                        S[k, l] = pb[3 + l, k]  # (H P Hᵀ)ᵀ: the solve takes Sᵀ
                     S[k, k] += rest_var
-                K = solve(S.T.copy(), pb.T.copy()).T.copy()  # pb S⁻¹
-                res = np.array([lg0 - bx, lg1 - by, lg2 - bz])
-                P = P - mm(K, pb.T.copy())
-                P = 0.5 * (P + P.T)
-                b0 = K[3, 0] * res[0] + K[3, 1] * res[1] + K[3, 2] * res[2]
-                b1 = K[4, 0] * res[0] + K[4, 1] * res[1] + K[4, 2] * res[2]
-                b2 = K[5, 0] * res[0] + K[5, 1] * res[1] + K[5, 2] * res[2]
+                solve_in_place(S, X)  # X = S⁻ᵀ pbᵀ = Kᵀ, K = pb S⁻¹
+                res0, res1, res2 = lg0 - bx, lg1 - by, lg2 - bz
+                _subtract_k_pt(P, X, pb)  # P − K pbᵀ
+                symmetrize(P)
+                b0 = X[0, 3] * res0 + X[1, 3] * res1 + X[2, 3] * res2
+                b1 = X[0, 4] * res0 + X[1, 4] * res1 + X[2, 4] * res2
+                b2 = X[0, 5] * res0 + X[1, 5] * res1 + X[2, 5] * res2
                 bx = min(lim, max(-lim, bx + b0))
                 by = min(lim, max(-lim, by + b1))
                 bz = min(lim, max(-lim, bz + b2))
@@ -210,20 +230,33 @@ def _loop(gyr, acc, dt, q, b, init_att, init_bias, gyro_noise, bias_walk, lim, l
         if na > 0.0 and dev <= acc_gate:
             sa = (acc_noise + acc_dyn * dev) / g
             vxm[0, 1], vxm[0, 2], vxm[1, 0], vxm[1, 2], vxm[2, 0], vxm[2, 1] = -vz, vy, vz, -vx, -vy, vx  # [v]×
-            pht = mm(P[:, 0:3].copy(), vxm)  # P Hᵀ, Hᵀ = [[v]×; 0]
-            S = -mm(vxm, pht[0:3].copy())  # H P Hᵀ
+            for k in range(6):  # pb = P Hᵀ, Hᵀ = [[v]×; 0]
+                for l in range(3):
+                    sm = 0.0
+                    for m in range(3):
+                        sm += P[k, m] * vxm[m, l]
+                    pb[k, l] = sm
+                    X[l, k] = sm
+            for k in range(3):  # S = H P Hᵀ = −[v]× pb[:3], stored transposed (the solve takes Sᵀ)
+                for l in range(3):
+                    sm = 0.0
+                    for m in range(3):
+                        sm += vxm[l, m] * pb[m, k]
+                    S[k, l] = -sm
             S[0, 0] += sa * sa
             S[1, 1] += sa * sa
             S[2, 2] += sa * sa
-            K = solve(S.T.copy(), pht.T.copy()).T.copy()  # pht S⁻¹
+            solve_in_place(S, X)  # X = S⁻ᵀ pbᵀ = Kᵀ, K = pb S⁻¹
             r = 1.0 / na
             res0, res1, res2 = ax * r + vx, ay * r + vy, az * r + vz  # z − h, h = −v
-            d = np.empty(6)
-            for k in range(6):
-                d[k] = K[k, 0] * res0 + K[k, 1] * res1 + K[k, 2] * res2
-            P = P - mm(K, pht.T.copy())
-            P = 0.5 * (P + P.T)
-            ex, ey, ez, b0, b1, b2 = d[0], d[1], d[2], d[3], d[4], d[5]
+            ex = X[0, 0] * res0 + X[1, 0] * res1 + X[2, 0] * res2
+            ey = X[0, 1] * res0 + X[1, 1] * res1 + X[2, 1] * res2
+            ez = X[0, 2] * res0 + X[1, 2] * res1 + X[2, 2] * res2
+            b0 = X[0, 3] * res0 + X[1, 3] * res1 + X[2, 3] * res2
+            b1 = X[0, 4] * res0 + X[1, 4] * res1 + X[2, 4] * res2
+            b2 = X[0, 5] * res0 + X[1, 5] * res1 + X[2, 5] * res2
+            _subtract_k_pt(P, X, pb)  # P − K pbᵀ
+            symmetrize(P)
             # the accelerometer cannot observe heading: drop the correction's earth-vertical part
             # (its component along the body-frame down vector v), so heading comes from the gyro only
             pv = ex * vx + ey * vy + ez * vz
