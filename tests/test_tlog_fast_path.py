@@ -17,11 +17,13 @@ os.environ.setdefault("MAVLINK20", "1")
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from tepinn_flight.ingest import mavlink_scan as ms
 from tepinn_flight.ingest import tlog as tlog_reader
-from tepinn_flight.ingest.mavlink_sync import good_frames
+from tepinn_flight.ingest.mavlink_sync import _median, good_frames
 from tests.conftest import real_log
 from tests.test_ingest_tlog import TLOGS, _pymavlink_bad_crc, _pymavlink_messages, _synthetic
 
@@ -89,6 +91,19 @@ def _damaged_synthetic(tmp_path, seed: int) -> bytes:
     for k in sorted(rng.integers(800, len(d) - 100, 4).tolist(), reverse=True):
         d[k:k] = rng.integers(0, 256, int(rng.integers(1, 40)), dtype=np.uint8).tobytes()  # junk runs
     return bytes(d[:-5])  # and a cut last record
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(0, 2**52), min_size=1, max_size=600), st.booleans())
+def test_frame_sync_median_equals_numpy(ts_us, few_distinct):
+    """The sync's own median of receive timestamps (µs, as float64) is numpy's, odd and even
+    lengths, with and without ties; its input is left unsorted."""
+    x = np.array(ts_us, np.float64)
+    if few_distinct:
+        x = x % 7 + 1.7e15
+    before = x.copy()
+    assert _median(x) == np.median(x)
+    np.testing.assert_array_equal(x, before)
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])

@@ -81,6 +81,26 @@ def _receive_ts(buf, i):
 
 
 @njit(cache=True)
+def _median(x):
+    """``np.median`` of a short float64 array without NaNs (the same value: the middle element, or the
+    mean ``(a + b) / 2`` of the two middle ones), by an insertion sort of a copy: numba's
+    ``np.median`` costs more compile time (a selection algorithm) than this whole file otherwise."""
+    v = x.copy()
+    n = v.shape[0]
+    for i in range(1, n):
+        key = v[i]
+        j = i - 1
+        while j >= 0 and v[j] > key:
+            v[j + 1] = v[j]
+            j -= 1
+        v[j + 1] = key
+    h = n >> 1
+    if n & 1:
+        return v[h]
+    return (v[h - 1] + v[h]) / 2
+
+
+@njit(cache=True)
 def good_frames(buf, m, h_lo, h_hi, n_max, a, size, known, extra, crc_table, slices, max_id, ts_window_us):
     """Record starts (in ``buf``) and message ids of the good frames whose start byte is in [h_lo, h_hi).
 
@@ -113,7 +133,7 @@ def good_frames(buf, m, h_lo, h_hi, n_max, a, size, known, extra, crc_table, sli
                     ts[k] = _receive_ts(buf, cand[j] - TS_LEN)
                     k += 1
                 c += 1
-        med = np.median(ts)
+        med = _median(ts)
     # pass 2: checkable and plausible candidates → CRC
     starts = np.empty(n, np.int64)
     ids = np.empty(n, np.int64)
