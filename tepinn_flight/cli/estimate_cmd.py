@@ -50,6 +50,18 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    import sys
+
+    from tqdm import tqdm
+
+    from ..jit_notice import compile_notice
+
+    say = None if args.quiet else (lambda line: tqdm.write(f"tepinn-flight estimate: note: {line}", file=sys.stderr))
+    with compile_notice(say):  # the first run after installing compiles the loops: say so, once
+        return _run(args)
+
+
+def _run(args) -> int:
     import numpy as np
     import dataclasses
     import sys

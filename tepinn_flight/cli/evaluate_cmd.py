@@ -43,6 +43,16 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
+    from tqdm import tqdm
+
+    from ..jit_notice import compile_notice
+
+    say = None if args.quiet else (lambda line: tqdm.write(f"tepinn-flight evaluate: note: {line}", file=sys.stderr))
+    with compile_notice(say):  # the first run after installing compiles the loops: say so, once
+        return _run(args)
+
+
+def _run(args) -> int:
     import dataclasses
 
     from ..errors import ConfigError, TepinnError

@@ -1,0 +1,77 @@
+"""The one-line notice while numba compiles the package's loops (first run after installing): said
+once when something compiles, not when the loops load from the cache, not for other packages'
+functions, not in quiet mode. Each case runs in a fresh process with its own ``NUMBA_CACHE_DIR``
+(numba reads it at import), so the cache state is known."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from tepinn_flight.jit_notice import COMPILE_NOTICE
+
+REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+_PROBE = textwrap.dedent("""
+    import numpy as np
+    from numba import njit
+    from tepinn_flight.jit_notice import compile_notice
+    from tepinn_flight.small_linalg import symmetrize
+
+    @njit
+    def not_ours(x):
+        return x + 1
+
+    lines = []
+    with compile_notice(lines.append):
+        not_ours(1.0)  # compiled, but not one of tepinn_flight's loops
+        print("after other", len(lines))
+        symmetrize(np.ones((2, 2)))
+        symmetrize(np.ones((3, 3)))  # the same signature: nothing new compiled
+        symmetrize(np.ones((2, 2), np.float32))  # a second compile: still one notice
+    symmetrize(np.ones((2, 2), np.int64))  # outside the block: silent
+    print("lines", len(lines))
+    print(lines[0] if lines else "")
+""")
+
+
+def _run(code_or_args, cache, module=False):
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": REPO}
+    env.pop("NUMBA_DISABLE_JIT", None)
+    cmd = [sys.executable, "-m", "tepinn_flight", *code_or_args] if module else [sys.executable, "-c", code_or_args]
+    p = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=REPO, timeout=600)
+    return p
+
+
+def test_notice_once_on_compile_and_not_on_a_cache_load(tmp_path):
+    first = _run(_PROBE, tmp_path / "cache")
+    assert first.returncode == 0, first.stderr
+    out = first.stdout.splitlines()
+    assert out[0] == "after other 0"  # another package's function compiling is not announced
+    assert out[1] == "lines 1"
+    assert out[2] == COMPILE_NOTICE
+    again = _run(_PROBE, tmp_path / "cache")  # the same cache: every signature loads, nothing compiles
+    assert again.returncode == 0, again.stderr
+    assert again.stdout.splitlines()[1] == "lines 0"
+
+
+@pytest.mark.slow
+def test_estimate_says_it_compiles_once_then_not_and_never_with_quiet(tmp_path):
+    pytest.importorskip("torch")
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    write_record(synthetic_record(seed=1, duration_s=12.0, rate_hz=100.0), tmp_path / "r.parquet")
+    args = ["estimate", str(tmp_path / "r.parquet"), "-o", str(tmp_path / "e.parquet")]
+    cold = _run(args, tmp_path / "cache", module=True)
+    assert cold.returncode == 0, cold.stderr
+    said = [ln for ln in cold.stderr.splitlines() if COMPILE_NOTICE in ln]
+    assert said == [f"tepinn-flight estimate: note: {COMPILE_NOTICE}"], cold.stderr
+    warm = _run(args, tmp_path / "cache", module=True)
+    assert warm.returncode == 0 and COMPILE_NOTICE not in warm.stderr, warm.stderr
+    quiet = _run([*args, "-q"], tmp_path / "other-cache", module=True)
+    assert quiet.returncode == 0 and quiet.stderr == "", quiet.stderr
