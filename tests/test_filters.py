@@ -199,3 +199,29 @@ def test_missing_peer_package_is_skipped_with_a_message(monkeypatch):
     assert {p.name for p in peers} == {"vqf", "offline-vqf"}
     assert any("Fusion skipped" in n for n in notes) and any("RIANN skipped" in n for n in notes)
 
+
+
+def test_check_inputs_gives_the_loops_one_array_type_and_leaves_the_callers_arrays_alone():
+    """Whatever the layout and writability of the caller's arrays (a record's columns are read-only
+    Fortran-ordered views), the compiled loops get float64 C-contiguous writable arrays — one
+    compiled signature per loop — with the same values, and the caller's arrays are not changed."""
+    from tepinn_flight.evaluation.filters.common import check_inputs
+
+    rng = np.random.default_rng(0)
+    n = 50
+    gyr, acc, mag = rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    gyr[3, 1], acc[5, 0], mag[7, 2] = np.nan, np.inf, np.nan
+    t = np.arange(n) * 0.01
+    want = check_inputs(gyr, acc, t, mag)
+    originals = [a.copy() for a in (gyr, acc, mag)]
+    for make in (np.ascontiguousarray, np.asfortranarray, lambda a: np.asfortranarray(a).view()):
+        args = [make(a) for a in (gyr, acc, mag)]
+        for a in args:
+            a.flags.writeable = make is np.ascontiguousarray  # read-only views as from a record
+        got = check_inputs(args[0], args[1], t, args[2])
+        for g, w in zip(got, want):
+            assert g.dtype == np.float64 and g.flags.c_contiguous and g.flags.writeable
+            np.testing.assert_array_equal(g, w)
+        for a, o in zip(args, originals):
+            np.testing.assert_array_equal(a, o)  # NaN rows zeroed in copies, not in place
+    assert want[0][3, 1] == 0.0 and np.all(want[1][5] == 0.0) and np.all(want[3][7] == 0.0)

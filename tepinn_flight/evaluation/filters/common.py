@@ -25,33 +25,41 @@ def check_inputs(gyr, acc, t_s, mag=None):
     """Validate shapes and return clean float64 arrays ``(gyr, acc, dt, mag_or_None)``.
 
     ``dt[i] = t[i] - t[i-1]``; ``dt[0]`` (and any non-positive or non-finite step) is the median step.
-    The arrays are new, C-contiguous and writable whatever the caller passed (a record's columns are
-    read-only, Fortran-ordered views): the compiled loops then see one type and compile once.
+    The arrays are C-contiguous and writable whatever the caller passed (a record's columns are
+    read-only, Fortran-ordered views; they are copied): the compiled loops then see one type and
+    compile once. The caller's arrays are never modified.
     """
     gyr = np.asarray(gyr, np.float64)
-    acc = np.array(acc, np.float64, order="C")
+    acc = np.asarray(acc, np.float64)
     t_s = np.asarray(t_s, np.float64)
     n = len(t_s)
     if gyr.shape != (n, 3) or acc.shape != (n, 3):
         raise TepinnError(f"filter input shapes disagree: gyr {gyr.shape}, acc {acc.shape}, t_s {t_s.shape}")
     if mag is not None:
-        mag = np.array(mag, np.float64, order="C")
+        mag = np.asarray(mag, np.float64)
         if mag.shape != (n, 3):
             raise TepinnError(f"filter input shapes disagree: mag {mag.shape}, t_s {t_s.shape}")
         bad = ~np.all(np.isfinite(mag), axis=1)
         if bad.all():
             mag = None
         elif bad.any():
+            mag = mag.copy()
             mag[bad] = 0.0
-    gyr = np.ascontiguousarray(np.where(np.isfinite(gyr), gyr, 0.0))
+    gyr = np.where(np.isfinite(gyr), gyr, 0.0)
     bad = ~np.all(np.isfinite(acc), axis=1)
     if bad.any():
+        acc = acc.copy()
         acc[bad] = 0.0
     dt = np.diff(t_s, prepend=np.nan)
     ok = np.isfinite(dt) & (dt > 0)
     nominal = float(np.median(dt[ok])) if ok.any() else 0.01
     dt[~ok] = nominal
-    return gyr, acc, dt, mag
+    return _loop_array(gyr), _loop_array(acc), dt, None if mag is None else _loop_array(mag)
+
+
+def _loop_array(x: np.ndarray) -> np.ndarray:
+    """x as the compiled loops take it: float64, C-contiguous, writable (a copy only when it is not)."""
+    return np.require(x, np.float64, ["C_CONTIGUOUS", "WRITEABLE"])
 
 
 def initial_attitude(acc, mag=None) -> np.ndarray:
