@@ -102,7 +102,7 @@ class AnchorConfig:
     # fusion's bias feedback (its bias_feedback_windows tokens) whose first window shows |v̂| below
     # quiet_speed_m_s and a fusion gyro bias below quiet_bias_deg_s on every axis runs only that window
     # (and those holding a saturated token); False: the network runs on every token
-    quiet_blocks: bool = False
+    quiet_blocks: bool = True
     quiet_speed_m_s: float = 15.0  # ... on the windows of the last quiet_memory_blocks blocks too
     quiet_memory_blocks: int = 10
     quiet_bias_deg_s: float = 1.5
