@@ -234,19 +234,18 @@ def fly(aircraft: str, duration_s: float, rate_hz: float = 400.0, seed: int = 0,
         rows = []
         append = rows.append
         termination = "completed"
-        i = 0  # JSBSim step counter
-        for k in range(n_steps):
-            for _ in range(sub):
-                if i % div == 0:
-                    seq_update(ctl, i * dt_sim)
-                    ctl_step()
-                run()
-                i += 1
+        for i in range(n_steps * sub):  # JSBSim steps; a sample is logged after every sub-th
+            if i % div == 0:
+                seq_update(ctl, i * dt_sim)
+                ctl_step()
+            run()
+            if sub > 1 and (i + 1) % sub:
+                continue
             # JSBSim runs FGPropagate first in each step and the force models after it, so after
             # run() the state and the forces (hence the specific force) belong to the same instant.
             h = agl()
             if not h > min_agl_ft:  # also stops on a non-finite height; other columns: below
-                termination = (f"stopped at t={k * dt:.3f} s: "
+                termination = (f"stopped at t={i // sub * dt:.3f} s: "
                                + ("ground proximity" if math.isfinite(h) else "non-finite state"))
                 break
             append(pack(phi(), theta(), psi(), gp(), gq(), gr(), ex(), ey(), ez(), vn(), ve(), vd(),
