@@ -7,10 +7,7 @@ and the ratio.
 The recipe's flights must be there (``train --config train/default.toml -o RUN`` flies them into
 ``RUN/data``; the BROAD trials are read from ../shared where present): pass ``--run RUN``.
 
-With ``--runtime both`` the network's windows run in PyTorch and in onnxruntime (what ``train`` does
-since session 8: :func:`~tepinn_flight.model.calibration.calibration_runner`) in the same run.
-
-Usage: python benchmarks/calibration_speed.py --run runs/default [--max-flights 8] [--runtime onnx|torch|both] [--reference]
+Usage: python benchmarks/calibration_speed.py --run runs/default [--max-flights 8] [--reference]
 """
 
 from __future__ import annotations
@@ -31,8 +28,8 @@ from tepinn_flight.model.train_config import load_train_config  # noqa: E402
 from tepinn_flight.model.train_data import resolve_records, split_by_flight  # noqa: E402
 
 
-def timed_calibration(cfg, model, val, train, runner=None) -> tuple[float, float, object]:
-    """(total s, network s, fitted FusionConfig); ``runner``: the network's windows run there."""
+def timed_calibration(cfg, model, val, train) -> tuple[float, float, object]:
+    """(total s, network s, fitted FusionConfig)."""
     spent = [0.0]
     inner = estimate_mod.network_outputs
 
@@ -46,7 +43,7 @@ def timed_calibration(cfg, model, val, train, runner=None) -> tuple[float, float
     estimate_mod.network_outputs = counted
     try:
         t0 = time.perf_counter()
-        fusion, _ = calibrate_with(cfg, model, val, train, runner)
+        fusion, _ = calibrate_with(cfg, model, val, train)
         return time.perf_counter() - t0, spent[0], fusion
     finally:
         estimate_mod.network_outputs = inner
@@ -58,8 +55,6 @@ def main() -> int:
     ap.add_argument("--config", default=str(REPO / "train" / "default.toml"))
     ap.add_argument("--max-flights", type=int, default=None, help="override [calibration] max_flights")
     ap.add_argument("--reference", action="store_true", help="also run it with the former pure-Python fusion")
-    ap.add_argument("--runtime", choices=["torch", "onnx", "both"], default="onnx",
-                    help="where the network's windows run (train: onnx, the shipped model's export; both: the ratio)")
     args = ap.parse_args()
     import torch
 
@@ -70,7 +65,7 @@ def main() -> int:
     if args.max_flights:
         cfg = dataclasses.replace(cfg, calibration=dataclasses.replace(cfg.calibration, max_flights=args.max_flights))
     base = Path(args.config).parent
-    paths = resolve_records([str(Path(args.run) / "data")], base)
+    paths = resolve_records([str(Path(args.run).resolve() / "data")], base)
     for pat in cfg.data.optional_records:
         try:
             paths += [p for p in resolve_records([pat], base) if p not in paths]
@@ -81,27 +76,15 @@ def main() -> int:
     val, train = [records[i] for i in va], [records[i] for i in tr]
     model, _, _ = load_model(default_model_path())
     print(f"{len(records)} flights, {len(val)} validation; max_flights {cfg.calibration.max_flights}")
-    from tepinn_flight.model.calibration import calibration_runner
-
-    results = {}
-    for name in ("torch", "onnx") if args.runtime == "both" else (args.runtime,):
-        runner = calibration_runner(default_model_path(), model) if name == "onnx" else None
-        results[name] = timed_calibration(cfg, model, val, train, runner)
-        total, net, fusion = results[name]
-        print(f"{name:5s} network, compiled fusion: {total:7.1f} s  (network {net:6.1f} s, the rest {total - net:6.1f} s)")
-    if len(results) == 2:
-        (t_t, n_t, f_t), (t_o, n_o, f_o) = results["torch"], results["onnx"]
-        print(f"onnxruntime vs PyTorch: {t_t / t_o:.1f}× in all, {n_t / max(n_o, 1e-9):.1f}× on the network")
-        diff = {f.name: (getattr(f_t, f.name), getattr(f_o, f.name)) for f in dataclasses.fields(f_t)
-                if getattr(f_t, f.name) != getattr(f_o, f.name)}  # fmt: skip
-        print("same settings chosen" if not diff else f"settings that differ (torch, onnx): {diff}")
+    total, net, fusion = timed_calibration(cfg, model, val, train)
+    print(f"compiled fusion:  {total:7.1f} s  (network {net:6.1f} s, the rest {total - net:6.1f} s)")
     if args.reference:
         from tests import fusion_reference
 
         compiled = estimate_mod.FusionRun
         estimate_mod.FusionRun = fusion_reference.FusionRun
         try:
-            r_total, r_net, r_fusion = timed_calibration(cfg, model, val, train, runner)
+            r_total, r_net, r_fusion = timed_calibration(cfg, model, val, train)
         finally:
             estimate_mod.FusionRun = compiled
         print(f"former fusion:    {r_total:7.1f} s  (network {r_net:6.1f} s, the rest {r_total - r_net:6.1f} s)")

@@ -121,28 +121,3 @@ def test_calibration_picks_bias_states_for_a_gyro_bias_the_network_never_saw():
     lowpass_b = lowpass_b[["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]].to_numpy()[-100:]
     assert np.linalg.norm(b - b_true, axis=1).mean() < 0.5 * np.linalg.norm(lowpass_b - b_true, axis=1).mean()
 
-
-@pytest.mark.slow
-def test_calibration_in_onnxruntime_chooses_the_settings_pytorch_chooses():
-    """``train`` runs the calibration's windows in onnxruntime (``calibration_runner``: the checkpoint
-    exported in memory); on the same flights it fits the same settings as with the network in PyTorch,
-    the bias-feedback candidate (windows re-made in blocks) scored alike."""
-    from tepinn_flight.model.calibration import calibrate_fusion, calibration_runner
-    from tepinn_flight.model.checkpoint import default_model_path, load_model
-    from tepinn_flight.model.runtime import OnnxRunner
-    from tepinn_flight.model.synthetic import synthetic_record
-
-    model, _, _ = load_model(default_model_path())
-    runner = calibration_runner(default_model_path(), model)
-    assert isinstance(runner, OnnxRunner)
-    recs = [synthetic_record(seed=s, duration_s=20.0, rate_hz=100.0, max_rate_rad_s=1.0, gyr_bias_rad_s=0.1)
-            for s in (2, 4)]  # fmt: skip
-    kw = dict(max_records=2, bias_state_sweeps=0, feedback_deadzones_rad_s=(0.02,), feedback_windows=10)
-    f_torch, m_torch = calibrate_fusion(model, recs, FusionConfig.uncalibrated(), **kw)
-    f_onnx, m_onnx = calibrate_fusion(model, recs, FusionConfig.uncalibrated(), runner=runner, **kw)
-    assert dataclasses.replace(f_onnx, output_sigma_scale=1.0) == dataclasses.replace(f_torch, output_sigma_scale=1.0)
-    assert f_onnx.output_sigma_scale == pytest.approx(f_torch.output_sigma_scale, rel=1e-3)
-    for grid in ("fusion_grid", "fusion_feedback_grid"):
-        assert m_onnx[grid].keys() == m_torch[grid].keys()
-        for k, v in m_torch[grid].items():
-            assert m_onnx[grid][k] == pytest.approx(v, rel=1e-3), (grid, k)

@@ -24,7 +24,7 @@ from .train_data import load_records, split_by_flight
 def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionConfig, max_records: int = 12,
                      fallback_records: list[FlightRecord] = (), bias_state_sweeps: int = 2,
                      feedback_deadzones_rad_s: tuple[float, ...] = (), feedback_windows: int = 25,
-                     runner=None) -> tuple[FusionConfig, dict]:  # fmt: skip
+                     ) -> tuple[FusionConfig, dict]:  # fmt: skip
     """Fit the fusion on validation flights, minimising the mean over flights of the per-flight
     tilt RMSE of the fused output (the figure the benchmark and ``evaluate`` report): the process
     noise of the low-pass fusion, then the bias-state Kalman fusion (``bias_states``) by a
@@ -34,10 +34,7 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
     where none does, on up to 6 of ``fallback_records`` (training flights) that do; then bias
     feedback with each of ``feedback_deadzones_rad_s`` (kept where it helps). Last, the σ scale that
     makes the reported σ calibrated on the typical sample (median |e|²/σ² = 2 ln 2, the median of a
-    2-D Gaussian tilt error).
-
-    ``runner`` (e.g. :func:`calibration_runner`'s) runs the network's windows instead of ``model``
-    in PyTorch; ``model`` still gives the learned saturation gain κ."""
+    2-D Gaussian tilt error)."""
     from ..quat import inclination_heading_split, quat_conj, quat_mul
     from .estimate import window_estimates
 
@@ -46,13 +43,12 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
         return base, {}
     pick = np.unique(np.linspace(0, len(usable) - 1, min(max_records, len(usable))).round().astype(int))
     recs = [usable[i] for i in pick]
-    net = model if runner is None else runner
-    wins = [window_estimates(net, r) for r in recs]
+    wins = [window_estimates(model, r) for r in recs]
 
     def run(cand, recs=recs, wins=wins):
         errs, sig, berr = [], [], []
         for r, w in zip(recs, wins):
-            est = estimate_record(net, r, cand, windows=w)
+            est = estimate_record(model, r, cand, windows=w)
             q = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
             ok = np.all(np.isfinite(q), 1) & np.all(np.isfinite(r.q_ref_wxyz), 1) & (est["sigma_rad"].to_numpy() > 0)
             inc, _ = inclination_heading_split(quat_mul(q[ok], quat_conj(r.q_ref_wxyz[ok])))
@@ -124,7 +120,7 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
         clipping, source = clipping[:: max(1, -(-len(clipping) // 6))], "training"  # at most 6, spread
     if clipping:
         made = {id(r): w for r, w in zip(recs, wins)}  # validation flights' windows are at hand
-        cwins = [made[id(r)] if id(r) in made else window_estimates(net, r) for r in clipping]
+        cwins = [made[id(r)] if id(r) in made else window_estimates(model, r) for r in clipping]
         base_err = mean_rmse_deg(run(best, clipping, cwins)[0])
         clip_table, pick_clip = {"off": base_err}, None
         for infl in (best.clip_inflation_rad, 0.15, 0.05):
@@ -186,27 +182,12 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
     return best, metrics
 
 
-def calibrate_with(cfg: TrainConfig, model: TEPINN, val_recs, train_recs, runner=None) -> tuple[FusionConfig, dict]:
+def calibrate_with(cfg: TrainConfig, model: TEPINN, val_recs, train_recs) -> tuple[FusionConfig, dict]:
     """:func:`calibrate_fusion` with the recipe's ``[calibration]`` settings."""
     c = cfg.calibration
     return calibrate_fusion(model, val_recs, cfg.fusion, c.max_flights, fallback_records=train_recs,
                             bias_state_sweeps=c.bias_state_sweeps, feedback_windows=c.feedback_windows,
-                            feedback_deadzones_rad_s=tuple(math.radians(d) for d in c.feedback_deadzones_deg_s),
-                            runner=runner)  # fmt: skip
-
-
-def calibration_runner(ckpt_path: str | os.PathLike, model: TEPINN):
-    """What the calibration runs the network's windows in: the checkpoint ``ckpt_path`` (``model``'s
-    file) exported to onnxruntime, in memory — about 5× PyTorch per window on these CPUs
-    (``benchmarks/calibration_speed.py``), the same outputs to 1e-5 (the export's check) — or
-    ``model`` itself where the export cannot be made (no ``onnx`` package)."""
-    try:
-        from .export import export_bytes
-        from .runtime import OnnxRunner
-
-        return OnnxRunner(export_bytes(ckpt_path))
-    except ImportError:
-        return model
+                            feedback_deadzones_rad_s=tuple(math.radians(d) for d in c.feedback_deadzones_deg_s))  # fmt: skip
 
 
 def recalibrate(run_dir: str | os.PathLike, cfg: TrainConfig, data_dirs=(), config_base: Path = Path(".")) -> dict:
@@ -219,8 +200,7 @@ def recalibrate(run_dir: str | os.PathLike, cfg: TrainConfig, data_dirs=(), conf
     tr_idx, va_idx = split_by_flight(len(records), cfg.data.val_fraction, cfg.seed)
     val_recs = [records[i] for i in va_idx]
     best_model, _, ck = load_model(out / "best.pt")
-    fusion, fus_metrics = calibrate_with(cfg, best_model, val_recs, [records[i] for i in tr_idx],
-                                         calibration_runner(out / "best.pt", best_model))  # fmt: skip
+    fusion, fus_metrics = calibrate_with(cfg, best_model, val_recs, [records[i] for i in tr_idx])
     final_metrics = {**(ck.get("metrics") or {}), **fus_metrics}
     save_checkpoint(out / "model.pt", best_model, fusion, training=ck.get("training"), metrics=final_metrics,
                     loss_config=dataclasses.asdict(cfg.loss), tepinn_flight_version=__version__)  # fmt: skip

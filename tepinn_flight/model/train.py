@@ -35,7 +35,7 @@ from .. import __version__
 from ..config import to_dict
 from ..errors import ConfigError, TepinnError
 from ..record import atomic_write
-from .calibration import calibrate_fusion, calibrate_with, calibration_runner, recalibrate
+from .calibration import calibrate_fusion, calibrate_with, recalibrate
 from .checkpoint import CheckpointError, read_checkpoint, save_checkpoint
 from .dataset import TokenBank, build_bank, input_statistics, make_batch
 from .losses import TERMS, TEPINNLoss, tilt_angle
@@ -481,8 +481,7 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
             fusion, fus_metrics = fusion_config_from(init_ck.get("fusion_config")), {}
             anchor = anchor_config_from(init_ck)
         else:
-            runner = calibration_runner(out / "best.pt", best_model) if (out / "best.pt").exists() else None
-            fusion, fus_metrics = calibrate_with(cfg, best_model, val_recs, train_recs, runner)
+            fusion, fus_metrics = calibrate_with(cfg, best_model, val_recs, train_recs)
             anchor = cfg.anchor if cfg.anchor.enabled else None
         final_metrics = {**(ck.get("metrics") or {}), **fus_metrics}
         save_checkpoint(out / "model.pt", best_model, fusion, anchor, training=summary, metrics=final_metrics,
