@@ -65,7 +65,7 @@ def main() -> int:
     if args.max_flights:
         cfg = dataclasses.replace(cfg, calibration=dataclasses.replace(cfg.calibration, max_flights=args.max_flights))
     base = Path(args.config).parent
-    paths = resolve_records([str(Path(args.run) / "data")], base)
+    paths = resolve_records([str(Path(args.run).resolve() / "data")], base)
     for pat in cfg.data.optional_records:
         try:
             paths += [p for p in resolve_records([pat], base) if p not in paths]

@@ -10,7 +10,11 @@ everything is run once before timing (numba's compile or cache load is a start-u
 
 The machine may be shared: compare the ratios, not the absolute times.
 
-Usage: python benchmarks/estimate_speed.py [--record PATH] [--seconds 120] [--stream-seconds 30]
+With quiet blocks (the shipped estimator) a segment's first blocks run the network on every window;
+the streaming figures are printed for all pushes after the first window and for the steady state
+after those blocks. Offline, the record's first ``--seconds`` include that start.
+
+Usage: python benchmarks/estimate_speed.py [--record PATH] [--seconds 120] [--stream-seconds 30] [--tile-s 3600]
 """
 
 from __future__ import annotations
@@ -38,6 +42,23 @@ def head(rec: FlightRecord, seconds: float) -> FlightRecord:
     t = rec.t_s
     n = int(np.searchsorted(t, t[0] + seconds))
     return FlightRecord(rec.data.iloc[:n].reset_index(drop=True), dict(rec.meta))
+
+
+def tiled(rec: FlightRecord, seconds: float) -> FlightRecord:
+    """The record repeated end to end, one sample period apart, up to ``seconds``: a long flight at the
+    record's rate (speed only: the copies' joins are attitude jumps)."""
+    import pandas as pd
+
+    t = rec.t_s
+    span = float(t[-1] - t[0] + np.median(np.diff(t)))
+    parts = []
+    for k in range(int(np.ceil(seconds / span))):
+        df = rec.data.copy()
+        df["t_s"] = df["t_s"] + k * span
+        parts.append(df)
+    data = pd.concat(parts, ignore_index=True)
+    data = data[data["t_s"] < t[0] + seconds].reset_index(drop=True)
+    return FlightRecord(data, dict(rec.meta))
 
 
 def offline(runner, settings, rec) -> tuple[float, float]:
@@ -93,6 +114,8 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=120.0, help="offline: the record's first seconds")
     ap.add_argument("--stream-seconds", type=float, default=30.0, help="streaming: the record's first seconds")
     ap.add_argument("--runtime", choices=["torch", "onnx", "both"], default="both")
+    ap.add_argument("--tile-s", type=float, default=0.0,
+                    help="offline: the record repeated end to end up to this many seconds (3600: a one-hour log)")
     ap.add_argument("--model", default=None, help="checkpoint (default: shipped; onnx: its export beside it, if in sync)")
     args = ap.parse_args()
     import torch
@@ -109,14 +132,16 @@ def main() -> int:
         runners["torch"] = TorchRunner(model)
     if args.runtime in ("onnx", "both") and onnx_path is not None:
         runners["onnx"] = OnnxRunner(onnx_path)
-    off_rec, st_rec = head(rec, args.seconds), head(rec, args.stream_seconds)
+    off_rec = tiled(rec, args.tile_s) if args.tile_s > 0 else head(rec, args.seconds)
+    st_rec = head(rec, args.stream_seconds)
     rate = float(1.0 / np.median(np.diff(rec.t_s)))
     skip = int(rate * (model.config.window_tokens / model.config.token_rate_hz + 0.5))
     warm = head(rec, 6.0)
     for r in runners.values():  # compile / cache-load the compiled loops, warm the runtimes
         estimate_record(r, warm, settings)
         streaming(r, settings, warm, 1)
-    print(f"{Path(args.record).name}: {rate:.0f} Hz; offline {len(off_rec)} samples, streaming {len(st_rec)} "
+    tile = f" (the record repeated to {args.tile_s:.0f} s)" if args.tile_s > 0 else ""
+    print(f"{Path(args.record).name}: {rate:.0f} Hz; offline {len(off_rec)} samples{tile}, streaming {len(st_rec)} "
           f"(first {skip} left out)")  # fmt: skip
     torch.set_num_threads(2)
     v_off, v_cpu = vqf_offline(off_rec)
@@ -133,10 +158,22 @@ def main() -> int:
           f"{'/ VQF':>7s}")  # fmt: skip
     print(f"  VQF                {v.mean():12.2f} {np.median(v):10.2f} {np.percentile(v, 99):10.2f} {v_cpu:9.2f} "
           f"{1e6 / rate / v.mean():12.0f} {1.0:7.1f}")  # fmt: skip
+    # quiet blocks: a segment's first blocks run every window; after them, the steady state
+    from tepinn_flight.model.anchor import AnchorConfig
+
+    start = 0
+    if isinstance(settings, AnchorConfig) and settings.quiet_blocks:
+        fusion = settings.fusion_config
+        blocks_s = settings.quiet_after_blocks * fusion.bias_feedback_windows / model.config.token_rate_hz
+        start = int(rate * blocks_s)
     for name, r in runners.items():
-        c, c_cpu = streaming(r, settings, st_rec, skip)
-        print(f"  TE-PINN ({name:5s})    {c.mean():12.2f} {np.median(c):10.2f} {np.percentile(c, 99):10.2f} {c_cpu:9.2f} "
-              f"{1e6 / rate / c.mean():12.0f} {c.mean() / v.mean():7.1f}")  # fmt: skip
+        c_all, c_cpu = streaming(r, settings, st_rec, skip)
+        for label, c in (("", c_all), ("  steady", c_all[start:])) if start and len(c_all) > start else (("", c_all),):
+            print(f"  TE-PINN ({name:5s}){label:8s}{c.mean():12.2f} {np.median(c):10.2f} {np.percentile(c, 99):10.2f} "
+                  f"{c_cpu if not label else float('nan'):9.2f} {1e6 / rate / c.mean():12.0f} {c.mean() / v.mean():7.1f}")  # fmt: skip
+    if start:
+        print(f"steady: after the segment's first {settings.quiet_after_blocks} quiet blocks ({blocks_s:.0f} s after the first "
+              "window), where every window runs")  # fmt: skip
     print("/ VQF: TE-PINN's mean over VQF's (offline: VQF's samples/s over TE-PINN's); CPU µs: process CPU time per push")
     return 0
 

@@ -40,6 +40,7 @@ def main() -> int:
     from tepinn_flight.evaluation.estimators import FilterEstimator, TepinnEstimator
     from tepinn_flight.evaluation.filters import Ekf
     from tepinn_flight.evaluation.harness import scoring_mask
+    from tepinn_flight.record_gaps import bridge_gaps
     from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad, tilt_error_vector_rad, uncertainty_metrics
     from tepinn_flight.evaluation.names import display_name
     from tepinn_flight.evaluation.peers import VqfEstimator
@@ -81,8 +82,9 @@ def main() -> int:
     for kind, grp, name, rec, held in files:
         m = scoring_mask(rec, 5.0)
         r = {"kind": kind, "group": grp, "name": name, "held": held}
+        br = bridge_gaps(rec)  # short logging dropouts bridged for every estimator, as `evaluate` does
         for e in ests:
-            df = e.estimate(rec)
+            df = br.original(e.estimate(br.record))
             q = df[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
             mm = m & np.all(np.isfinite(q), 1)
             qe = error_quat_earth(q[mm], rec.q_ref_wxyz[mm])

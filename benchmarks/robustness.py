@@ -43,6 +43,7 @@ def main() -> int:
     from tepinn_flight.ingest import ingest_log
     from tepinn_flight.model.checkpoint import default_model_path
     from tepinn_flight.model.tokens import decimate
+    from tepinn_flight.record_gaps import bridge_gaps
     from tepinn_flight.record import ACC_COLS, GYR_COLS, FlightRecord, read_record
 
     torch.set_num_threads(1)
@@ -53,7 +54,8 @@ def main() -> int:
         return float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], rec.q_ref_wxyz[m])) ** 2))))
 
     def both(rec):
-        return rmse(rec, tp.estimate(rec)[Q].to_numpy()), rmse(rec, vq.estimate(rec)[Q].to_numpy())
+        br = bridge_gaps(rec)  # short logging dropouts bridged for both, as `evaluate` does
+        return tuple(rmse(rec, br.original(e.estimate(br.record))[Q].to_numpy()) for e in (tp, vq))
 
     split = tomllib.loads((REPO / "train/splits/real.toml").read_text())
     sh = Path(args.shared)

@@ -1,10 +1,12 @@
 """Scalar quaternion formulas compiled with numba, for the per-sample loops (the older fusion, the
-baseline filters): Hamilton product, normalisation, the exponential of a body rotation vector and
-the gravity direction in body axes. Plain floats in, tuples out; callable from Python too.
+baseline filters, the simulated multirotor's controller): Hamilton product, normalisation, the
+exponential of a body rotation vector, the gravity direction in body axes, Euler angles and
+rotation matrices to quaternions. Plain floats in, tuples out; callable from Python too.
 
-The gravity formula is :mod:`.quat`'s own ``_down_in_body`` compiled (one home for it); the others
-are the scalar forms of :func:`.quat.quat_mul`, :func:`.quat.quat_normalize` and
-:func:`.quat.quat_from_rotvec`'s closed form.
+The gravity and Euler formulas are :mod:`.quat`'s own ``_down_in_body`` and
+``_euler_zyx_half_angles`` compiled (one home for each); the others are the scalar forms of
+:func:`.quat.quat_mul`, :func:`.quat.quat_normalize`, :func:`.quat.quat_from_rotvec`'s closed form
+and :func:`.quat.rotmat_to_quat` (Shepperd's method).
 """
 
 from __future__ import annotations
@@ -13,9 +15,10 @@ import math
 
 from numba import njit
 
-from .quat import _down_in_body
+from .quat import _down_in_body, _euler_zyx_half_angles
 
 down_in_body = njit(cache=True)(_down_in_body)
+euler_zyx_half_angles = njit(cache=True)(_euler_zyx_half_angles)
 
 
 @njit(cache=True)
@@ -42,3 +45,22 @@ def exp_rotvec(rx, ry, rz):
         return (1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz)
     k = math.sin(0.5 * th) / th
     return (math.cos(0.5 * th), k * rx, k * ry, k * rz)
+
+
+@njit(cache=True)
+def rotmat_to_quat(m00, m01, m02, m10, m11, m12, m20, m21, m22):
+    """Rotation matrix (rows given as scalars) -> quaternion by Shepperd's method: the branch of the
+    positive trace when it is positive, else that of the largest diagonal term. The sign is
+    whatever the branch gives (not made canonical, unlike :func:`.quat.rotmat_to_quat`)."""
+    tr = m00 + m11 + m22
+    if tr > 0.0:
+        s = 2.0 * math.sqrt(tr + 1.0)
+        return (0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s)
+    if m00 > m11 and m00 > m22:
+        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
+        return ((m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s)
+    if m11 > m22:
+        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
+        return ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
+    s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
+    return ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)

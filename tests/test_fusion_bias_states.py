@@ -120,3 +120,4 @@ def test_calibration_picks_bias_states_for_a_gyro_bias_the_network_never_saw():
     lowpass_b = estimate_record(model, recs[0], FusionConfig.uncalibrated())
     lowpass_b = lowpass_b[["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]].to_numpy()[-100:]
     assert np.linalg.norm(b - b_true, axis=1).mean() < 0.5 * np.linalg.norm(lowpass_b - b_true, axis=1).mean()
+

@@ -360,15 +360,15 @@ def test_a_flight_that_would_crash_stops_cleanly(monkeypatch):
     """Motors cut after 1 s: the quad falls; the flight stops above the ground, finite, and says so."""
     from tepinn_flight.sim import multirotor
 
-    orig = multirotor.QuadController._mix
+    orig = multirotor.QuadController._write_motors
 
-    def dying_mix(self, thrust, tl, tm, tn):
+    def dying_motors(self, c0, c1, c2, c3):
         self._n = getattr(self, "_n", 0) + 1
-        if self._n > 400:  # 1 s of warm-up at 200 Hz, then 1 s of flight
-            thrust = tl = tm = tn = 0.0
-        orig(self, thrust, tl, tm, tn)
+        if self._n > 401:  # the set-up, 1 s of warm-up at 200 Hz, then 1 s of flight
+            c0 = c1 = c2 = c3 = 0.0
+        orig(self, c0, c1, c2, c3)
 
-    monkeypatch.setattr(multirotor.QuadController, "_mix", dying_mix)
+    monkeypatch.setattr(multirotor.QuadController, "_write_motors", dying_motors)
     tr = fly("F450", 60.0, RATE, seed=0, maneuvers=["hover"])
     assert tr.meta["termination"].startswith("stopped at t=")
     assert "ground" in tr.meta["termination"]

@@ -102,7 +102,7 @@ class AnchorConfig:
     # fusion's bias feedback (its bias_feedback_windows tokens) whose first window shows |v̂| below
     # quiet_speed_m_s and a fusion gyro bias below quiet_bias_deg_s on every axis runs only that window
     # (and those holding a saturated token); False: the network runs on every token
-    quiet_blocks: bool = False
+    quiet_blocks: bool = True
     quiet_speed_m_s: float = 15.0  # ... on the windows of the last quiet_memory_blocks blocks too
     quiet_memory_blocks: int = 10
     quiet_bias_deg_s: float = 1.5
@@ -134,8 +134,9 @@ class AnchorConfig:
     def block_busy(self, block: int, speed_m_s: float, fusion_bias_rad_s) -> bool:
         """Whether block ``block`` (0: a segment's first) runs every window: too early in the segment,
         or |v̂| (``speed_m_s``: the largest on the windows of the last ``quiet_memory_blocks`` blocks and
-        this block's first) or the older fusion's gyro bias then (body axes) say a gate may open in it."""
-        if block < self.quiet_after_blocks or speed_m_s >= self.quiet_speed_m_s:
+        this block's first) or the older fusion's gyro bias then (body axes) say a gate may open in it
+        (never below the flight-speed gate's own threshold)."""
+        if block < self.quiet_after_blocks or speed_m_s >= min(self.quiet_speed_m_s, self.speed_lo_m_s):
             return True
         return bool(np.max(np.abs(np.asarray(fusion_bias_rad_s, np.float64))) >= math.radians(self.quiet_bias_deg_s))
 

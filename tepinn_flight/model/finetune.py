@@ -78,7 +78,7 @@ def tune_anchor(model, anchor, records: list[FlightRecord], grid=TAU_ACC_GRID_S,
 
     # the windows as the estimator it writes makes them: the older fusion alongside as the pulls' target
     fusion = anchor.fusion_config or FusionConfig()
-    wins = [anchored_windows(model, r, fusion=fusion) for r in records]
+    wins = [anchored_windows(model, r, fusion=fusion, anchor=anchor) for r in records]  # tau does not change them
     table = {}
     for tau in grid:
         cand = dataclasses.replace(anchor, tau_acc_s=tau)

@@ -223,15 +223,15 @@ class StreamingEstimator:
         return self._run_model()
 
     def _run_model(self):
-        w = list(self.win)
-        t = np.array([x[0] for x in w])
         fb_every = self.fusion_cfg.bias_feedback_windows
         first = fb_every > 0 and self.n_windows % fb_every == 0
         if first:
             self.feedback = feedback_bias(self.fusion_cfg, self.fusion.bias)  # after the previous estimate
         self.n_windows += 1
-        if self.quiet and not first and not self.busy and not any(x[5] > 0 for x in w):
+        if self.quiet and not first and not self.busy and not any(x[5] > 0 for x in self.win):
             return None  # a quiet block: only its first window (and those holding a saturated token) run
+        w = list(self.win)
+        t = np.array([x[0] for x in w])
         fb = self.feedback if fb_every > 0 else (0.0, 0.0, 0.0)
         g = np.array([[x[1][i] - fb[i] for i in range(3)] for x in w])[None]
         a = np.array([x[2] for x in w])[None]

@@ -272,7 +272,7 @@ def _mp_context():
     methods = multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
     if ctx.get_start_method() == "forkserver":
-        ctx.set_forkserver_preload(["tepinn_flight.sim.campaign", "tepinn_flight.sim.simulate"])
+        ctx.set_forkserver_preload(["tepinn_flight.sim.preload"])
     return ctx
 
 

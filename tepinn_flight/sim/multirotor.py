@@ -1,10 +1,13 @@
 """Multirotor vehicles and our own cascaded flight controller (position -> attitude -> rate -> mixer).
 
-The controller runs in Python (at ``QuadVehicle.control_hz``, 200 Hz) and bypasses any controller inside the JSBSim
+The controller runs at ``QuadVehicle.control_hz`` (200 Hz), its laws compiled with numba in
+:mod:`tepinn_flight.sim.quad_control_law`, and bypasses any controller inside the JSBSim
 model (the F450's rate SCAS limits rates to 43 deg/s; we switch it off and drive the ESC inputs
 ``fcs/cmd*_ext_nd`` directly), so the vehicle can flip and roll at more than 600 deg/s.
 
-Per-step code is plain Python on floats (no numpy, no dict building): it is the speed-critical path.
+Per-step Python only moves floats between JSBSim, the maneuvers' references and the compiled laws:
+it is the speed-critical path.
+
 Frames: body FRD, earth NED; motor order FR, AL, FL, AR for both quads.
 """
 
@@ -17,9 +20,8 @@ import numpy as np
 
 from tepinn_flight.quat import gravity_body_f, quat_from_euler_zyx_f
 from tepinn_flight.sim.jsbsim_env import FT_TO_M, getter, setter
+from tepinn_flight.sim.quad_control_law import G0, attitude_step, pack_params, position_step, rate_step
 
-G0 = 9.80665
-_sin, _cos, _sqrt = math.sin, math.cos, math.sqrt
 
 MODE_POS = 0  # velocity/position reference -> thrust vector -> attitude
 MODE_ATT = 1  # attitude quaternion reference + collective thrust
@@ -141,22 +143,15 @@ class QuadController:
         g = lambda path: getter(fdm, path)  # noqa: E731
         self._phi, self._theta, self._psi = g("attitude/phi-rad"), g("attitude/theta-rad"), g("attitude/psi-rad")
         self._p, self._q, self._r = g("velocities/pi-rad_sec"), g("velocities/qi-rad_sec"), g("velocities/ri-rad_sec")
-        self._pd, self._qd, self._rd = (
-            g("accelerations/pidot-rad_sec2"),
-            g("accelerations/qidot-rad_sec2"),
-            g("accelerations/ridot-rad_sec2"),
-        )
+        self._pd, self._qd = g("accelerations/pidot-rad_sec2"), g("accelerations/qidot-rad_sec2")
         self._vn, self._ve, self._vd = (
             g("velocities/v-north-fps"), g("velocities/v-east-fps"), g("velocities/v-down-fps"))
         self._pn, self._pe = g("position/from-start-neu-n-ft"), g("position/from-start-neu-e-ft")
         self._h = g("position/h-agl-ft")
-        self._cmd = [setter(fdm, path) for path in p.cmd_paths]
-        self._minv = tuple(tuple(r) for r in _mixer_inverse(p))
-        self._tmax = p.thrust_max_n
-        self._inv_tmax = 1.0 / p.thrust_max_n
-        self._cmd_ex = 1.0 / p.cmd_exponent
-        self.vmax_h, self.vmax_up, self.vmax_down = 10.0, 6.0, 4.0
-        self._ixx, self._iyy, self._izz = p.inertia_kg_m2
+        self._cmd = tuple(setter(fdm, path) for path in p.cmd_paths)
+        self.vmax_h, self.vmax_up, self.vmax_down = 10.0, 6.0, 4.0  # m/s, fixed (packed below)
+        self._par = pack_params(p, dt_s, self.vmax_h, self.vmax_up, self.vmax_down, _mixer_inverse(p))
+        self._st = np.zeros(4)  # rate-loop integrators (roll, pitch, yaw) and the filtered yaw torque
         self.hover_thrust_n = p.mass_kg * G0
         # reference set by maneuvers
         self.mode = MODE_POS
@@ -170,10 +165,6 @@ class QuadController:
         self.thrust_n = self.hover_thrust_n
         self.max_tilt = p.max_tilt_rad
         self.max_acc_h = G0 * math.tan(p.max_tilt_rad)
-        # integrators
-        self._ip = self._iq = self._ir = 0.0
-        self._tn_f = 0.0
-        self._yaw_a = dt_s / (p.yaw_lpf_s + dt_s)
         # state exposed to maneuvers (attitude and rates every update, position in position mode)
         self.q = (1.0, 0.0, 0.0, 0.0)
         self.w = (0.0, 0.0, 0.0)
@@ -185,8 +176,7 @@ class QuadController:
     def setup(self, fdm) -> None:
         for path, value in self.p.setup:
             fdm[path] = value
-        for c in self._cmd:
-            c(0.0)
+        self._write_motors(0.0, 0.0, 0.0, 0.0)
         self.start_agl_m = self._h() * FT_TO_M
         self.yaw_ref = self._psi()
         self.hold_here()
@@ -223,51 +213,15 @@ class QuadController:
         return (math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw))
 
     # -------------------------------------------------------------- control
-    def _attitude_from_thrust(self, tn, te, td, yaw):
-        """Body->NED quaternion whose -z axis is along the thrust vector (tn, te, td), heading yaw."""
-        nrm = math.sqrt(tn * tn + te * te + td * td)
-        zx, zy, zz = -tn / nrm, -te / nrm, -td / nrm
-        cx, cy = math.cos(yaw), math.sin(yaw)
-        # y_b = z_b x x_c
-        yx, yy, yz = zy * 0.0 - zz * cy, zz * cx - zx * 0.0, zx * cy - zy * cx
-        yn = math.sqrt(yx * yx + yy * yy + yz * yz)
-        yx, yy, yz = yx / yn, yy / yn, yz / yn
-        # x_b = y_b x z_b
-        xx, xy, xz = yy * zz - yz * zy, yz * zx - yx * zz, yx * zy - yy * zx
-        # rotation matrix columns x_b, y_b, z_b -> quaternion (Shepperd)
-        m00, m01, m02 = xx, yx, zx
-        m10, m11, m12 = xy, yy, zy
-        m20, m21, m22 = xz, yz, zz
-        tr = m00 + m11 + m22
-        if tr > 0.0:
-            s = 2.0 * math.sqrt(tr + 1.0)
-            return (0.25 * s, (m21 - m12) / s, (m02 - m20) / s, (m10 - m01) / s)
-        if m00 > m11 and m00 > m22:
-            s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
-            return ((m21 - m12) / s, 0.25 * s, (m01 + m10) / s, (m02 + m20) / s)
-        if m11 > m22:
-            s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
-            return ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
-        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
-        return ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)
-
     def step(self) -> None:
-        """One control update at the simulation rate: read state, compute, write motor commands.
+        """One control update: read the state, run the compiled laws for the mode, write the motors.
 
-        Written for speed (about 8 us): locals only, no containers built, no builtin min/max.
+        The laws are :mod:`tepinn_flight.sim.quad_control_law`; this method only moves floats
+        between JSBSim, the references the maneuvers wrote and the compiled code (about 2 us).
         """
-        p = self.p
         phi, theta, psi = self._phi(), self._theta(), self._psi()
-        cr, sr = _cos(0.5 * phi), _sin(0.5 * phi)
-        cp, sp = _cos(0.5 * theta), _sin(0.5 * theta)
-        cy, sy = _cos(0.5 * psi), _sin(0.5 * psi)
-        qw = cr * cp * cy + sr * sp * sy
-        qx = sr * cp * cy - cr * sp * sy
-        qy = cr * sp * cy + sr * cp * sy
-        qz = cr * cp * sy - sr * sp * cy
-        self.q = (qw, qx, qy, qz)
         wp, wq, wr = self._p(), self._q(), self._r()
-        self.w = (wp, wq, wr)
+        pd, qd = self._pd(), self._qd()
         mode = self.mode
         if mode == MODE_POS:
             h = self._h() * FT_TO_M
@@ -275,108 +229,28 @@ class QuadController:
             pos = self.pos = [self._pn() * FT_TO_M, self._pe() * FT_TO_M, self.start_agl_m - h]
             vel = self.vel = [self._vn() * FT_TO_M, self._ve() * FT_TO_M, self._vd() * FT_TO_M]
             pr, vf, af = self.pos_ref, self.vel_ff, self.acc_ff
-            kp, kv, vmax = p.pos_kp, p.vel_kp, self.vmax_h
-            # velocity command: feed-forward + position error, limited
-            cn = vf[0] + kp * (pr[0] - pos[0])
-            ce = vf[1] + kp * (pr[1] - pos[1])
-            cd = vf[2] + kp * (pr[2] - pos[2])
-            ch = _sqrt(cn * cn + ce * ce)
-            if ch > vmax:
-                cn, ce = cn * vmax / ch, ce * vmax / ch
-            cd = -self.vmax_up if cd < -self.vmax_up else (self.vmax_down if cd > self.vmax_down else cd)
-            an = af[0] + kv * (cn - vel[0])
-            ae = af[1] + kv * (ce - vel[1])
-            ad = af[2] + kv * (cd - vel[2])
-            ah = _sqrt(an * an + ae * ae)
-            amax = self.max_acc_h
-            if ah > amax:
-                an, ae = an * amax / ah, ae * amax / ah
-            ad = -1.2 * G0 if ad < -1.2 * G0 else (0.7 * G0 if ad > 0.7 * G0 else ad)
-            m = p.mass_kg
-            tn, te, td = m * an, m * ae, m * (ad - G0)
-            rw, rx, ry, rz = self._attitude_from_thrust(tn, te, td, self.yaw_ref)
-            # collective: thrust vector projected on the current body -z axis
-            thrust = -(tn * 2.0 * (qx * qz + qw * qy) + te * 2.0 * (qy * qz - qw * qx)
-                       + td * (1.0 - 2.0 * (qx * qx + qy * qy)))
-            tmin = 0.15 * self.hover_thrust_n
-            if thrust < tmin:
-                thrust = tmin
-            self.yaw_ref += self.yaw_rate_ff * self.dt
-            use_att = True
+            qw, qx, qy, qz, self.yaw_ref, c0, c1, c2, c3 = position_step(self._par, self._st, (
+                phi, theta, psi, wp, wq, wr, pd, qd, pos[0], pos[1], pos[2], vel[0], vel[1], vel[2],
+                pr[0], pr[1], pr[2], vf[0], vf[1], vf[2], af[0], af[1], af[2], self.yaw_ref, self.yaw_rate_ff))
         elif mode == MODE_ATT:
             rw, rx, ry, rz = self.q_ref
-            thrust = self.thrust_n
-            use_att = True
+            qw, qx, qy, qz, c0, c1, c2, c3 = attitude_step(self._par, self._st, (
+                phi, theta, psi, wp, wq, wr, pd, qd, rw, rx, ry, rz, self.yaw_rate_ff, self.thrust_n))
         else:
-            thrust = self.thrust_n
-            use_att = False
-        if use_att:
-            # q_e = conj(q) * q_ref -> rate reference ~ gain * rotation vector of the error
-            ew = qw * rw + qx * rx + qy * ry + qz * rz
-            sg = 2.0 if ew >= 0.0 else -2.0
-            lim, limz = p.max_rate_rad_s, p.max_yaw_rate_rad_s
-            ka = p.att_kp * sg
-            pr_ = ka * (qw * rx - qx * rw - qy * rz + qz * ry)
-            qr_ = ka * (qw * ry + qx * rz - qy * rw - qz * rx)
-            rr_ = p.att_kp_yaw * sg * (qw * rz - qx * ry + qy * rx - qz * rw) + self.yaw_rate_ff
-            pr_ = -lim if pr_ < -lim else (lim if pr_ > lim else pr_)
-            qr_ = -lim if qr_ < -lim else (lim if qr_ > lim else qr_)
-            rr_ = -limz if rr_ < -limz else (limz if rr_ > limz else rr_)
-        else:
-            pr_, qr_, rr_ = self.rate_ref
-        # rate loop (PI + damping on measured angular acceleration), torques in N*m
-        kp, kd, ki, dt = p.rate_kp, p.rate_kd, p.rate_ki, self.dt
-        e_p, e_q, e_r = pr_ - wp, qr_ - wq, rr_ - wr
-        ip, iq, ir = self._ip + e_p * dt, self._iq + e_q * dt, self._ir + e_r * dt
-        self._ip = -2.0 if ip < -2.0 else (2.0 if ip > 2.0 else ip)
-        self._iq = -2.0 if iq < -2.0 else (2.0 if iq > 2.0 else iq)
-        self._ir = -2.0 if ir < -2.0 else (2.0 if ir > 2.0 else ir)
-        ixx, iyy, izz = self._ixx, self._iyy, self._izz
-        tl = ixx * (kp * e_p + ki * self._ip - kd * kp * self._pd()) + (izz - iyy) * wq * wr
-        tm = iyy * (kp * e_q + ki * self._iq - kd * kp * self._qd()) + (ixx - izz) * wp * wr
-        tnf = self._tn_f + self._yaw_a * (izz * (kp * e_r + ki * self._ir) - self._tn_f)
-        self._tn_f = tnf
-        self._mix(thrust, tl, tm, tnf)
+            rp, rq, rr = self.rate_ref
+            qw, qx, qy, qz, c0, c1, c2, c3 = rate_step(self._par, self._st, (
+                phi, theta, psi, wp, wq, wr, pd, qd, rp, rq, rr, self.thrust_n))
+        self.q = (qw, qx, qy, qz)
+        self.w = (wp, wq, wr)
+        self._write_motors(c0, c1, c2, c3)
 
-    def _mix(self, thrust: float, tl: float, tm: float, tn: float) -> None:
-        """Motor thrusts from collective and torques; roll/pitch first, yaw within the headroom."""
-        (a0, b0, c0, d0), (a1, b1, c1, d1), (a2, b2, c2, d2), (a3, b3, c3, d3) = self._minv
-        tmax = self._tmax
-        f0 = a0 * thrust + b0 * tl + c0 * tm
-        f1 = a1 * thrust + b1 * tl + c1 * tm
-        f2 = a2 * thrust + b2 * tl + c2 * tm
-        f3 = a3 * thrust + b3 * tl + c3 * tm
-        hi = f0 if f0 > f1 else f1
-        hi = hi if hi > f2 else f2
-        hi = hi if hi > f3 else f3
-        lo = f0 if f0 < f1 else f1
-        lo = lo if lo < f2 else f2
-        lo = lo if lo < f3 else f3
-        if hi - lo > tmax:  # cannot honour roll/pitch fully: scale the differential part
-            mean = 0.25 * (f0 + f1 + f2 + f3)
-            k = tmax / (hi - lo)
-            f0, f1 = mean + (f0 - mean) * k, mean + (f1 - mean) * k
-            f2, f3 = mean + (f2 - mean) * k, mean + (f3 - mean) * k
-            hi, lo = mean + (hi - mean) * k, mean + (lo - mean) * k
-        if hi > tmax:
-            s = hi - tmax
-            f0, f1, f2, f3, hi, lo = f0 - s, f1 - s, f2 - s, f3 - s, tmax, lo - s
-        elif lo < 0.0:
-            f0, f1, f2, f3, hi, lo = f0 - lo, f1 - lo, f2 - lo, f3 - lo, hi - lo, 0.0
-        # yaw: motor i gets d_i * tn; scale so that no motor leaves [0, tmax]
-        y0, y1, y2, y3 = d0 * tn, d1 * tn, d2 * tn, d3 * tn
-        ymax = y0 if y0 > -y0 else -y0  # symmetric quad: |d_i| are equal
-        if ymax > 0.0:
-            room = tmax - hi if tmax - hi < lo else lo
-            if ymax > room:
-                k = room / ymax if room > 0.0 else 0.0
-                y0, y1, y2, y3 = y0 * k, y1 * k, y2 * k, y3 * k
-            f0, f1, f2, f3 = f0 + y0, f1 + y1, f2 + y2, f3 + y3
-        ex, c = self._cmd_ex, self._cmd
-        it = self._inv_tmax
-        for i, v in ((0, f0), (1, f1), (2, f2), (3, f3)):
-            v *= it
-            c[i](0.0 if v <= 0.0 else (1.0 if v >= 1.0 else (v if ex == 1.0 else v**ex)))
+    def _write_motors(self, c0: float, c1: float, c2: float, c3: float) -> None:
+        """Normalised commands of motors FR, AL, FL, AR to JSBSim."""
+        s0, s1, s2, s3 = self._cmd
+        s0(c0)
+        s1(c1)
+        s2(c2)
+        s3(c3)
 
 
 class QuadVehicle:
