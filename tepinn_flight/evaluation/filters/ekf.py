@@ -133,7 +133,9 @@ def _loop(gyr, acc, dt, q, b, init_att, init_bias, gyro_noise, bias_walk, lim, l
     for k in range(3):
         P[k, k] = init_att**2
         P[3 + k, 3 + k] = init_bias**2
-    F = np.eye(6)
+    F = np.zeros((6, 6))  # (np.eye would compile one more numpy function)
+    for k in range(6):
+        F[k, k] = 1.0
     T = np.empty((6, 6))  # work buffers, reused for every sample: no allocation in the loop
     pb = np.empty((6, 3))
     S = np.empty((3, 3))
