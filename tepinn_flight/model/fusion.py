@@ -214,12 +214,14 @@ def zero_yaw_np(q):
     return (cr * cp, sr * cp, cr * sp, -sr * sp)
 
 
-@njit(cache=True)
+# the state accessors are inlined (numba IR): called with constant offsets and with arrays or
+# tuples, they would otherwise be compiled once per combination (6 compiles, ≈ 0.4 s cold)
+@njit(cache=True, inline="always")
 def _q(s, i):
     return (s[i], s[i + 1], s[i + 2], s[i + 3])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _set_q(s, i, q):
     s[i], s[i + 1], s[i + 2], s[i + 3] = q[0], q[1], q[2], q[3]
 
