@@ -39,6 +39,18 @@ def mul_bt(A, B, C):
 
 
 @njit(cache=True)
+def sub_at_bt(P, A, B):
+    """P ← P − Aᵀ Bᵀ in place (A k×n, B m×k, P n×m; P must not share memory with A or B)."""
+    n, k, m = A.shape[1], A.shape[0], B.shape[0]
+    for i in range(n):
+        for j in range(m):
+            acc = 0.0
+            for l in range(k):
+                acc += A[l, i] * B[j, l]
+            P[i, j] = P[i, j] - acc
+
+
+@njit(cache=True)
 def symmetrize(P):
     """P ← ½ (P + Pᵀ), in place."""
     n = P.shape[0]

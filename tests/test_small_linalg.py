@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tepinn_flight.small_linalg import mul, mul_bt, solve_in_place, symmetrize
+from tepinn_flight.small_linalg import mul, mul_bt, solve_in_place, sub_at_bt, symmetrize
 
 SIZES = st.sampled_from([(2, 6, 6), (3, 6, 6), (6, 6, 6), (6, 3, 3), (3, 3, 3), (6, 6, 3)])
 
@@ -24,6 +24,10 @@ def test_products_equal_numpy(nkm, seed):
     np.testing.assert_allclose(C, A @ B, rtol=0, atol=1e-12)
     mul_bt(A, Bt, C)
     np.testing.assert_allclose(C, A @ Bt.T, rtol=0, atol=1e-12)
+    P0, K, H = rng.normal(size=(k, m)), rng.normal(size=(n, k)), rng.normal(size=(m, n))
+    P = P0.copy()
+    sub_at_bt(P, K, H)  # P (k×m) − Kᵀ Hᵀ
+    np.testing.assert_allclose(P, P0 - K.T @ H.T, rtol=0, atol=1e-12)
 
 
 @settings(max_examples=60, deadline=None)

@@ -43,7 +43,7 @@ from numba import njit
 from ...conventions import GRAVITY_M_S2
 from ...errors import ConfigError
 from ...quat_scalar import down_in_body, qmul
-from ...small_linalg import mul, mul_bt, solve_in_place, symmetrize
+from ...small_linalg import mul, mul_bt, solve_in_place, sub_at_bt, symmetrize
 from .common import as_tuple4, check_inputs, initial_attitude
 
 
@@ -99,17 +99,6 @@ def _rotate_body(w, x, y, z, rx, ry, rz):
     else:
         dw, dx, dy, dz = 1.0, 0.5 * rx, 0.5 * ry, 0.5 * rz
     return qmul(w, x, y, z, dw, dx, dy, dz), (dw, dx, dy, dz)
-
-
-@njit(cache=True)
-def _subtract_k_pt(P, X, pb):
-    """P ← P − K pbᵀ in place, with K = Xᵀ (6×3) and pb (6×3)."""
-    for i in range(6):
-        for j in range(6):
-            acc = 0.0
-            for l in range(3):
-                acc += X[l, i] * pb[j, l]
-            P[i, j] = P[i, j] - acc
 
 
 def _run(gyr, acc, dt, p: EkfParams, q, b):
@@ -194,7 +183,7 @@ def _loop(gyr, acc, dt, q, b, init_att, init_bias, gyro_noise, bias_walk, lim, l
                     S[k, k] += rest_var
                 solve_in_place(S, X)  # X = S⁻ᵀ pbᵀ = Kᵀ, K = pb S⁻¹
                 res0, res1, res2 = lg0 - bx, lg1 - by, lg2 - bz
-                _subtract_k_pt(P, X, pb)  # P − K pbᵀ
+                sub_at_bt(P, X, pb)  # P − K pbᵀ, K = Xᵀ
                 symmetrize(P)
                 b0 = X[0, 3] * res0 + X[1, 3] * res1 + X[2, 3] * res2
                 b1 = X[0, 4] * res0 + X[1, 4] * res1 + X[2, 4] * res2
@@ -257,7 +246,7 @@ def _loop(gyr, acc, dt, q, b, init_att, init_bias, gyro_noise, bias_walk, lim, l
             b0 = X[0, 3] * res0 + X[1, 3] * res1 + X[2, 3] * res2
             b1 = X[0, 4] * res0 + X[1, 4] * res1 + X[2, 4] * res2
             b2 = X[0, 5] * res0 + X[1, 5] * res1 + X[2, 5] * res2
-            _subtract_k_pt(P, X, pb)  # P − K pbᵀ
+            sub_at_bt(P, X, pb)  # P − K pbᵀ, K = Xᵀ
             symmetrize(P)
             # the accelerometer cannot observe heading: drop the correction's earth-vertical part
             # (its component along the body-frame down vector v), so heading comes from the gyro only
