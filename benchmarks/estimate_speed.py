@@ -14,7 +14,10 @@ With quiet blocks (the shipped estimator) a segment's first blocks run the netwo
 the streaming figures are printed for all pushes after the first window and for the steady state
 after those blocks. Offline, the record's first ``--seconds`` include that start.
 
-Usage: python benchmarks/estimate_speed.py [--record PATH] [--seconds 120] [--stream-seconds 30] [--tile-s 3600]
+By default the offline figure is for a one-hour log (the record repeated end to end, ``--tile-s
+3600``) and the streaming one for the record's first 120 s.
+
+Usage: python benchmarks/estimate_speed.py [--record PATH] [--tile-s 3600 | --tile-s 0 --seconds 120] [--stream-seconds 120]
 """
 
 from __future__ import annotations
@@ -112,10 +115,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--record", default=str(DEFAULT_RECORD), help="a record or log (default: BROAD trial 06)")
     ap.add_argument("--seconds", type=float, default=120.0, help="offline: the record's first seconds")
-    ap.add_argument("--stream-seconds", type=float, default=30.0, help="streaming: the record's first seconds")
+    ap.add_argument("--stream-seconds", type=float, default=120.0, help="streaming: the record's first seconds")
     ap.add_argument("--runtime", choices=["torch", "onnx", "both"], default="both")
-    ap.add_argument("--tile-s", type=float, default=0.0,
-                    help="offline: the record repeated end to end up to this many seconds (3600: a one-hour log)")
+    ap.add_argument("--tile-s", type=float, default=3600.0,
+                    help="offline: the record repeated end to end up to this many seconds, the issue's one-hour log "
+                         "(0: the record's first --seconds)")
     ap.add_argument("--model", default=None, help="checkpoint (default: shipped; onnx: its export beside it, if in sync)")
     args = ap.parse_args()
     import torch
