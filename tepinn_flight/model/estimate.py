@@ -193,19 +193,18 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
         step = fusion.bias_feedback_windows or max(len(e_seg), 1)
         if quiet:  # the blocks' first windows with no feedback, batched (used where the feedback is zero)
             first = network_outputs(model, tok, e_seg[::step], None, batch_size)
-            v_blocks = deque(maxlen=max(anchor.quiet_memory_blocks, 1))  # the largest |v̂| of recent blocks
+            v_blocks = deque(maxlen=anchor.quiet_memory_blocks)  # the largest |v̂| of each recent block
         for bi, s0 in enumerate(range(0, len(e_seg), step)):
             sel = np.arange(s0, min(s0 + step, len(e_seg)))
             off = feedback_bias(fusion, run.fusion.bias) if fusion.bias_feedback_windows else None
             if quiet:
                 if off is not None and any(off):
-                    o = network_outputs(model, tok, e_seg[s0 : s0 + 1], np.tile(off, (1, 1)), batch_size)
+                    o = network_outputs(model, tok, e_seg[s0 : s0 + 1], np.atleast_2d(off), batch_size)
                 else:
                     o = {k: v[bi : bi + 1] for k, v in first.items()}
                 rest = sel[1:]
-                speed = float(np.linalg.norm(o["vel"][0]))
-                recent = max(v_blocks) if v_blocks and anchor.quiet_memory_blocks else 0.0
-                if not anchor.block_busy(bi, max(recent, speed), run.fusion.bias):
+                speed = max(float(np.linalg.norm(o["vel"][0])), max(v_blocks, default=0.0))
+                if not anchor.block_busy(bi, speed, run.fusion.bias):
                     rest = rest[clip_win[pos[rest]]]
                 if len(rest):
                     fb = None if off is None else np.tile(off, (len(rest), 1))

@@ -100,7 +100,7 @@ class StreamingEstimator:
         self.feedback = (0.0, 0.0, 0.0)  # the fusion's bias the current block of windows sees
         self.busy = True  # the current block runs every window (quiet blocks: AnchorConfig.block_busy)
         self.block_speed = 0.0  # the largest |v̂| on the current block's windows ...
-        self.speeds = deque(maxlen=max(self.anchor_cfg.quiet_memory_blocks, 1)) if self.anchor_cfg else None  # ... of the last blocks
+        self.speeds = deque(maxlen=self.anchor_cfg.quiet_memory_blocks) if self.anchor_cfg else None  # ... of the last blocks
         self.quiet = self.anchor_cfg.quiet_in(self.fusion_cfg) if self.anchor_cfg is not None else 0
 
     def _new_segment(self, t: float) -> bool:
@@ -249,8 +249,7 @@ class StreamingEstimator:
                 block = (self.n_windows - 1) // fb_every
                 if block > 0:
                     self.speeds.append(self.block_speed)
-                recent = max(self.speeds) if self.speeds and self.anchor_cfg.quiet_memory_blocks else 0.0
-                self.busy = self.anchor_cfg.block_busy(block, max(recent, speed), self.fusion.bias)
+                self.busy = self.anchor_cfg.block_busy(block, max(speed, max(self.speeds, default=0.0)), self.fusion.bias)
                 self.block_speed = speed
             else:
                 self.block_speed = max(self.block_speed, speed)
