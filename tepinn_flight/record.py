@@ -16,8 +16,10 @@ Columns (exact names; frames and units in :mod:`tepinn_flight.conventions`):
 ``clipped``                           bool        a sensor axis at its range limit
 ====================================  ==========  ===============================================
 
-Optional columns: ``valid`` (bool, BROAD's movement mask), simulated truths ``gyr_bias_{x,y,z}_rad_s``
-and ``acc_bias_{x,y,z}_m_s2``.
+Optional columns: ``valid`` (bool, BROAD's movement mask), ``gyr_clipped`` (bool, the samples of
+``clipped`` where a gyro axis is at its range or unhealthy — where the reader can tell the sensors
+apart; absent: every ``clipped`` sample counts), simulated truths ``gyr_bias_{x,y,z}_rad_s`` and
+``acc_bias_{x,y,z}_m_s2``.
 
 Key-value metadata: every key of :attr:`FlightRecord.meta` is stored as its own Parquet key with a
 JSON value; ``format_version`` is mandatory and checked on read.
@@ -49,8 +51,8 @@ GYR_BIAS_COLS = ["gyr_bias_x_rad_s", "gyr_bias_y_rad_s", "gyr_bias_z_rad_s"]
 ACC_BIAS_COLS = ["acc_bias_x_m_s2", "acc_bias_y_m_s2", "acc_bias_z_m_s2"]
 
 REQUIRED_COLUMNS = ["t_s", "segment", *GYR_COLS, *ACC_COLS, *MAG_COLS, *QREF_COLS, "clipped"]
-OPTIONAL_COLUMNS = ["valid", *GYR_BIAS_COLS, *ACC_BIAS_COLS]
-_DTYPES = {"t_s": "float64", "segment": "int32", "clipped": "bool", "valid": "bool"}
+OPTIONAL_COLUMNS = ["valid", "gyr_clipped", *GYR_BIAS_COLS, *ACC_BIAS_COLS]
+_DTYPES = {"t_s": "float64", "segment": "int32", "clipped": "bool", "valid": "bool", "gyr_clipped": "bool"}
 
 SOURCE_KINDS = ("tlog", "dataflash", "ulog", "broad", "jsbsim", "synthetic")
 
@@ -111,6 +113,14 @@ class FlightRecord:
         return self.data["clipped"].to_numpy(bool)
 
     @property
+    def gyr_clipped(self) -> np.ndarray:
+        """Samples with a gyro axis at its range limit (or unhealthy): the ``gyr_clipped`` column where
+        the reader could tell the gyro from the accelerometer, else every ``clipped`` sample."""
+        if "gyr_clipped" in self.data:
+            return self.data["gyr_clipped"].to_numpy(bool)
+        return self.clipped
+
+    @property
     def valid(self) -> np.ndarray:
         """BROAD's movement mask where present, else all True."""
         if "valid" in self.data:
@@ -140,6 +150,8 @@ class FlightRecord:
                 raise RecordFormatError("segment numbers decrease")
             if np.any(np.diff(t)[same] <= 0):
                 raise RecordFormatError("t_s does not strictly increase inside a segment")
+        if "gyr_clipped" in self.data and np.any(self.gyr_clipped & ~self.clipped):
+            raise RecordFormatError("gyr_clipped marks samples that clipped does not")
 
 
 def make_frame(
@@ -154,7 +166,8 @@ def make_frame(
 ) -> pd.DataFrame:
     """Build the column table in the canonical order from arrays (missing parts become NaN/False).
 
-    ``optional`` takes ``valid`` (N,), ``gyr_bias_rad_s`` (N, 3), ``acc_bias_m_s2`` (N, 3).
+    ``optional`` takes ``valid`` (N,), ``gyr_clipped`` (N,; a subset of ``clipped``), ``gyr_bias_rad_s``
+    (N, 3), ``acc_bias_m_s2`` (N, 3).
     """
     n = len(t_s)
     nan3 = np.full((n, 3), np.nan)
@@ -172,9 +185,12 @@ def make_frame(
         for i, name in enumerate(names):
             cols[name] = arr[:, i]
     cols["clipped"] = np.zeros(n, bool) if clipped is None else np.asarray(clipped, bool)
-    if optional.get("valid") is not None:
-        cols["valid"] = np.asarray(optional.pop("valid"), bool)
-    optional.pop("valid", None)
+    for key in ("valid", "gyr_clipped"):
+        if optional.get(key) is not None:
+            cols[key] = np.asarray(optional[key], bool)
+        optional.pop(key, None)
+    if "gyr_clipped" in cols:
+        cols["clipped"] = cols["clipped"] | cols["gyr_clipped"]
     for key, names in (("gyr_bias_rad_s", GYR_BIAS_COLS), ("acc_bias_m_s2", ACC_BIAS_COLS)):
         arr = optional.pop(key, None)
         if arr is not None:

@@ -7,7 +7,7 @@ in PX4 and ArduPilot logs — are **bridged** by every estimator instead of rest
 whose gyro, accelerometer and magnetometer are linearly interpolated between the samples on either
 side, so filters keep propagating through it (a restart loses the attitude, re-converges and costs
 every estimator its warm-up). The filled samples carry no reference (never scored), ``clipped``
-False and ``valid`` False. Gaps longer than :data:`MAX_BRIDGED_GAP_S`, reboots and time reversals
+(and ``gyr_clipped``) False and ``valid`` False. Gaps longer than :data:`MAX_BRIDGED_GAP_S`, reboots and time reversals
 still restart.
 
 The live estimator (:mod:`tepinn_flight.model.streaming`) bridges the same gaps with the same
@@ -114,8 +114,9 @@ def bridge_gaps(rec: FlightRecord, max_gap_s: float = MAX_BRIDGED_GAP_S) -> Brid
         for c in QREF_COLS:
             fill[c] = np.nan
         fill["clipped"] = False
-        if "valid" in data.columns:
-            fill["valid"] = False
+        for c in ("valid", "gyr_clipped"):
+            if c in data.columns:
+                fill[c] = False
         pieces.append(fill[[c for c in data.columns]])
         fill_at.append((b, len(tf)))
         prev = b

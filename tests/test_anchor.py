@@ -133,7 +133,7 @@ def test_live_equals_offline_with_the_gates_on():
     live = StreamingEstimator(model, cfg)
     q_live = np.full((len(rec), 4), np.nan)
     for i in range(len(rec)):
-        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]))
+        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
         if e.q_nb_wxyz is not None:
             q_live[i] = e.q_nb_wxyz
     have = np.all(np.isfinite(q_live), 1)
@@ -287,7 +287,7 @@ def test_live_equals_offline_with_quiet_blocks_busy_blocks_and_a_saturated_stret
     q_live = np.full((len(rec), 4), np.nan)
     ran = []
     for i in range(len(rec)):
-        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]))
+        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
         if e.model_ran:
             ran.append(i - 1)  # a window is made when the next token's first sample arrives
         if e.q_nb_wxyz is not None:
@@ -327,3 +327,32 @@ def test_quiet_blocks_change_nothing_where_no_gate_opens_on_a_real_log():
     np.testing.assert_allclose(quiet[cols].to_numpy(), full[cols].to_numpy(), rtol=0, atol=1e-12)
     plain = estimate_anchored(model, rec, full_cfg.learned_off)
     np.testing.assert_allclose(quiet[Q].to_numpy(), plain[Q].to_numpy(), rtol=0, atol=1e-12)
+
+
+def test_only_the_gyro_clipping_opens_the_saturation_gate_on_a_real_log():
+    """An accelerometer at its range (a DataFlash VIBE clip counter, PX4's accelerometer_clipping)
+    leaves the integrated rate right: on a real ArduCopter log with 2 s marked clipped by the
+    accelerometer alone, the estimate stays VQF's; marked as the gyro's, the gate opens and pulls."""
+    from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.record import FlightRecord
+
+    from tests.conftest import real_log
+
+    rec = ingest_log(real_log("erle_pxf_copter_15-12-2014_16.BIN"))
+    model, _, _ = load_model(default_model_path())
+    cfg = _shipped()
+    stretch = (rec.t_s >= 60.0) & (rec.t_s < 62.0)
+
+    def marked(gyro: bool):
+        data = rec.data.copy()
+        data["clipped"] = stretch
+        data["gyr_clipped"] = stretch if gyro else np.zeros(len(rec), bool)
+        return FlightRecord(data, dict(rec.meta))
+
+    plain = estimate_anchored(model, rec, cfg.learned_off)[Q].to_numpy()
+    acc_only = estimate_anchored(model, marked(False), cfg)[Q].to_numpy()
+    np.testing.assert_allclose(acc_only, plain, rtol=0, atol=1e-12)
+    gyro = estimate_anchored(model, marked(True), cfg)[Q].to_numpy()
+    ang = np.degrees(2 * np.arccos(np.clip(np.abs(np.sum(gyro * plain, 1)), 0, 1)))
+    np.testing.assert_allclose(gyro[rec.t_s < 60.0], plain[rec.t_s < 60.0], rtol=0, atol=1e-12)  # causal
+    assert ang[(rec.t_s >= 60.0) & (rec.t_s < 70.0)].max() > 0.05  # the gate pulled toward the network

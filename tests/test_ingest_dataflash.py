@@ -298,9 +298,10 @@ def _synthetic_log(path, n=400, reboot_at=250, truncate=0):
     ]
     out.append(_msg(15, "QZ", 1, b"ArduCopter V4.3.0 (abcdef01)"))
     # clipped: IMU0 k=100 saturates; IMU1 k=50 unhealthy (GH=0); the VIBE clip counter of IMU0
-    # rises at the VIBE row written after IMU k=69, so IMU0 rows 60..69 (after the previous VIBE row)
+    # rises at the VIBE row written after IMU k=69, so IMU0 rows 60..69 (after the previous VIBE row);
+    # the gyro's part (gyr_clipped): the saturated and the unhealthy gyro, not the VIBE (accel) rows
     truth = {"t": [], "gyr": {0: [], 1: []}, "q": {0: [], 1: []}, "epoch": [],
-             "clip": {0: set(range(60, 70)) | {100}, 1: {50}}}  # fmt: skip
+             "clip": {0: set(range(60, 70)) | {100}, 1: {50}}, "gyr_clip": {0: {100}, 1: {50}}}  # fmt: skip
     clip_count = 0
     for k in range(n):
         t_us = 10_000_000 + k * 10_000 if k < reboot_at else 2_000_000 + (k - reboot_at) * 10_000
@@ -348,6 +349,7 @@ def test_synthetic_log_instances_clipping_epochs(tmp_path):
     np.testing.assert_array_equal(raw.imu.gyr_rad_s, np.array(truth["gyr"][0]))
     np.testing.assert_array_equal(raw.imu.epoch, truth["epoch"])
     assert set(np.flatnonzero(raw.imu.clipped)) == truth["clip"][0]
+    assert set(np.flatnonzero(raw.imu.gyr_clipped)) == truth["gyr_clip"][0]
     assert len(raw.mag.t_s) == 40 and np.allclose(raw.mag.mag_ut[0], [-2722.9, 180.2, 30.0])
     q0 = np.array(truth["q"][0])
     np.testing.assert_allclose(raw.ref.q_nb_wxyz, q0 / np.linalg.norm(q0, axis=1, keepdims=True), atol=1e-12)
@@ -356,12 +358,15 @@ def test_synthetic_log_instances_clipping_epochs(tmp_path):
     raw1 = read(p, imu=1, reference="XKQ[1]")
     np.testing.assert_array_equal(raw1.imu.gyr_rad_s, np.array(truth["gyr"][1]))
     assert set(np.flatnonzero(raw1.imu.clipped)) == truth["clip"][1]
+    assert set(np.flatnonzero(raw1.imu.gyr_clipped)) == truth["gyr_clip"][1]
     q1 = np.array(truth["q"][1])
     assert raw1.ref.source == "XKQ[1]"
     np.testing.assert_allclose(raw1.ref.q_nb_wxyz, q1 / np.linalg.norm(q1, axis=1, keepdims=True), atol=1e-12)
 
     rec = ingest_log(p)
     assert rec.meta["boot_epochs"] == 2 and rec.meta["segments"] == 2 and len(rec) == 400
+    assert set(np.flatnonzero(rec.clipped)) == truth["clip"][0]  # the record carries both flags
+    assert set(np.flatnonzero(rec.gyr_clipped)) == truth["gyr_clip"][0]
 
 
 def test_synthetic_log_matches_pymavlink_and_chunking(tmp_path):

@@ -55,6 +55,25 @@ def test_round_trip_is_exact(tmp_path):
     assert back.data["segment"].dtype == np.int32 and back.data["clipped"].dtype == bool
 
 
+def test_gyro_clipping_column_round_trips_and_stands_in_for_clipped(tmp_path):
+    rng = np.random.default_rng(3)
+    gyr_clip = rng.random(500) < 0.02
+    rec = sample_record(gyr_clipped=gyr_clip)
+    np.testing.assert_array_equal(rec.gyr_clipped, gyr_clip)
+    assert np.all(rec.clipped[gyr_clip])  # the gyro's clipping is part of clipped
+    write_record(rec, tmp_path / "r.parquet")
+    back = read_record(tmp_path / "r.parquet")
+    assert back.data["gyr_clipped"].dtype == bool
+    np.testing.assert_array_equal(back.gyr_clipped, gyr_clip)
+    plain = sample_record()  # a reader that cannot tell the sensors apart: every clipped sample counts
+    assert "gyr_clipped" not in plain.data and np.array_equal(plain.gyr_clipped, plain.clipped)
+    bad = sample_record(gyr_clipped=gyr_clip)
+    bad.data["clipped"] = False
+    with pytest.raises(RecordFormatError, match="gyr_clipped marks samples that clipped does not"):
+        write_record(bad, tmp_path / "bad.parquet")
+    assert not (tmp_path / "bad.parquet").exists()
+
+
 def test_metadata_is_plain_json_key_value(tmp_path):
     p = tmp_path / "r.parquet"
     write_record(sample_record(), p)

@@ -106,7 +106,7 @@ def test_the_shipped_estimator_propagates_through_a_dropout_and_live_equals_offl
     live = StreamingEstimator(model, est)
     q_live = np.full((len(rec), 4), np.nan)
     for i in range(len(rec)):
-        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]))
+        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
         if e.q_nb_wxyz is not None:
             q_live[i] = e.q_nb_wxyz
     assert live.bridged_gaps == 1

@@ -179,6 +179,9 @@ def test_saturation_clips_and_flags():
     want = np.zeros(1000, bool)
     want[100:110] = want[200:205] = want[300:306] = True
     np.testing.assert_array_equal(out.clipped, want)
+    want_g = want.copy()
+    want_g[300:306] = False  # the accelerometer's saturation is not the gyro's
+    np.testing.assert_array_equal(out.gyr_clipped, want_g)
     np.testing.assert_allclose(out.gyr_rad_s[100:110, 0], 2000 * D2R)
     np.testing.assert_allclose(out.gyr_rad_s[200:205, 2], -2000 * D2R)
     np.testing.assert_allclose(out.acc_m_s2[300:306, 1], 16 * GRAVITY_M_S2)

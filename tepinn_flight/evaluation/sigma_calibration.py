@@ -49,7 +49,7 @@ def error_samples(rec: FlightRecord, name: str = "", anchor: AnchorConfig | None
     t = rec.t_s[seg0]
     dt = np.diff(t[: TS_STEPS + 1])
     flt = AnchoredVQF(cfg, float(np.median(dt)) if dt.size else 0.01)
-    q, _, e, _ = flt.update(t, rec.gyr_rad_s[seg0], rec.acc_m_s2[seg0], None, rec.clipped[seg0])
+    q, _, e, _ = flt.update(t, rec.gyr_rad_s[seg0], rec.acc_m_s2[seg0], None, rec.gyr_clipped[seg0])
     m = (scoring_mask(rec, warmup_s) & seg0)[seg0] & np.all(np.isfinite(q), axis=1)
     ev = tilt_error_vector_rad(error_quat_earth(q[m], rec.q_ref_wxyz[seg0][m]))
     return ErrorSamples(name, np.sum(ev**2, axis=1), e[m])

@@ -133,7 +133,7 @@ def drop_implausible(raw: RawLog, source_path: str | os.PathLike) -> tuple[RawLo
         notes.append(f"{joined} boot epoch boundary(ies) made by corrupt time stamps joined")
     new_imu = ImuStream(
         t[keep], gyr[keep], acc[keep], None if imu.clipped is None else np.asarray(imu.clipped, bool)[keep],
-        None if imu.epoch is None else new_ep,
+        None if imu.epoch is None else new_ep, None if imu.gyr_clipped is None else np.asarray(imu.gyr_clipped, bool)[keep],
     )  # fmt: skip
 
     mag = raw.mag
@@ -251,6 +251,7 @@ def build_record(raw: RawLog, source_path: str | os.PathLike) -> FlightRecord:
     gyr = np.asarray(imu.gyr_rad_s, np.float64)[keep]
     acc = np.asarray(imu.acc_m_s2, np.float64)[keep]
     clipped = None if imu.clipped is None else np.asarray(imu.clipped, bool)[keep]
+    gyr_clipped = None if imu.gyr_clipped is None else np.asarray(imu.gyr_clipped, bool)[keep]
     valid = None if raw.valid is None else np.asarray(raw.valid, bool)[keep]
     extra = {k: np.asarray(v)[keep] for k, v in raw.extra.items()}
 
@@ -288,7 +289,7 @@ def build_record(raw: RawLog, source_path: str | os.PathLike) -> FlightRecord:
         mag = _on_imu_times(t_src, ep, m_t, m_ep, np.asarray(raw.mag.mag_ut, float), nominal_period_s(m_t, m_ep), False)
 
     df = make_frame(
-        t_rec, seg, gyr, acc, mag, q_ref, clipped, valid=valid,
+        t_rec, seg, gyr, acc, mag, q_ref, clipped, valid=valid, gyr_clipped=gyr_clipped,
         gyr_bias_rad_s=extra.pop("gyr_bias_rad_s", None), acc_bias_m_s2=extra.pop("acc_bias_m_s2", None),
     )  # fmt: skip
 

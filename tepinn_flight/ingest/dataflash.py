@@ -28,6 +28,9 @@ Clipping rule (``ImuStream.clipped``), a sample is marked when any of:
     * the ``VIBE`` accel clip counter of that IMU (``Clip`` in 4.x, ``Clip0..2`` in 3.3+) increased
       since the previous VIBE row: all IMU rows written between the two VIBE rows are marked;
     * 4.x health flags ``GH``/``AH`` are 0, or the error counters ``EG``/``EA`` increased.
+The gyro's part (``ImuStream.gyr_clipped``: its full scale, ``GH``, ``EG``) is kept apart: only a
+saturated or failing gyro makes the integrated rate wrong (the anchored estimator's saturation gate);
+the VIBE counters count accelerometer clipping alone.
 """
 
 from __future__ import annotations
@@ -201,21 +204,26 @@ def _ref_quaternions(src: DataflashSource, inst: _Instance) -> tuple[np.ndarray,
     return t, q
 
 
-def _clipped(src: DataflashSource, inst: _Instance, gyr: np.ndarray, acc: np.ndarray, order: np.ndarray) -> tuple[np.ndarray, list[str]]:
+def _clipped(src: DataflashSource, inst: _Instance, gyr: np.ndarray, acc: np.ndarray,
+             order: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+    """(clipped, gyr_clipped, notes): any sensor at its range or unhealthy, and the gyro's part of
+    it (its range, ``GH`` unhealthy, ``EG`` errors)."""
     notes = []
-    sat = (np.abs(gyr) >= CLIP_FRACTION * GYRO_FULL_SCALE_RAD_S).any(axis=1)
-    sat |= (np.abs(acc) >= CLIP_FRACTION * ACCEL_FULL_SCALE_M_S2).any(axis=1)
+    gyr_sat = (np.abs(gyr) >= CLIP_FRACTION * GYRO_FULL_SCALE_RAD_S).any(axis=1)
+    sat = gyr_sat | (np.abs(acc) >= CLIP_FRACTION * ACCEL_FULL_SCALE_M_S2).any(axis=1)
     clipped = sat.copy()
+    gyr_clipped = gyr_sat.copy()
     mf = src.formats[inst.name]
     health = [c for c in ("GH", "AH") if c in mf.columns]
     errs = [c for c in ("EG", "EA") if c in mf.columns]
     if health or errs:
         d = src.table(inst.name, tuple(health + errs), inst.rows)
         bad = np.zeros(len(gyr), bool)
-        for k in range(len(health)):
-            bad |= d[:, k] == 0
-        for k in range(len(health), d.shape[1]):
-            bad[1:] |= np.diff(d[:, k]) > 0
+        for k, name in enumerate(health + errs):
+            b = d[:, k] == 0 if name in health else np.r_[False, np.diff(d[:, k]) > 0]
+            bad |= b
+            if name in ("GH", "EG"):
+                gyr_clipped |= b
         if bad.any():
             notes.append(
                 f"{int(bad.sum())} IMU sample(s) unhealthy or with sensor errors (GH/AH/EG/EA): marked clipped"
@@ -242,7 +250,7 @@ def _clipped(src: DataflashSource, inst: _Instance, gyr: np.ndarray, acc: np.nda
             clipped |= vmark
     if sat.any():
         notes.append(f"{int(sat.sum())} IMU sample(s) at ≥98 % of the ±2000 °/s or ±16 g range: marked clipped")
-    return clipped, notes
+    return clipped, gyr_clipped, notes
 
 
 def _firmware(src: DataflashSource, messages: list[str]) -> tuple[str, str | None]:
@@ -374,12 +382,12 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     t_imu, v = _timed(src, sel, (*GYR, *ACC))
     gyr, acc = v[:, :3], v[:, 3:]
     o_imu = _order(src, sel)
-    clipped, clip_notes = _clipped(src, sel, gyr, acc, o_imu)
+    clipped, gyr_clipped, clip_notes = _clipped(src, sel, gyr, acc, o_imu)
     notes += clip_notes
     ok = np.isfinite(t_imu) & np.all(np.isfinite(v), axis=1)
     if not ok.all():
         notes.append(f"{int((~ok).sum())} IMU row(s) with non-finite values dropped")
-        t_imu, gyr, acc, o_imu, clipped = t_imu[ok], gyr[ok], acc[ok], o_imu[ok], clipped[ok]
+        t_imu, gyr, acc, o_imu, clipped, gyr_clipped = t_imu[ok], gyr[ok], acc[ok], o_imu[ok], clipped[ok], gyr_clipped[ok]
     if len(t_imu) == 0:
         raise NoImuData("no IMU rows with finite values", path)
     meta["imu_instance"] = sel.instance
@@ -435,4 +443,4 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     meta["corrupt_frames"] = int(src.corrupt_frames)
     meta["skipped_frames"] = int(src.skipped_frames)
     meta["notes"] = list(src.notes) + notes
-    return RawLog(ImuStream(t_imu, gyr, acc, clipped, eps[0]), mag, ref, meta)
+    return RawLog(ImuStream(t_imu, gyr, acc, clipped, eps[0], gyr_clipped), mag, ref, meta)

@@ -22,8 +22,9 @@ class ImuStream:
     t_s: np.ndarray  # (N,) float64, source clock
     gyr_rad_s: np.ndarray  # (N, 3) body FRD
     acc_m_s2: np.ndarray  # (N, 3) specific force, body FRD
-    clipped: np.ndarray | None = None  # (N,) bool
+    clipped: np.ndarray | None = None  # (N,) bool: a gyro or accelerometer axis at its range (or unhealthy)
     epoch: np.ndarray | None = None  # (N,) int, boot epoch
+    gyr_clipped: np.ndarray | None = None  # (N,) bool: those of the gyro (None: the reader cannot tell)
 
 
 @dataclass

@@ -315,10 +315,7 @@ def _imu_from_sensor_combined(d: dict[str, np.ndarray], notes: list[str]) -> tup
             med = float(np.median(rel[valid])) if valid.any() else float("nan")
             notes.append(f"sensor_combined: accelerometer interpolated onto the gyro times "
                          f"(accelerometer_timestamp_relative median {med:.0f} us)")  # fmt: skip
-    clipped = np.zeros(len(t_us), bool)
-    for field in ("accelerometer_clipping", "gyro_clipping"):
-        if field in d:
-            clipped |= np.asarray(d[field]).astype(np.int64) != 0
+    clipped, gyr_clipped = _clip_flags(d, "gyro_clipping", "accelerometer_clipping", slice(None), len(t_us))
     if "gyro_integral_dt" in d:
         dt_int, unit = integral_dt_s(d["gyro_integral_dt"])
         info["gyro_integral_dt_unit"] = unit
@@ -330,7 +327,18 @@ def _imu_from_sensor_combined(d: dict[str, np.ndarray], notes: list[str]) -> tup
                 f"{1e3 * dt_int:.1f} ms (gyro_integral_dt): vibration and fast motion alias; "
                 "log sensor_combined at full rate (SDLOG_PROFILE high rate) for estimation"
             )
-    return ImuStream(us_to_s(t_us), gyr, acc, clipped), info
+    return ImuStream(us_to_s(t_us), gyr, acc, clipped, gyr_clipped=gyr_clipped), info
+
+
+def _clip_flags(d: dict[str, np.ndarray], gyro_field: str, accel_field: str, rows, n: int):
+    """(clipped, gyr_clipped) from PX4's per-axis clipping bit fields (absent fields: none clipped;
+    gyr_clipped None when the topic has no gyro field)."""
+    flag = {f: np.asarray(d[f]).astype(np.int64)[rows] != 0 for f in (gyro_field, accel_field) if f in d}
+    gyr_clipped = flag.get(gyro_field)
+    clipped = np.zeros(n, bool)
+    for v in flag.values():
+        clipped |= v
+    return clipped, gyr_clipped
 
 
 def _imu_from_vehicle_imu(d: dict[str, np.ndarray]) -> ImuStream:
@@ -340,11 +348,8 @@ def _imu_from_vehicle_imu(d: dict[str, np.ndarray]) -> ImuStream:
     ok = (da_dt > 0) & (dv_dt > 0)
     gyr = vec(d, "delta_angle")[ok] / da_dt[ok, None]
     acc = vec(d, "delta_velocity")[ok] / dv_dt[ok, None]
-    clipped = np.zeros(int(ok.sum()), bool)
-    for field in ("delta_angle_clipping", "delta_velocity_clipping"):
-        if field in d:
-            clipped |= np.asarray(d[field]).astype(np.int64)[ok] != 0
-    return ImuStream(us_to_s(t_us[ok]), gyr, acc, clipped)
+    clipped, gyr_clipped = _clip_flags(d, "delta_angle_clipping", "delta_velocity_clipping", ok, int(ok.sum()))
+    return ImuStream(us_to_s(t_us[ok]), gyr, acc, clipped, gyr_clipped=gyr_clipped)
 
 
 def _imu_from_sensor_topics(g: dict[str, np.ndarray], a: dict[str, np.ndarray]) -> ImuStream:
@@ -556,8 +561,10 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
             notes.append(f"logging dropout of {d.duration} ms at {at}: "
                          f"{rec['samples_dropped']} IMU sample(s) dropped so that a segment ends there")  # fmt: skip
     if not keep.all():
+        gc = imu_stream.gyr_clipped
         imu_stream = ImuStream(imu_stream.t_s[keep], imu_stream.gyr_rad_s[keep], imu_stream.acc_m_s2[keep],
-                               None if imu_stream.clipped is None else imu_stream.clipped[keep])  # fmt: skip
+                               None if imu_stream.clipped is None else imu_stream.clipped[keep],
+                               gyr_clipped=None if gc is None else gc[keep])  # fmt: skip
     if getattr(ulog, "_tepinn_truncated", False):
         notes.append("the log is truncated (it ends inside a message: the logger stopped mid-write or the "
                      "file was cut); the samples up to the cut are kept")  # fmt: skip

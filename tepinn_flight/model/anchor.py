@@ -14,8 +14,10 @@ and its rate ``â``. Each enters only where there is run-time evidence that VQF'
   loop; VQF's low-pass takes that for gravity. The gate removes ``ω × v̂ + â`` from the
   accelerometer VQF sees (per sample, with the current gyro) and pulls VQF's tilt toward the
   network's. Hand-held and multirotor motion stays far below the gate (|v̂| < 10 m/s).
-- **gyro saturation** (a clipped sample within ``clip_hold_s``): the integrated rate is wrong, so
-  VQF's tilt is pulled toward the network's window tilt (its physics inputs are clip-aware).
+- **gyro saturation** (a sample with the gyro clipped within ``clip_hold_s``: the ``clipped`` argument
+  of :meth:`AnchoredVQF.update`, a record's ``gyr_clipped``): the integrated rate is wrong, so VQF's
+  tilt is pulled toward the network's window tilt (its physics inputs are clip-aware). An
+  accelerometer at its range leaves the integrated rate right and does not open it.
 - **gyro bias beyond VQF's clip** (VQF's bias estimate reaches ``bias_clip_deg_s``, an
   uncalibrated gyro): from then on, in that segment, the network's bias beyond
   ``bias_deadzone_deg_s`` is removed from the gyro VQF sees, and its tilt pulls with weight

@@ -275,8 +275,9 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     q_out = np.full((n, 4), np.nan)
     s_out = np.full(n, np.nan)
     b_out = np.full((n, 3), np.nan)
-    t, gyr, acc, mag, clipped = rec.t_s, rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut, rec.clipped
-    cols = (t, gyr, acc, mag, clipped)  # read from the frame once (each property access copies)
+    t, gyr, acc, mag = rec.t_s, rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut
+    cols = (t, gyr, acc, mag, rec.gyr_clipped)  # read from the frame once (each property access copies); the
+    # saturation gate opens on the gyro's clipping alone
     seg = rec.segment
     bounds = np.flatnonzero(np.diff(seg)) + 1
     for a, b in zip(np.r_[0, bounds], np.r_[bounds, n]):

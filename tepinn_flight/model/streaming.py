@@ -113,7 +113,11 @@ class StreamingEstimator:
             return True
         return False
 
-    def push(self, t_s: float, gyr_rad_s, acc_m_s2, mag_ut=None, clipped: bool = False) -> Estimate:
+    def push(self, t_s: float, gyr_rad_s, acc_m_s2, mag_ut=None, clipped: bool = False,
+             gyr_clipped: bool | None = None) -> Estimate:
+        """One sample → its estimate. ``clipped``: a sensor axis at its range (the network's tokens, the
+        older fusion); ``gyr_clipped``: the gyro's (the anchored filter's saturation gate; None: ``clipped``)
+        — a record's ``clipped`` and ``gyr_clipped`` columns."""
         t0c = time.perf_counter()
         t = float(t_s)
         if all(math.isfinite(float(v)) for v in (*gyr_rad_s, *acc_m_s2)):
@@ -157,7 +161,8 @@ class StreamingEstimator:
         tok.clip += bool(clipped)
         tok.t_last = t
         if self.anchor_cfg is not None:
-            q, sigma, bias = self._anchored_step(t, gyr_rad_s, acc_m_s2, mag_ut, bool(clipped), est)
+            g_clip = bool(clipped) if gyr_clipped is None else bool(gyr_clipped)
+            q, sigma, bias = self._anchored_step(t, gyr_rad_s, acc_m_s2, mag_ut, bool(clipped), g_clip, est)
         else:
             q, sigma, bias = self.fusion.step(t, gyr_rad_s, est, bool(clipped))
         self.t_prev = t
@@ -173,9 +178,10 @@ class StreamingEstimator:
             self.push(float(t_i), v[0:3], v[3:6], m if np.all(np.isfinite(m)) else None, False)
         self.bridged_gaps += 1
 
-    def _anchored_step(self, t, gyr, acc, mag, clipped, est):
+    def _anchored_step(self, t, gyr, acc, mag, clipped, gyr_clipped, est):
         """The filter-anchored estimate of this sample; ``est`` (the network's window at the
-        previous sample, or None) is applied first."""
+        previous sample, or None) is applied first; ``clipped`` feeds the older fusion, ``gyr_clipped``
+        the filter's saturation gate."""
         # pull toward the older fusion's estimate before this window
         target, b_target = self.old_q, self.old_bias
         old = None if est is None else (list(est.q_nb_wxyz), est.sigma_rad, list(est.gyr_bias_rad_s))
@@ -186,7 +192,7 @@ class StreamingEstimator:
             if target is not None and all(math.isfinite(v) for v in target):
                 est = dataclasses.replace(est, q_nb_wxyz=np.asarray(target, np.float64))
         if self.anchored is None:
-            self.pending.append((t, gyr, acc, mag, clipped, est))
+            self.pending.append((t, gyr, acc, mag, gyr_clipped, est))
             if len(self.pending) <= TS_STEPS:
                 return None, float("nan"), (float("nan"),) * 3
             dts = np.diff([p[0] for p in self.pending])
@@ -196,7 +202,7 @@ class StreamingEstimator:
             self.anchored = AnchoredVQF(self.anchor_cfg, float(np.median(dts)), use_mag=use_mag)
             pending, self.pending = self.pending, []
         else:
-            pending = [(t, gyr, acc, mag, clipped, est)]
+            pending = [(t, gyr, acc, mag, gyr_clipped, est)]
         out = None
         for t_i, g_i, a_i, m_i, c_i, e_i in pending:
             if e_i is not None:

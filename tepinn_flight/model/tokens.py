@@ -143,8 +143,10 @@ def decimate(t_s, segment, arrays: dict[str, np.ndarray], factor: int) -> tuple:
     kept = np.concatenate(keep_idx)
     out = {}
     for name, v in arrays.items():
-        if name.startswith("q_") or name in ("valid", "clipped", "bias"):
-            out[name] = v[kept] if name != "clipped" else v[gi].any(axis=1)
+        if name in ("clipped", "gyr_clipped"):  # a group holding a clipped sample is clipped
+            out[name] = v[gi].any(axis=1)
+        elif name.startswith("q_") or name in ("valid", "bias"):
+            out[name] = v[kept]
         else:
             with np.errstate(invalid="ignore"):
                 out[name] = np.nanmean(v[gi], axis=1) if np.isnan(v).any() else v[gi].mean(axis=1)

@@ -204,6 +204,7 @@ class SensorOutput:
     acc_m_s2: np.ndarray  # (M, 3)
     mag_ut: np.ndarray | None  # (M, 3) or None when the magnetometer is disabled
     clipped: np.ndarray  # (M,) bool: a gyro or accelerometer axis at its range limit
+    gyr_clipped: np.ndarray  # (M,) bool: a gyro axis at its range limit
     gyr_bias_rad_s: np.ndarray  # (M, 3) true total bias (turn-on + in-run)
     acc_bias_m_s2: np.ndarray  # (M, 3)
     q_nb_wxyz: np.ndarray  # (M, 4) true attitude at the output samples
@@ -351,7 +352,7 @@ def apply_sensors(truth: TruthTrajectory, cfg: SensorConfig, rng: np.random.Gene
     acc, aclip, abias, atruth = _triad(r_acc, acc_x, _accel_si(cfg.accel), rate)
     mag, mtruth = _magnetometer(r_mag, t, q, np.asarray(truth.mag_earth_ut, np.float64), cfg.mag, rate, acc_x)
     return SensorOutput(
-        t_s=t, index=idx, gyr_rad_s=gyr, acc_m_s2=acc, mag_ut=mag, clipped=gclip | aclip,
+        t_s=t, index=idx, gyr_rad_s=gyr, acc_m_s2=acc, mag_ut=mag, clipped=gclip | aclip, gyr_clipped=gclip,
         gyr_bias_rad_s=gbias, acc_bias_m_s2=abias, q_nb_wxyz=q,
         truth={"gyro": gtruth, "accel": atruth, "mag": mtruth, "rate_hz": rate, "decimation": k},
     )  # fmt: skip

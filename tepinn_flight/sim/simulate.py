@@ -89,7 +89,7 @@ def record_from_truth(
     q = quat_canonical(quat_normalize(out.q_nb_wxyz))
     df = make_frame(
         out.t_s - out.t_s[0], np.zeros(len(out.t_s), np.int32), out.gyr_rad_s, out.acc_m_s2, out.mag_ut, q,
-        out.clipped, gyr_bias_rad_s=out.gyr_bias_rad_s, acc_bias_m_s2=out.acc_bias_m_s2,
+        out.clipped, gyr_clipped=out.gyr_clipped, gyr_bias_rad_s=out.gyr_bias_rad_s, acc_bias_m_s2=out.acc_bias_m_s2,
     )  # fmt: skip
     tm = _jsonable(truth.meta)
     rate = float(out.truth["rate_hz"])
