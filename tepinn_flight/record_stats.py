@@ -56,6 +56,8 @@ def summarize(rec: FlightRecord) -> dict:
         clipped_samples=int(rec.clipped.sum()),
         has_mag=bool(np.any(np.isfinite(rec.mag_ut))),
     )
+    if "gyr_clipped" in rec.data:
+        out["gyr_clipped_samples"] = int(rec.gyr_clipped.sum())
     if "valid" in rec.data:
         out["valid_fraction"] = float(rec.valid.mean())
     return out

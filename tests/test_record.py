@@ -65,6 +65,10 @@ def test_gyro_clipping_column_round_trips_and_stands_in_for_clipped(tmp_path):
     back = read_record(tmp_path / "r.parquet")
     assert back.data["gyr_clipped"].dtype == bool
     np.testing.assert_array_equal(back.gyr_clipped, gyr_clip)
+    from tepinn_flight.record_stats import summarize
+
+    st = summarize(back)
+    assert st["gyr_clipped_samples"] == gyr_clip.sum() and st["clipped_samples"] == back.clipped.sum() > gyr_clip.sum()
     plain = sample_record()  # a reader that cannot tell the sensors apart: every clipped sample counts
     assert "gyr_clipped" not in plain.data and np.array_equal(plain.gyr_clipped, plain.clipped)
     bad = sample_record(gyr_clipped=gyr_clip)

@@ -41,7 +41,10 @@ def render_info(path, s: dict) -> str:
     if len(gaps) > 10:
         add("", f"... and {len(gaps) - 10} more")
     add("max angular rate", f"{s.get('max_rate_deg_s', 0):.0f} deg/s (per axis {s.get('max_axis_rate_deg_s')})")
-    add("clipped samples", s.get("clipped_samples"))
+    clip = s.get("clipped_samples")
+    if "gyr_clipped_samples" in s:
+        clip = f"{clip} (gyro {s['gyr_clipped_samples']}: only those open the saturation gate)"
+    add("clipped samples", clip)
     add("magnetometer", "yes" if s.get("has_mag") else "no")
     if "valid_fraction" in s:
         add("valid (scored)", f"{100 * s['valid_fraction']:.1f}% of samples")
