@@ -25,6 +25,7 @@ import pytest
 import torch
 
 from tepinn_flight.errors import ConfigError
+from tepinn_flight.ingest.saturation import gyro_full_scale_rad_s, saturated_f
 from tepinn_flight.live import dialect
 from tepinn_flight.live.bridge import Bridge, BridgeConfig
 from tepinn_flight.live.messages import Encoder, highres_imu_msg
@@ -120,7 +121,8 @@ def _offline_estimates(model_path, tlog_path):
         if m.get_type() != "HIGHRES_IMU":
             continue
         mag = (m.xmag * 100, m.ymag * 100, m.zmag * 100) if m.fields_updated & 0x1C0 == 0x1C0 else None
-        e = se.push(m.time_usec / 1e6, (m.xgyro, m.ygyro, m.zgyro), (m.xacc, m.yacc, m.zacc), mag)
+        g, a = (m.xgyro, m.ygyro, m.zgyro), (m.xacc, m.yacc, m.zacc)
+        e = se.push(m.time_usec / 1e6, g, a, mag, *saturated_f(g, a, gyro_full_scale_rad_s("HIGHRES_IMU")))
         if e.q_nb_wxyz is not None:
             out[m.time_usec // 1000] = e.q_nb_wxyz
     return out
@@ -376,7 +378,7 @@ class FlakyEstimator:
     def reset(self):
         pass
 
-    def push(self, t, gyr, acc, mag=None):
+    def push(self, t, gyr, acc, mag=None, clipped=False, gyr_clipped=None):
         self.n += 1
         if self.n % 40 == 0:
             raise RuntimeError("model exploded")
@@ -582,7 +584,8 @@ def _offline_by_ms(frames):
     for fr in frames:
         (m,) = _parse(fr)
         mag = (m.xmag * 100, m.ymag * 100, m.zmag * 100) if m.fields_updated & 0x1C0 == 0x1C0 else None
-        e = se.push(m.time_usec / 1e6, (m.xgyro, m.ygyro, m.zgyro), (m.xacc, m.yacc, m.zacc), mag)
+        g, a = (m.xgyro, m.ygyro, m.zgyro), (m.xacc, m.yacc, m.zacc)
+        e = se.push(m.time_usec / 1e6, g, a, mag, *saturated_f(g, a, gyro_full_scale_rad_s("HIGHRES_IMU")))
         if e.q_nb_wxyz is not None:
             out[m.time_usec // 1000] = e.q_nb_wxyz
     return out

@@ -41,20 +41,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..conventions import DEG_TO_RAD, GRAVITY_M_S2, MILLIGAUSS_TO_UT
+from ..conventions import DEG_TO_RAD, MILLIGAUSS_TO_UT
 from ..errors import ConfigError, CorruptLog, NoImuData
 from ..quat import quat_from_euler_zyx, quat_normalize
 from . import dataflash_scan as dfs
 from .dataflash_binary import BinarySource
 from .dataflash_source import DECODE_BLOCK_ROWS, DataflashSource, instance_col
 from .dataflash_text import TextSource
+from .saturation import accel_saturated, gyro_saturated
 from .sniff import sniff
 from .streams import ImuStream, MagStream, RawLog, RefStream, detect_epochs, nominal_period_s
 
-#: Clipping thresholds (see the module docstring).
-GYRO_FULL_SCALE_RAD_S = 2000.0 * DEG_TO_RAD
-ACCEL_FULL_SCALE_M_S2 = 16.0 * GRAVITY_M_S2
-CLIP_FRACTION = 0.98
 
 TIME_FIELDS = {"TimeUS": 1e6, "TimeMS": 1e3}  # ticks per second (divide: exact for whole ms)
 GYR = ("GyrX", "GyrY", "GyrZ")
@@ -209,8 +206,8 @@ def _clipped(src: DataflashSource, inst: _Instance, gyr: np.ndarray, acc: np.nda
     """(clipped, gyr_clipped, notes): any sensor at its range or unhealthy, and the gyro's part of
     it (its range, ``GH`` unhealthy, ``EG`` errors)."""
     notes = []
-    gyr_sat = (np.abs(gyr) >= CLIP_FRACTION * GYRO_FULL_SCALE_RAD_S).any(axis=1)
-    sat = gyr_sat | (np.abs(acc) >= CLIP_FRACTION * ACCEL_FULL_SCALE_M_S2).any(axis=1)
+    gyr_sat = gyro_saturated(gyr)
+    sat = gyr_sat | accel_saturated(acc)
     clipped = sat.copy()
     gyr_clipped = gyr_sat.copy()
     mf = src.formats[inst.name]

@@ -23,6 +23,11 @@ Units
     so a RAW_IMU from a non-ArduPilot autopilot is refused (its scale is unknown).
     ``HIGHRES_IMU``: m/s², rad/s, gauss. The axes are body FRD already.
 
+Clipping (:mod:`.saturation`, the rule the live bridge applies too)
+    A gyro axis at 98 % of what the message can show (±2000 °/s; the int16 mrad/s of RAW_IMU and
+    SCALED_IMU* stops at ±32.767 rad/s) marks the sample ``clipped`` and ``gyr_clipped``; an
+    accelerometer axis at 98 % of ±16 g marks it ``clipped``.
+
 Reference (``--reference``)
     ``ATTITUDE_QUATERNION`` (q1..q4 = w, x, y, z, body → NED) preferred, else ``ATTITUDE``
     (roll, pitch, yaw in rad, Z-Y-X).
@@ -53,6 +58,7 @@ from ..errors import ConfigError, CorruptLog, NoImuData
 from ..mavlink_dialect import dialect
 from ..quat import quat_from_euler_zyx
 from .mavlink_scan import scan_tlog
+from .saturation import accel_saturated, gyro_full_scale_rad_s, gyro_saturated
 from .streams import ImuStream, MagStream, RawLog, RefStream
 
 MAV_COMP_ID_AUTOPILOT1 = 1
@@ -188,11 +194,18 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     ff = sel.pop("fields")
     gyr, acc, mag_ut = _imu_si(sel["name"], ff)
     del ff
+    gyr_clipped = gyro_saturated(gyr, gyro_full_scale_rad_s(sel["name"]))
+    clipped = gyr_clipped | accel_saturated(acc)
+    if clipped.any():
+        notes.append(f"{int(clipped.sum())} IMU sample(s) at ≥98 % of the range {sel['name']} can show "
+                     f"(gyro {int(gyr_clipped.sum())}): marked clipped")  # fmt: skip
     imu_stream = ImuStream(
         t_s=sel["t_s"][order],
         gyr_rad_s=gyr[order],
         acc_m_s2=acc[order],
+        clipped=clipped[order],
         epoch=sel["epoch"][order],
+        gyr_clipped=gyr_clipped[order],
     )
     del gyr, acc
     mag = None

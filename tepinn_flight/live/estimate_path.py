@@ -158,7 +158,8 @@ class EstimatorFeed:
             self.dropped_queue += 1
             return
         self.seq += 1
-        rec = pack_sample(self.seq, s.t_s, t_in, s.gyr_rad_s, s.acc_m_s2, s.mag_ut, s.time_usec, boot_ms)
+        rec = pack_sample(self.seq, s.t_s, t_in, s.gyr_rad_s, s.acc_m_s2, s.mag_ut, s.time_usec, boot_ms,
+                          clipped=s.clipped, gyr_clipped=s.gyr_clipped)  # fmt: skip
         if not w.submit(rec):
             self.dropped_queue += 1
 

@@ -12,6 +12,7 @@ message table (``IMU_MESSAGES``: time field and instance), the same preference
   unknown (raw counts are allowed by the spec), so it is refused (:func:`imu_scale_known`).
 * All-zero accelerometer and gyro: a missing IMU (ArduPilot's unused ``SCALED_IMU2/3``), skipped.
 * ``time_usec`` above 1e15 µs is UNIX time, else time since boot; ``time_boot_ms`` is boot time.
+* Clipping: the reader's rule (:mod:`tepinn_flight.ingest.saturation`), sample by sample.
 
 The reader works on whole arrays; here one message at a time (the conversion factors come from
 :mod:`tepinn_flight.conventions`, the tables from the reader).
@@ -26,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..conventions import GAUSS_TO_UT, MILLI_G_TO_M_S2, MILLIGAUSS_TO_UT, MRAD_S_TO_RAD_S, UNIX_TIME_THRESHOLD_US
+from ..ingest.saturation import gyro_full_scale_rad_s, saturated_f
 from ..ingest.tlog import IMU_MESSAGES, IMU_PREFERENCE, imu_scale_known
 from ..quat import gravity_body_f, quat_from_euler_zyx, slerp
 from .messages import ESTIMATE_VALUE_NAMES, ESTIMATE_VECT_NAME, euler_zyx
@@ -44,6 +46,8 @@ class ImuSample:
     mag_ut: tuple | None
     message: str
     instance: int
+    clipped: bool = False  # a gyro or accelerometer axis at what the message can show (ingest.saturation)
+    gyr_clipped: bool = False  # ... a gyro axis
 
 
 def imu_preference(name: str) -> int:
@@ -86,7 +90,8 @@ def imu_sample(msg, autopilot: int | None) -> ImuSample | None:
         boot_ms = int(msg.time_boot_ms)
         us = boot_ms * 1000
         t_s = boot_ms / 1e3
-    return ImuSample(t_s, us, boot_ms, gyr, acc, mag_ut, name, instance)
+    clipped, gyr_clipped = saturated_f(gyr, acc, gyro_full_scale_rad_s(name))
+    return ImuSample(t_s, us, boot_ms, gyr, acc, mag_ut, name, instance, clipped, gyr_clipped)
 
 
 def ekf_attitude(msg) -> tuple[float, int, tuple] | None:

@@ -42,8 +42,10 @@ import sys
 import threading
 import time
 
-#: kind, seq, t_s, arrival (monotonic s), gyr(3), acc(3), mag(3, NaN = none), time_usec, time_boot_ms (-1 = none)
-SAMPLE = struct.Struct("<BIdd3d3d3dQi")
+#: kind, seq, t_s, arrival (monotonic s), gyr(3), acc(3), mag(3, NaN = none), time_usec, time_boot_ms (-1 = none),
+#: flags (CLIPPED | GYR_CLIPPED: the sample at its range, ingest.saturation)
+SAMPLE = struct.Struct("<BIdd3d3d3dQiB")
+CLIPPED, GYR_CLIPPED = 1, 2
 KIND_SAMPLE = 1
 KIND_RESET = 2
 #: seq, t_s, arrival, q(4), sigma, bias(3), gyr(3), time_usec, time_boot_ms, model_ran, compute_s
@@ -57,14 +59,16 @@ NICE = 10
 _NAN3 = (math.nan, math.nan, math.nan)
 
 
-def pack_sample(seq, t_s, arrival, gyr, acc, mag, time_usec, time_boot_ms, kind=KIND_SAMPLE) -> bytes:
+def pack_sample(seq, t_s, arrival, gyr, acc, mag, time_usec, time_boot_ms, kind=KIND_SAMPLE, clipped=False,
+                gyr_clipped=False) -> bytes:  # fmt: skip
     m = mag if mag is not None else _NAN3
+    flags = (CLIPPED if clipped else 0) | (GYR_CLIPPED if gyr_clipped else 0)
     return SAMPLE.pack(kind, seq & 0xFFFFFFFF, t_s, arrival, *gyr, *acc, *m, int(time_usec) & 0xFFFFFFFFFFFFFFFF,
-                       -1 if time_boot_ms is None else int(time_boot_ms) & 0x7FFFFFFF)  # fmt: skip
+                       -1 if time_boot_ms is None else int(time_boot_ms) & 0x7FFFFFFF, flags)  # fmt: skip
 
 
 def reset_record() -> bytes:
-    return SAMPLE.pack(KIND_RESET, 0, 0.0, 0.0, *([0.0] * 9), 0, -1)
+    return SAMPLE.pack(KIND_RESET, 0, 0.0, 0.0, *([0.0] * 9), 0, -1, 0)
 
 
 def unpack_estimate(payload: bytes) -> tuple[dict, tuple]:
@@ -139,7 +143,8 @@ def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, 
             t_s = r[2]
             mag = r[10:13]
             try:
-                e = est.push(t_s, r[4:7], r[7:10], None if math.isnan(mag[0]) else mag)
+                e = est.push(t_s, r[4:7], r[7:10], None if math.isnan(mag[0]) else mag, bool(r[15] & CLIPPED),
+                             bool(r[15] & GYR_CLIPPED))  # fmt: skip
             except Exception as exc:  # noqa: BLE001 - the model raised: reset, report, go on
                 errors += 1
                 if errors == 1 or errors % 100 == 0:
