@@ -41,7 +41,9 @@ turning only ``accQuat`` would be undone at the next sample.
 the filter is averaging out), w the gate, σ_net the network's σ; fitted on validation files.
 
 Frames: VQF works in a z-up sensor frame ``S`` (body FRD turned 180° about x) and a z-up earth
-frame; conversions happen only at this module's edges (body FRD / NED outside).
+frame; conversions happen only at this module's edges (body FRD / NED outside). The arithmetic
+between the network's windows (the samples into ``S``, VQF's outputs out of it with σ, the tilt
+pull) is compiled in :mod:`.anchor_kernels`, where the frames are defined.
 """
 
 from __future__ import annotations
@@ -55,7 +57,7 @@ import numpy as np
 from ..config import check_choice, check_range
 from ..quat_scalar import down_in_body
 from .anchor_kernels import FLIP as _FLIP
-from .anchor_kernels import Q_NED_ENU, Q_SENSOR_BODY  # noqa: F401  (VQF's frames; evaluation/peers.py imports them from here)
+from .anchor_kernels import Q_NED_ENU, Q_SENSOR_BODY  # noqa: F401  (VQF's frames; peers import them from here)
 from .anchor_kernels import (horizontal_bias, q_nb_from_vqf_f, q_nb_rows, sigma_step, tilt_pull_f, turn_acc_state,
                              vqf_inputs, vqf_outputs)  # fmt: skip
 from .fusion import FusionConfig
@@ -175,9 +177,16 @@ def tilt_pull_quat(q_es, up_s, fraction: float) -> np.ndarray:
     return np.array(tilt_pull_f(*(float(v) for v in q_es), *(float(v) for v in up_s), float(fraction)))
 
 
-def _rows(x) -> np.ndarray:
-    """``x`` as the compiled kernels take it: float64, C-contiguous, writable (a copy only when it is not)."""
-    return np.require(x, np.float64, ["C_CONTIGUOUS", "WRITEABLE"])
+def _rows(x, ndim: int = 2) -> np.ndarray:
+    """``x`` as the compiled kernels take it: float64, C-contiguous, writable, ``ndim`` dimensions
+    (one row: a block of one); a copy only when it is not (a record's columns are read-only,
+    Fortran-ordered)."""
+    x = np.asarray(x, np.float64)
+    if x.ndim < ndim:
+        x = x.reshape((1,) * (ndim - x.ndim) + x.shape)
+    if not (x.flags.c_contiguous and x.flags.writeable):
+        x = x.copy()
+    return x
 
 
 class AnchoredVQF:
@@ -191,6 +200,7 @@ class AnchoredVQF:
         import vqf
 
         self.cfg = c = config
+        self.centripetal = bool(c.centripetal)
         self.use_mag = use_mag
         self.ts = ts_s
         self.f = vqf.VQF(ts_s, tauAcc=c.tau_acc_s, biasClip=c.bias_clip_deg_s)
@@ -207,6 +217,7 @@ class AnchoredVQF:
         self.e_acc = 0.0  # low-passed accelerometer-vs-gravity angle (rad)
         self.sigma_alpha = min(1.0, self.ts / c.sigma_acc_tau_s)  # its low-pass gain per sample
         self.sigma_var0 = math.radians(c.sigma_floor_deg) ** 2
+        self.sigma_gain = float(c.sigma_acc_gain)
         self.last_imu = (np.zeros(3), np.zeros(3))  # the last finite gyro/accelerometer sample
         self.holes = 0  # non-finite samples bridged
 
@@ -216,15 +227,14 @@ class AnchoredVQF:
         """Rows of samples → (q_nb (n, 4), q_nb_9d (n, 4) or None, sigma (n,), bias_b (n, 3)).
         A non-finite gyro/accelerometer row is a hole, bridged with the last finite sample."""
         t_s = np.atleast_1d(np.asarray(t_s, np.float64))
-        gyr_b = _rows(np.atleast_2d(np.asarray(gyr_b, np.float64)))
-        acc_b = _rows(np.atleast_2d(np.asarray(acc_b, np.float64)))
+        gyr_b, acc_b = _rows(gyr_b), _rows(acc_b)
         n = len(t_s)
         if clipped is not None:
             cl = np.flatnonzero(np.atleast_1d(clipped))
             if cl.size:
                 self.t_clip = max(self.t_clip, float(t_s[cl[-1]]))
         g_s, a_s = np.empty((n, 3)), np.empty((n, 3))
-        bad = vqf_inputs(gyr_b, acc_b, self.gyr_corr, self.vel, self.acc_v, self.cfg.centripetal, g_s, a_s)
+        bad = vqf_inputs(gyr_b, acc_b, self.gyr_corr, self.vel, self.acc_v, self.centripetal, g_s, a_s)
         if bad:  # a hole: bridged with the last finite sample (counted)
             bad = ~(np.all(np.isfinite(gyr_b), 1) & np.all(np.isfinite(acc_b), 1))
             gyr_b, acc_b = gyr_b.copy(), acc_b.copy()
@@ -233,7 +243,7 @@ class AnchoredVQF:
             ffill_rows(gyr_b, self.last_imu[0])
             ffill_rows(acc_b, self.last_imu[1])
             self.holes += int(bad.sum())
-            vqf_inputs(gyr_b, acc_b, self.gyr_corr, self.vel, self.acc_v, self.cfg.centripetal, g_s, a_s)
+            vqf_inputs(gyr_b, acc_b, self.gyr_corr, self.vel, self.acc_v, self.centripetal, g_s, a_s)
         if n:
             self.last_imu = (gyr_b[-1].copy(), acc_b[-1].copy())
         m = None
@@ -243,7 +253,7 @@ class AnchoredVQF:
         out = self.f.updateBatch(g_s, a_s, m)
         q6, sig, bias = np.empty((n, 4)), np.empty(n), np.empty((n, 3))
         self.e_acc = vqf_outputs(_rows(out["quat6D"]), _rows(out["bias"]), a_s, self.gyr_corr, self.e_acc,
-                                 self.sigma_alpha, self.sigma_var0, self.cfg.sigma_acc_gain, self._var_net(), q6, bias,
+                                 self.sigma_alpha, self.sigma_var0, self.sigma_gain, self._var_net(), q6, bias,
                                  sig)  # fmt: skip
         q9 = q_nb_from_vqf(out["quat9D"]) if self.use_mag else None
         if n:
@@ -281,13 +291,13 @@ class AnchoredVQF:
         b = self.f.getBiasEstimate()[0]
         bias = (b[0] + gc[0], -b[1] + gc[1], -b[2] + gc[2])
         sig, self.e_acc = sigma_step(qw, qx, qy, qz, a_s[0], a_s[1], a_s[2], self.e_acc, self.sigma_alpha,
-                                     self.sigma_var0, self.cfg.sigma_acc_gain, self._var_net())  # fmt: skip
+                                     self.sigma_var0, self.sigma_gain, self._var_net())  # fmt: skip
         self.t = float(t_s)
         return q6, q9, sig, bias
 
     def _var_net(self) -> float:
         """The network's share of σ² (zero while every gate is shut)."""
-        return self.gate * (self.cfg.sigma_net_scale * self.sigma_net) ** 2
+        return float(self.gate * (self.cfg.sigma_net_scale * self.sigma_net) ** 2)
 
     # ------------------------------------------------------------------ network windows
 
@@ -328,7 +338,7 @@ class AnchoredVQF:
         k = c.pull_gain * self.gate
         if k > 0:
             d = down_in_body(*_floats(w.q_nb_wxyz))  # the target's down in body axes; its up in S: (−d₀, d₁, d₂)
-            self.pull(tilt_pull_f(qw, qx, qy, qz, -d[0], d[1], d[2], k))
+            self.pull(tilt_pull_f(qw, qx, qy, qz, -d[0], d[1], d[2], float(k)))
 
     def pull(self, d) -> None:
         """Turn the filter's attitude by the earth-frame rotation ``d`` (horizontal axis): its
