@@ -1,7 +1,7 @@
 """Scalar quaternion formulas compiled with numba, for the per-sample loops (the older fusion, the
-baseline filters, the simulated multirotor's controller): Hamilton product, normalisation, the
-exponential of a body rotation vector, the gravity direction in body axes, Euler angles and
-rotation matrices to quaternions. Plain floats in, tuples out; callable from Python too.
+baseline filters, the simulated multirotor's controller, the anchored VQF's kernels): Hamilton
+product, normalisation, the exponential of a body rotation vector, the gravity direction in body
+axes, a quaternion's rotation matrix, Euler angles and rotation matrices to quaternions. Plain floats in, tuples out; callable from Python too.
 
 The gravity, Euler and rotation-matrix formulas are :mod:`.quat`'s own ``_down_in_body``,
 ``_euler_zyx_half_angles`` and ``_rotmat_entries`` compiled (one home for each); the others are the scalar forms of
