@@ -17,7 +17,14 @@ after those blocks. Offline, the record's first ``--seconds`` include that start
 By default the offline figure is for a one-hour log (the record repeated end to end, ``--tile-s
 3600``) and the streaming one for the record's first 120 s.
 
+``--split`` also times the offline estimate's two parts on the same record (where the network stays
+busy, e.g. a fixed wing or a saturating multirotor, it runs on most windows): the windows
+(:func:`~tepinn_flight.model.estimate.anchored_windows`: the network, with the older fusion alongside)
+and the anchored filter between and at them (``estimate_anchored`` given those windows: VQF,
+``AnchoredVQF.update`` on each window's samples and ``correct``), each per window.
+
 Usage: python benchmarks/estimate_speed.py [--record PATH] [--tile-s 3600 | --tile-s 0 --seconds 120] [--stream-seconds 120]
+       [--runtime onnx] [--split]
 """
 
 from __future__ import annotations
@@ -71,6 +78,18 @@ def offline(runner, settings, rec) -> tuple[float, float]:
     return len(rec) / (time.perf_counter() - t0), len(rec) / (time.process_time() - c0)
 
 
+def split(runner, settings, rec) -> tuple[int, float, float]:
+    """(windows, wall s of the windows, wall s of the anchored filter given them)."""
+    from tepinn_flight.model.estimate import anchored_windows, estimate_anchored
+    from tepinn_flight.model.fusion import FusionConfig
+
+    t0 = time.perf_counter()
+    w = anchored_windows(runner, rec, 256, settings.fusion_config or FusionConfig(), settings)
+    t1 = time.perf_counter()
+    estimate_anchored(runner, rec, settings, windows=w)
+    return len(w[0]), t1 - t0, time.perf_counter() - t1
+
+
 def vqf_offline(rec) -> tuple[float, float]:
     from tepinn_flight.evaluation.peers import make_peer
 
@@ -121,6 +140,8 @@ def main() -> int:
                     help="offline: the record repeated end to end up to this many seconds, the issue's one-hour log "
                          "(0: the record's first --seconds)")
     ap.add_argument("--model", default=None, help="checkpoint (default: shipped; onnx: its export beside it, if in sync)")
+    ap.add_argument("--split", action="store_true",
+                    help="offline: also time the windows (network) and the anchored filter between them apart")
     args = ap.parse_args()
     import torch
 
@@ -155,6 +176,15 @@ def main() -> int:
         r.set_threads(2)
         s, s_cpu = offline(r, settings, off_rec)
         print(f"  TE-PINN ({name:5s})    {s:12.0f} {s_cpu:12.0f} {s / rate:12.0f} {v_off / s:9.1f}")
+    if args.split:
+        from tepinn_flight.model.anchor import AnchorConfig
+
+        if not isinstance(settings, AnchorConfig):
+            print("  (--split: the checkpoint runs the older fusion, not the anchored filter)")
+        for name, r in runners.items() if isinstance(settings, AnchorConfig) else ():
+            n_win, t_win, t_flt = split(r, settings, off_rec)
+            print(f"  split ({name:5s}): {n_win} windows; windows {t_win:.2f} s ({1e3 * t_win / max(n_win, 1):.3f} ms each), "
+                  f"anchored filter {t_flt:.2f} s ({1e6 * t_flt / max(n_win, 1):.1f} µs per window)")  # fmt: skip
     torch.set_num_threads(1)
     v, v_cpu = vqf_streaming(st_rec)
     v = v[skip:]

@@ -13,7 +13,9 @@ The calls are what a user's first run makes: ``fusion`` the offline estimator's 
 live bridge's per-sample call (``AttitudeFusion.step``), ``filters`` the baseline filters
 ``evaluate`` runs (complementary and Madgwick 6-D and 9-D, the EKF) through ``FilterEstimator`` on a
 flight record, ``tlog-sync`` the frame sync of a real tlog (``scan_tlog``; skipped when
-``../shared/real-logs`` is missing).
+``../shared/real-logs`` is missing), ``anchored`` the shipped estimator's kernels between network
+windows (``AnchoredVQF.update`` on a block, ``correct`` with every gate open, ``update_one``: what
+``estimate`` and the live worker run; ``model/anchor_kernels.py``).
 
 Usage: python benchmarks/jit_compile.py [--compare /path/to/other/checkout] [--only fusion,filters]
 Wall-clock seconds; the machine may be shared, so compare the two checkouts within one run.
@@ -81,6 +83,20 @@ ests = [FilterEstimator(Complementary()), FilterEstimator(Madgwick()), FilterEst
 def call():
     for e in ests:
         e.estimate(rec)
+""",
+    "anchored": """
+import dataclasses
+from tepinn_flight.model.anchor import AnchorConfig, AnchoredVQF, WindowOutput
+cfg = dataclasses.replace(AnchorConfig(), speed_lo_m_s=0.0, speed_hi_m_s=1e-3)  # every gate open
+t = np.arange(50) / 200.0
+gyr, acc = np.tile([0.05, -0.02, 0.1], (50, 1)), np.tile([0.0, 0.0, -9.81], (50, 1))
+q = np.array([0.99, 0.1, 0.0, 0.0]) / np.linalg.norm([0.99, 0.1, 0.0, 0.0])
+def call():
+    f = AnchoredVQF(cfg, 1 / 200.0)
+    f.update(t, gyr, acc)
+    f.correct(WindowOutput(q, 0.02, np.zeros(3), np.array([30.0, 0.0, 0.0]), np.zeros(3), np.array([0.1, 0.0, 0.0])))
+    f.update(t + 0.25, gyr, acc)
+    f.update_one(0.5, (0.05, -0.02, 0.1), (0.0, 0.0, -9.81))
 """,
     "tlog-sync": f"""
 from tepinn_flight.ingest.mavlink_scan import scan_tlog

@@ -193,16 +193,21 @@ def cross(a: Array, b: Array) -> Array:
     return _cross(_ops(a), a, b)
 
 
-def quat_to_rotmat(q: Array) -> Array:
-    """``(..., 4)`` unit quaternion → ``(..., 3, 3)`` rotation matrix R with ``v_a = R v_b``."""
-    o = _ops(q)
-    w, x, y, z = _split(q)
-    r = [
+def _rotmat_entries(w, x, y, z):
+    """The formula of :func:`quat_to_rotmat` on components (arrays or floats): R's nine entries,
+    row by row."""
+    return (
         1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
         2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
         2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ]  # fmt: skip
-    rows = [o.stack(r[0:3]), o.stack(r[3:6]), o.stack(r[6:9])]
+    )  # fmt: skip
+
+
+def quat_to_rotmat(q: Array) -> Array:
+    """``(..., 4)`` unit quaternion → ``(..., 3, 3)`` rotation matrix R with ``v_a = R v_b``."""
+    o = _ops(q)
+    r = _rotmat_entries(*_split(q))
+    rows = [o.stack(list(r[0:3])), o.stack(list(r[3:6])), o.stack(list(r[6:9]))]
     return o.stack(rows, axis=-2)
 
 

@@ -1,10 +1,10 @@
 """Scalar quaternion formulas compiled with numba, for the per-sample loops (the older fusion, the
-baseline filters, the simulated multirotor's controller): Hamilton product, normalisation, the
-exponential of a body rotation vector, the gravity direction in body axes, Euler angles and
-rotation matrices to quaternions. Plain floats in, tuples out; callable from Python too.
+baseline filters, the simulated multirotor's controller, the anchored VQF's kernels): Hamilton
+product, normalisation, the exponential of a body rotation vector, the gravity direction in body
+axes, a quaternion's rotation matrix, Euler angles and rotation matrices to quaternions. Plain floats in, tuples out; callable from Python too.
 
-The gravity and Euler formulas are :mod:`.quat`'s own ``_down_in_body`` and
-``_euler_zyx_half_angles`` compiled (one home for each); the others are the scalar forms of
+The gravity, Euler and rotation-matrix formulas are :mod:`.quat`'s own ``_down_in_body``,
+``_euler_zyx_half_angles`` and ``_rotmat_entries`` compiled (one home for each); the others are the scalar forms of
 :func:`.quat.quat_mul`, :func:`.quat.quat_normalize`, :func:`.quat.quat_from_rotvec`'s closed form
 and :func:`.quat.rotmat_to_quat` (Shepperd's method).
 """
@@ -15,10 +15,11 @@ import math
 
 from numba import njit
 
-from .quat import _down_in_body, _euler_zyx_half_angles
+from .quat import _down_in_body, _euler_zyx_half_angles, _rotmat_entries
 
 down_in_body = njit(cache=True)(_down_in_body)
 euler_zyx_half_angles = njit(cache=True)(_euler_zyx_half_angles)
+rotmat_entries = njit(cache=True)(_rotmat_entries)  # R of a unit quaternion, its nine entries row by row
 
 
 @njit(cache=True)

@@ -1,6 +1,7 @@
 """Each compiled loop is compiled for one signature, whatever its callers pass: the offline and the
 live fusion share ``_step``'s, and a record's read-only Fortran-ordered columns, C arrays, 6-D and
-9-D calls give each filter one. (Every extra signature is another full compile on first use —
+9-D calls give each filter one; so do the anchored VQF's kernels, offline and live, from record
+columns, lists, tuples and configs holding ints. (Every extra signature is another full compile on first use —
 seconds each; ``benchmarks/jit_compile.py``.) Run in a fresh process, so the dispatchers hold only
 what these calls compiled."""
 
@@ -14,6 +15,10 @@ import textwrap
 import pytest
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+#: the anchored VQF's kernels (model/anchor_kernels.py)
+ANCHOR_KERNELS = ("q_nb_from_vqf_f", "q_nb_rows", "sigma_step", "vqf_inputs", "vqf_outputs", "horizontal_bias",
+                  "tilt_pull_f", "turn_acc_state")
 
 _CALLS = textwrap.dedent("""
     import numpy as np
@@ -46,11 +51,32 @@ _CALLS = textwrap.dedent("""
             FilterEstimator(f, use_mag=use_mag and f.name != "ekf").estimate(rec)
             f.estimate(np.ascontiguousarray(rec.gyr_rad_s), np.ascontiguousarray(rec.acc_m_s2), rec.t_s,
                        mag if use_mag else None)
+    import dataclasses
+    from tepinn_flight.model import anchor_kernels as ak
+    from tepinn_flight.model.anchor import AnchorConfig, AnchoredVQF, WindowOutput, q_nb_from_vqf, tilt_pull_quat
+
+    every_gate = dataclasses.replace(AnchorConfig(), speed_lo_m_s=0.0, speed_hi_m_s=1e-3)  # centripetal, pulls
+    for cfg in (every_gate, AnchorConfig(sigma_acc_gain=1, pull_gain=1, bias_gate_weight=1)):  # ints in the config
+        for use_mag in (False, True):
+            f = AnchoredVQF(cfg, 0.01, use_mag)
+            f.update(rec.t_s[:50], rec.gyr_rad_s[:50], rec.acc_m_s2[:50], rec.mag_ut[:50], rec.clipped[:50])
+            f.correct(WindowOutput(rec.q_ref_wxyz[50], 0.05, np.zeros(3), np.array([30.0, 0, 0]), np.zeros(3),
+                                   np.array([0.1, 0.0, 0.0])))  # fmt: skip
+            f.update([rec.t_s[50]], [list(rec.gyr_rad_s[50])], [tuple(rec.acc_m_s2[50])])  # lists
+            f.update(rec.t_s[51], rec.gyr_rad_s[51], rec.acc_m_s2[51])  # one row, read-only
+            f.update_one(rec.t_s[52], rec.gyr_rad_s[52], rec.acc_m_s2[52], rec.mag_ut[52], True)
+            f.correct(WindowOutput((1, 0, 0, 0), 0.05, [0, 0, 0], (40, 0, 0), [0, 1, 0], None))  # tuples, lists
+            g = np.array(rec.gyr_rad_s[53:60])
+            g[2] = np.nan  # a hole
+            f.update(rec.t_s[53:60], g, np.ascontiguousarray(rec.acc_m_s2[53:60]))
+    q_nb_from_vqf(rec.q_ref_wxyz)
+    q_nb_from_vqf(rec.q_ref_wxyz[0])
+    tilt_pull_quat(rec.q_ref_wxyz[0], [0, 0, 1], 1)
     for name, d in (("fusion._run", fusion._run), ("fusion._step", fusion._step),
                     ("complementary._run", complementary._run), ("madgwick._run", madgwick._run),
-                    ("ekf._loop", ekf._loop)):
+                    ("ekf._loop", ekf._loop)) + tuple((f"ak.{k}", getattr(ak, k)) for k in ANCHOR_KERNELS):
         print(name, len(d.signatures))
-""")
+""").replace("ANCHOR_KERNELS", repr(ANCHOR_KERNELS))
 
 
 @pytest.mark.slow
@@ -61,4 +87,4 @@ def test_every_loop_is_compiled_for_one_signature(tmp_path):
     assert p.returncode == 0, p.stderr
     counts = dict(line.split() for line in p.stdout.splitlines())
     assert counts == {k: "1" for k in ("fusion._run", "fusion._step", "complementary._run", "madgwick._run",
-                                       "ekf._loop")}, p.stdout  # fmt: skip
+                                       "ekf._loop") + tuple(f"ak.{k}" for k in ANCHOR_KERNELS)}, p.stdout  # fmt: skip

@@ -43,7 +43,9 @@ turning only ``accQuat`` would be undone at the next sample.
 the filter is averaging out), w the gate, σ_net the network's σ; fitted on validation files.
 
 Frames: VQF works in a z-up sensor frame ``S`` (body FRD turned 180° about x) and a z-up earth
-frame; conversions happen only at this module's edges (body FRD / NED outside).
+frame; conversions happen only at this module's edges (body FRD / NED outside). The arithmetic
+between the network's windows (the samples into ``S``, VQF's outputs out of it with σ, the tilt
+pull) is compiled in :mod:`.anchor_kernels`, where the frames are defined.
 """
 
 from __future__ import annotations
@@ -55,18 +57,12 @@ from typing import Literal
 import numpy as np
 
 from ..config import check_choice, check_range
-from ..conventions import Q_ENU_FROM_NED_WXYZ
+from ..quat_scalar import down_in_body
+from .anchor_kernels import FLIP as _FLIP
+from .anchor_kernels import Q_NED_ENU, Q_SENSOR_BODY  # noqa: F401  (VQF's frames; peers import them from here)
+from .anchor_kernels import (horizontal_bias, q_nb_from_vqf_f, q_nb_rows, sigma_step, tilt_pull_f, turn_acc_state,
+                             vqf_inputs, vqf_outputs)  # fmt: skip
 from .fusion import FusionConfig
-from ..quat import gravity_body, quat_conj, quat_mul, quat_normalize, quat_to_rotmat
-from ..quat_scalar import qmul, qnorm
-
-#: q_SB (180° about x) and q_NE (ENU-type z-up earth → NED), as in evaluation/peers.py
-Q_SENSOR_BODY = np.array([0.0, 1.0, 0.0, 0.0])
-Q_NED_ENU = quat_conj(np.asarray(Q_ENU_FROM_NED_WXYZ, np.float64))
-_FLIP = np.array([1.0, -1.0, -1.0])
-_EZ = np.array([0.0, 0.0, 1.0])
-_Q_SB = tuple(float(v) for v in Q_SENSOR_BODY)
-_Q_NE = tuple(float(v) for v in Q_NED_ENU)
 BIAS_EVIDENCE_S = 2.0  # the older fusion's bias must stay beyond its gate this long
 MODES = ("6d", "9d", "auto")
 
@@ -169,29 +165,30 @@ def to_sensor(v_b: np.ndarray) -> np.ndarray:
 
 
 def q_nb_from_vqf(q_es: np.ndarray) -> np.ndarray:
-    """VQF's sensor → z-up earth quaternion(s) → body FRD → NED."""
+    """VQF's sensor → z-up earth quaternion(s) (..., 4) → body FRD → NED."""
     q_es = np.asarray(q_es, np.float64)
-    sh = q_es.shape
-    return quat_normalize(quat_mul(np.broadcast_to(Q_NED_ENU, sh), quat_mul(q_es, np.broadcast_to(Q_SENSOR_BODY, sh))))
+    out = np.empty(q_es.shape)
+    q_nb_rows(_rows(q_es.reshape(-1, 4)), out.reshape(-1, 4))
+    return out
 
 
-def _q_nb_from_vqf_f(q_es) -> tuple:
-    """:func:`q_nb_from_vqf` of one quaternion, in plain floats."""
-    a = qmul(float(q_es[0]), float(q_es[1]), float(q_es[2]), float(q_es[3]), *_Q_SB)
-    return qnorm(*qmul(*_Q_NE, *a))
-
-
-def tilt_pull_quat(q_es: np.ndarray, up_s: np.ndarray, fraction: float) -> np.ndarray:
+def tilt_pull_quat(q_es, up_s, fraction: float) -> np.ndarray:
     """Earth-frame rotation that turns the filter attitude ``q_es`` by ``fraction`` of the tilt
     between it and a target whose up direction in sensor axes is ``up_s``; about a horizontal
-    axis, so the heading is untouched."""
-    u = quat_to_rotmat(q_es) @ (up_s / np.linalg.norm(up_s))  # the target's up in the filter's earth frame
-    axis = np.cross(u, _EZ)
-    n = np.linalg.norm(axis)
-    ang = math.atan2(n, float(u @ _EZ)) * fraction
-    if n < 1e-12 or ang == 0.0:
-        return np.array([1.0, 0.0, 0.0, 0.0])
-    return np.r_[math.cos(ang / 2), math.sin(ang / 2) * axis / n]
+    axis, so the heading is untouched (:func:`.anchor_kernels.tilt_pull_f`)."""
+    return np.array(tilt_pull_f(*(float(v) for v in q_es), *(float(v) for v in up_s), float(fraction)))
+
+
+def _rows(x, ndim: int = 2) -> np.ndarray:
+    """``x`` as the compiled kernels take it: float64, C-contiguous, writable, ``ndim`` dimensions
+    (one row: a block of one); a copy only when it is not (a record's columns are read-only,
+    Fortran-ordered)."""
+    x = np.asarray(x, np.float64)
+    if x.ndim < ndim:
+        x = x.reshape((1,) * (ndim - x.ndim) + x.shape)
+    if not (x.flags.c_contiguous and x.flags.writeable):
+        x = x.copy()
+    return x
 
 
 class AnchoredVQF:
@@ -205,6 +202,7 @@ class AnchoredVQF:
         import vqf
 
         self.cfg = c = config
+        self.centripetal = bool(c.centripetal)
         self.use_mag = use_mag
         self.ts = ts_s
         self.f = vqf.VQF(ts_s, tauAcc=c.tau_acc_s, biasClip=c.bias_clip_deg_s)
@@ -219,6 +217,9 @@ class AnchoredVQF:
         self.gate = 0.0
         self.sigma_net = 0.0
         self.e_acc = 0.0  # low-passed accelerometer-vs-gravity angle (rad)
+        self.sigma_alpha = min(1.0, self.ts / c.sigma_acc_tau_s)  # its low-pass gain per sample
+        self.sigma_var0 = math.radians(c.sigma_floor_deg) ** 2
+        self.sigma_gain = float(c.sigma_acc_gain)
         self.last_imu = (np.zeros(3), np.zeros(3))  # the last finite gyro/accelerometer sample
         self.holes = 0  # non-finite samples bridged
 
@@ -228,36 +229,35 @@ class AnchoredVQF:
         """Rows of samples → (q_nb (n, 4), q_nb_9d (n, 4) or None, sigma (n,), bias_b (n, 3)).
         A non-finite gyro/accelerometer row is a hole, bridged with the last finite sample."""
         t_s = np.atleast_1d(np.asarray(t_s, np.float64))
-        gyr_b = np.atleast_2d(np.asarray(gyr_b, np.float64))
-        acc_b = np.atleast_2d(np.asarray(acc_b, np.float64))
+        gyr_b, acc_b = _rows(gyr_b), _rows(acc_b)
         n = len(t_s)
         if clipped is not None:
             cl = np.flatnonzero(np.atleast_1d(clipped))
             if cl.size:
                 self.t_clip = max(self.t_clip, float(t_s[cl[-1]]))
-        bad = ~(np.all(np.isfinite(gyr_b), 1) & np.all(np.isfinite(acc_b), 1))
-        if bad.any():  # a hole: bridged with the last finite sample (counted)
+        g_s, a_s = np.empty((n, 3)), np.empty((n, 3))
+        bad = vqf_inputs(gyr_b, acc_b, self.gyr_corr, self.vel, self.acc_v, self.centripetal, g_s, a_s)
+        if bad:  # a hole: bridged with the last finite sample (counted)
+            bad = ~(np.all(np.isfinite(gyr_b), 1) & np.all(np.isfinite(acc_b), 1))
             gyr_b, acc_b = gyr_b.copy(), acc_b.copy()
             gyr_b[bad] = np.nan
             acc_b[bad] = np.nan
             ffill_rows(gyr_b, self.last_imu[0])
             ffill_rows(acc_b, self.last_imu[1])
             self.holes += int(bad.sum())
+            vqf_inputs(gyr_b, acc_b, self.gyr_corr, self.vel, self.acc_v, self.centripetal, g_s, a_s)
         if n:
             self.last_imu = (gyr_b[-1].copy(), acc_b[-1].copy())
-        g = gyr_b - self.gyr_corr
-        a = acc_b
-        if self.cfg.centripetal and (self.vel.any() or self.acc_v.any()):
-            a = a - (np.cross(gyr_b, self.vel) + self.acc_v)
         m = None
         if self.use_mag:
             m = np.full((n, 3), np.nan) if mag is None else np.atleast_2d(np.asarray(mag, np.float64))
             m = to_sensor(np.where(np.isfinite(m), m, 0.0))  # zero: VQF skips the magnetometer update
-        out = self.f.updateBatch(to_sensor(g), to_sensor(a), m)
-        q6 = q_nb_from_vqf(out["quat6D"])
+        out = self.f.updateBatch(g_s, a_s, m)
+        q6, sig, bias = np.empty((n, 4)), np.empty(n), np.empty((n, 3))
+        self.e_acc = vqf_outputs(_rows(out["quat6D"]), _rows(out["bias"]), a_s, self.gyr_corr, self.e_acc,
+                                 self.sigma_alpha, self.sigma_var0, self.sigma_gain, self._var_net(), q6, bias,
+                                 sig)  # fmt: skip
         q9 = q_nb_from_vqf(out["quat9D"]) if self.use_mag else None
-        bias = out["bias"] * _FLIP + self.gyr_corr
-        sig = self._sigma(out["quat6D"], to_sensor(a))
         if n:
             self.t = float(t_s[-1])
         return q6, q9, sig, bias
@@ -287,59 +287,39 @@ class AnchoredVQF:
             self.f.update(np.array([gx, -gy, -gz]), np.array(a_s), np.array([m[0], -m[1], -m[2]]))
         else:
             self.f.update(np.array([gx, -gy, -gz]), np.array(a_s))
-        q_es = self.f.getQuat6D()
-        q6 = _q_nb_from_vqf_f(q_es)
-        q9 = _q_nb_from_vqf_f(self.f.getQuat9D()) if self.use_mag else None
+        qw, qx, qy, qz = self.f.getQuat6D().tolist()
+        q6 = q_nb_from_vqf_f(qw, qx, qy, qz)
+        q9 = q_nb_from_vqf_f(*self.f.getQuat9D().tolist()) if self.use_mag else None
         b = self.f.getBiasEstimate()[0]
         bias = (b[0] + gc[0], -b[1] + gc[1], -b[2] + gc[2])
-        # σ: as _sigma for one row
-        c = self.cfg
-        w, x, y, z = float(q_es[0]), -float(q_es[1]), -float(q_es[2]), -float(q_es[3])  # conj: earth up in sensor axes
-        up = (2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y))
-        an = math.sqrt(a_s[0] * a_s[0] + a_s[1] * a_s[1] + a_s[2] * a_s[2])
-        cosang = (up[0] * a_s[0] + up[1] * a_s[1] + up[2] * a_s[2]) / max(an, 1e-9)
-        ang = math.acos(min(1.0, max(-1.0, cosang)))
-        alpha = min(1.0, self.ts / c.sigma_acc_tau_s)
-        beta = 1.0 - alpha
-        self.e_acc = e = beta * self.e_acc + alpha * ang if beta > 0 else ang
-        var = math.radians(c.sigma_floor_deg) ** 2 + (c.sigma_acc_gain * e) ** 2
-        var += self.gate * (c.sigma_net_scale * self.sigma_net) ** 2
+        sig, self.e_acc = sigma_step(qw, qx, qy, qz, a_s[0], a_s[1], a_s[2], self.e_acc, self.sigma_alpha,
+                                     self.sigma_var0, self.sigma_gain, self._var_net())  # fmt: skip
         self.t = float(t_s)
-        return q6, q9, math.sqrt(var), bias
+        return q6, q9, sig, bias
 
-    def _sigma(self, q_es, a_s):
-        """Per-sample σ (rad) of the tilt error for the rows just filtered (``a_s``: the
-        accelerometer VQF saw, sensor axes)."""
-        c = self.cfg
-        up = quat_to_rotmat(quat_conj(np.asarray(q_es)))[..., :, 2]  # earth up in sensor axes (n, 3)
-        an = np.linalg.norm(a_s, axis=1)
-        cosang = np.einsum("ij,ij->i", up, a_s) / np.maximum(an, 1e-9)
-        ang = np.arccos(np.clip(cosang, -1.0, 1.0))
-        e = _low_pass(ang, self.e_acc, min(1.0, self.ts / c.sigma_acc_tau_s))
-        self.e_acc = float(e[-1])
-        var = math.radians(c.sigma_floor_deg) ** 2 + (c.sigma_acc_gain * e) ** 2
-        var += self.gate * (c.sigma_net_scale * self.sigma_net) ** 2
-        return np.sqrt(var)
+    def _var_net(self) -> float:
+        """The network's share of σ² (zero while every gate is shut)."""
+        return float(self.gate * (self.cfg.sigma_net_scale * self.sigma_net) ** 2)
 
     # ------------------------------------------------------------------ network windows
 
     def correct(self, w: WindowOutput) -> None:
         """Apply the network's window made at the last sample pushed (see module doc)."""
         c = self.cfg
-        speed = float(np.linalg.norm(w.vel_m_s))
+        vx, vy, vz = _floats(w.vel_m_s)
+        speed = math.sqrt(vx * vx + vy * vy + vz * vz)
         g_flight = min(1.0, max(0.0, (speed - c.speed_lo_m_s) / (c.speed_hi_m_s - c.speed_lo_m_s)))
         g_clip = 1.0 if self.t - self.t_clip < c.clip_hold_s else 0.0
         # only the bias component perpendicular to gravity turns the tilt (the one along it turns the
         # heading, which no tilt measurement can check): that part is the evidence and the correction
-        down = gravity_body(q_nb_from_vqf(self.f.getQuat6D()))  # the filter's own vertical
-        horiz = np.eye(3) - np.outer(down, down)
+        qw, qx, qy, qz = self.f.getQuat6D().tolist()
         b_src = w.gyr_bias_rad_s if w.fusion_bias_rad_s is None else w.fusion_bias_rad_s
-        b_h = horiz @ np.asarray(b_src, np.float64)
+        b_h = horizontal_bias(qw, qx, qy, qz, *_floats(b_src))
         if c.bias_gate_weight > 0 and not self.bias_latched:
-            b, _ = self.f.getBiasEstimate()
-            self.bias_latched = bool(np.max(np.abs(b)) >= 0.95 * math.radians(c.bias_clip_deg_s))
+            b = self.f.getBiasEstimate()[0].tolist()
+            self.bias_latched = max(abs(b[0]), abs(b[1]), abs(b[2])) >= 0.95 * math.radians(c.bias_clip_deg_s)
             if c.bias_gate_fusion_deg_s > 0 and w.fusion_bias_rad_s is not None:  # for 2 s on end
-                over = bool(np.linalg.norm(b_h) > math.radians(c.bias_gate_fusion_deg_s))
+                over = _norm3(b_h) > math.radians(c.bias_gate_fusion_deg_s)
                 self.t_bias_over = (self.t_bias_over if self.t_bias_over is not None else self.t) if over else None
                 self.bias_latched |= over and self.t - self.t_bias_over >= BIAS_EVIDENCE_S
         g_bias = c.bias_gate_weight if self.bias_latched else 0.0
@@ -351,48 +331,37 @@ class AnchoredVQF:
                 self.tau_acc = tau
         self.sigma_net = float(w.sigma_rad)
         if c.centripetal:
-            self.vel = g_flight * np.asarray(w.vel_m_s, np.float64)
-            self.acc_v = g_flight * np.asarray(w.acc_m_s2, np.float64)
+            self.vel = np.array([g_flight * vx, g_flight * vy, g_flight * vz])
+            self.acc_v = np.array([g_flight * v for v in _floats(w.acc_m_s2)])
         if self.bias_latched:  # the older fusion's bias where it runs (bias states), else the network's
-            nb = float(np.linalg.norm(b_h))
+            nb = _norm3(b_h)
             dz = math.radians(c.bias_deadzone_deg_s)
-            self.gyr_corr = b_h * max(0.0, 1.0 - dz / nb) if nb > 0 else np.zeros(3)
+            self.gyr_corr = np.array(b_h) * max(0.0, 1.0 - dz / nb) if nb > 0 else np.zeros(3)
         k = c.pull_gain * self.gate
         if k > 0:
-            up_s = to_sensor(-gravity_body(np.asarray(w.q_nb_wxyz, np.float64)))
-            self.pull(tilt_pull_quat(self.f.getQuat6D(), up_s, k))
+            d = down_in_body(*_floats(w.q_nb_wxyz))  # the target's down in body axes; its up in S: (−d₀, d₁, d₂)
+            self.pull(tilt_pull_f(qw, qx, qy, qz, -d[0], d[1], d[2], float(k)))
 
-    def pull(self, d: np.ndarray) -> None:
+    def pull(self, d) -> None:
         """Turn the filter's attitude by the earth-frame rotation ``d`` (horizontal axis): its
         inclination quaternion and, with it, its low-passed accelerometer states."""
         st = self.f.state
-        aq = np.asarray(st["accQuat"], np.float64)
-        rot = quat_to_rotmat(quat_mul(quat_conj(aq), quat_mul(quat_conj(d), aq)))
-        st["lastAccLp"] = rot @ np.asarray(st["lastAccLp"], np.float64)
-        s = np.asarray(st["accLpState"], np.float64).copy()
-        if np.isnan(s[0]):  # still averaging its first samples: s[2:5] is their sum
-            s[2:5] = rot @ s[2:5]
-        else:  # two filter states per axis
-            s = (rot @ s.reshape(3, 2)).reshape(6)
-        st["accLpState"] = s
-        st["accQuat"] = quat_normalize(quat_mul(d, aq))
+        aq = np.array(st["accQuat"], np.float64)
+        lp = np.array(st["lastAccLp"], np.float64)
+        s = np.array(st["accLpState"], np.float64)
+        dw, dx, dy, dz = _floats(d)
+        turn_acc_state(aq, dw, dx, dy, dz, lp, s)
+        st["accQuat"], st["lastAccLp"], st["accLpState"] = aq, lp, s
         self.f.state = st
 
 
-def _low_pass(x: np.ndarray, s0: float, alpha: float, block: int = 256) -> np.ndarray:
-    """First-order low-pass ``s ← s + α(x − s)`` over ``x`` from state ``s0`` (vectorised in blocks:
-    ``s_i = β^(i+1) s0 + α Σ_k β^(i−k) x_k``, β = 1 − α)."""
-    out = np.empty(len(x))
-    beta = 1.0 - alpha
-    for a in range(0, len(x), block):
-        v = x[a : a + block]
-        m = len(v)
-        p = beta ** np.arange(m)  # β^i
-        with np.errstate(over="ignore", divide="ignore"):
-            acc = np.cumsum(v / p) * p if beta > 0 else v.copy()
-        out[a : a + m] = beta * p * s0 + alpha * acc if beta > 0 else v
-        s0 = float(out[a + m - 1])
-    return out
+def _floats(v) -> list:
+    """A short vector (array, tuple, list) as Python floats."""
+    return np.asarray(v, np.float64).tolist()
+
+
+def _norm3(v) -> float:
+    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 
 
 def ffill_rows(arr, first=None):

@@ -46,15 +46,14 @@ def network_outputs(model: TEPINN, tok, ends: np.ndarray, gyr_offset: np.ndarray
     runner = as_runner(model)
     c = runner.config
     qs, ss, bs, vs, avs = [], [], [], [], []
-    gyr = np.nan_to_num(tok.gyr)
-    acc = np.nan_to_num(tok.acc)
-    mag = np.nan_to_num(tok.mag)
     for a in range(0, len(ends), batch_size):
         e = ends[a : a + batch_size]
         idx = e[:, None] + np.arange(-c.window_tokens + 1, 1)[None, :]
         t = tok.t_s[idx]
-        g = gyr[idx] if gyr_offset is None else gyr[idx] - gyr_offset[a : a + batch_size, None, :]
-        out = runner.run(g, acc[idx], tok.count[idx], t - t[:, -1:], tok.dt_s[idx], mag[idx], tok.clip[idx])
+        gyr = np.nan_to_num(tok.gyr[idx])  # the windows' tokens only (the whole record per call: O(calls × length))
+        g = gyr if gyr_offset is None else gyr - gyr_offset[a : a + batch_size, None, :]
+        out = runner.run(g, np.nan_to_num(tok.acc[idx]), tok.count[idx], t - t[:, -1:], tok.dt_s[idx],
+                         np.nan_to_num(tok.mag[idx]), tok.clip[idx])  # fmt: skip
         qs.append(out["q"])
         ss.append(out["sigma"])
         bs.append(out["bias"])

@@ -592,19 +592,41 @@ class FusionRun:
         self.bias = np.full((n, 3), np.nan)
         self.fusion = AttitudeFusion(config)
         self.est_at = np.full(n, -1, np.int64)
-        self.est_q = np.zeros((0, 4))
-        self.est_sigma = np.zeros(0)
-        self.est_bias = np.zeros((0, 3))
+        # the window estimates added so far: the first n_est rows of buffers grown by doubling (a
+        # concatenation per add cost O(windows) each time: quadratic on a long busy segment)
+        self.n_est = 0
+        self._est_q = np.zeros((0, 4))
+        self._est_sigma = np.zeros(0)
+        self._est_bias = np.zeros((0, 3))
         self.i = 0
+
+    @property
+    def est_q(self) -> np.ndarray:
+        return self._est_q[: self.n_est]
+
+    @property
+    def est_sigma(self) -> np.ndarray:
+        return self._est_sigma[: self.n_est]
+
+    @property
+    def est_bias(self) -> np.ndarray:
+        return self._est_bias[: self.n_est]
 
     def add(self, est_index, est_q, est_sigma, est_bias) -> None:
         est_index = np.asarray(est_index, np.int64)
         if not len(est_index):
             return
-        k0 = len(self.est_sigma)
-        self.est_q = np.concatenate([self.est_q, np.asarray(est_q, np.float64).reshape(-1, 4)])
-        self.est_sigma = np.concatenate([self.est_sigma, np.asarray(est_sigma, np.float64).reshape(-1)])
-        self.est_bias = np.concatenate([self.est_bias, np.asarray(est_bias, np.float64).reshape(-1, 3)])
+        est_sigma = np.asarray(est_sigma, np.float64).reshape(-1)
+        k0, k1 = self.n_est, self.n_est + len(est_sigma)
+        if k1 > len(self._est_sigma):
+            cap = max(k1, 2 * len(self._est_sigma), 64)
+            self._est_q = np.concatenate([self.est_q, np.zeros((cap - k0, 4))])
+            self._est_sigma = np.concatenate([self.est_sigma, np.zeros(cap - k0)])
+            self._est_bias = np.concatenate([self.est_bias, np.zeros((cap - k0, 3))])
+        self._est_q[k0:k1] = np.asarray(est_q, np.float64).reshape(-1, 4)
+        self._est_sigma[k0:k1] = est_sigma
+        self._est_bias[k0:k1] = np.asarray(est_bias, np.float64).reshape(-1, 3)
+        self.n_est = k1
         at = est_index + 1
         keep = at < len(self.t_s)
         self.est_at[at[keep]] = k0 + np.flatnonzero(keep)

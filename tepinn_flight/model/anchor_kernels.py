@@ -1,0 +1,172 @@
+"""The anchored VQF's arithmetic between the network's windows, compiled with numba (one signature
+each): the samples into VQF's frames, VQF's outputs out of them with σ, the tilt pull and the turn
+of VQF's accelerometer state that goes with it. :mod:`.anchor` runs them; offline it calls VQF on
+blocks of ~16 samples (one network window each), where numpy's per-call cost on such small arrays
+was most of the time (``benchmarks/PROFILE.md``, session 9).
+
+VQF's frames are defined here (the one home; :mod:`.anchor` and ``evaluation/peers.py`` import
+them): a z-up sensor frame ``S`` (body FRD turned 180° about x) and a z-up earth frame (ENU-type).
+
+The formulas are :mod:`..quat_scalar`'s (Hamilton product, normalisation, rotation matrix, the
+earth's vertical in body axes), applied in the order the former numpy code applied them, so the
+frame conversions give the same bits as :func:`..quat.quat_mul` / :func:`..quat.quat_normalize`
+(tested against the numpy peers' conversion, ``tests/test_anchor_kernels.py``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..conventions import Q_ENU_FROM_NED_WXYZ
+from ..quat import quat_conj
+from ..quat_scalar import down_in_body, qmul, qnorm, rotmat_entries
+
+#: q_SB (180° about x) and q_NE (ENU-type z-up earth → NED)
+Q_SENSOR_BODY = np.array([0.0, 1.0, 0.0, 0.0])
+Q_NED_ENU = quat_conj(np.asarray(Q_ENU_FROM_NED_WXYZ, np.float64))
+FLIP = np.array([1.0, -1.0, -1.0])  # body FRD ↔ S, per axis
+_SB = tuple(float(v) for v in Q_SENSOR_BODY)
+_NE = tuple(float(v) for v in Q_NED_ENU)
+
+
+@njit(cache=True)
+def q_nb_from_vqf_f(w, x, y, z):
+    """VQF's sensor → z-up earth quaternion → body FRD → NED: ``q_NE ⊗ q_ES ⊗ q_SB``, normalised."""
+    a = qmul(w, x, y, z, _SB[0], _SB[1], _SB[2], _SB[3])
+    b = qmul(_NE[0], _NE[1], _NE[2], _NE[3], a[0], a[1], a[2], a[3])
+    return qnorm(b[0], b[1], b[2], b[3])
+
+
+@njit(cache=True)
+def q_nb_rows(q_es, q_nb):
+    """:func:`q_nb_from_vqf_f` of each row of ``q_es`` (n, 4) into ``q_nb`` (n, 4)."""
+    for i in range(q_es.shape[0]):
+        r = q_nb_from_vqf_f(q_es[i, 0], q_es[i, 1], q_es[i, 2], q_es[i, 3])
+        q_nb[i, 0], q_nb[i, 1], q_nb[i, 2], q_nb[i, 3] = r
+
+
+@njit(cache=True)
+def sigma_step(qw, qx, qy, qz, ax, ay, az, e, alpha, var0, gain, var_net):
+    """One sample's σ (rad) → (σ, e): ``e`` low-passes (``e ← (1 − α) e + α·angle``) the angle between
+    the accelerometer VQF saw (``a``, sensor axes) and its earth vertical (attitude ``q``, sensor →
+    earth); ``σ² = var0 + (gain·e)² + var_net``."""
+    ux, uy, uz = down_in_body(qw, qx, qy, qz)  # R's third row: the earth's z axis in sensor axes
+    an = math.sqrt(ax * ax + ay * ay + az * az)
+    c = (ux * ax + uy * ay + uz * az) / max(an, 1e-9)
+    if c > 1.0:
+        c = 1.0
+    elif c < -1.0:
+        c = -1.0
+    ang = math.acos(c)
+    beta = 1.0 - alpha
+    e = beta * e + alpha * ang if beta > 0 else ang
+    ge = gain * e
+    var = var0 + ge * ge
+    var += var_net
+    return math.sqrt(var), e
+
+
+@njit(cache=True)
+def vqf_inputs(gyr_b, acc_b, gyr_corr, vel, acc_v, centripetal, g_s, a_s):
+    """The block VQF sees, in its sensor frame: ``g_s`` ← gyro − ``gyr_corr``; ``a_s`` ←
+    accelerometer − (ω × ``vel`` + ``acc_v``) when ``centripetal`` and either is non-zero (ω: the
+    gyro as measured), else the accelerometer. Returns how many rows hold a non-finite value
+    (their outputs are then meaningless)."""
+    cen = centripetal and (vel[0] != 0.0 or vel[1] != 0.0 or vel[2] != 0.0
+                           or acc_v[0] != 0.0 or acc_v[1] != 0.0 or acc_v[2] != 0.0)  # fmt: skip
+    bad = 0
+    for i in range(gyr_b.shape[0]):
+        gx, gy, gz = gyr_b[i, 0], gyr_b[i, 1], gyr_b[i, 2]
+        ax, ay, az = acc_b[i, 0], acc_b[i, 1], acc_b[i, 2]
+        if not (math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz)
+                and math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az)):  # fmt: skip
+            bad += 1
+        g_s[i, 0] = gx - gyr_corr[0]
+        g_s[i, 1] = -(gy - gyr_corr[1])
+        g_s[i, 2] = -(gz - gyr_corr[2])
+        if cen:
+            ax = ax - ((gy * vel[2] - gz * vel[1]) + acc_v[0])
+            ay = ay - ((gz * vel[0] - gx * vel[2]) + acc_v[1])
+            az = az - ((gx * vel[1] - gy * vel[0]) + acc_v[2])
+        a_s[i, 0] = ax
+        a_s[i, 1] = -ay
+        a_s[i, 2] = -az
+    return bad
+
+
+@njit(cache=True)
+def vqf_outputs(q_es, bias_s, a_s, gyr_corr, e, alpha, var0, gain, var_net, q_nb, bias_b, sigma):
+    """VQF's block out to the estimator's frames: ``q_nb`` (n, 4) body FRD → NED, ``bias_b`` (n, 3) its
+    bias in body axes plus ``gyr_corr`` (what was removed before VQF), ``sigma`` (n,) by
+    :func:`sigma_step` from state ``e``. Returns the last ``e``."""
+    for i in range(q_es.shape[0]):
+        qw, qx, qy, qz = q_es[i, 0], q_es[i, 1], q_es[i, 2], q_es[i, 3]
+        q_nb[i, 0], q_nb[i, 1], q_nb[i, 2], q_nb[i, 3] = q_nb_from_vqf_f(qw, qx, qy, qz)
+        bias_b[i, 0] = bias_s[i, 0] + gyr_corr[0]
+        bias_b[i, 1] = -bias_s[i, 1] + gyr_corr[1]
+        bias_b[i, 2] = -bias_s[i, 2] + gyr_corr[2]
+        sigma[i], e = sigma_step(qw, qx, qy, qz, a_s[i, 0], a_s[i, 1], a_s[i, 2], e, alpha, var0, gain, var_net)
+    return e
+
+
+@njit(cache=True)
+def horizontal_bias(qw, qx, qy, qz, bx, by, bz):
+    """The part of a body-axes gyro bias ``b`` perpendicular to gravity, for VQF's attitude ``q``
+    (sensor → earth): ``(I − d dᵀ) b`` with d the filter's down in body axes."""
+    q = q_nb_from_vqf_f(qw, qx, qy, qz)
+    d = down_in_body(q[0], q[1], q[2], q[3])
+    return ((1.0 - d[0] * d[0]) * bx + (0.0 - d[0] * d[1]) * by + (0.0 - d[0] * d[2]) * bz,
+            (0.0 - d[1] * d[0]) * bx + (1.0 - d[1] * d[1]) * by + (0.0 - d[1] * d[2]) * bz,
+            (0.0 - d[2] * d[0]) * bx + (0.0 - d[2] * d[1]) * by + (1.0 - d[2] * d[2]) * bz)  # fmt: skip
+
+
+@njit(cache=True)
+def tilt_pull_f(qw, qx, qy, qz, ux, uy, uz, fraction):
+    """Earth-frame rotation (a quaternion) that turns the filter attitude ``q`` (sensor → earth) by
+    ``fraction`` of the tilt between it and a target whose up direction in sensor axes is ``u``;
+    about a horizontal axis (``u_earth × e_z``), so the heading is untouched."""
+    n = math.sqrt(ux * ux + uy * uy + uz * uz)
+    ux, uy, uz = ux / n, uy / n, uz / n
+    r = rotmat_entries(qw, qx, qy, qz)
+    ex = r[0] * ux + r[1] * uy + r[2] * uz  # the target's up in the filter's earth frame
+    ey = r[3] * ux + r[4] * uy + r[5] * uz
+    ez = r[6] * ux + r[7] * uy + r[8] * uz
+    m = math.sqrt(ey * ey + ex * ex)  # |(ey, −ex, 0)|
+    ang = math.atan2(m, ez) * fraction
+    if m < 1e-12 or ang == 0.0:
+        return (1.0, 0.0, 0.0, 0.0)
+    s = math.sin(ang / 2)
+    return (math.cos(ang / 2), s * ey / m, s * -ex / m, 0.0)
+
+
+@njit(cache=True)
+def _rotate3(r, v, i, j, k):
+    """v[i], v[j], v[k] ← R (v[i], v[j], v[k]) for R's nine entries ``r``."""
+    x, y, z = v[i], v[j], v[k]
+    v[i] = r[0] * x + r[1] * y + r[2] * z
+    v[j] = r[3] * x + r[4] * y + r[5] * z
+    v[k] = r[6] * x + r[7] * y + r[8] * z
+
+
+@njit(cache=True)
+def turn_acc_state(acc_quat, dw, dx, dy, dz, last_acc_lp, acc_lp_state):
+    """VQF's inclination quaternion ``acc_quat`` (4,) ← normalise(d ⊗ acc_quat) for an earth-frame
+    rotation ``d``, and its low-passed accelerometer with it, in place: ``last_acc_lp`` (3,) and
+    ``acc_lp_state`` (6,: two filter states per axis, x0 x1 y0 y1 z0 z1; while still averaging its
+    first samples, NaN first and their sum in [2:5]) turned by ``R(a* ⊗ d* ⊗ a)``, the same rotation in
+    the frame they live in."""
+    aw, ax, ay, az = acc_quat[0], acc_quat[1], acc_quat[2], acc_quat[3]
+    p = qmul(dw, -dx, -dy, -dz, aw, ax, ay, az)
+    c = qmul(aw, -ax, -ay, -az, p[0], p[1], p[2], p[3])
+    r = rotmat_entries(c[0], c[1], c[2], c[3])
+    _rotate3(r, last_acc_lp, 0, 1, 2)
+    if math.isnan(acc_lp_state[0]):
+        _rotate3(r, acc_lp_state, 2, 3, 4)
+    else:
+        _rotate3(r, acc_lp_state, 0, 2, 4)
+        _rotate3(r, acc_lp_state, 1, 3, 5)
+    t = qmul(dw, dx, dy, dz, aw, ax, ay, az)
+    acc_quat[0], acc_quat[1], acc_quat[2], acc_quat[3] = qnorm(t[0], t[1], t[2], t[3])
