@@ -272,16 +272,25 @@ def _with_clipped(rec, t0_s, t1_s):
     return FlightRecord(data, dict(rec.meta))
 
 
-def test_live_equals_offline_with_quiet_blocks_busy_blocks_and_a_saturated_stretch():
-    """Quiet blocks: live and offline run the same windows (the blocks' first ones, every window of
-    a block a gate may open in, every window holding a saturated token) and give the same estimate."""
+@pytest.mark.parametrize("stride", [1, 2])
+def test_live_equals_offline_with_quiet_blocks_busy_blocks_and_a_saturated_stretch(stride):
+    """Quiet blocks: live and offline run the same windows (the blocks' first ones, every window —
+    or every ``busy_stride``-th — of a block a gate may open in, every window holding a saturated
+    token) and give the same estimate."""
     from tepinn_flight.model.estimate import anchored_windows
 
     rec = _with_clipped(synthetic_record(seed=2, duration_s=24.0, rate_hz=100.0), 15.0, 15.3)
     model, _, _ = load_model(default_model_path())
-    # the fusion's bias on this record crosses 2.5 °/s in some blocks and not in others
-    cfg = dataclasses.replace(_shipped(), quiet_blocks=True, quiet_bias_deg_s=2.5)
+    # the fusion's bias on this record crosses 2.5 °/s in some blocks and not in others (with a
+    # shorter start-up for the stride, so that busy blocks follow it outside the saturated stretch)
+    cfg = dataclasses.replace(_shipped(), quiet_blocks=True, quiet_bias_deg_s=2.5, busy_stride=stride,
+                              quiet_after_blocks=10 if stride == 1 else 4)  # fmt: skip
     idx, _ = anchored_windows(model, rec, fusion=cfg.fusion_config, anchor=cfg)
+    if stride > 1:  # fewer windows than with every window of the busy blocks, the start-up's all
+        every, _ = anchored_windows(model, rec, fusion=cfg.fusion_config, anchor=dataclasses.replace(cfg, busy_stride=1))
+        start = cfg.quiet_after_blocks * cfg.fusion_config.bias_feedback_windows
+        np.testing.assert_array_equal(idx[:start], every[:start])
+        assert len(idx) < len(every) - 10
     full, _ = anchored_windows(model, rec, fusion=cfg.fusion_config)
     live = StreamingEstimator(model, cfg)
     q_live = np.full((len(rec), 4), np.nan)

@@ -30,7 +30,8 @@ blocks (``bias_feedback_windows`` tokens, 1 s); a block whose first window and t
 speed only while it turns) and the older fusion's gyro bias below ``quiet_bias_deg_s`` (so
 neither the flight-speed nor the bias gate can open before the next block) runs only that window,
 and those holding a saturated token (the clip gate); a segment's first ``quiet_after_blocks`` and any
-other block run every window. Decided from what has been seen, so live and offline run the same
+other block run every window (after the start-up, every ``busy_stride``-th, and every one holding a
+saturated token: :meth:`AnchorConfig.runs_window`; the shipped 1 is every window). Decided from what has been seen, so live and offline run the same
 windows.
 
 A *pull* by a fraction k turns VQF's attitude about a horizontal earth axis by k times its tilt
@@ -105,6 +106,8 @@ class AnchorConfig:
     quiet_memory_blocks: int = 10
     quiet_bias_deg_s: float = 1.5
     quiet_after_blocks: int = 10  # a segment's first blocks run every window (the older fusion's bias converges)
+    # a busy block after those runs every busy_stride-th window (and every one holding a saturated token)
+    busy_stride: int = 1
     # the older fusion's settings (the checkpoint's fusion_config; filled in when loaded)
     fusion_config: FusionConfig | None = field(default=None, compare=False)
 
@@ -120,6 +123,7 @@ class AnchorConfig:
         check_range("speed_lo_m_s", self.speed_lo_m_s, 0, None)
         check_range("quiet_after_blocks", self.quiet_after_blocks, 0, 10**6)
         check_range("quiet_memory_blocks", self.quiet_memory_blocks, 0, 10**6)
+        check_range("busy_stride", self.busy_stride, 1, 10**6)
         check_range("speed_hi_m_s", self.speed_hi_m_s, self.speed_lo_m_s, None, lo_open=True)
         for name in ("quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "sigma_floor_deg", "sigma_acc_gain",
                      "sigma_net_scale"):  # fmt: skip
@@ -137,6 +141,15 @@ class AnchorConfig:
         if block < self.quiet_after_blocks or speed_m_s >= min(self.quiet_speed_m_s, self.speed_lo_m_s):
             return True
         return bool(np.max(np.abs(np.asarray(fusion_bias_rad_s, np.float64))) >= math.radians(self.quiet_bias_deg_s))
+
+    def runs_window(self, block: int, j: int, busy: bool, saturated: bool) -> bool:
+        """Whether the ``j``-th window (0: first) of block ``block`` runs, in a busy block or a quiet
+        one, holding a saturated token or not (offline and live decide by this)."""
+        if j == 0 or saturated:
+            return True
+        if not busy:
+            return False
+        return block < self.quiet_after_blocks or j % self.busy_stride == 0
 
     @property
     def learned_off(self) -> "AnchorConfig":

@@ -203,8 +203,8 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
                     o = {k: v[bi : bi + 1] for k, v in first.items()}
                 rest = sel[1:]
                 speed = max(float(np.linalg.norm(o["vel"][0])), max(v_blocks, default=0.0))
-                if not anchor.block_busy(bi, speed, run.fusion.bias):
-                    rest = rest[clip_win[pos[rest]]]
+                busy = anchor.block_busy(bi, speed, run.fusion.bias)
+                rest = rest[[anchor.runs_window(bi, int(r - s0), busy, bool(clip_win[pos[r]])) for r in rest]]
                 if len(rest):
                     fb = None if off is None else np.tile(off, (len(rest), 1))
                     o2 = network_outputs(model, tok, e_seg[rest], fb, batch_size)

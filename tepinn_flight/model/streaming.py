@@ -234,8 +234,10 @@ class StreamingEstimator:
         if first:
             self.feedback = feedback_bias(self.fusion_cfg, self.fusion.bias)  # after the previous estimate
         self.n_windows += 1
-        if self.quiet and not first and not self.busy and not any(x[5] > 0 for x in self.win):
-            return None  # a quiet block: only its first window (and those holding a saturated token) run
+        if self.quiet and not first:  # quiet blocks: only their first window (and those holding a saturated token) run
+            block, j = divmod(self.n_windows - 1, fb_every)
+            if not self.anchor_cfg.runs_window(block, j, self.busy, any(x[5] > 0 for x in self.win)):
+                return None
         w = list(self.win)
         t = np.array([x[0] for x in w])
         fb = self.feedback if fb_every > 0 else (0.0, 0.0, 0.0)
