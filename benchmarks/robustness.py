@@ -13,7 +13,11 @@ files, and low IMU rates on held-out simulated flights that saturate the gyro or
    `gyr_clipped` False) and, for comparison, as if they were the gyro's (the saturation gate's
    rule before session 9, when any clipped sample opened it).
 
+4. `--gyro-biases 5`: the same real files with a constant gyro bias (°/s, on every axis) added —
+   an uncalibrated gyro beyond VQF's ±2 °/s bias clip, on real sensors (the uncalibrated-gyro gate).
+
     python benchmarks/robustness.py [--model CKPT] [--acc-scales 1.0,0.8] [--rates 1,8,16] [--acc-clip-every 3]
+                                    [--gyro-biases 5]
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ def main() -> int:
     ap.add_argument("--acc-scales", default="1.0,0.8")
     ap.add_argument("--rates", default="1,8,16", help="decimation factors of the 400 Hz simulated flights")
     ap.add_argument("--acc-clip-every", type=float, default=3.0, help="s between accelerometer clip marks (0: skip)")
+    ap.add_argument("--gyro-biases", default="5", help="constant gyro biases to add, °/s on every axis ('': skip)")
     args = ap.parse_args()
 
     import torch
@@ -100,6 +105,22 @@ def main() -> int:
             print(f"accelerometer clip marks every {args.acc_clip_every:g} s read as the {label}, {len(res)} real files: "
                   f"TE-PINN {r[:, 0].mean():.3f}°, VQF {r[:, 1].mean():.3f}°, ratio {r[:, 0].mean() / r[:, 1].mean():.3f}; "
                   f"per-file bound failed on: {worse or 'none'}", flush=True)  # fmt: skip
+    for bias in [float(x) for x in args.gyro_biases.split(",") if x]:
+        res = []
+        for p in files:
+            rec = ingest_log(p)
+            r = copy.copy(rec)
+            r.data = rec.data.copy()
+            r.data[GYR_COLS] = r.data[GYR_COLS] + np.radians(bias)
+            res.append((p.name, *both(r)))
+        r = np.array([x[1:] for x in res])
+        worse = [f"{n} {a:.2f}/{b:.2f}" for n, a, b in res if a > max(1.5 * b, b + 0.5)]
+        better = sum(a < b for _, a, b in res)
+        print(f"gyro bias +{bias:g} °/s on every axis, {len(res)} real files: TE-PINN {r[:, 0].mean():.3f}°, VQF "
+              f"{r[:, 1].mean():.3f}°, ratio {r[:, 0].mean() / r[:, 1].mean():.3f}; better on {better}, per-file bound "
+              f"failed on: {worse or 'none'}", flush=True)  # fmt: skip
+        for n, a, b in res:
+            print(f"  {n[:44]:<44} TE-PINN {a:6.2f}  VQF {b:6.2f}", flush=True)
     pick = [p for p in sorted(Path(args.sim).glob("*.parquet")) if "c172x" in p.name or read_record(p).clipped.any()]
     pick = pick[:: max(1, len(pick) // 10)][:10]
     out: dict[int, list] = {}
