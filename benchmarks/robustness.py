@@ -16,8 +16,12 @@ files, and low IMU rates on held-out simulated flights that saturate the gyro or
 4. `--gyro-biases 5`: the same real files with a constant gyro bias (°/s, on every axis) added —
    an uncalibrated gyro beyond VQF's ±2 °/s bias clip, on real sensors (the uncalibrated-gyro gate).
 
+5. `--gyro-ranges 300`: the same real files with the gyro saturating at ±N °/s (each axis clipped
+   there and those samples marked clipped, as a reader marks them) — a smaller gyro range on real
+   sensors (the saturation gate and the network's declipping).
+
     python benchmarks/robustness.py [--model CKPT] [--acc-scales 1.0,0.8] [--rates 1,8,16] [--acc-clip-every 3]
-                                    [--gyro-biases 5]
+                                    [--gyro-biases 5] [--gyro-ranges 300]
 """
 
 from __future__ import annotations
@@ -43,6 +47,7 @@ def main() -> int:
     ap.add_argument("--rates", default="1,8,16", help="decimation factors of the 400 Hz simulated flights")
     ap.add_argument("--acc-clip-every", type=float, default=3.0, help="s between accelerometer clip marks (0: skip)")
     ap.add_argument("--gyro-biases", default="5", help="constant gyro biases to add, °/s on every axis ('': skip)")
+    ap.add_argument("--gyro-ranges", default="300", help="gyro full scales to saturate at, °/s ('': skip)")
     args = ap.parse_args()
 
     import torch
@@ -105,22 +110,40 @@ def main() -> int:
             print(f"accelerometer clip marks every {args.acc_clip_every:g} s read as the {label}, {len(res)} real files: "
                   f"TE-PINN {r[:, 0].mean():.3f}°, VQF {r[:, 1].mean():.3f}°, ratio {r[:, 0].mean() / r[:, 1].mean():.3f}; "
                   f"per-file bound failed on: {worse or 'none'}", flush=True)  # fmt: skip
-    for bias in [float(x) for x in args.gyro_biases.split(",") if x]:
+    def saturated(rec, rng_deg_s):
+        r = copy.copy(rec)
+        r.data = rec.data.copy()
+        lim = np.radians(rng_deg_s)
+        g = r.data[GYR_COLS].to_numpy()
+        at = (np.abs(g) >= lim).any(axis=1)
+        r.data[GYR_COLS] = np.clip(g, -lim, lim)
+        r.data["clipped"] = r.data["clipped"].to_numpy() | at
+        r.data["gyr_clipped"] = r.gyr_clipped | at
+        return r, float(at.mean())
+
+    conditions = [(f"gyro bias +{b:g} °/s on every axis", "bias", b) for b in [float(x) for x in args.gyro_biases.split(",") if x]]
+    conditions += [(f"gyro saturating at ±{g:g} °/s", "range", g) for g in [float(x) for x in args.gyro_ranges.split(",") if x]]
+    for label, kind, val in conditions:
         res = []
         for p in files:
             rec = ingest_log(p)
-            r = copy.copy(rec)
-            r.data = rec.data.copy()
-            r.data[GYR_COLS] = r.data[GYR_COLS] + np.radians(bias)
-            res.append((p.name, *both(r)))
+            if kind == "bias":
+                r = copy.copy(rec)
+                r.data = rec.data.copy()
+                r.data[GYR_COLS] = r.data[GYR_COLS] + np.radians(val)
+                note = ""
+            else:
+                r, frac = saturated(rec, val)
+                note = f" ({100 * frac:.1f} % of samples saturated)"
+            res.append((p.name + note, *both(r)))
         r = np.array([x[1:] for x in res])
         worse = [f"{n} {a:.2f}/{b:.2f}" for n, a, b in res if a > max(1.5 * b, b + 0.5)]
         better = sum(a < b for _, a, b in res)
-        print(f"gyro bias +{bias:g} °/s on every axis, {len(res)} real files: TE-PINN {r[:, 0].mean():.3f}°, VQF "
+        print(f"{label}, {len(res)} real files: TE-PINN {r[:, 0].mean():.3f}°, VQF "
               f"{r[:, 1].mean():.3f}°, ratio {r[:, 0].mean() / r[:, 1].mean():.3f}; better on {better}, per-file bound "
               f"failed on: {worse or 'none'}", flush=True)  # fmt: skip
         for n, a, b in res:
-            print(f"  {n[:44]:<44} TE-PINN {a:6.2f}  VQF {b:6.2f}", flush=True)
+            print(f"  {n[:44]:<44}{n[-32:] if '%' in n else '':<32} TE-PINN {a:6.2f}  VQF {b:6.2f}", flush=True)
     pick = [p for p in sorted(Path(args.sim).glob("*.parquet")) if "c172x" in p.name or read_record(p).clipped.any()]
     pick = pick[:: max(1, len(pick) // 10)][:10]
     out: dict[int, list] = {}

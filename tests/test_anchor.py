@@ -106,7 +106,10 @@ def test_gates_use_the_network_only_with_evidence():
     assert tilt_after([60.0, 0, 0]) == pytest.approx(10.0, abs=0.15)
     assert tilt_after([25.0, 0, 0]) == pytest.approx(5.0, abs=0.15)  # half-way up the ramp
     clip = np.zeros(n, bool)
-    clip[50] = True
+    clip[50:59] = True  # 0.09 s saturated: below clip_min_s (0.1 s), too little to open the gate
+    assert AnchorConfig().clip_min_s == pytest.approx(0.1)
+    assert tilt_after([0.0, 0, 0], clipped=clip) < 0.01
+    clip[50:60] = True  # 0.1 s: the gate opens
     assert tilt_after([0.0, 0, 0], clipped=clip) == pytest.approx(10.0, abs=0.15)
 
 

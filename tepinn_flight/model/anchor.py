@@ -14,10 +14,12 @@ and its rate ``â``. Each enters only where there is run-time evidence that VQF'
   loop; VQF's low-pass takes that for gravity. The gate removes ``ω × v̂ + â`` from the
   accelerometer VQF sees (per sample, with the current gyro) and pulls VQF's tilt toward the
   network's. Hand-held and multirotor motion stays far below the gate (|v̂| < 10 m/s).
-- **gyro saturation** (a sample with the gyro clipped within ``clip_hold_s``: the ``clipped`` argument
-  of :meth:`AnchoredVQF.update`, a record's ``gyr_clipped``): the integrated rate is wrong, so VQF's
-  tilt is pulled toward the network's window tilt (its physics inputs are clip-aware). An
-  accelerometer at its range leaves the integrated rate right and does not open it.
+- **gyro saturation** (at least ``clip_min_s`` of samples with the gyro clipped within ``clip_hold_s``:
+  the ``clipped`` argument of :meth:`AnchoredVQF.update`, a record's ``gyr_clipped``): the integrated
+  rate is wrong, so VQF's tilt is pulled toward the network's window tilt (its physics inputs are
+  clip-aware). An accelerometer at its range leaves the integrated rate right and does not open it;
+  nor does a handful of clipped samples, whose missed rotation is smaller than the network's error
+  on real sensors.
 - **gyro bias beyond VQF's clip** (VQF's bias estimate reaches ``bias_clip_deg_s``, an
   uncalibrated gyro): from then on, in that segment, the network's bias beyond
   ``bias_deadzone_deg_s`` is removed from the gyro VQF sees, and its tilt pulls with weight
@@ -52,6 +54,7 @@ pull) is compiled in :mod:`.anchor_kernels`, where the frames are defined.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -88,6 +91,8 @@ class AnchorConfig:
     speed_hi_m_s: float = 30.0
     centripetal: bool = True  # remove ω × v̂ + â (times the flight gate) from VQF's accelerometer
     clip_hold_s: float = 4.0  # gyro-saturation gate stays on this long after the last clipped sample
+    # ... and opens only where the last clip_hold_s hold at least clip_min_s of clipped samples (0: one)
+    clip_min_s: float = 0.1
     bias_gate_weight: float = 0.6  # pull weight while the uncalibrated-gyro gate is on (0: never)
     bias_deadzone_deg_s: float = 2.0  # the network's bias beyond this is removed from the gyro
     # ... and the gate also opens when the older fusion's bias estimate (pull target "fusion") exceeds
@@ -125,7 +130,7 @@ class AnchorConfig:
         check_range("quiet_memory_blocks", self.quiet_memory_blocks, 0, 10**6)
         check_range("busy_stride", self.busy_stride, 1, 10**6)
         check_range("speed_hi_m_s", self.speed_hi_m_s, self.speed_lo_m_s, None, lo_open=True)
-        for name in ("quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "sigma_floor_deg", "sigma_acc_gain",
+        for name in ("clip_min_s", "quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "sigma_floor_deg", "sigma_acc_gain",
                      "sigma_net_scale"):  # fmt: skip
             check_range(name, getattr(self, name), 0, None)
 
@@ -226,6 +231,7 @@ class AnchoredVQF:
         self.t_bias_over = None  # since when the older fusion's horizontal bias is beyond its gate
         self.tau_acc = c.tau_acc_s
         self.t_clip = -math.inf  # time of the last saturated sample
+        self.clip_times = deque()  # times of the saturated samples of the last clip_hold_s (clip_min_s > 0)
         self.t = 0.0
         self.gate = 0.0
         self.sigma_net = 0.0
@@ -248,6 +254,8 @@ class AnchoredVQF:
             cl = np.flatnonzero(np.atleast_1d(clipped))
             if cl.size:
                 self.t_clip = max(self.t_clip, float(t_s[cl[-1]]))
+                if self.cfg.clip_min_s > 0:
+                    self.clip_times.extend(t_s[cl].tolist())
         g_s, a_s = np.empty((n, 3)), np.empty((n, 3))
         bad = vqf_inputs(gyr_b, acc_b, self.gyr_corr, self.vel, self.acc_v, self.centripetal, g_s, a_s)
         if bad:  # a hole: bridged with the last finite sample (counted)
@@ -281,6 +289,8 @@ class AnchoredVQF:
         a float; the numbers of a one-row :meth:`update` (tested)."""
         if clipped:
             self.t_clip = max(self.t_clip, float(t_s))
+            if self.cfg.clip_min_s > 0:
+                self.clip_times.append(float(t_s))
         g = [float(v) for v in gyr_b]
         a = [float(v) for v in acc_b]
         if not all(math.isfinite(v) for v in (*g, *a)):  # a hole: bridged with the last finite sample
@@ -322,7 +332,13 @@ class AnchoredVQF:
         vx, vy, vz = _floats(w.vel_m_s)
         speed = math.sqrt(vx * vx + vy * vy + vz * vz)
         g_flight = min(1.0, max(0.0, (speed - c.speed_lo_m_s) / (c.speed_hi_m_s - c.speed_lo_m_s)))
-        g_clip = 1.0 if self.t - self.t_clip < c.clip_hold_s else 0.0
+        if c.clip_min_s > 0:  # enough saturated time in the last clip_hold_s
+            ct = self.clip_times
+            while ct and ct[0] <= self.t - c.clip_hold_s:
+                ct.popleft()
+            g_clip = 1.0 if len(ct) * self.ts >= c.clip_min_s else 0.0
+        else:
+            g_clip = 1.0 if self.t - self.t_clip < c.clip_hold_s else 0.0
         # only the bias component perpendicular to gravity turns the tilt (the one along it turns the
         # heading, which no tilt measurement can check): that part is the evidence and the correction
         qw, qx, qy, qz = self.f.getQuat6D().tolist()
