@@ -373,3 +373,23 @@ def test_cli_reports_bad_ulog_in_one_line(tmp_path):
     code, out, err = run_cli("ingest", str(p), "-o", str(tmp_path / "out.parquet"))
     assert code == 2 and "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out.parquet").exists()
+
+
+def test_px4_clipping_fields_keep_the_gyro_apart():
+    """sensor_combined / vehicle_imu clipping bit fields: the accelerometer's marks clipped alone, the
+    gyro's clipped and gyr_clipped; a log with the accelerometer's field only (older PX4) marks no gyro."""
+    from tepinn_flight.ingest.ulog import _clip_flags
+
+    acc_f = np.array([0, 1, 0, 0, 4, 0], np.uint8)
+    gyr_f = np.array([0, 0, 2, 0, 1, 0], np.uint8)
+    c, g = _clip_flags({"accelerometer_clipping": acc_f, "gyro_clipping": gyr_f}, "gyro_clipping", "accelerometer_clipping",
+                       slice(None), 6)  # fmt: skip
+    np.testing.assert_array_equal(c, [False, True, True, False, True, False])
+    np.testing.assert_array_equal(g, [False, False, True, False, True, False])
+    c, g = _clip_flags({"accelerometer_clipping": acc_f}, "gyro_clipping", "accelerometer_clipping", slice(None), 6)
+    np.testing.assert_array_equal(c, acc_f != 0)
+    assert g.dtype == bool and not g.any()
+    ok = np.array([True, True, False, True, True, True])
+    c, g = _clip_flags({"delta_velocity_clipping": acc_f, "delta_angle_clipping": gyr_f}, "delta_angle_clipping",
+                       "delta_velocity_clipping", ok, 5)  # fmt: skip
+    np.testing.assert_array_equal(g, [False, False, False, True, False])

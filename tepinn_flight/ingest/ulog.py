@@ -331,10 +331,10 @@ def _imu_from_sensor_combined(d: dict[str, np.ndarray], notes: list[str]) -> tup
 
 
 def _clip_flags(d: dict[str, np.ndarray], gyro_field: str, accel_field: str, rows, n: int):
-    """(clipped, gyr_clipped) from PX4's per-axis clipping bit fields (absent fields: none clipped;
-    gyr_clipped None when the topic has no gyro field)."""
+    """(clipped, gyr_clipped) from PX4's per-axis clipping bit fields: absent fields mark nothing (older
+    PX4 logs the accelerometer's field alone: none of its marks is the gyro's)."""
     flag = {f: np.asarray(d[f]).astype(np.int64)[rows] != 0 for f in (gyro_field, accel_field) if f in d}
-    gyr_clipped = flag.get(gyro_field)
+    gyr_clipped = flag.get(gyro_field, np.zeros(n, bool))
     clipped = np.zeros(n, bool)
     for v in flag.values():
         clipped |= v
