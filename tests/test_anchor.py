@@ -95,8 +95,8 @@ def test_gates_use_the_network_only_with_evidence():
     gyr, acc = np.zeros((n, 3)), np.tile([0.0, 0.0, -9.81], (n, 1))
     tilted = np.array([math.cos(math.radians(10)), math.sin(math.radians(10)), 0.0, 0.0])
 
-    def tilt_after(vel, clipped=None, gain=0.5):
-        f = AnchoredVQF(AnchorConfig(pull_gain=gain, centripetal=False), 0.01)
+    def tilt_after(vel, clipped=None, gain=0.5, clip_min_s=0.1):
+        f = AnchoredVQF(AnchorConfig(pull_gain=gain, centripetal=False, clip_min_s=clip_min_s), 0.01)
         f.update(t, gyr, acc, clipped=clipped)
         f.correct(WindowOutput(tilted, 0.01, np.zeros(3), np.asarray(vel, float), np.zeros(3)))
         q = f.update(t[-1:] + 0.01, gyr[:1], acc[:1])[0][0]
@@ -111,6 +111,15 @@ def test_gates_use_the_network_only_with_evidence():
     assert tilt_after([0.0, 0, 0], clipped=clip) < 0.01
     clip[50:60] = True  # 0.1 s: the gate opens
     assert tilt_after([0.0, 0, 0], clipped=clip) == pytest.approx(10.0, abs=0.15)
+    one = np.zeros(n, bool)
+    one[50] = True  # checkpoints made before clip_min_s (0): one clipped sample opens it
+    assert tilt_after([0.0, 0, 0], clipped=one, clip_min_s=0.0) == pytest.approx(10.0, abs=0.15)
+    one[50], one[0] = False, True  # ... for clip_hold_s (4 s) after it; a 6-s-old one no longer
+    f = AnchoredVQF(AnchorConfig(pull_gain=0.5, centripetal=False, clip_min_s=0.0), 0.01)
+    f.update(t, gyr, acc, clipped=one)
+    f.update(t + 5.0, gyr, acc)
+    f.correct(WindowOutput(tilted, 0.01, np.zeros(3), np.zeros(3), np.zeros(3)))
+    assert f.gate == 0.0
 
 
 def test_a_non_finite_sample_is_a_hole_not_the_end_of_the_estimate():

@@ -230,8 +230,7 @@ class AnchoredVQF:
         self.bias_latched = False
         self.t_bias_over = None  # since when the older fusion's horizontal bias is beyond its gate
         self.tau_acc = c.tau_acc_s
-        self.t_clip = -math.inf  # time of the last saturated sample
-        self.clip_times = deque()  # times of the saturated samples of the last clip_hold_s (clip_min_s > 0)
+        self.clip_times = deque()  # times of the saturated samples of the last clip_hold_s
         self.t = 0.0
         self.gate = 0.0
         self.sigma_net = 0.0
@@ -252,10 +251,7 @@ class AnchoredVQF:
         n = len(t_s)
         if clipped is not None:
             cl = np.flatnonzero(np.atleast_1d(clipped))
-            if cl.size:
-                self.t_clip = max(self.t_clip, float(t_s[cl[-1]]))
-                if self.cfg.clip_min_s > 0:
-                    self.clip_times.extend(t_s[cl].tolist())
+            self.clip_times.extend(t_s[cl].tolist())
         g_s, a_s = np.empty((n, 3)), np.empty((n, 3))
         bad = vqf_inputs(gyr_b, acc_b, self.gyr_corr, self.vel, self.acc_v, self.centripetal, g_s, a_s)
         if bad:  # a hole: bridged with the last finite sample (counted)
@@ -288,9 +284,7 @@ class AnchoredVQF:
         on one row cost 10× the arithmetic) → (q_nb, q_nb_9d or None, sigma, bias_b) as tuples and
         a float; the numbers of a one-row :meth:`update` (tested)."""
         if clipped:
-            self.t_clip = max(self.t_clip, float(t_s))
-            if self.cfg.clip_min_s > 0:
-                self.clip_times.append(float(t_s))
+            self.clip_times.append(float(t_s))
         g = [float(v) for v in gyr_b]
         a = [float(v) for v in acc_b]
         if not all(math.isfinite(v) for v in (*g, *a)):  # a hole: bridged with the last finite sample
@@ -332,13 +326,10 @@ class AnchoredVQF:
         vx, vy, vz = _floats(w.vel_m_s)
         speed = math.sqrt(vx * vx + vy * vy + vz * vz)
         g_flight = min(1.0, max(0.0, (speed - c.speed_lo_m_s) / (c.speed_hi_m_s - c.speed_lo_m_s)))
-        if c.clip_min_s > 0:  # enough saturated time in the last clip_hold_s
-            ct = self.clip_times
-            while ct and ct[0] <= self.t - c.clip_hold_s:
-                ct.popleft()
-            g_clip = 1.0 if len(ct) * self.ts >= c.clip_min_s else 0.0
-        else:
-            g_clip = 1.0 if self.t - self.t_clip < c.clip_hold_s else 0.0
+        ct = self.clip_times  # enough saturated time in the last clip_hold_s (clip_min_s 0: one sample)
+        while ct and self.t - ct[0] >= c.clip_hold_s:
+            ct.popleft()
+        g_clip = 1.0 if ct and len(ct) * self.ts >= c.clip_min_s else 0.0
         # only the bias component perpendicular to gravity turns the tilt (the one along it turns the
         # heading, which no tilt measurement can check): that part is the evidence and the correction
         qw, qx, qy, qz = self.f.getQuat6D().tolist()
