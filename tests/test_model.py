@@ -91,6 +91,49 @@ def test_rk4_exact_for_constant_rate():
     np.testing.assert_allclose(Q.quat_canonical(np.array(qf)), Q.quat_canonical(exact), atol=1e-11)
 
 
+def test_rk4_delta_closed_form_is_rk4_step_from_identity():
+    # the closed form (a polynomial in φ = |ω| dt / 2) against the generic RK4 step it replaces,
+    # from slow to a step of 1.5 rad (where RK4 itself is far from the exact rotation)
+    rng = np.random.default_rng(3)
+    w = torch.tensor(rng.normal(size=(6, 9, 3)) * np.array([0.01, 1.0, 30.0, 300.0, 0.0, 5.0])[:, None, None])
+    dt = torch.tensor(rng.uniform(0.001, 0.01, size=(6, 9)))
+    one = torch.zeros(6, 9, 4, dtype=torch.float64)
+    one[..., 0] = 1.0
+    want = rk4_step(one, w, w, dt)
+    np.testing.assert_allclose(rk4_delta(w, dt).numpy(), want.numpy(), atol=1e-14)
+    # float32, as the exported network runs it
+    np.testing.assert_allclose(rk4_delta(w.float(), dt.float()).numpy(), want.numpy(), atol=2e-7)
+
+
+def test_torch_quat_mul_is_numpy_quat_mul():
+    # the torch path (outer product times the ±1 table) against the numpy path (the written-out
+    # sums) and scipy's composition, with broadcasting
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(4)
+    p, q = rng.normal(size=(5, 1, 4)), rng.normal(size=(1, 7, 4))
+    got = Q.quat_mul(torch.tensor(p), torch.tensor(q)).numpy()
+    np.testing.assert_allclose(got, Q.quat_mul(p, q), atol=1e-14)
+    pu, qu = p / np.linalg.norm(p, axis=-1, keepdims=True), q / np.linalg.norm(q, axis=-1, keepdims=True)
+    pq = Q.quat_mul(torch.tensor(pu), torch.tensor(qu)).numpy().reshape(-1, 4)
+    ref = (Rotation.from_quat(np.broadcast_to(pu, (5, 7, 4)).reshape(-1, 4)[:, [1, 2, 3, 0]])
+           * Rotation.from_quat(np.broadcast_to(qu, (5, 7, 4)).reshape(-1, 4)[:, [1, 2, 3, 0]])).as_quat()[:, [3, 0, 1, 2]]
+    np.testing.assert_allclose(Q.quat_canonical(pq), Q.quat_canonical(ref), atol=1e-12)
+
+
+def test_torch_quat_rotate_is_numpy_quat_rotate():
+    # torch and numpy paths, unit and non-unit quaternions with broadcasting; scipy for the unit ones
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(5)
+    q, v = rng.normal(size=(4, 1, 4)), rng.normal(size=(1, 6, 3))
+    np.testing.assert_allclose(Q.quat_rotate(torch.tensor(q), torch.tensor(v)).numpy(), Q.quat_rotate(q, v), atol=1e-13)
+    qu = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    got = Q.quat_rotate(torch.tensor(qu), torch.tensor(v)).numpy()
+    ref = Rotation.from_quat(qu[:, 0, [1, 2, 3, 0]]).as_matrix()[:, None] @ v[..., None]
+    np.testing.assert_allclose(got, ref[..., 0], atol=1e-13)
+
+
 def test_prefix_products_match_sequential_reference():
     rng = np.random.default_rng(1)
     dq = Q.quat_from_rotvec(rng.normal(size=(2, 13, 3)))

@@ -39,10 +39,18 @@ def rk4_step(q: torch.Tensor, w0: torch.Tensor, w1: torch.Tensor, dt: torch.Tens
 
 
 def rk4_delta(w_b: torch.Tensor, dt: torch.Tensor) -> torch.Tensor:
-    """Rotation over one step of constant body rate, by RK4 from the identity: ``(..., 4)``."""
-    q0 = torch.zeros(w_b.shape[:-1] + (4,), dtype=w_b.dtype, device=w_b.device)
-    q0[..., 0] = 1.0
-    return rk4_step(q0, w_b, w_b, dt)
+    """Rotation over one step of constant body rate, by RK4 from the identity: ``(..., 4)``.
+
+    For a linear ODE classical RK4 is the 4th-order Taylor polynomial of the exact step, and with
+    M = ½ dt Ω(ω) (q ↦ ½ dt q ⊗ (0, ω)) M² = −φ² I, φ = |ω| dt / 2. So :func:`rk4_step` from the
+    identity is ``(1 − φ²/2 + φ⁴/24, (1 − φ²/6) ω dt/2)``, renormalised — written so here: the same
+    numbers (tested against :func:`rk4_step`) in a few tensor ops instead of four quaternion products.
+    """
+    if dt.dim() == w_b.dim() - 1:
+        dt = dt[..., None]
+    v = 0.5 * dt * w_b  # (..., 3)
+    phi2 = (v * v).sum(dim=-1, keepdim=True)
+    return quat_normalize(torch.cat([1.0 - 0.5 * phi2 + phi2 * phi2 / 24.0, (1.0 - phi2 / 6.0) * v], dim=-1))
 
 
 def prefix_products(dq: torch.Tensor) -> torch.Tensor:

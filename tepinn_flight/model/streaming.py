@@ -58,6 +58,34 @@ class _Token:
         self.clip = 0
 
 
+class _TokenWindow:
+    """The last ``k`` finished tokens as rows (t, g(3), a(3), m(3), count, clipped fraction) of one
+    float64 array: each row is written twice, ``k`` apart, so the window is always one contiguous
+    slice (no per-window list → array conversion)."""
+
+    __slots__ = ("k", "buf", "n")
+
+    def __init__(self, k: int):
+        self.k = k
+        self.buf = np.zeros((2 * k, 12))
+        self.n = 0  # rows appended
+
+    def append(self, t: float, g, a, m, count: float, clip: float) -> None:
+        i = self.n % self.k
+        row = (t, *g, *a, *m, count, clip)
+        self.buf[i] = row
+        self.buf[i + self.k] = row
+        self.n += 1
+
+    def __len__(self) -> int:
+        return min(self.n, self.k)
+
+    def rows(self) -> np.ndarray:
+        """The window, oldest token first: (len, 12)."""
+        i = self.n % self.k if self.n >= self.k else 0
+        return self.buf[i:i + len(self)]
+
+
 class StreamingEstimator:
     def __init__(self, model: TEPINN | NetworkRunner, fusion: FusionConfig | AnchorConfig | None = None,
                  threads: int | None = 1):  # fmt: skip
@@ -94,7 +122,7 @@ class StreamingEstimator:
         self.k = 0
         self.cur = _Token()
         k = self.cfg.window_tokens
-        self.win = deque(maxlen=k)  # finished tokens: (t, g(3), a(3), m(3), count)
+        self.win = _TokenWindow(k)  # finished tokens
         self.last_means = None
         self.n_windows = 0  # full windows closed in this segment (bias feedback refreshes every L of them)
         self.feedback = (0.0, 0.0, 0.0)  # the fusion's bias the current block of windows sees
@@ -146,7 +174,7 @@ class StreamingEstimator:
             ran = est is not None
             for j in range(self.k + 1, k):  # empty tokens: hold the previous means (causal)
                 g, a, m, cl = self.last_means
-                self.win.append((self.t0 + j * self.delta, g, a, m, 0.0, cl))
+                self.win.append(self.t0 + j * self.delta, g, a, m, 0.0, cl)
             self.k = k
             self.cur = _Token()
         tok = self.cur
@@ -223,7 +251,7 @@ class StreamingEstimator:
         m = [v / tok.m_n for v in tok.m] if tok.m_n else [float("nan")] * 3
         cl = tok.clip / tok.n
         self.last_means = (g, a, m, cl)
-        self.win.append((tok.t_last, g, a, m, float(tok.n), cl))
+        self.win.append(tok.t_last, g, a, m, float(tok.n), cl)
         if len(self.win) < self.cfg.window_tokens:
             return None
         return self._run_model()
@@ -236,17 +264,16 @@ class StreamingEstimator:
         self.n_windows += 1
         if self.quiet and not first:  # quiet blocks: only their first window (and those holding a saturated token) run
             block, j = divmod(self.n_windows - 1, fb_every)
-            if not self.anchor_cfg.runs_window(block, j, self.busy, any(x[5] > 0 for x in self.win)):
+            if not self.anchor_cfg.runs_window(block, j, self.busy, bool((self.win.rows()[:, 11] > 0).any())):
                 return None
-        w = list(self.win)
-        t = np.array([x[0] for x in w])
+        w = self.win.rows()
         fb = self.feedback if fb_every > 0 else (0.0, 0.0, 0.0)
-        g = np.array([[x[1][i] - fb[i] for i in range(3)] for x in w])[None]
-        a = np.array([x[2] for x in w])[None]
-        m = np.nan_to_num(np.array([x[3] for x in w]))[None]
-        n = np.array([x[4] for x in w])[None]
-        cl = np.array([x[5] for x in w])[None]
-        t_rel = (t - t[-1])[None]
+        g = (w[:, 1:4] - np.asarray(fb, np.float64))[None]
+        a = w[None, :, 4:7]
+        m = np.nan_to_num(w[None, :, 7:10])
+        n = w[None, :, 10]
+        cl = w[None, :, 11]
+        t_rel = (w[:, 0] - w[-1, 0])[None]
         dt = np.full_like(n, self.delta)
         out = self.runner.run(g, a, n, t_rel, dt, m, cl)
         sigma = float(out["sigma"][0])
