@@ -415,7 +415,7 @@ def test_asks_for_a_faster_imu_stream(granted):
     enc = Encoder(1, 1)
     hb = lambda: enc.pack(M.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3))  # noqa: E731  ArduPilot quad
     raw = lambda us: enc.pack(M.MAVLink_raw_imu_message(us, 0, 0, -1000, 1, 2, 3, 0, 0, 0, 0, 0))  # noqa: E731
-    period, us, acked = 0.05, 0, False  # 20 Hz RAW_IMU
+    period, us, acked, trim_sent = 0.05, 0, False, False  # 20 Hz RAW_IMU
     try:
         t_end = time.monotonic() + 2.6
         k = 0
@@ -429,6 +429,11 @@ def test_asks_for_a_faster_imu_stream(granted):
                                              for _, d in ap.datagrams):  # fmt: skip
                 ap.put(enc.pack(M.MAVLink_command_ack_message(511, 0, 0, 0, 1, 191)))  # ACCEPTED, to us
                 acked, period = True, 0.005  # the autopilot now streams at 200 Hz
+            if granted and not trim_sent and any(_compid(d) == 191 and _parse(d)[0].get_type() == "PARAM_REQUEST_READ"
+                                                 for _, d in ap.datagrams):  # fmt: skip
+                for name, v in (("AHRS_TRIM_X", 0.01), ("AHRS_TRIM_Y", -0.02)):  # the autopilot answers
+                    ap.put(enc.pack(M.MAVLink_param_value_message(name.encode(), v, 9, 900, 0)))
+                trim_sent = True
             time.sleep(period)
     finally:
         s = _finish(stop, th, box)
@@ -439,6 +444,12 @@ def test_asks_for_a_faster_imu_stream(granted):
     assert (c.get_srcSystem(), c.get_srcComponent(), c.target_system, c.target_component) == (1, 191, 1, 1)
     assert (c.command, c.param1, c.param2) == (511, 27.0, 5000.0)  # RAW_IMU (ArduPilot) every 5000 µs
     assert not any(mm.get_type() == "COMMAND_LONG" for _, d in gcs.datagrams for mm in _parse(d))  # not to the GCS
+    # ArduPilot's level trim is asked for once (the comparison turns its attitude into the IMU's frame)
+    reqs = [mm for _, d in ap.datagrams for mm in _parse(d) if mm.get_type() == "PARAM_REQUEST_READ"]
+    assert sorted(r.param_id for r in reqs) == ["AHRS_TRIM_X", "AHRS_TRIM_Y"]
+    assert all((r.target_system, r.target_component, r.param_index) == (1, 1, -1) for r in reqs)
+    assert not any(mm.get_type() == "PARAM_REQUEST_READ" for _, d in gcs.datagrams for mm in _parse(d))
+    assert s["ekf_difference_deg"]["ahrs_trim_rad"] == (pytest.approx([0.01, -0.02]) if granted else None)
     if granted:
         assert len(cmds) == 1 and s["imu"]["requested"] == 1 and s["imu"]["request_ack"] == "accepted"
         assert s["imu"]["warning"] is None and s["imu"]["message"] == "RAW_IMU"

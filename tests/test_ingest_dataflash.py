@@ -50,10 +50,12 @@ def _same_rotation(q1, q2, atol=1e-9):
     return np.all(np.abs(dot - 1.0) < atol)
 
 
-def _scipy_q_from_att(rows):
+def _scipy_q_from_att(rows, trim_x_rad=0.0, trim_y_rad=0.0):
+    """ATT (the vehicle's attitude) → quaternions; with a level trim, turned into the board's frame:
+    R_board = R_vehicle · R(trim_x, trim_y, 0)."""
     e = _col(rows, "Yaw", "Pitch", "Roll")
-    xyzw = Rotation.from_euler("ZYX", e, degrees=True).as_quat()
-    return xyzw[:, [3, 0, 1, 2]]
+    r = Rotation.from_euler("ZYX", e, degrees=True) * Rotation.from_euler("ZYX", [0.0, trim_y_rad, trim_x_rad])
+    return r.as_quat()[:, [3, 0, 1, 2]]
 
 
 # --------------------------------------------------------------------------- real logs
@@ -61,7 +63,7 @@ def _scipy_q_from_att(rows):
 
 @pytest.fixture(scope="module")
 def erle_pm():
-    return _pymavlink_rows(real_log(ERLE), ["IMU", "ATT", "MAG"])
+    return _pymavlink_rows(real_log(ERLE), ["IMU", "ATT", "MAG", "PARM"])
 
 
 @pytest.fixture(scope="module")
@@ -80,7 +82,11 @@ def test_erle_values_equal_pymavlink(erle_pm):
     np.testing.assert_allclose(raw.mag.mag_ut, _col(mag, "MagX", "MagY", "MagZ") * 0.1, rtol=0, atol=1e-12)
     att = erle_pm["ATT"]
     assert raw.ref.source == "ATT" and len(raw.ref.t_s) == len(att) == 9120
-    assert _same_rotation(raw.ref.q_nb_wxyz, _scipy_q_from_att(att))
+    trim = {r["Name"]: r["Value"] for r in erle_pm["PARM"] if r["Name"] in ("AHRS_TRIM_X", "AHRS_TRIM_Y")}
+    assert trim["AHRS_TRIM_X"] != 0  # ATT is the vehicle's attitude: turned by the level trim into the IMU's frame
+    assert _same_rotation(raw.ref.q_nb_wxyz, _scipy_q_from_att(att, trim["AHRS_TRIM_X"], trim["AHRS_TRIM_Y"]))
+    assert not _same_rotation(raw.ref.q_nb_wxyz, _scipy_q_from_att(att), atol=1e-7)
+    assert raw.meta["ahrs_trim_rad"] == [trim["AHRS_TRIM_X"], trim["AHRS_TRIM_Y"]]
     # accelerometer is specific force: level at rest reads z ≈ -g
     assert -10.5 < np.median(raw.imu.acc_m_s2[:200, 2]) < -9.0
 
@@ -154,7 +160,7 @@ def test_ardusub_4x_instance_fields():
 
 def test_text_log_with_nan_params():
     path = real_log("aplogan_nan.log")
-    pm = _pymavlink_rows(path, ["IMU", "IMU2", "ATT"], text=True)
+    pm = _pymavlink_rows(path, ["IMU", "IMU2", "ATT", "PARM"], text=True)
     rec = ingest_log(path)
     assert rec.meta["dataflash_encoding"] == "text" and rec.meta["firmware"] == "ArduCopter V3.1.1"
     assert [(i["name"], i["samples"]) for i in rec.meta["imu_instances"]] == [("IMU", 705), ("IMU2", 705)]
@@ -163,7 +169,8 @@ def test_text_log_with_nan_params():
     np.testing.assert_array_equal(raw.imu.t_s, _col(pm["IMU2"], "TimeMS")[:, 0] / 1000.0)
     raw0 = read(path)
     np.testing.assert_array_equal(raw0.imu.acc_m_s2, _col(pm["IMU"], "AccX", "AccY", "AccZ"))
-    assert _same_rotation(raw0.ref.q_nb_wxyz, _scipy_q_from_att(pm["ATT"]))
+    trim = {r["Name"]: r["Value"] for r in pm["PARM"] if r["Name"] in ("AHRS_TRIM_X", "AHRS_TRIM_Y")}
+    assert _same_rotation(raw0.ref.q_nb_wxyz, _scipy_q_from_att(pm["ATT"], trim["AHRS_TRIM_X"], trim["AHRS_TRIM_Y"]))
     with pytest.raises(NoImuData, match="IMU instance 2 has no samples; instances with data: 0, 1"):
         read(path, imu=2)
 

@@ -142,6 +142,8 @@ def test_fast_path_equals_pymavlink(name):
                     assert np.asarray(ours).tolist() == theirs, (t, fname, k)
                 elif isinstance(theirs, bytes):
                     assert bytes(ours) == theirs, (t, fname, k)
+                elif isinstance(theirs, str):  # char arrays (PARAM_VALUE.param_id): pymavlink decodes them
+                    assert bytes(ours).rstrip(b"\0").decode() == theirs, (t, fname, k)
                 else:
                     assert ours.item() == theirs or (np.isnan(ours) and np.isnan(theirs)), (t, fname, k)
 

@@ -189,7 +189,11 @@ def test_reader_streams_equal_pymavlink_decoding(name):
     assert len(att) == len(raw.ref.t_s)
     t_att = np.array([x.time_boot_ms for x in att], np.float64) / 1e3
     ypr = np.array([[x.yaw, x.pitch, x.roll] for x in att], np.float64)
-    q = Rotation.from_euler("ZYX", ypr).as_quat(scalar_first=True)
+    r = Rotation.from_euler("ZYX", ypr)
+    if "ahrs_trim_rad" in raw.meta:  # ArduPilot's vehicle attitude turned into the board's frame (test_ahrs_trim)
+        tx, ty = raw.meta["ahrs_trim_rad"]
+        r = r * Rotation.from_euler("ZYX", [0.0, ty, tx])
+    q = r.as_quat(scalar_first=True)
 
     def by_time(t_s, q_wxyz):  # q and -q are one attitude: w >= 0; rows in (time, q) order
         q_wxyz = q_wxyz * np.where(q_wxyz[:, :1] < 0, -1.0, 1.0)

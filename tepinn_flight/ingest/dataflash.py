@@ -15,7 +15,9 @@ Streams
           (degrees, Z-Y-X, yaw 0–360). Default: XKQ core 0, else NKQ1, else NKQ core 0, else
           XKQ1 (EKF3 of 3.6–4.0), else ATT. ``reference=`` picks any candidate by name, case-
           insensitive, with ``[k]`` for core/instance k (``XKQ[1]``); an absent one is a
-          :class:`ConfigError` listing the candidates.
+          :class:`ConfigError` listing the candidates. XKQ/NKQ (the EKF cores' quaternions) are in
+          the IMU board's frame; the others are the vehicle's attitude, turned into the board's by
+          the level trim ``AHRS_TRIM_X/Y`` (:mod:`.ahrs_trim`; meta ``ahrs_trim_rad``).
     time  ``TimeUS`` (µs) or ``TimeMS`` (ms) since boot. Messages without either (Copter 3.0.x)
           cannot be timed; the GPS ``TimeMS`` of old logs is GPS time of week and is never used.
           Boot epochs follow the rule of :func:`detect_epochs` (time jumps back > 1 s) on the
@@ -45,6 +47,7 @@ from ..conventions import DEG_TO_RAD, MILLIGAUSS_TO_UT
 from ..errors import ConfigError, CorruptLog, NoImuData
 from ..quat import quat_from_euler_zyx, quat_normalize
 from . import dataflash_scan as dfs
+from .ahrs_trim import TRIM_PARAMS, trim_note, usable_trim, vehicle_to_board
 from .dataflash_binary import BinarySource
 from .dataflash_source import DECODE_BLOCK_ROWS, DataflashSource, instance_col
 from .dataflash_text import TextSource
@@ -419,6 +422,11 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
         label, rinst = pick
         rinst = _with_rows(src, rinst)
         t_ref, q = _ref_quaternions(src, rinst)
+        trim = usable_trim(*(_param(src, n) for n in TRIM_PARAMS))
+        if rinst.name not in QUAT_REFS and trim is not None:  # reported in the vehicle's frame (.ahrs_trim)
+            q = vehicle_to_board(q, *trim)
+            meta["ahrs_trim_rad"] = list(trim)
+            notes.append(trim_note(label, trim))
         ref = RefStream(t_ref, q, label)
         parts.append((t_ref, _order(src, rinst)))
     else:

@@ -30,7 +30,9 @@ Clipping (:mod:`.saturation`, the rule the live bridge applies too)
 
 Reference (``--reference``)
     ``ATTITUDE_QUATERNION`` (q1..q4 = w, x, y, z, body → NED) preferred, else ``ATTITUDE``
-    (roll, pitch, yaw in rad, Z-Y-X).
+    (roll, pitch, yaw in rad, Z-Y-X). ArduPilot reports the vehicle's attitude: it is turned into
+    the IMU board's frame by the level trim ``AHRS_TRIM_X/Y`` from the tlog's ``PARAM_VALUE`` rows
+    (:mod:`.ahrs_trim`; meta ``ahrs_trim_rad``), with a note where the tlog holds none.
 
 Time
     Sample time from ``time_usec`` / ``time_boot_ms`` (since boot; ``time_usec`` above 1e15 is UNIX
@@ -57,6 +59,7 @@ from ..conventions import (
 from ..errors import ConfigError, CorruptLog, NoImuData
 from ..mavlink_dialect import dialect
 from ..quat import quat_from_euler_zyx
+from .ahrs_trim import TRIM_PARAMS, trim_note, usable_trim, vehicle_to_board
 from .mavlink_scan import scan_tlog
 from .saturation import accel_saturated, gyro_full_scale_rad_s, gyro_saturated
 from .streams import ImuStream, MagStream, RawLog, RefStream
@@ -77,7 +80,7 @@ IMU_MESSAGES = {
 IMU_PREFERENCE = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
 #: Reference messages, preferred first.
 REF_MESSAGES = ("ATTITUDE_QUATERNION", "ATTITUDE")
-META_MESSAGES = ("HEARTBEAT", "AUTOPILOT_VERSION")
+META_MESSAGES = ("HEARTBEAT", "AUTOPILOT_VERSION", "PARAM_VALUE")
 
 #: A back step of the boot clock larger than this (s) may be a reboot ...
 REBOOT_BACKSTEP_S = 1.0
@@ -120,6 +123,7 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
         frames[name] = (fr.offset, fr.fields) if mine.all() else (fr.offset[mine], fr.fields[mine])
         del fr
     firmware = _firmware(frames.pop("AUTOPILOT_VERSION")[1])
+    params = _params(frames.pop("PARAM_VALUE")[1], TRIM_PARAMS)
     if other_src:
         notes.append(f"{other_src} IMU/attitude messages from other systems or components ignored")
 
@@ -215,6 +219,7 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
 
     # ---- the reference's arrays
     ref = None
+    trim_meta = None
     if rname is not None:
         r = refs[rname]
         if r["clock"] != sel["clock"]:
@@ -222,6 +227,15 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
         else:
             o = _time_order(r["t_s"], r["epoch"])
             q = _ref_quaternions(rname, r.pop("fields"), r["norm"])
+            if autopilot == "ardupilot":  # ArduPilot reports the vehicle's attitude (.ahrs_trim)
+                trim = usable_trim(*(params.get(n) for n in TRIM_PARAMS))
+                if trim is not None:
+                    q = vehicle_to_board(q, *trim)
+                    trim_meta = list(trim)
+                    notes.append(trim_note(rname, trim))
+                elif not all(n in params for n in TRIM_PARAMS):
+                    notes.append(f"reference {rname} is ArduPilot's vehicle attitude and the tlog holds no AHRS_TRIM_X/Y "
+                                 "(the ground station fetched no parameters): a level trim, if set, stays in it")  # fmt: skip
             ref = RefStream(t_s=r["t_s"][o], q_nb_wxyz=q[o], source=rname, epoch=r["epoch"][o])
     del refs
 
@@ -243,6 +257,8 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     }
     if firmware:
         meta["firmware"] = firmware
+    if trim_meta is not None:
+        meta["ahrs_trim_rad"] = trim_meta
     if scan.corrupt_frames:
         notes.append(f"{scan.corrupt_frames} frames failed their CRC check: skipped")
     if scan.junk_bytes:
@@ -510,6 +526,19 @@ def _unknown_scale_reason(s: dict, autopilot: str) -> str:
         "counts: its scale is unknown, refusing to guess (only ArduPilot's RAW_IMU is known to be in "
         "mG and mrad/s)"
     )
+
+
+def _params(pv: np.ndarray, names: tuple[str, ...]) -> dict[str, float]:
+    """The last value of each parameter in ``names`` among PARAM_VALUE rows (a ground station's
+    parameter download passes through the tlog)."""
+    out: dict[str, float] = {}
+    if len(pv):
+        ids = np.char.rstrip(pv["param_id"], b"\0")
+        for n in names:
+            hit = np.flatnonzero(ids == n.encode())
+            if len(hit):
+                out[n] = float(pv["param_value"][hit[-1]])
+    return out
 
 
 def _firmware(av: np.ndarray) -> str | None:

@@ -37,13 +37,15 @@ import time
 from dataclasses import dataclass
 
 from ..errors import ConfigError, TepinnError
+from ..ingest.ahrs_trim import TRIM_PARAMS
+from ..ingest.tlog import MAV_AUTOPILOT_ARDUPILOTMEGA
 from . import MAV_COMP_ID_AUTOPILOT1, MAV_COMP_ID_ONBOARD_COMPUTER, dialect
 from .autopilot import AutopilotTracker
 from .comparison import LiveComparison
 from .estimate_path import EstimateOutput, EstimatorFeed
 from .forwarding import Forwarder
 from .imu_stream import IMU_NAMES, MAV_CMD_SET_MESSAGE_INTERVAL, ImuRateRequests, ImuStream
-from .messages import DEFAULT_ESTIMATE_AS, ESTIMATE_AS, Encoder, heartbeat_onboard_msg
+from .messages import DEFAULT_ESTIMATE_AS, ESTIMATE_AS, Encoder, heartbeat_onboard_msg, param_request_read_msg
 from .router import SOCKET_BUFFER_BYTES
 from .sample_order import DUPLICATE, STALE
 from .status import StatusPrinter, format_summary
@@ -133,6 +135,7 @@ class Bridge:
         self.requests = ImuRateRequests(c.min_imu_rate_hz, c.request_imu_rate_hz, c.request_grace_s,
                                         c.request_spacing_s, note)  # fmt: skip
         self.comparison = LiveComparison(self.view)
+        self.trim_asked = False  # AHRS_TRIM_X/Y requested from an ArduPilot autopilot
         self.feed = EstimatorFeed(c, make_estimator, note)
         self.ready = self.feed.ready
         self.out = EstimateOutput(c, clock)
@@ -218,6 +221,10 @@ class Bridge:
         if name == "HEARTBEAT":
             if self.ap.heartbeat(m, sid, t_in):
                 self._seen(t_in)
+                if not self.trim_asked and self.ap.autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA:  # its level trim, once
+                    self.trim_asked = True
+                    self._send_own([param_request_read_msg(sid, MAV_COMP_ID_AUTOPILOT1, n) for n in TRIM_PARAMS],
+                                   to_outs=False, to_master=True)  # fmt: skip
             return
         if not self.ap.message(name, sid, t_in, getattr(m, "time_boot_ms", None)):
             return
@@ -226,6 +233,8 @@ class Bridge:
             self._on_imu(m, t_in)
         elif name in ("ATTITUDE_QUATERNION", "ATTITUDE"):
             self.comparison.on_ekf(m, name, t_in)
+        elif name == "PARAM_VALUE" and self.ap.autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA:
+            self.comparison.on_param(m)
         elif name == "COMMAND_ACK" and int(m.command) == MAV_CMD_SET_MESSAGE_INTERVAL:
             self.requests.on_ack(m, self.m.enums)
 

@@ -8,13 +8,22 @@ samples); the inclination differences go into a histogram (``ekf_difference_deg`
 the latest difference into the diagnostics and the status line. A live view
 (:mod:`~tepinn_flight.live.view`), when there is one, gets every EKF attitude, every estimate and
 every difference.
+
+ArduPilot reports the vehicle's attitude, the level trim ``AHRS_TRIM_X/Y`` away from the IMU board's
+frame that TE-PINN estimates in (:mod:`tepinn_flight.ingest.ahrs_trim`): once the trim is known —
+from the PARAM_VALUEs of a ground station's parameter download, or the bridge's own request — the
+EKF's attitude is turned into the board's frame before the difference (``ahrs_trim_rad`` in the
+summary), as ``ingest`` turns a log's reference.
 """
 
 from __future__ import annotations
 
 import math
 
-from .inputs import EkfComparator, ekf_attitude
+import numpy as np
+
+from ..ingest.ahrs_trim import TRIM_PARAMS, usable_trim, vehicle_to_board
+from .inputs import EkfComparator, _text, ekf_attitude
 from .sample_order import DUPLICATE, STALE, SampleOrder
 from .status import angle_histogram
 
@@ -32,6 +41,15 @@ class LiveComparison:
         self.cmp = EkfComparator()
         self.hist = angle_histogram()
         self.last = None  # (t_s, droll, dpitch, dincl, dheading) of the latest difference
+        self.params: dict[str, float] = {}  # the autopilot's AHRS_TRIM_X/Y, as they come
+        self.trim = None  # (x, y) rad once known and non-zero
+
+    def on_param(self, m) -> None:
+        """A PARAM_VALUE of an ArduPilot autopilot: its level trim."""
+        name = _text(m.param_id)
+        if name in TRIM_PARAMS and math.isfinite(float(m.param_value)):
+            self.params[name] = float(m.param_value)
+            self.trim = usable_trim(*(self.params.get(n) for n in TRIM_PARAMS))
 
     def on_ekf(self, m, name: str, t_in: float) -> None:
         """The autopilot's ATTITUDE_QUATERNION or ATTITUDE."""
@@ -43,6 +61,8 @@ class LiveComparison:
             return
         if self.order.accept(a[0], t_in) in (DUPLICATE, STALE):
             return
+        if self.trim is not None:  # the vehicle's attitude → the IMU board's
+            a = (a[0], a[1], tuple(vehicle_to_board(np.array([a[2]]), *self.trim)[0].tolist()))
         if self.view is not None:
             self.view.ekf(a[0], a[2])
         for d in self.cmp.add_ekf(a[0], a[2]):
@@ -76,4 +96,5 @@ class LiveComparison:
         dif = self.hist.summary(math.degrees(1.0), 3)
         if self.hist.count:
             dif["rms"] = round(math.degrees(self.hist.rms()), 3)
+        dif["ahrs_trim_rad"] = list(self.trim) if self.trim is not None else None
         return dif

@@ -120,6 +120,11 @@ def set_message_interval_msg(target_system: int, target_component: int, message_
     )  # fmt: skip
 
 
+def param_request_read_msg(target_system: int, target_component: int, name: str):
+    """PARAM_REQUEST_READ of one parameter by name (param_index −1)."""
+    return dialect().MAVLink_param_request_read_message(int(target_system), int(target_component), name.encode(), -1)
+
+
 #: How the estimate itself can be sent (``bridge --estimate-as``; see :func:`estimate_msgs`).
 ESTIMATE_AS = ("named_value", "debug_vect", "attitude_quaternion")
 #: The default never drives a ground station's HUD: QGroundControl versions that accept ATTITUDE /
