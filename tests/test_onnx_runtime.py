@@ -72,6 +72,20 @@ def test_onnx_equals_torch_on_random_windows(exported, batch, seed):
     _assert_close(OnnxRunner(exported).run(*x), TorchRunner(model).run(*x))
 
 
+def test_a_batch_in_slices_on_threads_equals_one_run(exported):
+    # with n threads a batch runs as n slices side by side: each window's outputs as in one run (to
+    # float32 round-off), in the batch's order (a slice out of place would be far off)
+    model, _, _ = load_model(default_model_path())
+    x = _random_windows(model.config, 11, 3)
+    one, three = OnnxRunner(exported, threads=1), OnnxRunner(exported, threads=3)
+    assert (one.workers, three.workers) == (1, 3)
+    a, b = one.run(*x), three.run(*x)
+    for k in OUTPUTS:
+        np.testing.assert_allclose(b[k], a[k], rtol=0, atol=1e-6, err_msg=k)
+    y = [v[::-1].copy() for v in x]  # the windows reversed give the outputs reversed
+    assert np.abs(three.run(*y)["q"][::-1] - a["q"]).max() < 1e-6 < np.abs(three.run(*y)["q"] - a["q"]).max()
+
+
 def test_shipped_onnx_is_the_shipped_checkpoint():
     """assets/tepinn_default.onnx (used where torch is absent) is kept in sync with the .pt."""
     model, settings, ckpt = load_model(default_model_path())
