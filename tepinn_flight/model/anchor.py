@@ -226,6 +226,7 @@ class AnchoredVQF:
         self.f = vqf.VQF(ts_s, tauAcc=c.tau_acc_s, biasClip=c.bias_clip_deg_s)
         self.vel = np.zeros(3)  # gated v̂ and â in body axes
         self.acc_v = np.zeros(3)
+        self.turn_on = False  # centripetal and (v̂, â) not both zero: update_one removes them
         self.gyr_corr = np.zeros(3)  # body axes, removed from the gyro
         self.bias_latched = False
         self.t_bias_over = None  # since when the older fusion's horizontal bias is beyond its gate
@@ -287,14 +288,14 @@ class AnchoredVQF:
             self.clip_times.append(float(t_s))
         g = [float(v) for v in gyr_b]
         a = [float(v) for v in acc_b]
-        if not all(math.isfinite(v) for v in (*g, *a)):  # a hole: bridged with the last finite sample
-            g, a = [float(v) for v in self.last_imu[0]], [float(v) for v in self.last_imu[1]]
+        if not math.isfinite(g[0] + g[1] + g[2] + a[0] + a[1] + a[2]):  # a hole (a NaN or inf in the sum):
+            g, a = [float(v) for v in self.last_imu[0]], [float(v) for v in self.last_imu[1]]  # the last finite sample
             self.holes += 1
-        self.last_imu = (np.array(g), np.array(a))
+        self.last_imu = (g, a)
         gc, v, av = self.gyr_corr, self.vel, self.acc_v
         gx, gy, gz = g[0] - gc[0], g[1] - gc[1], g[2] - gc[2]
         ax, ay, az = a
-        if self.cfg.centripetal and (v.any() or av.any()):  # a − (ω × v̂ + â)
+        if self.turn_on:  # a − (ω × v̂ + â)
             ax = ax - ((g[1] * v[2] - g[2] * v[1]) + av[0])
             ay = ay - ((g[2] * v[0] - g[0] * v[2]) + av[1])
             az = az - ((g[0] * v[1] - g[1] * v[0]) + av[2])
@@ -353,6 +354,7 @@ class AnchoredVQF:
         if c.centripetal:
             self.vel = np.array([g_flight * vx, g_flight * vy, g_flight * vz])
             self.acc_v = np.array([g_flight * v for v in _floats(w.acc_m_s2)])
+            self.turn_on = bool(self.vel.any() or self.acc_v.any())
         if self.bias_latched:  # the older fusion's bias where it runs (bias states), else the network's
             nb = _norm3(b_h)
             dz = math.radians(c.bias_deadzone_deg_s)

@@ -148,7 +148,7 @@ class StreamingEstimator:
         — a record's ``clipped`` and ``gyr_clipped`` columns."""
         t0c = time.perf_counter()
         t = float(t_s)
-        if all(math.isfinite(float(v)) for v in (*gyr_rad_s, *acc_m_s2)):
+        if math.isfinite(sum(float(v) for v in (*gyr_rad_s, *acc_m_s2))):  # a NaN or inf makes the sum one
             self.last_imu = (tuple(gyr_rad_s), tuple(acc_m_s2))
         else:  # a hole: bridged with the last finite sample, as offline
             gyr_rad_s, acc_m_s2 = self.last_imu
@@ -238,7 +238,7 @@ class StreamingEstimator:
             out = self.anchored.update_one(t_i, g_i, a_i, m_i, c_i)
         q6, q9, sig, bias = out
         q = q9 if q9 is not None else q6
-        if not all(math.isfinite(v) for v in q):
+        if not math.isfinite(q[0] + q[1] + q[2] + q[3]):
             return None, sig, bias
         return q, sig, bias
 
