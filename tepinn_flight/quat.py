@@ -129,6 +129,7 @@ _HAMILTON = np.zeros((16, 4))
 for _k, _terms in enumerate(("+00 -11 -22 -33", "+01 +10 +23 -32", "+02 -13 +20 +31", "+03 +12 -21 +30")):
     for _t in _terms.split():
         _HAMILTON[4 * int(_t[1]) + int(_t[2]), _k] = 1.0 if _t[0] == "+" else -1.0
+del _k, _terms, _t
 
 
 def quat_mul(p: Array, q: Array) -> Array:

@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from ..ingest.ahrs_trim import TRIM_PARAMS, usable_trim, vehicle_to_board
-from .inputs import EkfComparator, _text, ekf_attitude
+from .inputs import EkfComparator, ekf_attitude, mavlink_text
 from .sample_order import DUPLICATE, STALE, SampleOrder
 from .status import angle_histogram
 
@@ -46,7 +46,7 @@ class LiveComparison:
 
     def on_param(self, m) -> None:
         """A PARAM_VALUE of an ArduPilot autopilot: its level trim."""
-        name = _text(m.param_id)
+        name = mavlink_text(m.param_id)
         if name in TRIM_PARAMS and math.isfinite(float(m.param_value)):
             self.params[name] = float(m.param_value)
             self.trim = usable_trim(*(self.params.get(n) for n in TRIM_PARAMS))

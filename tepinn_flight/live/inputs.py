@@ -213,15 +213,15 @@ class EstimateDecoder:
         if name == "ATTITUDE_QUATERNION":
             out = ekf_attitude(msg)
             got = None if out is None else (out[0], out[2])
-        elif name == "DEBUG_VECT" and _text(msg.name) == ESTIMATE_VECT_NAME:
+        elif name == "DEBUG_VECT" and mavlink_text(msg.name) == ESTIMATE_VECT_NAME:
             us = int(msg.time_usec)
             if us >= UNIX_TIME_THRESHOLD_US:
                 return None
             got = ((us // 1000) / 1e3, _rpy_deg_to_q(msg.x, msg.y, msg.z))  # on the ms grid of the other forms
-        elif name == "NAMED_VALUE_FLOAT" and _text(msg.name) in ESTIMATE_VALUE_NAMES:
+        elif name == "NAMED_VALUE_FLOAT" and mavlink_text(msg.name) in ESTIMATE_VALUE_NAMES:
             ms = int(msg.time_boot_ms)
             vals = self._named.setdefault(ms, {})
-            vals[_text(msg.name)] = float(msg.value)
+            vals[mavlink_text(msg.name)] = float(msg.value)
             if len(self._named) > 8:
                 self._named.pop(next(iter(self._named)))
             if len(vals) < len(ESTIMATE_VALUE_NAMES):
@@ -237,7 +237,8 @@ class EstimateDecoder:
         return got
 
 
-def _text(v) -> str:
+def mavlink_text(v) -> str:
+    """A MAVLink char-array field (bytes or str, NUL-padded) as text."""
     return (v.decode(errors="replace") if isinstance(v, bytes) else str(v)).rstrip("\x00")
 
 

@@ -167,6 +167,8 @@ class OnnxRunner(NetworkRunner):
             raise ConfigError(f"{self._label}: not a readable ONNX model ({_first_line(exc)})") from None
         self.threads = threads
         self.workers = max(1, n)
+        if getattr(self, "_pool", None) is not None:  # re-opened with another thread count
+            self._pool.shutdown(wait=False)
         self._pool = None
 
     def set_threads(self, n: int | None) -> None:
