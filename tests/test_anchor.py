@@ -48,6 +48,23 @@ def test_with_every_learned_correction_off_it_is_vqf_on_a_real_broad_trial():
     np.testing.assert_allclose(est2[Q].to_numpy(), _vqf_reference(rec), atol=1e-12)
 
 
+def test_a_gyro_scale_is_vqf_on_the_scaled_gyro():
+    # the vehicle's gyro calibration (train --init fits it): with every learned correction off but
+    # the scale, the output is VQF on the gyro times the scale, bit for bit; learned_off drops it too
+    from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.record import GYR_COLS, FlightRecord
+
+    rec = ingest_log(broad_trial("broad_10_*.hdf5"))
+    model, _, _ = load_model(default_model_path())
+    cfg = dataclasses.replace(AnchorConfig().learned_off, gyro_scale=(1.0, 0.99, 1.005))
+    d = rec.data.copy()
+    d[GYR_COLS] = d[GYR_COLS].to_numpy() * np.array([1.0, 0.99, 1.005])
+    want = _vqf_reference(FlightRecord(d, dict(rec.meta)))
+    np.testing.assert_array_equal(estimate_anchored(model, rec, cfg)[Q].to_numpy(), want)
+    assert np.abs(_vqf_reference(rec) - want).max() > 1e-4
+    assert cfg.learned_off.gyro_scale == (1.0, 1.0, 1.0)
+
+
 @pytest.mark.parametrize("fraction", [1.0, 0.5, 0.1])
 def test_tilt_pull_turns_about_a_horizontal_axis_by_the_fraction(fraction):
     rng = np.random.default_rng(3)

@@ -8,12 +8,14 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 
 from tepinn_flight.model.anchor import AnchorConfig, AnchoredVQF, WindowOutput
 from tests.conftest import broad_trial
 
 
-def test_update_one_equals_a_one_row_update_on_a_real_trial():
+@pytest.mark.parametrize("gyro_scale", [(1.0, 1.0, 1.0), (0.99, 1.0, 1.005)])
+def test_update_one_equals_a_one_row_update_on_a_real_trial(gyro_scale):
     from tepinn_flight.ingest import load_record
 
     rec = load_record(broad_trial("broad_06_*.hdf5"))
@@ -24,7 +26,7 @@ def test_update_one_equals_a_one_row_update_on_a_real_trial():
     mag[3000:3100] = np.nan  # no magnetometer for a while
     clipped = np.zeros(n, bool)
     clipped[1500:1510] = True
-    cfg = dataclasses.replace(AnchorConfig(), speed_lo_m_s=0.0, speed_hi_m_s=1e-3, mode="9d")
+    cfg = dataclasses.replace(AnchorConfig(), speed_lo_m_s=0.0, speed_hi_m_s=1e-3, mode="9d", gyro_scale=gyro_scale)
     rng = np.random.default_rng(0)
     flt = {k: AnchoredVQF(cfg, float(np.median(np.diff(t[:52]))), use_mag=True) for k in ("batch", "one")}
     got = {k: [] for k in flt}

@@ -3,6 +3,8 @@ live paths run without torch."""
 
 from __future__ import annotations
 
+import json
+
 import os
 import shutil
 import subprocess
@@ -55,7 +57,8 @@ def test_export_metadata_and_settings_match_the_checkpoint(exported):
     meta = read_onnx_metadata(exported)
     assert meta["format"] == "tepinn-flight-onnx" and meta["version"] == 1 and meta["opset"] == 17
     assert meta["model_config"] == ckpt["model_config"]
-    assert meta["anchor_config"] == ckpt["anchor_config"] and meta["fusion_config"] == ckpt["fusion_config"]
+    as_json = lambda d: json.loads(json.dumps(d))  # noqa: E731  (JSON metadata: tuples come back as lists)
+    assert meta["anchor_config"] == as_json(ckpt["anchor_config"]) and meta["fusion_config"] == as_json(ckpt["fusion_config"])
     assert meta["conventions"] == ckpt["conventions"]
     runner, settings_onnx, _ = load_runner(exported, "auto")
     assert isinstance(runner, OnnxRunner) and settings_onnx == settings

@@ -61,6 +61,7 @@ from typing import Literal
 import numpy as np
 
 from ..config import check_choice, check_range
+from ..errors import ConfigError
 from ..quat_scalar import down_in_body
 from .anchor_kernels import FLIP as _FLIP
 from .anchor_kernels import Q_NED_ENU, Q_SENSOR_BODY  # noqa: F401  (VQF's frames; peers import them from here)
@@ -113,6 +114,9 @@ class AnchorConfig:
     quiet_after_blocks: int = 10  # a segment's first blocks run every window (the older fusion's bias converges)
     # a busy block after those runs every busy_stride-th window (and every one holding a saturated token)
     busy_stride: int = 1
+    # the vehicle's gyro calibration, per body axis (FRD): VQF integrates gyro × gyro_scale. The
+    # shipped model: 1; `train --init` fits it on a vehicle's logs against their reference
+    gyro_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
     # the older fusion's settings (the checkpoint's fusion_config; filled in when loaded)
     fusion_config: FusionConfig | None = field(default=None, compare=False)
 
@@ -120,6 +124,12 @@ class AnchorConfig:
         if isinstance(self.fusion_config, dict):  # from a checkpoint's JSON-like dict
             object.__setattr__(self, "fusion_config", FusionConfig(**self.fusion_config))
         check_choice("mode", self.mode, MODES)
+        gs = tuple(self.gyro_scale) if isinstance(self.gyro_scale, (list, tuple)) else ()  # (a checkpoint: a list)
+        if len(gs) != 3:
+            raise ConfigError(f"'gyro_scale' must be three factors (x, y, z), got {self.gyro_scale!r}")
+        for v in gs:
+            check_range("gyro_scale", v, 0.5, 2.0)
+        object.__setattr__(self, "gyro_scale", tuple(float(v) for v in gs))
         for name in ("tau_acc_s", "bias_clip_deg_s", "sigma_acc_tau_s"):
             check_range(name, getattr(self, name), 0, None, lo_open=True)
         check_range("tau_acc_flight_s", self.tau_acc_flight_s, 0, None)  # 0: tau_acc_s
@@ -162,7 +172,7 @@ class AnchorConfig:
         import dataclasses
 
         return dataclasses.replace(self, pull_gain=0.0, centripetal=False, bias_gate_weight=0.0,
-                                   bias_deadzone_deg_s=1e9, sigma_net_scale=0.0)  # fmt: skip
+                                   bias_deadzone_deg_s=1e9, sigma_net_scale=0.0, gyro_scale=(1.0, 1.0, 1.0))  # fmt: skip
 
 
 @dataclass
@@ -241,6 +251,7 @@ class AnchoredVQF:
         self.sigma_gain = float(c.sigma_acc_gain)
         self.last_imu = (np.zeros(3), np.zeros(3))  # the last finite gyro/accelerometer sample
         self.holes = 0  # non-finite samples bridged
+        self.gscale = None if c.gyro_scale == (1.0, 1.0, 1.0) else np.array(c.gyro_scale)  # gyro × this (calibration)
 
     # ------------------------------------------------------------------ samples
 
@@ -249,6 +260,8 @@ class AnchoredVQF:
         A non-finite gyro/accelerometer row is a hole, bridged with the last finite sample."""
         t_s = np.atleast_1d(np.asarray(t_s, np.float64))
         gyr_b, acc_b = _rows(gyr_b), _rows(acc_b)
+        if self.gscale is not None:  # the vehicle's gyro calibration (a hole stays a hole)
+            gyr_b = gyr_b * self.gscale
         n = len(t_s)
         if clipped is not None:
             cl = np.flatnonzero(np.atleast_1d(clipped))
@@ -288,6 +301,9 @@ class AnchoredVQF:
             self.clip_times.append(float(t_s))
         g = [float(v) for v in gyr_b]
         a = [float(v) for v in acc_b]
+        if self.gscale is not None:  # as update()
+            sx, sy, sz = self.cfg.gyro_scale
+            g = [g[0] * sx, g[1] * sy, g[2] * sz]
         if not math.isfinite(g[0] + g[1] + g[2] + a[0] + a[1] + a[2]):  # a hole (a NaN or inf in the sum):
             g, a = [float(v) for v in self.last_imu[0]], [float(v) for v in self.last_imu[1]]  # the last finite sample
             self.holes += 1
