@@ -65,7 +65,8 @@ def run(args) -> int:
         s = finetune(args.init, args.data, out, minutes=args.minutes, progress=not args.quiet)
         print(f"fine-tuned on {len(s['train_files'])} file(s), validated on {len(s['val_files'])}: validation "
               f"inclination RMSE {s['val_inclination_rmse_deg_before']:.3f}° -> {s['val_inclination_rmse_deg_after']:.3f}° "
-              f"(VQF accelerometer time constant {s['tau_acc_s']:g} s); model: {out / 'model.pt'}")  # fmt: skip
+              f"(VQF accelerometer time constant {s['tau_acc_s']:g} s, gyro scale "
+              f"{', '.join(f'{v:g}' for v in s['gyro_scale'])}); model: {out / 'model.pt'}")  # fmt: skip
         return 0
     cfg = load_train_config(args.config, args.set)
     if args.init:
