@@ -251,7 +251,7 @@ class AnchoredVQF:
         self.sigma_gain = float(c.sigma_acc_gain)
         self.last_imu = (np.zeros(3), np.zeros(3))  # the last finite gyro/accelerometer sample
         self.holes = 0  # non-finite samples bridged
-        self.gscale = None if c.gyro_scale == (1.0, 1.0, 1.0) else np.array(c.gyro_scale)  # gyro × this (calibration)
+        self.gscale = None if c.gyro_scale == (1.0, 1.0, 1.0) else c.gyro_scale  # gyro × this (calibration)
 
     # ------------------------------------------------------------------ samples
 
@@ -261,7 +261,7 @@ class AnchoredVQF:
         t_s = np.atleast_1d(np.asarray(t_s, np.float64))
         gyr_b, acc_b = _rows(gyr_b), _rows(acc_b)
         if self.gscale is not None:  # the vehicle's gyro calibration (a hole stays a hole)
-            gyr_b = gyr_b * self.gscale
+            gyr_b = gyr_b * np.array(self.gscale)
         n = len(t_s)
         if clipped is not None:
             cl = np.flatnonzero(np.atleast_1d(clipped))
@@ -302,7 +302,7 @@ class AnchoredVQF:
         g = [float(v) for v in gyr_b]
         a = [float(v) for v in acc_b]
         if self.gscale is not None:  # as update()
-            sx, sy, sz = self.cfg.gyro_scale
+            sx, sy, sz = self.gscale
             g = [g[0] * sx, g[1] * sy, g[2] * sz]
         if not math.isfinite(g[0] + g[1] + g[2] + a[0] + a[1] + a[2]):  # a hole (a NaN or inf in the sum):
             g, a = [float(v) for v in self.last_imu[0]], [float(v) for v in self.last_imu[1]]  # the last finite sample
