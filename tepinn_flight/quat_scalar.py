@@ -65,3 +65,15 @@ def rotmat_to_quat(m00, m01, m02, m10, m11, m12, m20, m21, m22):
         return ((m02 - m20) / s, (m01 + m10) / s, 0.25 * s, (m12 + m21) / s)
     s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
     return ((m10 - m01) / s, (m02 + m20) / s, (m12 + m21) / s, 0.25 * s)
+
+
+@njit(cache=True)
+def qrot(qw, qx, qy, qz, vx, vy, vz):
+    """Rotate a vector by a unit quaternion, ``q ⊗ v ⊗ q*`` (:func:`.quat.quat_rotate`'s form:
+    ``v + w t + u × t``, ``t = 2 u × v``)."""
+    tx = 2.0 * (qy * vz - qz * vy)
+    ty = 2.0 * (qz * vx - qx * vz)
+    tz = 2.0 * (qx * vy - qy * vx)
+    return (vx + qw * tx + (qy * tz - qz * ty),
+            vy + qw * ty + (qz * tx - qx * tz),
+            vz + qw * tz + (qx * ty - qy * tx))  # fmt: skip

@@ -373,8 +373,13 @@ def test_export_the_shipped_model(tmp_path):
     feed = {"gyr": rng.normal(0, 0.5, (2, k, 3)), "acc": rng.normal(0, 1, (2, k, 3)) + [0, 0, -9.81],
             "count": np.full((2, k), 8.0), "t_rel": np.tile((np.arange(k) - k + 1) * 0.04, (2, 1)),
             "dt": np.full((2, k), 0.04), "mag": np.zeros((2, k, 3)), "clip": np.zeros((2, k))}  # fmt: skip
+    from tepinn_flight.model.export import sensor_values
+    from tepinn_flight.model.window_features import window_features
+
+    # the graph takes the windows' features, computed outside it with the trained sensor model
+    features = window_features(model.config, sensor_values(model), *(feed[n] for n in ("gyr", "acc", "count", "t_rel", "dt", "mag", "clip")))
     names = [i.name for i in sess.get_inputs()]
-    q_onnx = sess.run(["q"], {n: feed[n].astype(np.float32) for n in names})[0]
+    q_onnx = sess.run(["q"], {n: features[n] for n in names})[0]
     with torch.inference_mode():
         q_torch = model(*[torch.as_tensor(feed[n], dtype=torch.float32) for n in
                           ("gyr", "acc", "count", "t_rel", "dt", "mag", "clip")])["q"].numpy()  # fmt: skip

@@ -72,7 +72,19 @@ _CALLS = textwrap.dedent("""
     q_nb_from_vqf(rec.q_ref_wxyz)
     q_nb_from_vqf(rec.q_ref_wxyz[0])
     tilt_pull_quat(rec.q_ref_wxyz[0], [0, 0, 1], 1)
-    for name, d in (("fusion._run", fusion._run), ("fusion._step", fusion._step),
+    from tepinn_flight.model import window_features as wf
+    from tepinn_flight.model.config import ModelConfig
+
+    k = ModelConfig().window_tokens
+    w = [np.zeros((2, k, 3)), np.tile([0.0, 0.0, -9.81], (2, k, 1)), np.full((2, k), 8), np.zeros((2, k)),
+         np.full((2, k), 0.04, np.float32), None, None]  # ints, float32, no magnetometer, no clipping
+    for cfg, sv in ((ModelConfig(), wf.SensorValues((0, 0, 0), ((0,) * 3,) * 3, (0, 0, 0), ((0,) * 3,) * 3, 1)),
+                    (ModelConfig(use_mag=True, physics=False, centripetal=False, centripetal_rate=False),
+                     wf.SensorValues.identity())):
+        wf.window_features(cfg, sv, *w)
+        wf.window_features(cfg, sv, *(None if a is None else np.asarray(a, np.float32)[:1] for a in w[:5]),
+                           np.ones((1, k, 3)), np.zeros((1, k), np.float32))  # fmt: skip
+    for name, d in (("fusion._run", fusion._run), ("fusion._step", fusion._step), ("wf._features", wf._features),
                     ("complementary._run", complementary._run), ("madgwick._run", madgwick._run),
                     ("ekf._loop", ekf._loop)) + tuple((f"ak.{k}", getattr(ak, k)) for k in ANCHOR_KERNELS):
         print(name, len(d.signatures))
@@ -86,5 +98,5 @@ def test_every_loop_is_compiled_for_one_signature(tmp_path):
     p = subprocess.run([sys.executable, "-c", _CALLS], capture_output=True, text=True, env=env, cwd=REPO, timeout=600)
     assert p.returncode == 0, p.stderr
     counts = dict(line.split() for line in p.stdout.splitlines())
-    assert counts == {k: "1" for k in ("fusion._run", "fusion._step", "complementary._run", "madgwick._run",
+    assert counts == {k: "1" for k in ("fusion._run", "fusion._step", "wf._features", "complementary._run", "madgwick._run",
                                        "ekf._loop") + tuple(f"ak.{k}" for k in ANCHOR_KERNELS)}, p.stdout  # fmt: skip

@@ -1,13 +1,19 @@
 """Export a TE-PINN checkpoint to ONNX for onnxruntime (no torch at run time).
 
-The graph: inputs ``gyr``, ``acc``, ``mag`` (B, K, 3) and ``count``, ``t_rel``, ``dt``, ``clip``
-(B, K), float32, as :meth:`~tepinn_flight.model.network.TEPINN.forward` takes them; outputs ``q``
-(B, 4), ``sigma`` (B,), ``bias``, ``vel``, ``acc_v`` (B, 3), float32. The batch axis B is dynamic;
-the window length K is fixed by the model config (``window_tokens``). Opset :data:`OPSET`.
+The graph (export version 2) is the network after its token features,
+:meth:`~tepinn_flight.model.network.TEPINN.head`: inputs the features
+(:func:`~.window_features.feature_names`: ``x`` (B, K, n_inputs) before normalisation, ``t_rel``
+(B, K), and as the model has them ``v`` (B, K, 3), ``u`` (B, K), ``cen``, ``cen_rate`` (B, K, 3, 3)),
+float32; outputs ``q`` (B, 4), ``sigma`` (B,), ``bias``, ``vel``, ``acc_v`` (B, 3), float32. The
+runner computes the features from the windows (:mod:`.window_features`, compiled: the sensor model,
+RK4 rotations and rotated forces were half of a batch-1 run as graph operators) with the trained
+sensor model stored in the metadata (``sensor_model``). The batch axis B is dynamic; the window
+length K is fixed by the model config (``window_tokens``). Opset :data:`OPSET`. (Version 1 exports,
+whose graph took the windows themselves, still run.)
 
 ``metadata_props`` carry, as JSON strings: ``format`` ("tepinn-flight-onnx"), ``version``,
 ``model_config``, ``fusion_config``, ``anchor_config`` (when the checkpoint has one),
-``conventions``, ``outputs_present`` (the heads the model has: the others are zeros in the graph
+``conventions``, ``graph_inputs``, ``sensor_model``, ``outputs_present`` (the heads the model has: the others are zeros in the graph
 and the runner replaces them with the estimators' defaults), ``opset``, ``source`` (checkpoint
 file name), ``source_sha256`` (of the checkpoint file: a checkpoint with an export of the same name
 beside it runs that export only while they match), ``training`` and ``metrics`` where
@@ -31,25 +37,49 @@ from torch import nn
 from ..record import atomic_write
 from .checkpoint import load_model
 from .runtime import INPUTS, ONNX_FORMAT, ONNX_VERSION, OUTPUTS
+from .window_features import SensorValues, feature_names
 
 #: ONNX opset of the exported graph
 OPSET = 17
 
 
 class ExportWrapper(nn.Module):
-    """The network with a fixed output tuple ``(q, sigma, bias, vel, acc_v)``; heads the model does
-    not have are zeros."""
+    """The network after its token features (:meth:`~.network.TEPINN.head`) with a fixed output tuple
+    ``(q, sigma, bias, vel, acc_v)``; heads the model does not have are zeros. Its inputs are
+    :func:`~.window_features.feature_names`, in that order."""
 
     def __init__(self, model: nn.Module):
         super().__init__()
         self.model = model
 
-    def forward(self, gyr, acc, count, t_rel, dt, mag, clip):
-        out = self.model(gyr, acc, count, t_rel, dt, mag, clip)
+    def forward(self, *features):
+        f = dict(zip(feature_names(self.model.config), features))
+        out = self.model.head(f["x"], f["t_rel"], f.get("v"), f.get("u"), f.get("cen"), f.get("cen_rate"))
         q = out["q"]
         zeros3 = torch.zeros_like(q[:, :3])
         sigma = out["sigma"] if "sigma" in out else torch.zeros_like(q[:, 0])
         return (q, sigma, out["bias"], out.get("vel", zeros3), out.get("acc_v", zeros3))
+
+
+def sensor_values(model: nn.Module) -> SensorValues:
+    """The trained sensor model's effective values (what :mod:`.window_features` applies)."""
+    if not model.config.physics:
+        return SensorValues.identity()
+    v = {k: t.detach().double().numpy() for k, t in model.sensor.values().items()}
+    kappa = model.sensor.clip_gain()
+    return SensorValues(tuple(map(float, v["b_g"])), tuple(tuple(map(float, r)) for r in v["S_g"]),
+                        tuple(map(float, v["b_a"])), tuple(tuple(map(float, r)) for r in v["S_a"]),
+                        None if kappa is None else float(kappa.detach()))  # fmt: skip
+
+
+def example_features(model: nn.Module, batch: int = 2, seed: int = 0) -> tuple:
+    """The features of :func:`example_inputs`' windows, as the export takes them."""
+    gyr, acc, count, t_rel, dt, mag, clip = example_inputs(model.config, batch, seed)
+    with torch.no_grad():
+        x, _, _, v, u, cen = model.features(gyr, acc, count, mag, dt, clip, t_rel)
+    cen, cen_rate = cen if isinstance(cen, tuple) else (cen, None)
+    f = {"x": x, "t_rel": t_rel, "v": v, "u": u, "cen": cen, "cen_rate": cen_rate}
+    return tuple(f[n].float() for n in feature_names(model.config))
 
 
 def present_outputs(model: nn.Module) -> list[str]:
@@ -90,6 +120,8 @@ def _metadata(ckpt: dict, model: nn.Module, source: str, opset: int, source_sha2
         "source": source,
         "source_sha256": source_sha256,
         "inputs": list(INPUTS),
+        "graph_inputs": list(feature_names(model.config)),  # the features window_features computes
+        "sensor_model": sensor_values(model).to_json(),
         "outputs": list(OUTPUTS),
     }
     if ckpt.get("anchor_config") is not None:
@@ -113,7 +145,8 @@ def export_bytes(ckpt_path: str | os.PathLike, opset: int = OPSET) -> bytes:
     wrapper = ExportWrapper(model).eval()
     buf = io.BytesIO()
     batch = {0: "batch"}
-    dyn = {n: batch for n in INPUTS} | {n: batch for n in OUTPUTS}
+    names = list(feature_names(model.config))
+    dyn = {n: batch for n in names} | {n: batch for n in OUTPUTS}
     # the transformer's fused inference kernel (taken under no_grad/inference_mode) has no ONNX
     # form: trace the layer-by-layer path (the same math)
     fast = torch.backends.mha.get_fastpath_enabled()
@@ -121,7 +154,7 @@ def export_bytes(ckpt_path: str | os.PathLike, opset: int = OPSET) -> bytes:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # tracer notes on Python-level shape checks (K is fixed)
-            torch.onnx.export(wrapper, example_inputs(model.config), buf, input_names=list(INPUTS),
+            torch.onnx.export(wrapper, example_features(model), buf, input_names=names,
                               output_names=list(OUTPUTS), dynamic_axes=dyn, opset_version=opset, dynamo=False)  # fmt: skip
     finally:
         torch.backends.mha.set_fastpath_enabled(fast)

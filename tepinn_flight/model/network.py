@@ -101,6 +101,21 @@ class TimestampEncoding(nn.Module):
         return pe
 
 
+def encoder_layer(layer: nn.TransformerEncoderLayer, h: torch.Tensor, k: int, d: int, heads: int) -> torch.Tensor:
+    """One post-LayerNorm transformer layer (``nn.TransformerEncoderLayer``'s math, its own weights
+    and dropouts) on ``h`` (B, k, d), written with the window length, width and head count as
+    constants: its ONNX export then has no shape arithmetic (``nn.MultiheadAttention`` exports about
+    150 Shape/Gather/Concat operators for a dynamic batch; a batch-1 run was 16 % faster without them)."""
+    sa = layer.self_attn
+    dh = d // heads
+    qkv = F.linear(h, sa.in_proj_weight, sa.in_proj_bias).reshape(-1, k, 3, heads, dh).permute(2, 0, 3, 1, 4)
+    att = torch.softmax((qkv[0] * dh**-0.5) @ qkv[1].transpose(-1, -2), dim=-1)  # (B, heads, k, k)
+    att = F.dropout(att, sa.dropout, layer.training)
+    a = sa.out_proj((att @ qkv[2]).transpose(1, 2).reshape(-1, k, d))
+    h = layer.norm1(h + layer.dropout1(a))
+    return layer.norm2(h + layer.dropout2(layer.linear2(layer.dropout(layer.activation(layer.linear1(h))))))
+
+
 class CausalMeanMLP(nn.Module):
     """'No sequence model' ablation: per-token MLP, then a causal running mean."""
 
@@ -234,13 +249,27 @@ class TEPINN(nn.Module):
         ``bias`` (B, 3) rad/s, ``f_mean`` (B, 3) the window's mean specific force in body(t_K)
         (physics on); and per token ``torque`` (B, K, 3), ``w_c``, ``a_c`` (B, K, 3).
         """
-        c = self.config
         x, w_c, a_c, v, u, cen = self.features(gyr, acc, count, mag, dt, clip, t_rel)
+        cen, cen_rate = cen if isinstance(cen, tuple) else (cen, None)
+        out = self.head(x, t_rel, v, u, cen, cen_rate)
+        out["w_c"] = w_c
+        out["a_c"] = a_c
+        return out
+
+    def head(self, x, t_rel, v=None, u=None, cen=None, cen_rate=None) -> dict[str, torch.Tensor]:
+        """Everything after :meth:`features`: normalisation, timestamp encoding, encoder and heads
+        (what an ONNX export holds; :mod:`.window_features` computes the features outside it).
+        ``v``, ``u`` with physics; ``cen`` with the centripetal term, ``cen_rate`` with its rate."""
+        c = self.config
         h = self.inp((x - self.in_mean) / self.in_std) + self.pe(t_rel)  # (B, K, d)
         if c.encoder == "lstm":
             h, _ = self.encoder(h)
+        elif c.encoder == "transformer":
+            k = c.window_tokens if torch.jit.is_tracing() else h.shape[1]  # exported: the config's K, a constant
+            for layer in self.encoder.layers:  # full attention inside the window (it ends at t_K)
+                h = encoder_layer(layer, h, k, c.d_model, c.n_heads)
         else:
-            h = self.encoder(h)  # transformer: full attention inside the window (it ends at t_K)
+            h = self.encoder(h)
         last = h[:, -1]  # (B, d)
         q = quat_normalize(self.head_q(last))  # (B, 4)
         if v is not None:
@@ -248,7 +277,6 @@ class TEPINN(nn.Module):
                 hv = self.head_vel(last)
                 vel = VEL_SCALE_M_S * hv[:, :3]  # (B, 3) m/s in body(t_K)
                 if c.centripetal_rate:  # v(t) = v̂ + (t − t_K)·â: a = ω × v̂ + (t − t_K)·ω × â + â
-                    cen, cen_rate = cen
                     acc_v = ACC_SCALE_M_S2 * hv[:, 3:]  # (B, 3) m/s² in body(t_K)
                     v = v - torch.einsum("bjkc,bk->bjc", cen_rate, acc_v)
                 else:
@@ -266,8 +294,6 @@ class TEPINN(nn.Module):
             "q": q,
             "bias": BIAS_SCALE_RAD_S * self.head_bias(last),
             "torque": self.head_torque(h),
-            "w_c": w_c,
-            "a_c": a_c,
         }
         if v is not None:
             out["f_mean"] = f_mean  # (compensated, centripetal on)

@@ -41,7 +41,9 @@ RUNTIMES = ("auto", "torch", "onnx")
 #: σ of a model without the σ head (rad)
 DEFAULT_SIGMA_RAD = math.radians(2.0)
 ONNX_FORMAT = "tepinn-flight-onnx"
-ONNX_VERSION = 1
+ONNX_VERSION = 2
+#: export versions this runner reads: 1 (the graph takes the windows), 2 (it takes their features)
+ONNX_VERSIONS_READ = (1, 2)
 
 
 def torch_available() -> bool:
@@ -124,8 +126,9 @@ def _decode_meta(raw: dict, path) -> dict:
             meta[k] = json.loads(v)
         except ValueError:
             meta[k] = v
-    if meta.get("version") != ONNX_VERSION:
-        raise ConfigError(f"{path}: unknown export version {meta.get('version')!r} (this tepinn-flight reads {ONNX_VERSION})")
+    if meta.get("version") not in ONNX_VERSIONS_READ:
+        raise ConfigError(f"{path}: unknown export version {meta.get('version')!r} (this tepinn-flight reads "
+                          f"{', '.join(map(str, ONNX_VERSIONS_READ))})")  # fmt: skip
     return meta
 
 
@@ -152,6 +155,14 @@ class OnnxRunner(NetworkRunner):
         self.present = set(self.meta.get("outputs_present", OUTPUTS))
         self.input_names = [i.name for i in self.session.get_inputs()]
         self.output_names = [o.name for o in self.session.get_outputs()]
+        self.sensor = None  # version 2: the features are computed here, with the trained sensor model
+        if self.meta["version"] >= 2:
+            from .window_features import SensorValues
+
+            try:
+                self.sensor = SensorValues.from_json(self.meta["sensor_model"])
+            except (KeyError, TypeError, ValueError, IndexError):
+                raise ConfigError(f"{self._label}: export version 2 without a readable 'sensor_model'") from None
 
     def _open(self, threads: int | None) -> None:
         # one thread per run; with n threads a batch is cut into n parts run side by side (the
@@ -176,7 +187,12 @@ class OnnxRunner(NetworkRunner):
             self._open(n)
 
     def run(self, gyr, acc, count, t_rel, dt, mag, clip) -> dict:
-        arrays = dict(zip(INPUTS, (gyr, acc, count, t_rel, dt, mag, clip)))
+        if self.sensor is not None:
+            from .window_features import window_features
+
+            arrays = window_features(self.config, self.sensor, gyr, acc, count, t_rel, dt, mag, clip)
+        else:
+            arrays = dict(zip(INPUTS, (gyr, acc, count, t_rel, dt, mag, clip)))
         feed = {k: np.ascontiguousarray(arrays[k], dtype=np.float32) for k in self.input_names}
         b = len(gyr)
         parts = min(self.workers, b)

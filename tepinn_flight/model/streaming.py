@@ -214,11 +214,12 @@ class StreamingEstimator:
         target, b_target = self.old_q, self.old_bias
         old = None if est is None else (list(est.q_nb_wxyz), est.sigma_rad, list(est.gyr_bias_rad_s))
         self.old_q, _, self.old_bias = self.fusion.step(t, gyr, old, clipped)
-        if est is not None:
-            b = np.nan_to_num(np.asarray(b_target if b_target is not None else (0.0, 0.0, 0.0), np.float64))
-            est = dataclasses.replace(est, fusion_bias_rad_s=b)
+        if est is not None:  # (one replace, no nan_to_num: a window's Python adds up live)
+            b = np.array([v if math.isfinite(v) else 0.0 for v in b_target] if b_target is not None else (0.0, 0.0, 0.0))
             if target is not None and all(math.isfinite(v) for v in target):
-                est = dataclasses.replace(est, q_nb_wxyz=np.asarray(target, np.float64))
+                est = dataclasses.replace(est, fusion_bias_rad_s=b, q_nb_wxyz=np.asarray(target, np.float64))
+            else:
+                est = dataclasses.replace(est, fusion_bias_rad_s=b)
         if self.anchored is None:
             self.pending.append((t, gyr, acc, mag, gyr_clipped, est))
             if len(self.pending) <= TS_STEPS:
@@ -270,7 +271,7 @@ class StreamingEstimator:
         fb = self.feedback if fb_every > 0 else (0.0, 0.0, 0.0)
         g = (w[:, 1:4] - np.asarray(fb, np.float64))[None]
         a = w[None, :, 4:7]
-        m = np.nan_to_num(w[None, :, 7:10])
+        m = w[None, :, 7:10]  # NaN where no magnetometer: the network's features zero them (nan_to_num), as offline
         n = w[None, :, 10]
         cl = w[None, :, 11]
         t_rel = (w[:, 0] - w[-1, 0])[None]
