@@ -55,6 +55,24 @@ def test_zero_yaw_equals_paper_euler_route():
     )
 
 
+def test_corrected_output_is_the_zero_yaw_of_baseline_times_correction():
+    """The head's shortcut: zero_yaw(gravity_tilt(−f) ⊗ δq) computed as gravity_tilt(δq* turning −f),
+    against the written-out route — any δq, any pooled force (upside down and near ±90° pitch too)."""
+    from tepinn_flight.model.network import gravity_tilt
+    from tepinn_flight.quat import quat_conj, quat_mul, quat_rotate
+
+    rng = np.random.default_rng(3)
+    dq = torch.tensor(Q.quat_normalize(rng.normal(size=(5000, 4))))
+    f = torch.tensor(rng.normal(size=(5000, 3)) * rng.uniform(0.01, 3.0, (5000, 1)))
+    f[:50, 1:] *= 1e-4  # gravity nearly along x
+    route = zero_yaw(quat_mul(gravity_tilt(-f), dq))
+    short = gravity_tilt(quat_rotate(quat_conj(dq), -f))
+    a, b = Q.quat_canonical(short.numpy()), Q.quat_canonical(route.numpy())
+    np.testing.assert_allclose(a[50:], b[50:], rtol=0, atol=1e-7)
+    np.testing.assert_allclose(a[:50], b[:50], rtol=0, atol=1e-5)  # gravity_tilt's 1e-12 guard under the square root
+    assert np.abs(Q.quat_canonical(gravity_tilt(quat_rotate(dq, -f)).numpy()) - Q.quat_canonical(route.numpy())).max() > 0.1  # not δq
+
+
 def test_estimates_are_causal():
     """Changing samples after time t never changes any output at or before t."""
     torch.manual_seed(0)

@@ -287,8 +287,14 @@ class TEPINN(nn.Module):
             else:
                 wts = (u / u.sum(dim=1, keepdim=True))[..., None]  # (B, K, 1)
             f_mean = (wts * v).sum(dim=1)  # pooled specific force in body(t_K), in g
-            q = quat_mul(gravity_tilt(-f_mean), q)  # correction of the physics baseline
-        if c.correction_layer:
+            if c.correction_layer:  # zero_yaw(q_base ⊗ δq), q_base = gravity_tilt(−f): its gravity in body
+                # axes is −f, so the product's is δq* turning −f — one rotation instead of a second
+                # tilt and a product (the same numbers to round-off, tests/test_model.py; a fifth of
+                # the exported graph's time at batch 1)
+                q = gravity_tilt(quat_rotate(quat_conj(q), -f_mean))
+            else:
+                q = quat_mul(gravity_tilt(-f_mean), q)  # correction of the physics baseline
+        elif c.correction_layer:
             q = zero_yaw(q)
         out = {
             "q": q,

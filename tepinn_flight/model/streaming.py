@@ -45,6 +45,9 @@ class Estimate:
     compute_s: float  # processing time of this push
 
 
+_NAN3 = (float("nan"),) * 3
+
+
 class _Token:
     __slots__ = ("g", "a", "m", "m_n", "n", "t_last", "clip")
 
@@ -148,12 +151,16 @@ class StreamingEstimator:
         — a record's ``clipped`` and ``gyr_clipped`` columns."""
         t0c = time.perf_counter()
         t = float(t_s)
-        if math.isfinite(sum(float(v) for v in (*gyr_rad_s, *acc_m_s2))):  # a NaN or inf makes the sum one
-            self.last_imu = (tuple(gyr_rad_s), tuple(acc_m_s2))
+        gx, gy, gz = gyr_rad_s  # (unpacked once: this path runs per sample, its Python is most of its cost)
+        ax, ay, az = acc_m_s2
+        if math.isfinite(float(gx) + float(gy) + float(gz) + float(ax) + float(ay) + float(az)):  # a NaN or inf makes the sum one
+            gyr_rad_s, acc_m_s2 = (gx, gy, gz), (ax, ay, az)
+            self.last_imu = (gyr_rad_s, acc_m_s2)
         else:  # a hole: bridged with the last finite sample, as offline
             gyr_rad_s, acc_m_s2 = self.last_imu
+            (gx, gy, gz), (ax, ay, az) = gyr_rad_s, acc_m_s2
             self.holes += 1
-        mag_row = (float("nan"),) * 3 if mag_ut is None else tuple(float(v) for v in mag_ut)
+        mag_row = _NAN3 if mag_ut is None else tuple(float(v) for v in mag_ut)
         if self.t_prev is not None and self.period is not None and self.last_raw is not None \
                 and is_bridgeable(t - self.t_prev, self.period):  # fmt: skip
             self._bridge(t, (*gyr_rad_s, *acc_m_s2, *mag_row))
@@ -178,9 +185,13 @@ class StreamingEstimator:
             self.k = k
             self.cur = _Token()
         tok = self.cur
-        for i in range(3):
-            tok.g[i] += float(gyr_rad_s[i])
-            tok.a[i] += float(acc_m_s2[i])
+        tg, ta = tok.g, tok.a
+        tg[0] += float(gx)
+        tg[1] += float(gy)
+        tg[2] += float(gz)
+        ta[0] += float(ax)
+        ta[1] += float(ay)
+        ta[2] += float(az)
         if mag_ut is not None and all(math.isfinite(float(v)) for v in mag_ut):
             for i in range(3):
                 tok.m[i] += float(mag_ut[i])
