@@ -15,7 +15,8 @@ live bridge's per-sample call (``AttitudeFusion.step``), ``filters`` the baselin
 flight record, ``tlog-sync`` the frame sync of a real tlog (``scan_tlog``; skipped when
 ``../shared/real-logs`` is missing), ``anchored`` the shipped estimator's kernels between network
 windows (``AnchoredVQF.update`` on a block, ``correct`` with every gate open, ``update_one``: what
-``estimate`` and the live worker run; ``model/anchor_kernels.py``).
+``estimate`` and the live worker run; ``model/anchor_kernels.py``), ``features`` the token features the
+onnxruntime path computes for the network (``model/window_features.py``, session 11).
 
 Usage: python benchmarks/jit_compile.py [--compare /path/to/other/checkout] [--only fusion,filters]
 Wall-clock seconds; the machine may be shared, so compare the two checkouts within one run.
@@ -97,6 +98,16 @@ def call():
     f.correct(WindowOutput(q, 0.02, np.zeros(3), np.array([30.0, 0.0, 0.0]), np.zeros(3), np.array([0.1, 0.0, 0.0])))
     f.update(t + 0.25, gyr, acc)
     f.update_one(0.5, (0.05, -0.02, 0.1), (0.0, 0.0, -9.81))
+""",
+    "features": """
+from tepinn_flight.model.config import ModelConfig
+from tepinn_flight.model.window_features import SensorValues, window_features
+cfg = ModelConfig()
+k = cfg.window_tokens
+w = (np.full((1, k, 3), 0.1), np.tile([0.0, 0.0, -9.81], (1, k, 1)), np.full((1, k), 8.0),
+     (np.arange(k) - k + 1) / 25.0 * np.ones((1, k)), np.full((1, k), 0.04), None, np.zeros((1, k)))
+def call():
+    window_features(cfg, SensorValues.identity(), *w)
 """,
     "tlog-sync": f"""
 from tepinn_flight.ingest.mavlink_scan import scan_tlog
