@@ -175,6 +175,15 @@ def test_a_version_2_export_without_its_sensor_model_is_refused(tmp_path):
         OnnxRunner(proto.SerializeToString())
 
 
+def test_mismatched_windows_are_refused():
+    config = CONFIGS["small"]
+    gyr, acc, count, t_rel, dt, mag, clip = _windows(config, 2, 1)
+    with pytest.raises(ValueError, match="mismatched"):
+        window_features(config, sensor_values(_model(config)), gyr[:1], acc, count, t_rel, dt, mag, clip)
+    with pytest.raises(ValueError, match="mismatched"):
+        window_features(CONFIGS["9-D"], sensor_values(_model(config)), gyr, acc, count, t_rel, dt, mag[:, :3], clip)
+
+
 def test_dataclass_round_trip():
     m = _model(CONFIGS["small"])
     s = sensor_values(m)

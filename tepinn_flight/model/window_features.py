@@ -82,8 +82,14 @@ def window_features(config: ModelConfig, sensor: SensorValues, gyr, acc, count, 
     gyr, acc, count, t_rel, dt = f64(gyr), f64(acc), f64(count), f64(t_rel), f64(dt)
     b, k = count.shape
     clip = np.zeros((b, k)) if clip is None else f64(clip)
+    if gyr.shape != (b, k, 3) or acc.shape != (b, k, 3) or t_rel.shape != (b, k) or dt.shape != (b, k) or clip.shape != (b, k):
+        # (the compiled loop does not check its indices)
+        raise ValueError(f"windows of mismatched shapes: gyr {gyr.shape}, acc {acc.shape}, count {count.shape}, "
+                         f"t_rel {t_rel.shape}, dt {dt.shape}, clip {clip.shape}")  # fmt: skip
     use_mag = bool(config.use_mag)
     mag = f64(np.nan_to_num(mag)) if use_mag and mag is not None else np.zeros((b, k, 3))
+    if mag.shape != (b, k, 3):
+        raise ValueError(f"windows of mismatched shapes: mag {mag.shape}, count {count.shape}")
     x = np.empty((b, k, config.n_inputs), np.float32)
     v = np.empty((b, k, 3), np.float32)
     u = np.empty((b, k), np.float32)
