@@ -160,7 +160,12 @@ def test_a_version_1_export_still_runs(tmp_path):
         np.testing.assert_allclose(a[k], b[k], rtol=0, atol=ATOL[k], err_msg=k)
 
 
-def test_a_version_2_export_without_its_sensor_model_is_refused(tmp_path):
+@pytest.mark.parametrize("bad", [None, '{"b_g": [0, 0, 0], "S_g": [[0, 0], [0, 0]], "b_a": [0, 0, 0], '
+                                 '"S_a": [[0, 0, 0], [0, 0, 0], [0, 0, 0]], "kappa": 1}',
+                                 '{"b_g": [0, 0, NaN], "S_g": [[0, 0, 0], [0, 0, 0], [0, 0, 0]], "b_a": [0, 0, 0], '
+                                 '"S_a": [[0, 0, 0], [0, 0, 0], [0, 0, 0]], "kappa": 1}'])
+def test_a_version_2_export_without_a_sound_sensor_model_is_refused(tmp_path, bad):
+    """(missing; a 2×2 matrix, which the compiled loop would read past; a NaN)"""
     import onnx
 
     from tepinn_flight.errors import ConfigError
@@ -169,7 +174,7 @@ def test_a_version_2_export_without_its_sensor_model_is_refused(tmp_path):
     proto = onnx.load(_export(_model(CONFIGS["small"]).float(), tmp_path, "m"))
     keep = [(p.key, p.value) for p in proto.metadata_props if p.key != "sensor_model"]
     del proto.metadata_props[:]
-    for k, v in keep:
+    for k, v in keep + ([("sensor_model", bad)] if bad else []):
         proto.metadata_props.add(key=k, value=v)
     with pytest.raises(ConfigError, match="sensor_model"):
         OnnxRunner(proto.SerializeToString())

@@ -161,8 +161,9 @@ class OnnxRunner(NetworkRunner):
 
             try:
                 self.sensor = SensorValues.from_json(self.meta["sensor_model"])
-            except (KeyError, TypeError, ValueError, IndexError):
-                raise ConfigError(f"{self._label}: export version 2 without a readable 'sensor_model'") from None
+            except (KeyError, TypeError, ValueError, IndexError) as exc:
+                why = str(exc) if isinstance(exc, ValueError) else "missing or malformed"
+                raise ConfigError(f"{self._label}: export version 2 without a sound 'sensor_model' ({why})") from None
 
     def _open(self, threads: int | None) -> None:
         # one thread per run; with n threads a batch is cut into n parts run side by side (the

@@ -47,9 +47,15 @@ class SensorValues:
 
     @classmethod
     def from_json(cls, d: dict) -> "SensorValues":
-        return cls(tuple(map(float, d["b_g"])), tuple(tuple(map(float, r)) for r in d["S_g"]),
-                   tuple(map(float, d["b_a"])), tuple(tuple(map(float, r)) for r in d["S_a"]),
-                   None if d.get("kappa") is None else float(d["kappa"]))  # fmt: skip
+        """From an export's metadata (untrusted: shapes and finiteness are checked, ValueError)."""
+        v = cls(tuple(map(float, d["b_g"])), tuple(tuple(map(float, r)) for r in d["S_g"]),
+                tuple(map(float, d["b_a"])), tuple(tuple(map(float, r)) for r in d["S_a"]),
+                None if d.get("kappa") is None else float(d["kappa"]))  # fmt: skip
+        shapes_ok = len(v.b_g) == len(v.b_a) == len(v.S_g) == len(v.S_a) == 3 and all(len(r) == 3 for r in v.S_g + v.S_a)
+        values = (*v.b_g, *v.b_a, *sum(v.S_g + v.S_a, ()), 0.0 if v.kappa is None else v.kappa)
+        if not shapes_ok or not all(math.isfinite(x) for x in values) or (v.kappa is not None and v.kappa < 0):
+            raise ValueError("sensor_model: b_g, b_a need 3 values, S_g, S_a 3×3, κ ≥ 0, all finite")
+        return v
 
     @classmethod
     def identity(cls) -> "SensorValues":
