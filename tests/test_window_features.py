@@ -18,8 +18,7 @@ pytest.importorskip("onnxruntime")
 
 from tepinn_flight.model.config import ModelConfig  # noqa: E402
 from tepinn_flight.model.export import example_inputs, sensor_values  # noqa: E402
-from tepinn_flight.model.network import CEN_FEATURE_M_S, TEPINN  # noqa: E402
-from tepinn_flight.model.window_features import CEN_FEATURE_M_S as CEN_KERNEL  # noqa: E402
+from tepinn_flight.model.network import TEPINN  # noqa: E402
 from tepinn_flight.model.window_features import feature_names, window_features  # noqa: E402
 
 #: the export's equality bound (tests/test_onnx_runtime.py): 1e-5 in each head's own units
@@ -64,10 +63,6 @@ def _windows(config: ModelConfig, batch: int, seed: int) -> list[np.ndarray]:
     x[6][-1, -1] = 0.5  # and in the last token of the last
     x[5][0, 3] = np.nan  # a magnetometer hole
     return x
-
-
-def test_the_kernel_uses_the_networks_scale():
-    assert CEN_KERNEL == CEN_FEATURE_M_S
 
 
 @pytest.mark.parametrize("name", list(CONFIGS))

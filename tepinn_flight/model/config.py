@@ -11,6 +11,9 @@ from ..errors import ConfigError
 
 
 ENCODERS = ("transformer", "lstm", "mlp")
+#: the centripetal inputs c_jk are given per this speed (≈ g at 0.3 rad/s); the network's features
+#: and their compiled form (window_features.py) both read it here
+CEN_FEATURE_M_S = 30.0
 
 
 @dataclass(frozen=True)

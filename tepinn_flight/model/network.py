@@ -42,13 +42,12 @@ from torch.nn import functional as F
 
 from ..conventions import GRAVITY_M_S2
 from ..quat import gravity_body, quat_conj, quat_from_euler_zyx, quat_mul, quat_normalize, quat_rotate
-from .config import ModelConfig
+from .config import CEN_FEATURE_M_S, ModelConfig
 from .physics import RigidBody, SensorModel, prefix_products, rk4_delta
 
 BIAS_SCALE_RAD_S = 0.02  # bias head output units (≈ 1.1 °/s per unit)
 VEL_SCALE_M_S = 30.0  # velocity head output units (centripetal compensation)
 ACC_SCALE_M_S2 = 5.0  # velocity-change head output units (centripetal_rate)
-CEN_FEATURE_M_S = 30.0  # the c_jk inputs are given per this speed (≈ g at 0.3 rad/s)
 
 
 def zero_yaw(q: torch.Tensor) -> torch.Tensor:

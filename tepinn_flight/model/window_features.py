@@ -24,10 +24,8 @@ from numba import njit
 
 from ..conventions import GRAVITY_M_S2
 from ..quat_scalar import qmul, qnorm, qrot
-from .config import ModelConfig
+from .config import CEN_FEATURE_M_S, ModelConfig
 
-#: the c_jk inputs are given per this speed (network.CEN_FEATURE_M_S; tested equal)
-CEN_FEATURE_M_S = 30.0
 
 
 @dataclass(frozen=True)
