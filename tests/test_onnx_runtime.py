@@ -4,7 +4,6 @@ live paths run without torch."""
 from __future__ import annotations
 
 import json
-
 import os
 import shutil
 import subprocess

@@ -27,7 +27,6 @@ from ..quat_scalar import qmul, qnorm, qrot
 from .config import CEN_FEATURE_M_S, ModelConfig
 
 
-
 @dataclass(frozen=True)
 class SensorValues:
     """A trained sensor model's effective values (after its limits): ``ω_c = (ω − b_g − S_g ω)·(1 + κ·clip)``,
@@ -59,11 +58,6 @@ class SensorValues:
     def identity(cls) -> "SensorValues":
         z3, z33 = (0.0, 0.0, 0.0), ((0.0,) * 3,) * 3
         return cls(z3, z33, z3, z33, None)
-
-
-def n_inputs(config: ModelConfig) -> int:
-    """Width of a token's feature row (the network's ``n_inputs``)."""
-    return config.n_inputs
 
 
 def feature_names(config: ModelConfig) -> tuple[str, ...]:
