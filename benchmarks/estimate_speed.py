@@ -185,6 +185,9 @@ def main() -> int:
             n_win, t_win, t_flt = split(r, settings, off_rec)
             print(f"  split ({name:5s}): {n_win} windows; windows {t_win:.2f} s ({1e3 * t_win / max(n_win, 1):.3f} ms each), "
                   f"anchored filter {t_flt:.2f} s ({1e6 * t_flt / max(n_win, 1):.1f} µs per window)")  # fmt: skip
+    if len(st_rec) <= skip + 1:
+        print(f"streaming: skipped (--stream-seconds {args.stream_seconds:g} holds no sample after the first window)")
+        return 0
     torch.set_num_threads(1)
     v, v_cpu = vqf_streaming(st_rec)
     v = v[skip:]

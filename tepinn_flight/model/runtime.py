@@ -204,10 +204,12 @@ class OnnxRunner(NetworkRunner):
             if self._pool is None:
                 from concurrent.futures import ThreadPoolExecutor
 
-                self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix="onnx")
+                self._pool = ThreadPoolExecutor(self.workers - 1, thread_name_prefix="onnx")
             cuts = np.linspace(0, b, parts + 1).round().astype(int)
             feeds = [{k: v[i:j] for k, v in feed.items()} for i, j in zip(cuts[:-1], cuts[1:])]
-            outs = list(self._pool.map(lambda f: self.session.run(self.output_names, f), feeds))
+            futures = [self._pool.submit(self.session.run, self.output_names, f) for f in feeds[1:]]
+            outs = [self.session.run(self.output_names, feeds[0])]  # the first slice in this thread
+            outs += [f.result() for f in futures]
             res = [np.concatenate([o[i] for o in outs]) for i in range(len(self.output_names))]
         return _complete(dict(zip(self.output_names, res)), self.present, b)
 
