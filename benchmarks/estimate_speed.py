@@ -24,7 +24,7 @@ and the anchored filter between and at them (``estimate_anchored`` given those w
 ``AnchoredVQF.update`` on each window's samples and ``correct``), each per window.
 
 Usage: python benchmarks/estimate_speed.py [--record PATH] [--tile-s 3600 | --tile-s 0 --seconds 120] [--stream-seconds 120]
-       [--runtime onnx] [--split]
+       [--runtime onnx] [--split] [--busy-stride N]
 """
 
 from __future__ import annotations
@@ -140,6 +140,8 @@ def main() -> int:
                     help="offline: the record repeated end to end up to this many seconds, the issue's one-hour log "
                          "(0: the record's first --seconds)")
     ap.add_argument("--model", default=None, help="checkpoint (default: shipped; onnx: its export beside it, if in sync)")
+    ap.add_argument("--busy-stride", type=int, default=0, metavar="N",
+                    help="run every N-th window of busy blocks (estimate --busy-stride; default: the model's)")
     ap.add_argument("--split", action="store_true",
                     help="offline: also time the windows (network) and the anchored filter between them apart")
     args = ap.parse_args()
@@ -151,6 +153,9 @@ def main() -> int:
     rec = load_record(args.record)
     ckpt = args.model or default_model_path()
     model, settings, _ = load_model(ckpt)
+    from tepinn_flight.model.anchor import with_busy_stride
+
+    settings = with_busy_stride(settings, args.busy_stride, Path(ckpt).name)
     onnx_path = export_in_sync(ckpt)
     runners = {}
     if args.runtime in ("torch", "both"):

@@ -99,7 +99,8 @@ def test_report_renders_with_all_figures(records_dir, tiny_checkpoint, tmp_path,
     ("riann", "RIANN"), ("fusion", "Fusion"), ("fusion-9d", "Fusion 9-D"), ("complementary", "complementary"),
     ("complementary-9d", "complementary 9-D"), ("madgwick-original-9d-beta0.12", "Madgwick (original) 9-D, β = 0.12"),
     ("tepinn-nophysics", "TE-PINN without physics"), ("tepinn-noadaptive", "TE-PINN without adaptive weighting"),
-    ("tepinn-run2", "TE-PINN (run2)"), ("no-physics", "no physics"), ("something-else", "something-else"),
+    ("tepinn-run2", "TE-PINN (run2)"), ("tepinn-stride6", "TE-PINN, busy stride 6"), ("no-physics", "no physics"),
+    ("something-else", "something-else"),
 ])  # fmt: skip
 def test_display_names(name, shown):
     assert display_name(name) == shown

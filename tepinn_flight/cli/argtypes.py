@@ -23,3 +23,6 @@ def int_at_least(lo: int, what: str = ""):
 
 #: ``--threads``: 0 lets torch choose
 threads = int_at_least(0, " (0: torch's choice)")
+
+#: ``--busy-stride``: every N-th window of a busy block (>= 1; left out: the model's own setting)
+busy_stride = int_at_least(1)

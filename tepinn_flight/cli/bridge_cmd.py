@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..live.messages import DEFAULT_ESTIMATE_AS, ESTIMATE_AS
+from .argtypes import busy_stride
 from .helptext import add_examples
 
 HELP = "live MAVLink bridge: route autopilot <-> ground stations and add TE-PINN attitude estimates"
@@ -31,6 +32,10 @@ def add_arguments(p) -> None:
     p.add_argument("--mode", choices=["6d", "9d", "auto"], default="",
                    help="6d, 9d (heading from the magnetometer: magnetic north) or auto (9-D when the vehicle sends "
                         "magnetometer data); default: the model's own (6d for the shipped model)")
+    p.add_argument("--busy-stride", type=busy_stride, default=0, metavar="N",
+                   help="where the network stays busy (fixed wing), run every N-th window after the first 10 s "
+                        "(windows holding a saturated sample always run): less CPU, some accuracy (estimate "
+                        "--busy-stride; README, Speed); default: the model's (1: every window)")
     p.add_argument("--runtime", choices=["auto", "torch", "onnx"], default="auto",
                    help="run the network in PyTorch or onnxruntime (auto: onnx for an .onnx model, for a checkpoint "
                         "whose export made from it lies beside it — the shipped model — or where torch is not "
@@ -98,7 +103,7 @@ def run(args) -> int:
 
     resolve_runtime(model, args.runtime)  # a runtime that cannot run this model: one line now, not in the worker
     cfg = BridgeConfig(
-        master=args.master, outs=tuple(args.out), model_path=str(model), runtime=args.runtime, mode=args.mode, tlog_path=args.tlog, rate_hz=args.rate,
+        master=args.master, outs=tuple(args.out), model_path=str(model), runtime=args.runtime, mode=args.mode, busy_stride=args.busy_stride, tlog_path=args.tlog, rate_hz=args.rate,
         diag_rate_hz=args.diag_rate, imu_instance=args.imu, min_imu_rate_hz=args.min_imu_rate,
         request_imu_rate_hz=args.request_imu_rate, sysid=args.sysid, compid=args.compid,
         estimates_to_master=args.estimates_to_master, estimate_as=args.estimate_as, worker=args.worker, max_sample_age_s=args.max_age,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 
+from .argtypes import busy_stride
 from .helptext import add_examples
 
 HELP = "compare TE-PINN with baseline filters and published peers on flight records; write a report"
@@ -33,6 +34,9 @@ def add_arguments(p) -> None:
                    help="noise-sweep levels, multiples of the base σ (gyro 0.01 rad/s, acc 0.2 m/s² per sample; default 0,1,2,4,8)")
     p.add_argument("--warmup-s", type=float, default=5.0, metavar="S",
                    help="seconds skipped at the start of every segment, for every estimator (default 5)")
+    p.add_argument("--busy-stride", type=busy_stride, default=0, metavar="N",
+                   help="add each TE-PINN model once more, running every N-th window where the network stays busy "
+                        "(estimate --busy-stride N: the speed knob), to see what it costs on these records")
     p.add_argument("--with-mag", action="store_true", help="add 9-D variants (magnetometer) of TE-PINN, the filters and the peers: scored without the heading alignment")
     p.add_argument("--no-peers", action="store_true", help="skip the published peers (VQF, RIANN, Fusion)")
     p.add_argument("--config", metavar="TOML", help="filter parameters: [madgwick], [complementary], [ekf] tables, peers = [...]")
@@ -100,6 +104,12 @@ def _run(args) -> int:
         estimators += learned_estimators(args.model, notes)
         if args.with_mag:  # TE-PINN 9-D beside VQF 9-D (anchored checkpoints)
             estimators += [e9 for e in list(estimators) if hasattr(e, "nine_d") and (e9 := e.nine_d()) is not None]
+        if args.busy_stride:  # the speed knob beside the model as it ships (6-D)
+            strided = [es for e in list(estimators) if hasattr(e, "strided") and not e.uses_mag
+                       and (es := e.strided(args.busy_stride)) is not None]  # fmt: skip
+            if not strided:
+                notes.append(f"--busy-stride {args.busy_stride}: no model here runs the anchored estimator; nothing added")
+            estimators += strided
     else:
         notes.append("TE-PINN not evaluated (--no-model)")
     estimators += baseline_estimators(cfg, with_mag=args.with_mag)

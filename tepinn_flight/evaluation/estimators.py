@@ -111,6 +111,16 @@ class TepinnEstimator:
             return None
         return TepinnEstimator(self.model, dataclasses.replace(self.fusion, mode="auto"), self.name + "-9d", self.checkpoint)
 
+    def strided(self, n: int) -> TepinnEstimator | None:
+        """The same model running every ``n``-th window of a busy block (``name-strideN``:
+        :func:`~tepinn_flight.model.anchor.with_busy_stride`), or None for a checkpoint that runs the
+        older network-centred fusion."""
+        from ..model.anchor import AnchorConfig, with_busy_stride
+
+        if not isinstance(self.fusion, AnchorConfig):
+            return None
+        return TepinnEstimator(self.model, with_busy_stride(self.fusion, n), f"{self.name}-stride{n}", self.checkpoint)
+
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike, name: str | None = None) -> TepinnEstimator:
         from ..model.checkpoint import load_model

@@ -49,6 +49,9 @@ def display_name(name: str) -> str:
     name = str(name)
     if name in _BASE:
         return _BASE[name]
+    m = re.fullmatch(r"(.+)-stride([0-9]+)", name)  # evaluate --busy-stride N
+    if m and m.group(1) in _BASE:
+        return f"{_BASE[m.group(1)]}, busy stride {m.group(2)}"
     m = re.fullmatch(r"(.+)-9d(?:-beta([0-9.eE+-]+))?", name)
     if m and m.group(1) in _BASE:
         out = f"{_BASE[m.group(1)]} 9-D"

@@ -61,6 +61,8 @@ class BridgeConfig:
     # 6d, 9d (the magnetometer's heading, magnetic north) or auto (9-D when the vehicle sends a
     # magnetometer); "" keeps the model's own (6d for the shipped one)
     mode: str = ""
+    # every N-th window where the network stays busy (AnchorConfig.busy_stride, the speed knob); 0: the model's own
+    busy_stride: int = 0
     tlog_path: str | None = None
     rate_hz: float = 50.0  # estimates out, on the autopilot's clock
     diag_rate_hz: float = 10.0  # NAMED_VALUE_FLOAT / DEBUG_VECT
@@ -92,6 +94,8 @@ class BridgeConfig:
             raise ConfigError(f"mode must be 6d, 9d or auto, not {self.mode!r}")
         if self.runtime not in ("auto", "torch", "onnx"):
             raise ConfigError(f"runtime must be 'auto', 'torch' or 'onnx', not {self.runtime!r}")
+        if not (isinstance(self.busy_stride, int) and self.busy_stride >= 0):
+            raise ConfigError(f"busy_stride must be an integer >= 0 (0: the model's own), not {self.busy_stride!r}")
         if self.sysid is not None and not 1 <= self.sysid <= 255:
             raise ConfigError("--sysid must be in 1..255")
         if not 1 <= self.compid <= 255:
@@ -119,7 +123,7 @@ class Bridge:
 
             if not c.model_path:
                 raise ConfigError("no model given")
-            make_estimator = model_estimator_factory(c.model_path, c.runtime, c.mode)
+            make_estimator = model_estimator_factory(c.model_path, c.runtime, c.mode, c.busy_stride)
         self.view = open_view(ViewConfig(spawn=c.view, rrd_path=c.rrd_path), compare=False)
         try:
             self.fwd = Forwarder(c.master, c.outs, c.tlog_path, clock)

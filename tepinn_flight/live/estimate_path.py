@@ -51,7 +51,7 @@ class EstimatorFeed:
     def start(self) -> None:
         c = self.cfg
         if c.worker == "process":
-            self.worker = ProcessWorker(c.model_path, c.rate_hz, c.max_sample_age_s, c.runtime, c.mode)
+            self.worker = ProcessWorker(c.model_path, c.rate_hz, c.max_sample_age_s, c.runtime, c.mode, c.busy_stride)
         else:
             self.worker = ThreadWorker(self.make_estimator, c.rate_hz, c.max_sample_age_s)
         self.worker_ready = False

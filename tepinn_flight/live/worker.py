@@ -298,12 +298,15 @@ class ProcessWorker(_WorkerBase):
 
     mode = "process"
 
-    def __init__(self, model_path: str, rate_hz: float, max_age_s: float, runtime: str = "auto", mode: str = ""):
+    def __init__(self, model_path: str, rate_hz: float, max_age_s: float, runtime: str = "auto", mode: str = "",
+                 busy_stride: int = 0):  # fmt: skip
         super().__init__()
         cmd = [sys.executable, "-m", "tepinn_flight.live.worker", "--model", str(model_path),
                "--rate", repr(float(rate_hz)), "--max-age", repr(float(max_age_s)), "--runtime", runtime]  # fmt: skip
         if mode:
             cmd += ["--mode", mode]
+        if busy_stride:
+            cmd += ["--busy-stride", str(int(busy_stride))]
         env = dict(os.environ)
         env.setdefault("OMP_NUM_THREADS", "1")
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -398,20 +401,23 @@ class ThreadWorker(_WorkerBase):
             pass
 
 
-def model_estimator_factory(model_path: str, runtime: str = "auto", mode: str = ""):
+def model_estimator_factory(model_path: str, runtime: str = "auto", mode: str = "", busy_stride: int = 0):
     """A factory building a StreamingEstimator from a checkpoint or an ``.onnx`` export, run by
     ``runtime`` (imports torch when called, for the torch runtime only), in ``mode`` (6d/9d/auto;
-    "": the model's own) where the model runs the anchored estimator."""
+    "": the model's own) where the model runs the anchored estimator, with ``busy_stride`` (0: the
+    model's own; :func:`~tepinn_flight.model.anchor.with_busy_stride`)."""
 
     def make():
         import dataclasses  # noqa: PLC0415
 
+        from ..model.anchor import with_busy_stride  # noqa: PLC0415
         from ..model.runtime import load_runner  # noqa: PLC0415 - torch only where needed
         from ..model.streaming import StreamingEstimator  # noqa: PLC0415
 
         runner, fusion, _ = load_runner(model_path, runtime)
         if mode and hasattr(fusion, "mode"):
             fusion = dataclasses.replace(fusion, mode=mode)
+        fusion = with_busy_stride(fusion, busy_stride, os.path.basename(model_path))
         return StreamingEstimator(runner, fusion, threads=1)
 
     return make
@@ -424,6 +430,7 @@ def main(argv=None) -> int:
     p.add_argument("--max-age", type=float, default=0.2)
     p.add_argument("--runtime", choices=["auto", "torch", "onnx"], default="auto")
     p.add_argument("--mode", choices=["", "6d", "9d", "auto"], default="")
+    p.add_argument("--busy-stride", type=int, default=0)
     a = p.parse_args(argv)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the bridge stops us by closing stdin
     try:
@@ -432,7 +439,7 @@ def main(argv=None) -> int:
         pass
     out_fd = os.dup(1)
     os.dup2(2, 1)  # stray prints of libraries go to stderr, never into the protocol
-    return worker_loop(0, out_fd, model_estimator_factory(a.model, a.runtime, a.mode), a.rate, a.max_age)
+    return worker_loop(0, out_fd, model_estimator_factory(a.model, a.runtime, a.mode, a.busy_stride), a.rate, a.max_age)
 
 
 if __name__ == "__main__":  # pragma: no cover

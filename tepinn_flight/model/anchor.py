@@ -413,3 +413,18 @@ def ffill_rows(arr, first=None):
     arr[bad & have] = arr[idx[bad & have]]
     if first is not None:
         arr[~have] = first
+
+
+def with_busy_stride(settings, n: int | None, label: str = "this model"):
+    """``settings`` running every ``n``-th window of a busy block (after a segment's first
+    ``quiet_after_blocks``; every window holding a saturated token still runs): the speed knob of
+    ``estimate``/``evaluate``/``bridge --busy-stride`` for flights that keep the network busy (fixed
+    wing), at some accuracy (README, "Speed"). ``n`` None or 0: unchanged. Only the anchored
+    estimator has busy blocks: for the older network-centred fusion, a :class:`ConfigError`."""
+    if not n:
+        return settings
+    if not isinstance(settings, AnchorConfig):
+        raise ConfigError(f"--busy-stride {n}: {label} runs the older network-centred fusion, which needs every window")
+    import dataclasses
+
+    return dataclasses.replace(settings, busy_stride=int(n))
