@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -425,6 +425,4 @@ def with_busy_stride(settings, n: int | None, label: str = "this model"):
         return settings
     if not isinstance(settings, AnchorConfig):
         raise ConfigError(f"--busy-stride {n}: {label} runs the older network-centred fusion, which needs every window")
-    import dataclasses
-
-    return dataclasses.replace(settings, busy_stride=int(n))
+    return replace(settings, busy_stride=int(n))
