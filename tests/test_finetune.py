@@ -81,6 +81,9 @@ def test_the_gyro_calibration_fitted_on_some_trials_helps_another_of_the_same_im
     from tepinn_flight.model.finetune import inclination_rmse_deg, tune_anchor
 
     model, anchor, _ = load_model(default_model_path())
+    # the fine-tuning's calibration alone: the record's own self-calibration (which reads part of the
+    # same error from trials 08 and 31 themselves) off
+    anchor = dataclasses.replace(anchor, gyro_selfcal=False)
     fit = [load_record(broad_trial(f"broad_{k}_*.hdf5")) for k in ("08", "32", "36")]
     tuned, taus, scales = tune_anchor(model, anchor, fit)
     assert tuned.tau_acc_s == min(taus, key=taus.get) and len(scales) >= 18

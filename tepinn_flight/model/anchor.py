@@ -117,6 +117,9 @@ class AnchorConfig:
     # the vehicle's gyro calibration, per body axis (FRD): VQF integrates gyro × gyro_scale. The
     # shipped model: 1; `train --init` fits it on a vehicle's logs against their reference
     gyro_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    # offline, the gyro's per-axis scale is also read from the record itself (rests' gravity vs the
+    # gyro's turn between them) and applied on evidence only (:mod:`.gyro_selfcal`); live: not
+    gyro_selfcal: bool = True
     # the older fusion's settings (the checkpoint's fusion_config; filled in when loaded)
     fusion_config: FusionConfig | None = field(default=None, compare=False)
 
@@ -172,7 +175,8 @@ class AnchorConfig:
         import dataclasses
 
         return dataclasses.replace(self, pull_gain=0.0, centripetal=False, bias_gate_weight=0.0,
-                                   bias_deadzone_deg_s=1e9, sigma_net_scale=0.0, gyro_scale=(1.0, 1.0, 1.0))  # fmt: skip
+                                   bias_deadzone_deg_s=1e9, sigma_net_scale=0.0, gyro_scale=(1.0, 1.0, 1.0),
+                                   gyro_selfcal=False)  # fmt: skip
 
 
 @dataclass

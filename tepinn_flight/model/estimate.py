@@ -8,6 +8,7 @@ fusion (:func:`estimate_record` with a :class:`FusionConfig`).
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -18,6 +19,7 @@ from ..record import FlightRecord
 from ..record_gaps import bridge_gaps
 from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows
 from .fusion import FusionConfig, FusionRun, feedback_bias
+from .gyro_selfcal import GyroSelfCal, self_calibrate
 from .runtime import as_runner
 from .streaming import TS_STEPS
 from .tokens import tokenize, tokenize_record
@@ -264,6 +266,7 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     samples are holes, bridged with the last finite sample."""
     anchor = anchor or AnchorConfig()
     rec, _ = bridge_holes(rec)
+    anchor, cal = self_calibrated(anchor, rec)
     if windows is None:
         windows = anchored_windows(model, rec, batch_size, anchor.fusion_config or FusionConfig(), anchor)
     idx, out = windows
@@ -292,7 +295,23 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
                                      None if b_fus is None else b_fus[j]))  # fmt: skip
         if cur < b:
             _put(flt, cols, cur, b, q_out, s_out, b_out, use_mag)
-    return _frame(t, q_out, s_out, b_out)
+    df = _frame(t, q_out, s_out, b_out)
+    if cal is not None:
+        df.attrs["gyro_selfcal"] = cal.describe()
+    return df
+
+
+def self_calibrated(anchor: AnchorConfig, rec: FlightRecord) -> tuple[AnchorConfig, GyroSelfCal | None]:
+    """``anchor`` with the gyro scale the record itself shows (:mod:`.gyro_selfcal`, on the gyro as
+    ``anchor.gyro_scale`` already scales it) where ``anchor.gyro_selfcal`` and the evidence say so,
+    and what was found (None: not asked)."""
+    if not anchor.gyro_selfcal:
+        return anchor, None
+    gs = np.array(anchor.gyro_scale)
+    cal = self_calibrate(rec.t_s, rec.gyr_rad_s * gs, rec.acc_m_s2, rec.segment, rec.gyr_clipped)
+    if cal.applied:
+        anchor = replace(anchor, gyro_scale=tuple(float(v) for v in gs * np.array(cal.scale)))
+    return anchor, cal
 
 
 def _put(flt, cols, a, b, q_out, s_out, b_out, use_mag):
