@@ -10,8 +10,9 @@ by ``--min-gain`` against scale 1) — a threshold chosen on these same (seen) t
 
 Printed per trial: the phases, the disagreement at scale 1 and at the best, the scale taken, and
 VQF's inclination RMSE (5 s warm-up, as ``real_vs_peers.py``) on the gyro as logged and scaled by it,
-both in this run. Whole-trial and not causal: an upper bound for an online estimate, not a shipped
-feature.
+both in this run. Whole-trial and not causal: an upper bound for an online estimate. What ships since
+session 13 is its per-axis successor with a leave-one-phase-out evidence gate,
+``tepinn_flight/model/gyro_selfcal.py`` (``AnchorConfig.gyro_selfcal``); this probe stays as session 10 ran it.
 
     python benchmarks/gyro_scale_probe.py [--shared ../shared] [--min-phases 2] [--min-gain 0.3]
 """

@@ -152,3 +152,17 @@ def test_on_a_real_trial_the_scale_read_without_truth_brings_vqf_closer_to_the_o
     after = inclination_rmse_deg(rec, VqfEstimator().estimate(FlightRecord(scaled, dict(rec.meta))))
     assert after < 0.75 * before, (before, after)
     assert not calibrate(load_record(broad_trial("broad_12_*.hdf5"))).applied
+
+
+def test_estimate_says_what_the_self_calibration_found_and_keeps_it_in_the_output(tmp_path, capsys):
+    import pyarrow.parquet as pq
+
+    from tepinn_flight.cli.main import main
+    from tepinn_flight.record import write_record
+
+    rec, _ = turns_with_rests((1.0, 1.03, 0.97), seed=2)
+    write_record(rec, tmp_path / "turns.parquet")
+    assert main(["estimate", str(tmp_path / "turns.parquet"), "-o", str(tmp_path / "est.parquet")]) == 0
+    line = calibrate(rec).describe()
+    assert line.endswith("; applied") and line in capsys.readouterr().out
+    assert pq.read_schema(tmp_path / "est.parquet").metadata[b"gyro_selfcal"].decode() == line

@@ -9,7 +9,8 @@ HELP = "estimate attitude over flight records with TE-PINN (the shipped model by
 DESCRIPTION = (
     "Runs causally over whole records: the network on its windows (batched; once a second where no gate "
     "can open), then the VQF filter it corrects where the evidence says so (flight speed, gyro saturation, "
-    "an uncalibrated gyro), and writes "
+    "an uncalibrated gyro) — its gyro's per-axis scale read from the record's rests where they show one "
+    "(offline only) —, and writes "
     "one row per input row: t_s, q_est_w..z (body->NED), sigma_rad, gyr_bias_est_*_rad_s. Short logging "
     "dropouts (<= 100 ms) are propagated through, longer gaps restart the estimator. A raw log is ingested on the fly."
 )
@@ -129,11 +130,13 @@ def _run(args) -> int:
             sys.stderr.write(f"tepinn-flight estimate: error: {exc if exc.path else f'{src}: {exc}'}\n")
             continue
         table = pa.Table.from_pandas(df, preserve_index=False)
-        table = table.replace_schema_metadata({b"source_record": str(src.name).encode(), b"model": str(ckpt_path.name).encode()})
+        selfcal = df.attrs.get("gyro_selfcal")  # what the record's own gyro calibration gave (offline)
+        table = table.replace_schema_metadata({b"source_record": str(src.name).encode(), b"model": str(ckpt_path.name).encode(),
+                                               **({b"gyro_selfcal": selfcal.encode()} if selfcal else {})})  # fmt: skip
         atomic_write(dst, lambda tmp: pq.write_table(table, tmp))
         if not args.quiet:
             ok = df["q_est_w"].notna().mean()
-            print(f"{src} -> {dst}: {len(df)} rows, {100 * ok:.1f}% estimated")
+            print(f"{src} -> {dst}: {len(df)} rows, {100 * ok:.1f}% estimated" + (f"; {selfcal}" if selfcal else ""))
         if tlogs:
             try:
                 _write_tlog(args, src, rec, df, tlogs[paths.index(src)])
