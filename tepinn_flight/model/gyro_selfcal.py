@@ -34,7 +34,8 @@ import numpy as np
 from numba import njit
 
 from ..config import check_range
-from ..quat_scalar import exp_rotvec, qmul, qnorm, qrot
+from ..quat import quat_to_rotmat
+from ..quat_scalar import exp_rotvec, qmul, qnorm, rotmat_entries
 
 
 @dataclass(frozen=True)
@@ -87,15 +88,36 @@ class GyroSelfCal:
 
 
 @njit(cache=True)
-def carried_gravity(gyr, dt, i0, i1, s0, s1, s2, b0, b1, b2, ux, uy, uz):
-    """The unit vector ``u`` (body axes at sample ``i0``) in body axes at sample ``i1``, the gyro
-    ``s ⊙ (gyr − b)`` integrated over samples i0 … i1 − 1 (exact per-sample turns)."""
-    w, x, y, z = 1.0, 0.0, 0.0, 0.0  # body at i → body at i0
-    for i in range(i0, i1):
-        dw, dx, dy, dz = exp_rotvec(s0 * (gyr[i, 0] - b0) * dt[i], s1 * (gyr[i, 1] - b1) * dt[i],
-                                    s2 * (gyr[i, 2] - b2) * dt[i])  # fmt: skip
-        w, x, y, z = qnorm(*qmul(w, x, y, z, dw, dx, dy, dz))
-    return qrot(w, -x, -y, -z, ux, uy, uz)  # q* ⊗ u ⊗ q: from body i0 into body i1
+def attitude_at(gyr, dt, s0, s1, s2, b0, b1, b2, at, q_out, a_out):
+    """The gyro ``s ⊙ (gyr − b)`` integrated over the record (exact per-sample turns) from the
+    identity at sample ``at[0]``, read at the sorted sample indices ``at``: ``q_out`` (m, 4) the
+    attitude there (body → the frame at ``at[0]``); ``a_out`` (m, 3, 3) the running sum, in that frame,
+    of each step's turn per unit of each axis' scale (column k: ``R_i e_k (gyr_k − b_k) dt``, R_i the
+    attitude after step i — first order in the step). Between samples i0 and i1 a scale change δ on
+    axis k then turns body-at-i1 by ``R_i0ᵀ (a[i1] − a[i0])[:, k] δ`` in body-at-i0 axes."""
+    w, x, y, z = 1.0, 0.0, 0.0, 0.0
+    a00 = a10 = a20 = a01 = a11 = a21 = a02 = a12 = a22 = 0.0
+    i = at[0]
+    for m in range(len(at)):
+        while i < at[m]:
+            p0, p1, p2 = (gyr[i, 0] - b0) * dt[i], (gyr[i, 1] - b1) * dt[i], (gyr[i, 2] - b2) * dt[i]
+            dw, dx, dy, dz = exp_rotvec(s0 * p0, s1 * p1, s2 * p2)
+            w, x, y, z = qnorm(*qmul(w, x, y, z, dw, dx, dy, dz))
+            r00, r01, r02, r10, r11, r12, r20, r21, r22 = rotmat_entries(w, x, y, z)
+            a00 += r00 * p0
+            a10 += r10 * p0
+            a20 += r20 * p0
+            a01 += r01 * p1
+            a11 += r11 * p1
+            a21 += r21 * p1
+            a02 += r02 * p2
+            a12 += r12 * p2
+            a22 += r22 * p2
+            i += 1
+        q_out[m, 0], q_out[m, 1], q_out[m, 2], q_out[m, 3] = w, x, y, z
+        a_out[m, 0, 0], a_out[m, 1, 0], a_out[m, 2, 0] = a00, a10, a20
+        a_out[m, 0, 1], a_out[m, 1, 1], a_out[m, 2, 1] = a01, a11, a21
+        a_out[m, 0, 2], a_out[m, 1, 2], a_out[m, 2, 2] = a02, a12, a22
 
 
 def _boxcar(x: np.ndarray, k: int) -> np.ndarray:
@@ -134,9 +156,10 @@ def find_phases(t_s, gyr, acc, segment, gyr_clipped, cfg: GyroSelfCalConfig) -> 
     k = max(1, int(round(cfg.rest_min_s / np.median(d))))
     if n < 2 * k:
         return dt, empty
-    rate = _boxcar(np.linalg.norm(gyr, axis=1)[:, None], k)[:, 0]
+    g_norm = np.sqrt(np.einsum("ij,ij->i", gyr, gyr))
+    rate = _boxcar(g_norm[:, None], k)[:, 0]
     acc_lp = _boxcar(acc, k)
-    a_norm = np.linalg.norm(acc_lp, axis=1)
+    a_norm = np.sqrt(np.einsum("ij,ij->i", acc_lp, acc_lp))
     quiet = rate < cfg.rest_rate_rad_s
     if quiet.sum() < k:
         return dt, empty
@@ -152,15 +175,17 @@ def find_phases(t_s, gyr, acc, segment, gyr_clipped, cfg: GyroSelfCalConfig) -> 
     m = max(1, int(round(cfg.end_s / np.median(d))))
     ends = np.array([int(r[-m:][np.argmin(rate[r[-m:]])]) for r in runs])
     starts = np.array([int(r[:m][np.argmin(rate[r[:m]])]) for r in runs])
-    turned = np.concatenate([[0.0], np.cumsum(np.linalg.norm(gyr, axis=1) * dt)])
+    turned = np.concatenate([[0.0], np.cumsum(g_norm * dt)])  # non-decreasing
     clip_count = np.concatenate([[0], np.cumsum(np.asarray(gyr_clipped, bool))])
+    turned_at_starts = turned[starts]
     i0s, i1s = [], []
     for j in range(len(runs) - 1):
         i0 = int(ends[j])
-        later = starts[j + 1 :][np.degrees(turned[starts[j + 1 :]] - turned[i0]) >= cfg.min_turn_deg]
-        if not len(later):
+        # the first later rest at least min_turn_deg of turning away
+        nxt = max(j + 1, int(np.searchsorted(turned_at_starts, turned[i0] + math.radians(cfg.min_turn_deg), "left")))
+        if nxt >= len(runs):
             continue
-        i1 = int(later[0])
+        i1 = int(starts[nxt])
         if t_s[i1] - t_s[i0] > cfg.max_phase_s or segment[i1] != segment[i0] or clip_count[i1 + 1] > clip_count[i0]:
             continue
         i0s.append(i0)
@@ -171,27 +196,34 @@ def find_phases(t_s, gyr, acc, segment, gyr_clipped, cfg: GyroSelfCalConfig) -> 
     return dt, Phases(i0a, i1a, up0, up1, bias)
 
 
+def carried(gyr, dt, ph: Phases, scale) -> tuple[np.ndarray, np.ndarray]:
+    """(c (P, 3), dc (P, 3, 3)): each phase's start gravity carried by the gyro × ``scale`` to its end
+    (body axes there) and its derivative by each axis' scale — one pass over the record."""
+    at, inv = np.unique(np.concatenate([ph.i0, ph.i1]), return_inverse=True)
+    q = np.empty((len(at), 4))
+    acc = np.empty((len(at), 3, 3))
+    s, b = [float(v) for v in scale], [float(v) for v in ph.bias]
+    if len(at):
+        attitude_at(gyr, dt, s[0], s[1], s[2], b[0], b[1], b[2], at, q, acc)
+    p = len(ph)
+    r0, r1 = quat_to_rotmat(q[inv[:p]]), quat_to_rotmat(q[inv[p:]])  # body at i0 / i1 → the frame at at[0]
+    turn = np.einsum("pji,pjk->pik", r0, r1)  # body at i1 → body at i0
+    c = np.einsum("pji,pj->pi", turn, ph.up0)  # turnᵀ up0
+    a = np.einsum("pji,pjk->pik", r0, acc[inv[p:]] - acc[inv[:p]])  # columns a_k, body-at-i0 axes
+    dc = -np.einsum("pji,pjk->pik", turn, np.cross(a, ph.up0[:, :, None], axisa=1, axisb=1, axisc=1))
+    return c, dc
+
+
 def disagreements(gyr, dt, ph: Phases, scale) -> np.ndarray:
     """(P, 3) ``carried × up1`` per phase: the small-angle rotation (rad) between the gravity the
     gyro carries to each phase's end and the gravity the accelerometer shows there."""
-    out = np.empty((len(ph), 3))
-    s, b = [float(v) for v in scale], [float(v) for v in ph.bias]
-    for j in range(len(ph)):
-        c = carried_gravity(gyr, dt, int(ph.i0[j]), int(ph.i1[j]), s[0], s[1], s[2], b[0], b[1], b[2],
-                            float(ph.up0[j, 0]), float(ph.up0[j, 1]), float(ph.up0[j, 2]))  # fmt: skip
-        out[j] = np.cross(c, ph.up1[j])
-    return out
+    return np.cross(carried(gyr, dt, ph, scale)[0], ph.up1)
 
 
-def _jacobian(gyr, dt, ph: Phases, s: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """(r (P, 3), J (P, 3, 3)): the disagreements at ``s`` and their derivative per axis scale."""
-    r = disagreements(gyr, dt, ph, s)
-    jac = np.empty((len(ph), 3, 3))
-    for ax in range(3):
-        sp = s.copy()
-        sp[ax] += h
-        jac[:, :, ax] = (disagreements(gyr, dt, ph, sp) - r) / h
-    return r, jac
+def _jacobian(gyr, dt, ph: Phases, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(r (P, 3), J (P, 3, 3)): the disagreements at ``s`` and their derivative by each axis' scale."""
+    c, dc = carried(gyr, dt, ph, s)
+    return np.cross(c, ph.up1), np.cross(dc, ph.up1[:, :, None], axisa=1, axisb=1, axisc=1)
 
 
 def _step(r: np.ndarray, jac: np.ndarray, s: np.ndarray, cfg: GyroSelfCalConfig) -> np.ndarray:
@@ -204,15 +236,18 @@ def _step(r: np.ndarray, jac: np.ndarray, s: np.ndarray, cfg: GyroSelfCalConfig)
     return np.linalg.solve(a, -jr / var - (s - 1.0) / cfg.prior_sigma**2)
 
 
-def fit_scale(gyr, dt, ph: Phases, cfg: GyroSelfCalConfig, h: float = 1e-3):
-    """(s, r, J): the per-axis scale that best carries each phase's gravity onto its end
-    (Gauss–Newton with the prior), and the disagreements and their Jacobians there."""
+def fit_scale(gyr, dt, ph: Phases, cfg: GyroSelfCalConfig):
+    """(s, r, J, r₁): the per-axis scale that best carries each phase's gravity onto its end
+    (Gauss–Newton with the prior), the disagreements and their Jacobians there, and the
+    disagreements at scale 1."""
     s = np.ones(3)
+    base = None
     for _ in range(cfg.iterations):
-        r, jac = _jacobian(gyr, dt, ph, s, h)
+        r, jac = _jacobian(gyr, dt, ph, s)
+        base = r if base is None else base
         s = s + _step(r, jac, s, cfg)
-    r, jac = _jacobian(gyr, dt, ph, s, h)
-    return s, r, jac
+    r, jac = _jacobian(gyr, dt, ph, s)
+    return s, r, jac, base
 
 
 def self_calibrate(t_s, gyr, acc, segment=None, gyr_clipped=None, cfg: GyroSelfCalConfig | None = None) -> GyroSelfCal:
@@ -228,8 +263,7 @@ def self_calibrate(t_s, gyr, acc, segment=None, gyr_clipped=None, cfg: GyroSelfC
     p = len(ph)
     if p < cfg.min_phases:
         return GyroSelfCal((1.0, 1.0, 1.0), False, p)
-    base = disagreements(gyr, dt, ph, np.ones(3))
-    s, r, jac = fit_scale(gyr, dt, ph, cfg)
+    s, r, jac, base = fit_scale(gyr, dt, ph, cfg)
     loo = np.empty_like(base)  # each phase predicted by the fit on the others (one step from s: linear there)
     for j in range(p):
         o = np.arange(p) != j
