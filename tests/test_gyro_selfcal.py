@@ -145,6 +145,14 @@ def test_the_anchored_estimate_runs_on_the_self_calibrated_gyro_and_gets_closer_
     plain = estimate_anchored(model, rec, anchor.learned_off)
     selfcal = estimate_anchored(model, rec, dataclasses.replace(anchor.learned_off, gyro_selfcal=True))
     assert rmse_deg(selfcal) < 0.5 * rmse_deg(plain), (rmse_deg(selfcal), rmse_deg(plain))  # 0.62° vs 1.58°
+    # where the record shows its own scale, that replaces a vehicle's fine-tuned one; where it shows
+    # none, the fine-tuned one stays
+    tuned = dataclasses.replace(anchor, gyro_scale=(1.01, 1.0, 1.0))
+    np.testing.assert_array_equal(estimate_anchored(model, rec, tuned)[EST_Q_COLS].to_numpy(), est[EST_Q_COLS].to_numpy())
+    few, _ = turns_with_rests((1.0, 1.03, 0.97), seed=2, n_turns=2)
+    assert not calibrate(few).applied
+    np.testing.assert_array_equal(estimate_anchored(model, few, tuned)[EST_Q_COLS].to_numpy(),
+                                  estimate_anchored(model, few, dataclasses.replace(tuned, gyro_selfcal=False))[EST_Q_COLS].to_numpy())  # fmt: skip
     # with every learned correction off it is plain VQF again: no self-calibration either
     assert not anchor.learned_off.gyro_selfcal
 

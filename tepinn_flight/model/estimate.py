@@ -302,15 +302,15 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
 
 
 def self_calibrated(anchor: AnchorConfig, rec: FlightRecord) -> tuple[AnchorConfig, GyroSelfCal | None]:
-    """``anchor`` with the gyro scale the record itself shows (:mod:`.gyro_selfcal`, on the gyro as
-    ``anchor.gyro_scale`` already scales it) where ``anchor.gyro_selfcal`` and the evidence say so,
-    and what was found (None: not asked)."""
+    """``anchor`` with the gyro scale the record itself shows (:mod:`.gyro_selfcal`, read on the gyro
+    as logged) where ``anchor.gyro_selfcal`` and the evidence say so — it then replaces any
+    ``gyro_scale`` a fine-tuning fitted for the vehicle: this record's own evidence is the more
+    specific — and what was found (None: not asked)."""
     if not anchor.gyro_selfcal:
         return anchor, None
-    gs = np.array(anchor.gyro_scale)
-    cal = self_calibrate(rec.t_s, rec.gyr_rad_s * gs, rec.acc_m_s2, rec.segment, rec.gyr_clipped)
+    cal = self_calibrate(rec.t_s, rec.gyr_rad_s, rec.acc_m_s2, rec.segment, rec.gyr_clipped)
     if cal.applied:
-        anchor = replace(anchor, gyro_scale=tuple(float(v) for v in gs * np.array(cal.scale)))
+        anchor = replace(anchor, gyro_scale=cal.scale)
     return anchor, cal
 
 
