@@ -168,7 +168,7 @@ def test_a_checkpoint_written_before_the_self_calibration_runs_without_it():
 @pytest.mark.slow
 def test_on_a_real_trial_the_scale_read_without_truth_brings_vqf_closer_to_the_optical_truth():
     # BROAD trial 08 (fast rotation with breaks): its rests disagree with the gyro's turns by ~8°
-    # at scale 1; the scale read from them takes VQF from 1.76° to 1.09° against the optical truth,
+    # at scale 1; the scale read from them takes VQF from 1.76° to 1.01° against the optical truth,
     # which the self-calibration never sees. A translation trial (12) shows no evidence: untouched.
     from tests.conftest import broad_trial
     from tepinn_flight.evaluation.peers import VqfEstimator
