@@ -198,3 +198,27 @@ def test_estimate_says_what_the_self_calibration_found_and_keeps_it_in_the_outpu
     line = calibrate(rec).describe()
     assert line.endswith("; applied") and line in capsys.readouterr().out
     assert pq.read_schema(tmp_path / "est.parquet").metadata[b"gyro_selfcal"].decode() == line
+
+
+@pytest.mark.slow
+def test_evaluate_reports_where_the_self_calibration_applied(tmp_path, capsys):
+    import json
+
+    from tepinn_flight.cli.main import main
+    from tepinn_flight.record import write_record
+
+    rec, _ = turns_with_rests((1.0, 1.03, 0.97), seed=2)
+    write_record(rec, tmp_path / "turns.parquet")
+    few, _ = turns_with_rests((1.0, 1.03, 0.97), seed=2, n_turns=2)
+    write_record(few, tmp_path / "few.parquet")
+    out = tmp_path / "rep"
+    assert main(["evaluate", str(tmp_path / "turns.parquet"), str(tmp_path / "few.parquet"), "-o", str(out), "--no-peers", "-q"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    by_name = {r["name"]: r for r in m["records"]}
+    turns = next(r for n, r in by_name.items() if "turns" in n)
+    assert turns["gyro_selfcal"]["tepinn"] == calibrate(rec).describe()
+    assert next(r for n, r in by_name.items() if "few" in n)["gyro_selfcal"]["tepinn"].endswith("not applied")
+    assert "lstm" not in turns["gyro_selfcal"]  # the LSTM runs the older fusion: no self-calibration
+    applied = [n for n in m["notes"] if "gyro self-calibration" in n]
+    assert len(applied) == 1 and "turns" in applied[0] and applied[0].endswith("; applied")
+    assert applied[0] in (out / "report.md").read_text()
