@@ -84,7 +84,14 @@ _CALLS = textwrap.dedent("""
         wf.window_features(cfg, sv, *w)
         wf.window_features(cfg, sv, *(None if a is None else np.asarray(a, np.float32)[:1] for a in w[:5]),
                            np.ones((1, k, 3)), np.zeros((1, k), np.float32))  # fmt: skip
+    from tepinn_flight.model import gyro_selfcal as gs
+    from tests.test_gyro_selfcal import turns_with_rests
+
+    turns, _ = turns_with_rests((1.0, 1.01, 0.99), n_turns=4)  # a record's read-only columns, and C arrays
+    gs.self_calibrate(turns.t_s, turns.gyr_rad_s, turns.acc_m_s2, turns.segment, turns.gyr_clipped)
+    gs.self_calibrate(list(turns.t_s), np.ascontiguousarray(turns.gyr_rad_s, np.float32), turns.acc_m_s2.tolist())
     for name, d in (("fusion._run", fusion._run), ("fusion._step", fusion._step), ("wf._features", wf._features),
+                    ("gs.attitude_at", gs.attitude_at),
                     ("complementary._run", complementary._run), ("madgwick._run", madgwick._run),
                     ("ekf._loop", ekf._loop)) + tuple((f"ak.{k}", getattr(ak, k)) for k in ANCHOR_KERNELS):
         print(name, len(d.signatures))
@@ -98,5 +105,5 @@ def test_every_loop_is_compiled_for_one_signature(tmp_path):
     p = subprocess.run([sys.executable, "-c", _CALLS], capture_output=True, text=True, env=env, cwd=REPO, timeout=600)
     assert p.returncode == 0, p.stderr
     counts = dict(line.split() for line in p.stdout.splitlines())
-    assert counts == {k: "1" for k in ("fusion._run", "fusion._step", "wf._features", "complementary._run", "madgwick._run",
+    assert counts == {k: "1" for k in ("fusion._run", "fusion._step", "wf._features", "gs.attitude_at", "complementary._run", "madgwick._run",
                                        "ekf._loop") + tuple(f"ak.{k}" for k in ANCHOR_KERNELS)}, p.stdout  # fmt: skip

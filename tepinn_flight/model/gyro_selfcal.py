@@ -10,9 +10,12 @@ VQF's tilt carries between its accelerometer corrections (BROAD's gyro, session 
 
 A *phase* runs from the end of a rest to the start of the first later rest that is at least
 ``min_turn_deg`` of turning away, within ``max_phase_s``, inside one segment and with no gyro sample
-at its range (saturation). The disagreements of all phases fix ``s`` by Gauss–Newton (a
-finite-difference Jacobian; a Gaussian prior ``s − 1 ~ N(0, prior_sigma²)`` per axis, so an axis the
-motion does not excite stays at 1 — rotation about gravity, a yaw turn, tells nothing).
+at its range (saturation); its ends sit at the stillest moment of the rests' last and first
+``end_s`` (a rest's edge may already lie in the turn's slow start). The disagreements of all phases fix
+``s`` by Gauss–Newton (one pass over the record per step gives the phases' attitudes and their
+sensitivity to each axis' scale, :func:`attitude_at`; a Gaussian prior ``s − 1 ~ N(0, prior_sigma²)``
+per axis, so an axis the motion does not excite stays at 1 — rotation about gravity, a yaw turn,
+tells nothing).
 
 The fitted scale is **applied only on evidence** (``gate_ratio``): each phase is predicted by the
 scale fitted on the others (leave one phase out), and the scale is taken only where those
@@ -21,8 +24,9 @@ Most records give no such evidence — in flight, "rests" are hovers or cruise, 
 is not gravity alone — and keep the scale they had.
 
 Whole-record and not causal: the offline estimator (:func:`.estimate.estimate_anchored`) fits it
-before its pass; the live estimator does not (a vehicle's calibration for the live path:
-``AnchorConfig.gyro_scale``, fitted by ``train --init``).
+before its pass, and where it applies its scale replaces ``AnchorConfig.gyro_scale``; the live
+estimator does not (a vehicle's calibration for the live path: ``AnchorConfig.gyro_scale``, fitted
+by ``train --init``).
 """
 
 from __future__ import annotations
