@@ -222,3 +222,18 @@ def test_evaluate_reports_where_the_self_calibration_applied(tmp_path, capsys):
     applied = [n for n in m["notes"] if "gyro self-calibration" in n]
     assert len(applied) == 1 and "turns" in applied[0] and applied[0].endswith("; applied")
     assert applied[0] in (out / "report.md").read_text()
+
+
+def test_degenerate_records_give_no_phases_and_no_error():
+    n = 500
+    z = np.zeros((n, 3))
+    assert calibrate_arrays(np.zeros(n), z, z).phases == 0  # one timestamp throughout
+    assert calibrate_arrays(np.arange(2) * 0.01, z[:2], z[:2]).phases == 0  # two samples
+    t = np.arange(n) * 0.01
+    acc = np.tile([0.0, 0.0, -9.81], (n, 1))
+    assert calibrate_arrays(t, np.full((n, 3), np.nan), acc).phases == 0  # no gyro: read as zeros, no turn
+    assert not calibrate_arrays(t, z, acc).applied  # at rest throughout: one rest, no phase
+
+
+def calibrate_arrays(t, gyr, acc):
+    return self_calibrate(t, gyr, acc)

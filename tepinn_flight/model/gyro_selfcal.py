@@ -155,9 +155,10 @@ def find_phases(t_s, gyr, acc, segment, gyr_clipped, cfg: GyroSelfCalConfig) -> 
     d = np.diff(t_s)
     dt = np.append(d, np.median(d) if n > 1 else 0.0)
     empty = Phases(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(3))
-    if n < 3:
+    step = float(np.median(d)) if n > 1 else 0.0
+    if n < 3 or not (np.isfinite(step) and step > 0):
         return dt, empty
-    k = max(1, int(round(cfg.rest_min_s / np.median(d))))
+    k = max(1, int(round(cfg.rest_min_s / step)))
     if n < 2 * k:
         return dt, empty
     g_norm = np.sqrt(np.einsum("ij,ij->i", gyr, gyr))
@@ -176,7 +177,7 @@ def find_phases(t_s, gyr, acc, segment, gyr_clipped, cfg: GyroSelfCalConfig) -> 
         return dt, empty
     # each rest's end and start at its stillest moment within end_s of the edge: a rest's edge
     # samples may sit in the turn's slow start, whose averaged accelerometer leans into the turn
-    m = max(1, int(round(cfg.end_s / np.median(d))))
+    m = max(1, int(round(cfg.end_s / step)))
     ends = np.array([int(r[-m:][np.argmin(rate[r[-m:]])]) for r in runs])
     starts = np.array([int(r[:m][np.argmin(rate[r[:m]])]) for r in runs])
     turned = np.concatenate([[0.0], np.cumsum(g_norm * dt)])  # non-decreasing
