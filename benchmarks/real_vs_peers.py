@@ -6,7 +6,8 @@ The split is `train/splits/real.toml`: which files are held out (never trained, 
 calibrated on) and which the shipped network saw — the table says which is which. Simulated: the
 held-out campaign `flight_sims/campaigns/heldout.toml` (seed 77; every `--sim-every`-th flight).
 
-Inclination RMSE per file (5 s warm-up, the same samples for every estimator), the mean per kind,
+Inclination RMSE per file (5 s warm-up, the same samples for every estimator), the files where
+TE-PINN's gyro self-calibration applied (with what it read), the mean per kind,
 ratios to VQF side by side, the per-file check of the issue (TE-PINN ≤ max(1.5× VQF, VQF + 0.5°)),
 and TE-PINN's σ calibration on the real files (mean NEES, share within 3σ, per file averaged).
 
@@ -89,6 +90,8 @@ def main() -> int:
             mm = m & np.all(np.isfinite(q), 1)
             qe = error_quat_earth(q[mm], rec.q_ref_wxyz[mm])
             r[e.name] = float(np.degrees(np.sqrt(np.mean(inclination_error_rad(qe) ** 2)))) if mm.any() else np.nan
+            if e.name == "tepinn" and str(df.attrs.get("gyro_selfcal", "")).endswith("; applied"):
+                r["selfcal"] = df.attrs["gyro_selfcal"]
             if e.name == "tepinn" and kind != "simulated" and "sigma_rad" in df:
                 u = uncertainty_metrics(tilt_error_vector_rad(qe), df["sigma_rad"].to_numpy()[mm])
                 r["nees"], r["in3"] = u["nees"], u["coverage_3sigma"]
@@ -100,6 +103,9 @@ def main() -> int:
         ok = r["tepinn"] <= max(1.5 * r["vqf"], r["vqf"] + 0.5)
         print(f"{r['kind']:<10} {r['group'][:26]:<26} {r['name'][:44]:<44} {'held-out' if r['held'] else 'seen':<9}"
               + "".join(f"{r[n]:>9.2f}" for n in names) + f"{r['tepinn'] / r['vqf']:>8.2f}  {'ok' if ok else 'FAIL'}")
+    applied = [r for r in rows if "selfcal" in r]
+    print(f"\nTE-PINN's gyro self-calibration applied on {len(applied)} of {len(rows)} files"
+          + "".join(f"\n  {r['name'][:44]}: {r['selfcal']}" for r in applied))
     print()
     for kind in ("drone log", "BROAD", "simulated"):
         for held in (True, False):
