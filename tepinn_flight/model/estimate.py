@@ -263,7 +263,9 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     (body→NED; 9-D heading where ``wants_mag``), ``sigma_rad``, ``gyr_bias_est_*``. Estimates start
     at a segment's first sample (VQF); the network's windows apply from the sample after their last
     one. ``windows`` takes :func:`anchored_windows`' result when already at hand. Non-finite IMU
-    samples are holes, bridged with the last finite sample."""
+    samples are holes, bridged with the last finite sample. With ``anchor.gyro_selfcal`` the gyro's
+    scale is first read from the record (:func:`self_calibrated`; offline only), and what was found
+    is in the result's ``attrs["gyro_selfcal"]``."""
     anchor = anchor or AnchorConfig()
     rec, _ = bridge_holes(rec)
     anchor, cal = self_calibrated(anchor, rec)

@@ -10,6 +10,10 @@ logging dropout (≤ ``record_gaps.MAX_BRIDGED_GAP_S``), bridged as offline: the
 
 The network runs through a :class:`~.runtime.NetworkRunner`: a :class:`~.network.TEPINN` module
 (PyTorch) or e.g. an :class:`~.runtime.OnnxRunner` (no torch).
+
+One offline step has no live counterpart: the gyro self-calibration (``AnchorConfig.gyro_selfcal``,
+:mod:`.gyro_selfcal`) reads the whole record before the pass. Live, the gyro is scaled by
+``AnchorConfig.gyro_scale`` only, so where the offline self-calibration applies a scale the two differ.
 """
 
 from __future__ import annotations
