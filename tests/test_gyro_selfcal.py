@@ -198,6 +198,12 @@ def test_estimate_says_what_the_self_calibration_found_and_keeps_it_in_the_outpu
     line = calibrate(rec).describe()
     assert line.endswith("; applied") and line in capsys.readouterr().out
     assert pq.read_schema(tmp_path / "est.parquet").metadata[b"gyro_selfcal"].decode() == line
+    # --no-gyro-selfcal: the estimate the live bridge gives (no scale read), nothing said or stored
+    assert main(["estimate", str(tmp_path / "turns.parquet"), "-o", str(tmp_path / "off.parquet"), "--no-gyro-selfcal"]) == 0
+    assert "gyro self-calibration" not in capsys.readouterr().out
+    assert b"gyro_selfcal" not in (pq.read_schema(tmp_path / "off.parquet").metadata or {})
+    on, off = pq.read_table(tmp_path / "est.parquet").to_pandas(), pq.read_table(tmp_path / "off.parquet").to_pandas()
+    assert np.abs(on["q_est_x"].to_numpy() - off["q_est_x"].to_numpy()).max() > 1e-3
 
 
 @pytest.mark.slow
