@@ -20,8 +20,12 @@ files, and low IMU rates on held-out simulated flights that saturate the gyro or
    there and those samples marked clipped, as a reader marks them) — a smaller gyro range on real
    sensors (the saturation gate and the network's declipping).
 
+6. `--gyro-scales 1.02`: the same real files with the gyro reading that factor too high on every
+   axis (or `x:y:z` per axis) — an uncalibrated consumer gyro (±3 % tolerance) on real sensors (the
+   gyro self-calibration, which reads the scale from a record's rests).
+
     python benchmarks/robustness.py [--model CKPT] [--acc-scales 1.0,0.8] [--rates 1,8,16] [--acc-clip-every 3]
-                                    [--gyro-biases 5] [--gyro-ranges 300]
+                                    [--gyro-biases 5] [--gyro-ranges 300] [--gyro-scales 1.02]
 """
 
 from __future__ import annotations
@@ -48,6 +52,7 @@ def main() -> int:
     ap.add_argument("--acc-clip-every", type=float, default=3.0, help="s between accelerometer clip marks (0: skip)")
     ap.add_argument("--gyro-biases", default="5", help="constant gyro biases to add, °/s on every axis ('': skip)")
     ap.add_argument("--gyro-ranges", default="300", help="gyro full scales to saturate at, °/s ('': skip)")
+    ap.add_argument("--gyro-scales", default="1.02", help="gyro scale errors, a factor or x:y:z per axis, comma-separated ('': skip)")
     args = ap.parse_args()
 
     import torch
@@ -124,6 +129,9 @@ def main() -> int:
             r, frac = saturated(rec, g)
             res.append((f"{n} ({100 * frac:.1f} % of samples saturated)", *both(r)))
         report(f"gyro saturating at ±{g:g} °/s", res)
+    for sc in [x for x in args.gyro_scales.split(",") if x]:
+        f = np.array([float(v) for v in sc.split(":")]) if ":" in sc else float(sc)
+        report(f"gyro × {sc}", [(n, *both(changed(rec, gyr=rec.gyr_rad_s * f))) for n, rec in recs])
     pick = [p for p in sorted(Path(args.sim).glob("*.parquet")) if "c172x" in p.name or read_record(p).clipped.any()]
     pick = pick[:: max(1, len(pick) // 10)][:10]
     out: dict[int, list] = {}
