@@ -219,14 +219,10 @@ def carried(gyr, dt, ph: Phases, scale) -> tuple[np.ndarray, np.ndarray]:
     return c, dc
 
 
-def disagreements(gyr, dt, ph: Phases, scale) -> np.ndarray:
-    """(P, 3) ``carried × up1`` per phase: the small-angle rotation (rad) between the gravity the
-    gyro carries to each phase's end and the gravity the accelerometer shows there."""
-    return np.cross(carried(gyr, dt, ph, scale)[0], ph.up1)
-
-
 def _jacobian(gyr, dt, ph: Phases, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(r (P, 3), J (P, 3, 3)): the disagreements at ``s`` and their derivative by each axis' scale."""
+    """(r (P, 3), J (P, 3, 3)): the disagreements at ``s`` — ``carried × up1`` per phase, the
+    small-angle rotation (rad) between the gravity the gyro carries to each phase's end and the gravity
+    the accelerometer shows there — and their derivative by each axis' scale."""
     c, dc = carried(gyr, dt, ph, s)
     return np.cross(c, ph.up1), np.cross(dc, ph.up1[:, :, None], axisa=1, axisb=1, axisc=1)
 
