@@ -243,3 +243,11 @@ def test_degenerate_records_give_no_phases_and_no_error():
 
 def calibrate_arrays(t, gyr, acc):
     return self_calibrate(t, gyr, acc)
+
+
+def test_a_fit_beyond_the_plausible_calibration_error_is_not_applied():
+    rec, _ = turns_with_rests((1.08, 1.0, 1.0), seed=3)  # 8 % off: not a calibration residual
+    cal = calibrate(rec)
+    assert cal.phases == 8 and cal.fitted[0] > 1.05 and cal.rms_loo_deg < 0.5 * cal.rms_deg
+    assert not cal.applied and cal.scale == (1.0, 1.0, 1.0)
+    assert calibrate(rec, GyroSelfCalConfig(max_scale_error=0.1)).applied  # the cap alone refused it
