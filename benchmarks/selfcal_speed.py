@@ -24,20 +24,11 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "benchmarks"))
 
+from estimate_speed import tiled  # noqa: E402  (the record repeated end to end, as estimate_speed.py times it)
 from tepinn_flight.evaluation.peers import VqfEstimator  # noqa: E402
 from tepinn_flight.model.gyro_selfcal import self_calibrate  # noqa: E402
-from tepinn_flight.record import FlightRecord, make_frame  # noqa: E402
-
-
-def tiled(rec: FlightRecord, seconds: float) -> FlightRecord:
-    """``rec`` repeated end to end (one segment, time running on) up to ``seconds``."""
-    t = rec.t_s
-    span = float(t[-1] - t[0]) + float(np.median(np.diff(t)))
-    reps = max(1, int(np.ceil(seconds / span)))
-    tt = np.concatenate([t - t[0] + k * span for k in range(reps)])
-    g, a = np.tile(rec.gyr_rad_s, (reps, 1)), np.tile(rec.acc_m_s2, (reps, 1))
-    return FlightRecord(make_frame(tt, np.zeros(len(tt), int), g, a), {"source_kind": "benchmark"})
 
 
 def cpu(fn, repeat: int) -> float:
@@ -71,8 +62,7 @@ def main() -> int:
     print(f"{'record':<44}{'samples':>10}{'phases':>8}{'applied':>9}{'self-cal s':>12}{'VQF s':>8}{'ratio':>7}{'Msamples/s':>12}")
     for p in paths:
         rec = tiled(load_record(p), args.tile_s)
-        self_calibrate(rec.t_s[:20000], rec.gyr_rad_s[:20000], rec.acc_m_s2[:20000])  # compile / cache load
-        cal = self_calibrate(rec.t_s, rec.gyr_rad_s, rec.acc_m_s2)
+        cal = self_calibrate(rec.t_s, rec.gyr_rad_s, rec.acc_m_s2)  # (also numba's compile / cache load)
         t_sc = cpu(lambda: self_calibrate(rec.t_s, rec.gyr_rad_s, rec.acc_m_s2), args.repeat)
         t_v = cpu(lambda: vqf.estimate(rec), args.repeat)
         print(f"{p.name[:44]:<44}{len(rec):>10}{cal.phases:>8}{str(cal.applied):>9}{t_sc:>12.3f}{t_v:>8.3f}"

@@ -233,16 +233,13 @@ def test_evaluate_reports_where_the_self_calibration_applied(tmp_path, capsys):
 def test_degenerate_records_give_no_phases_and_no_error():
     n = 500
     z = np.zeros((n, 3))
-    assert calibrate_arrays(np.zeros(n), z, z).phases == 0  # one timestamp throughout
-    assert calibrate_arrays(np.arange(2) * 0.01, z[:2], z[:2]).phases == 0  # two samples
+    assert self_calibrate(np.zeros(n), z, z).phases == 0  # one timestamp throughout
+    assert self_calibrate(np.arange(2) * 0.01, z[:2], z[:2]).phases == 0  # two samples
     t = np.arange(n) * 0.01
     acc = np.tile([0.0, 0.0, -9.81], (n, 1))
-    assert calibrate_arrays(t, np.full((n, 3), np.nan), acc).phases == 0  # no gyro: read as zeros, no turn
-    assert not calibrate_arrays(t, z, acc).applied  # at rest throughout: one rest, no phase
-
-
-def calibrate_arrays(t, gyr, acc):
-    return self_calibrate(t, gyr, acc)
+    assert self_calibrate(t, np.full((n, 3), np.nan), acc).phases == 0  # no gyro: read as zeros, no turn
+    still = self_calibrate(t, z, acc)  # at rest throughout: one rest, no phase
+    assert still.phases == 0 and not still.applied and still.scale == (1.0, 1.0, 1.0)
 
 
 def test_a_fit_beyond_the_plausible_calibration_error_is_not_applied():

@@ -145,9 +145,6 @@ class Phases:
     def __len__(self) -> int:
         return len(self.i0)
 
-    def take(self, sel) -> "Phases":
-        return Phases(self.i0[sel], self.i1[sel], self.up0[sel], self.up1[sel], self.bias)
-
 
 def find_phases(t_s, gyr, acc, segment, gyr_clipped, cfg: GyroSelfCalConfig) -> tuple[np.ndarray, Phases]:
     """(dt per sample, the record's :class:`Phases`). Inputs: finite rows, body axes, SI."""
