@@ -19,7 +19,9 @@ Columns (exact names; frames and units in :mod:`tepinn_flight.conventions`):
 Optional columns: ``valid`` (bool, BROAD's movement mask), ``gyr_clipped`` (bool, the samples of
 ``clipped`` where a gyro axis is at its range or unhealthy — where the reader can tell the sensors
 apart; absent: every ``clipped`` sample counts), simulated truths ``gyr_bias_{x,y,z}_rad_s`` and
-``acc_bias_{x,y,z}_m_s2``.
+``acc_bias_{x,y,z}_m_s2``, and the GNSS receiver's horizontal velocity over ground
+``gnss_vel_{n,e}_m_s`` (float64, NED, m/s; linear between fixes, NaN where no fix covers the
+sample — what the GNSS-aided tilt reads, :mod:`tepinn_flight.model.gnss_aid`).
 
 Key-value metadata: every key of :attr:`FlightRecord.meta` is stored as its own Parquet key with a
 JSON value; ``format_version`` is mandatory and checked on read.
@@ -49,9 +51,10 @@ MAG_COLS = ["mag_x_ut", "mag_y_ut", "mag_z_ut"]
 QREF_COLS = ["q_ref_w", "q_ref_x", "q_ref_y", "q_ref_z"]
 GYR_BIAS_COLS = ["gyr_bias_x_rad_s", "gyr_bias_y_rad_s", "gyr_bias_z_rad_s"]
 ACC_BIAS_COLS = ["acc_bias_x_m_s2", "acc_bias_y_m_s2", "acc_bias_z_m_s2"]
+GNSS_VEL_COLS = ["gnss_vel_n_m_s", "gnss_vel_e_m_s"]
 
 REQUIRED_COLUMNS = ["t_s", "segment", *GYR_COLS, *ACC_COLS, *MAG_COLS, *QREF_COLS, "clipped"]
-OPTIONAL_COLUMNS = ["valid", "gyr_clipped", *GYR_BIAS_COLS, *ACC_BIAS_COLS]
+OPTIONAL_COLUMNS = ["valid", "gyr_clipped", *GYR_BIAS_COLS, *ACC_BIAS_COLS, *GNSS_VEL_COLS]
 _DTYPES = {"t_s": "float64", "segment": "int32", "clipped": "bool", "valid": "bool", "gyr_clipped": "bool"}
 
 SOURCE_KINDS = ("tlog", "dataflash", "ulog", "broad", "jsbsim", "synthetic")
@@ -103,6 +106,14 @@ class FlightRecord:
     @property
     def q_ref_wxyz(self) -> np.ndarray:
         return self.data[QREF_COLS].to_numpy(np.float64)
+
+    @property
+    def gnss_vel_ne_m_s(self) -> np.ndarray | None:
+        """(N, 2) the GNSS horizontal velocity (north, east) on the IMU samples, NaN between covered
+        stretches; None when the record has none."""
+        if GNSS_VEL_COLS[0] not in self.data:
+            return None
+        return self.data[GNSS_VEL_COLS].to_numpy(np.float64)
 
     @property
     def segment(self) -> np.ndarray:
@@ -167,7 +178,7 @@ def make_frame(
     """Build the column table in the canonical order from arrays (missing parts become NaN/False).
 
     ``optional`` takes ``valid`` (N,), ``gyr_clipped`` (N,; a subset of ``clipped``), ``gyr_bias_rad_s``
-    (N, 3), ``acc_bias_m_s2`` (N, 3).
+    (N, 3), ``acc_bias_m_s2`` (N, 3), ``gnss_vel_ne_m_s`` (N, 2).
     """
     n = len(t_s)
     nan3 = np.full((n, 3), np.nan)
@@ -191,7 +202,8 @@ def make_frame(
         optional.pop(key, None)
     if "gyr_clipped" in cols:
         cols["clipped"] = cols["clipped"] | cols["gyr_clipped"]
-    for key, names in (("gyr_bias_rad_s", GYR_BIAS_COLS), ("acc_bias_m_s2", ACC_BIAS_COLS)):
+    for key, names in (("gyr_bias_rad_s", GYR_BIAS_COLS), ("acc_bias_m_s2", ACC_BIAS_COLS),
+                       ("gnss_vel_ne_m_s", GNSS_VEL_COLS)):
         arr = optional.pop(key, None)
         if arr is not None:
             arr = np.asarray(arr, np.float64)

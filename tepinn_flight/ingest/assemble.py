@@ -12,7 +12,7 @@ from ..errors import NoImuData
 from ..quat import quat_canonical, slerp
 from ..record import FORMAT_VERSION, MIN_ESTIMATION_RATE_HZ, FlightRecord, make_frame
 from ..record_gaps import GAP_PERIODS  # a new segment starts where the IMU step exceeds this many periods
-from .streams import ImuStream, MagStream, RawLog, RefStream, nominal_period_s
+from .streams import GnssVelStream, ImuStream, MagStream, RawLog, RefStream, nominal_period_s
 
 
 #: What to do about an IMU too slow for estimation, per log format (the note ``ingest`` and ``info`` show).
@@ -39,6 +39,8 @@ MAX_ACC_M_S2 = 2000.0
 #: |magnetic field| per axis (µT): the Earth's is 25–65 µT; a motor or magnet next to the sensor
 #: saturates magnetometers at a few thousand µT
 MAX_MAG_UT = 5000.0
+#: |GNSS velocity| per axis (m/s): beyond any aircraft these tools serve (a corrupt row)
+MAX_GNSS_SPEED_M_S = 600.0
 #: |sample time| (s): boot times and UNIX times (1.7e9 s) alike are below this
 MAX_ABS_TIME_S = 1e10
 #: a sample whose time lies this far from both its neighbours' and from the median of the
@@ -163,11 +165,26 @@ def drop_implausible(raw: RawLog, source_path: str | os.PathLike) -> tuple[RawLo
             ref = RefStream(rt[~bad], rq[~bad], ref.source, None if r_ep is None else np.asarray(r_ep)[~bad])
         elif r_ep is not ref.epoch:
             ref = RefStream(rt, rq, ref.source, r_ep)
-    if keep.all() and mag is raw.mag and ref is raw.ref:
+    gnss = raw.gnss
+    if gnss is not None and len(gnss.t_s):
+        gt = np.asarray(gnss.t_s, np.float64)
+        gv = np.asarray(gnss.vel_ne_m_s, np.float64)
+        with np.errstate(invalid="ignore"):
+            bad = ~(np.isfinite(gt) & (np.abs(gt) <= MAX_ABS_TIME_S) & np.all(np.isfinite(gv), axis=1)
+                    & np.all(np.abs(gv) <= MAX_GNSS_SPEED_M_S, axis=1))  # fmt: skip
+        g_ep = gnss.epoch if gnss.epoch is None or remap is None else remap(gnss.epoch)
+        if bad.any():
+            notes.append(f"{int(bad.sum())} GNSS velocity sample(s) non-finite, beyond {MAX_GNSS_SPEED_M_S:g} m/s "
+                         "or at impossible times dropped")  # fmt: skip
+            gnss = GnssVelStream(gt[~bad], gv[~bad], gnss.source, None if g_ep is None else np.asarray(g_ep)[~bad])
+        elif g_ep is not gnss.epoch:
+            gnss = GnssVelStream(gt, gv, gnss.source, g_ep)
+    if keep.all() and mag is raw.mag and ref is raw.ref and gnss is raw.gnss:
         return raw, 0, notes
     valid = None if raw.valid is None else np.asarray(raw.valid, bool)[keep]
     extra = {k: np.asarray(v)[keep] for k, v in raw.extra.items()}
-    return RawLog(new_imu, mag, ref, raw.meta, valid, extra), int((~keep).sum()), notes
+    return (RawLog(new_imu, mag, ref, gnss=gnss, meta=raw.meta, valid=valid, extra=extra),
+            int((~keep).sum()), notes)  # fmt: skip
 
 
 def _epoch(arr_len: int, epoch: np.ndarray | None) -> np.ndarray:
@@ -288,9 +305,20 @@ def build_record(raw: RawLog, source_path: str | os.PathLike) -> FlightRecord:
         m_t = np.asarray(raw.mag.t_s, np.float64)
         mag = _on_imu_times(t_src, ep, m_t, m_ep, np.asarray(raw.mag.mag_ut, float), nominal_period_s(m_t, m_ep), False)
 
+    gnss_vel, gnss_rate = None, None
+    if raw.gnss is not None and len(raw.gnss.t_s) > 1:
+        g_ep = _epoch(len(raw.gnss.t_s), raw.gnss.epoch)
+        g_t = np.asarray(raw.gnss.t_s, np.float64)
+        g_period = nominal_period_s(g_t, g_ep)
+        gnss_vel = _on_imu_times(t_src, ep, g_t, g_ep, np.asarray(raw.gnss.vel_ne_m_s, float), g_period, False)
+        gnss_rate = 1.0 / g_period if np.isfinite(g_period) and g_period > 0 else None
+        if not np.isfinite(gnss_vel).any():
+            gnss_vel = None
+
     df = make_frame(
         t_rec, seg, gyr, acc, mag, q_ref, clipped, valid=valid, gyr_clipped=gyr_clipped,
         gyr_bias_rad_s=extra.pop("gyr_bias_rad_s", None), acc_bias_m_s2=extra.pop("acc_bias_m_s2", None),
+        gnss_vel_ne_m_s=gnss_vel,
     )  # fmt: skip
 
     rate = 1.0 / period if np.isfinite(period) and period > 0 else None
@@ -306,6 +334,8 @@ def build_record(raw: RawLog, source_path: str | os.PathLike) -> FlightRecord:
         "reference_source": raw.ref.source if raw.ref is not None else "none",
         "reference_rate_hz": ref_rate,
         "reference_coverage": ref_cover,
+        "gnss_source": raw.gnss.source if gnss_vel is not None else "none",
+        "gnss_rate_hz": gnss_rate,
         "corrupt_frames": int(raw.meta.get("corrupt_frames", 0)) + n_implausible,
         "implausible_samples_dropped": n_implausible,
         "skipped_frames": int(raw.meta.get("skipped_frames", 0)),

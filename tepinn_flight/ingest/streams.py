@@ -43,6 +43,16 @@ class RefStream:
 
 
 @dataclass
+class GnssVelStream:
+    """The GNSS receiver's velocity over ground, horizontal (its fixes with a 3-D lock only)."""
+
+    t_s: np.ndarray  # (K,) source clock (the IMU's: boot time)
+    vel_ne_m_s: np.ndarray  # (K, 2) north, east, m/s
+    source: str  # e.g. "GPS", "GPS_RAW_INT", "vehicle_gps_position"
+    epoch: np.ndarray | None = None
+
+
+@dataclass
 class RawLog:
     """A parsed log: the selected IMU, optional magnetometer and reference, and what we know.
 
@@ -58,6 +68,7 @@ class RawLog:
     meta: dict[str, Any] = field(default_factory=dict)
     valid: np.ndarray | None = None  # (N,) bool on the IMU samples (BROAD's movement mask)
     extra: dict[str, np.ndarray] = field(default_factory=dict)  # optional record columns (N, ...)
+    gnss: GnssVelStream | None = None  # the receiver's velocity (GNSS-aided tilt), where the log has one
 
 
 def nominal_period_s(t_s: np.ndarray, epoch: np.ndarray | None = None) -> float:
