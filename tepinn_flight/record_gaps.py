@@ -4,9 +4,9 @@ A step longer than :data:`GAP_PERIODS` nominal periods is a gap; ``ingest`` star
 segment there (and at a reboot or a time reversal). Short gaps — logging dropouts, typically 10–70 ms
 in PX4 and ArduPilot logs — are **bridged** by every estimator instead of restarting it:
 :func:`bridge_gaps` merges the two segments and fills the gap with samples at the nominal period
-whose gyro, accelerometer and magnetometer are linearly interpolated between the samples on either
-side, so filters keep propagating through it (a restart loses the attitude, re-converges and costs
-every estimator its warm-up). The filled samples carry no reference (never scored), ``clipped``
+whose gyro, accelerometer, magnetometer (and GNSS velocity, where the record has it) are linearly
+interpolated between the samples on either side, so filters keep propagating through it (a restart
+loses the attitude, re-converges and costs every estimator its warm-up). The filled samples carry no reference (never scored), ``clipped``
 (and ``gyr_clipped``) False and ``valid`` False. Gaps longer than :data:`MAX_BRIDGED_GAP_S`, reboots and time reversals
 still restart.
 
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .record import ACC_BIAS_COLS, ACC_COLS, GYR_BIAS_COLS, GYR_COLS, MAG_COLS, QREF_COLS, FlightRecord
+from .record import ACC_BIAS_COLS, ACC_COLS, GNSS_VEL_COLS, GYR_BIAS_COLS, GYR_COLS, MAG_COLS, QREF_COLS, FlightRecord
 
 #: A step longer than this many nominal sample periods is a gap (a segment break at ingest).
 GAP_PERIODS = 2.5
@@ -32,7 +32,7 @@ GAP_PERIODS = 2.5
 #: gyro-bias estimate and every estimator's warm-up). Longer gaps restart.
 MAX_BRIDGED_GAP_S = 0.1
 
-_INTERPOLATED = [*GYR_COLS, *ACC_COLS, *MAG_COLS, *GYR_BIAS_COLS, *ACC_BIAS_COLS]
+_INTERPOLATED = [*GYR_COLS, *ACC_COLS, *MAG_COLS, *GYR_BIAS_COLS, *ACC_BIAS_COLS, *GNSS_VEL_COLS]
 
 
 @dataclass(frozen=True)

@@ -18,10 +18,16 @@ Streams
           :class:`ConfigError` listing the candidates. XKQ/NKQ (the EKF cores' quaternions) are in
           the IMU board's frame; the others are the vehicle's attitude, turned into the board's by
           the level trim ``AHRS_TRIM_X/Y`` (:mod:`.ahrs_trim`; meta ``ahrs_trim_rad``).
+    GNSS  ``GPS`` (4.x: its lowest instance ``I``, the first receiver; never ``GPS2``), rows with
+          ``Status`` ≥ 3 (3-D fix): north, east = ``Spd`` · (cos, sin) ``GCrs`` (m/s, degrees).
     time  ``TimeUS`` (µs) or ``TimeMS`` (ms) since boot. Messages without either (Copter 3.0.x)
-          cannot be timed; the GPS ``TimeMS`` of old logs is GPS time of week and is never used.
+          cannot be timed. The ``GPS`` of old logs (ArduCopter ≤ 3.3) has ``TimeMS`` = GPS time
+          of week and its boot time (ms) in ``T``: GPS is timed by ``TimeUS``, else ``T``, else a
+          ``TimeMS`` that lies within the IMU's span (otherwise no GNSS stream, and a note).
           Boot epochs follow the rule of :func:`detect_epochs` (time jumps back > 1 s) on the
-          merged clock of the streams read, in file order (a reboot makes time jump back).
+          merged clock of the IMU, MAG and reference, in file order (a reboot makes time jump
+          back); each GPS row takes the epoch of the IMU row written before it, so a late GPS
+          time stamp cannot pass for a reboot.
 
 Clipping rule (``ImuStream.clipped``), a sample is marked when any of:
     * a gyro axis reaches 98 % of the ±2000 °/s full scale (|ω| ≥ 34.2 rad/s) — the logged IMU is
@@ -53,7 +59,7 @@ from .dataflash_source import DECODE_BLOCK_ROWS, DataflashSource, instance_col
 from .dataflash_text import TextSource
 from .saturation import accel_saturated, gyro_saturated
 from .sniff import sniff
-from .streams import ImuStream, MagStream, RawLog, RefStream, detect_epochs, nominal_period_s
+from .streams import GnssVelStream, ImuStream, MagStream, RawLog, RefStream, detect_epochs, nominal_period_s
 
 
 TIME_FIELDS = {"TimeUS": 1e6, "TimeMS": 1e3}  # ticks per second (divide: exact for whole ms)
@@ -62,6 +68,9 @@ ACC = ("AccX", "AccY", "AccZ")
 MAGC = ("MagX", "MagY", "MagZ")
 QUAT = ("Q1", "Q2", "Q3", "Q4")
 EULER = ("Roll", "Pitch", "Yaw")
+GPS_VEL = ("Status", "Spd", "GCrs")  # fix type, ground speed m/s, course over ground degrees from north
+GPS_TIME_FIELDS = {"TimeUS": 1e6, "T": 1e3, "TimeMS": 1e3}  # in this order; TimeMS may be GPS time of week
+MIN_3D_FIX = 3  # GPS Status: 3 = 3-D fix (4, 5, 6: DGPS, RTK float, RTK fixed)
 REBOOT_BACKSTEP_S = 1.0  # time jumping back more than this (s) is a reboot (streams.detect_epochs)
 
 #: Reference message families (listing order of ``reference_candidates``) and the default choice.
@@ -324,7 +333,45 @@ def _merged_epochs(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarra
 
 # --------------------------------------------------------------------------- reader
 
-_BASE_NAMES = {"IMU", "IMU2", "IMU3", "MAG", "MAG2", "MAG3", "VIBE", "MSG", "VER", "PARM"}
+_BASE_NAMES = {"IMU", "IMU2", "IMU3", "MAG", "MAG2", "MAG3", "VIBE", "MSG", "VER", "PARM", "GPS"}
+
+
+def _gnss(src: DataflashSource, t_imu: np.ndarray, o_imu: np.ndarray, ep_imu: np.ndarray,
+          notes: list[str]) -> tuple[GnssVelStream | None, str | None]:
+    """(the first GPS's velocity over ground on the IMU's clock and epochs, its time field) or
+    (None, None): no GPS rows, no boot time, or no 3-D fix (the last two with a note)."""
+    mf = src.formats.get("GPS")
+    if mf is None or not src.count("GPS") or not _has(src, "GPS", GPS_VEL):
+        return None, None
+    tf = next((f for f in GPS_TIME_FIELDS if f in mf.columns), None)
+    if tf is None:
+        notes.append("GPS carries no boot time (TimeUS, T or TimeMS): no GNSS velocity")
+        return None, None
+    col = instance_col(mf)
+    rows = None
+    if col is not None:  # 4.x: GPS[I]; the first receiver
+        inst = src.instance_column("GPS", col)
+        fin = np.isfinite(inst)
+        rows = np.flatnonzero(inst == inst[fin].min()) if fin.any() else np.zeros(0, np.int64)
+    g = src.table("GPS", (tf, *GPS_VEL), rows)
+    order = src.order("GPS") if rows is None else src.order("GPS")[rows]
+    t = g[:, 0] / GPS_TIME_FIELDS[tf]
+    with np.errstate(invalid="ignore"):
+        ok = (g[:, 1] >= MIN_3D_FIX) & np.all(np.isfinite(g), axis=1)
+    if not ok.any():
+        notes.append(f"GPS: none of its {len(g)} row(s) has a 3-D fix (Status ≥ {MIN_3D_FIX}): no GNSS velocity")
+        return None, None
+    if tf == "TimeMS":  # boot time in old logs without T, GPS time of week in others: the IMU's span tells
+        inside = ok & (t >= t_imu.min() - 1.0) & (t <= t_imu.max() + 1.0)
+        if inside.sum() < 0.9 * ok.sum():
+            notes.append("GPS TimeMS is not on the IMU's boot clock (GPS time of week?): no GNSS velocity")
+            return None, None
+        ok = inside
+    t, g, order = t[ok], g[ok], order[ok]
+    crs = g[:, 3] * DEG_TO_RAD
+    vel_ne = g[:, 2:3] * np.column_stack([np.cos(crs), np.sin(crs)])
+    before = np.searchsorted(o_imu, order, side="right") - 1  # the IMU row written before each GPS row
+    return GnssVelStream(t, vel_ne, "GPS", ep_imu[np.maximum(before, 0)]), tf
 
 
 def read(path: str | os.PathLike, imu: int | None = None, reference: str | None = None) -> RawLog:
@@ -444,8 +491,13 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     if ref is not None:
         ref.epoch = eps[k]
 
+    # ---- GNSS velocity (the first receiver, 3-D fixes), on the IMU's clock and epochs
+    gnss, gnss_tf = _gnss(src, t_imu, o_imu, eps[0], notes)
+    if gnss is not None:
+        meta["gnss_time_field"] = gnss_tf
+
     # text tables are parsed lazily: their malformed lines are known only now
     meta["corrupt_frames"] = int(src.corrupt_frames)
     meta["skipped_frames"] = int(src.skipped_frames)
     meta["notes"] = list(src.notes) + notes
-    return RawLog(ImuStream(t_imu, gyr, acc, clipped, eps[0], gyr_clipped), mag, ref, meta)
+    return RawLog(ImuStream(t_imu, gyr, acc, clipped, eps[0], gyr_clipped), mag, ref, meta, gnss=gnss)

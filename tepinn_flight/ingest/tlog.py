@@ -34,6 +34,17 @@ Reference (``--reference``)
     the IMU board's frame by the level trim ``AHRS_TRIM_X/Y`` from the tlog's ``PARAM_VALUE`` rows
     (:mod:`.ahrs_trim`; meta ``ahrs_trim_rad``), with a note where the tlog holds none.
 
+GNSS velocity
+    ``GPS_RAW_INT`` rows with ``fix_type`` ≥ 3 and a known ``vel`` and ``cog`` (65535: unknown):
+    north, east = ``vel`` · (cos, sin) ``cog`` (cm/s, centidegrees → m/s, rad). Its ``time_usec`` is
+    put on the IMU's clock: as it is when both are boot (or both UNIX) time; UNIX time (above
+    1e15 µs, the receiver's GPS time) is mapped to boot time by ``SYSTEM_TIME`` (UNIX − boot =
+    the median of ``time_unix_usec − 1000·time_boot_ms`` over the rows since the last reboot,
+    the row before each GPS row in file order). With no ``SYSTEM_TIME`` that knows UNIX time,
+    ``GLOBAL_POSITION_INT`` (``vx``, ``vy`` cm/s on boot time; the autopilot's fused velocity,
+    source "GLOBAL_POSITION_INT") is used instead, where the ``GPS_RAW_INT`` before it has a 3-D fix.
+    Each GNSS row takes the boot epoch of the IMU row written before it; same system/component.
+
 Time
     Sample time from ``time_usec`` / ``time_boot_ms`` (since boot; ``time_usec`` above 1e15 is UNIX
     time), never the tlog receive timestamp. A reboot is the boot clock going back by more than 1 s
@@ -62,7 +73,7 @@ from ..quat import quat_from_euler_zyx
 from .ahrs_trim import TRIM_PARAMS, trim_note, usable_trim, vehicle_to_board
 from .mavlink_scan import scan_tlog
 from .saturation import accel_saturated, gyro_full_scale_rad_s, gyro_saturated
-from .streams import ImuStream, MagStream, RawLog, RefStream
+from .streams import GnssVelStream, ImuStream, MagStream, RawLog, RefStream
 
 MAV_COMP_ID_AUTOPILOT1 = 1
 MAV_AUTOPILOT_INVALID = 8
@@ -81,6 +92,10 @@ IMU_PREFERENCE = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED
 #: Reference messages, preferred first.
 REF_MESSAGES = ("ATTITUDE_QUATERNION", "ATTITUDE")
 META_MESSAGES = ("HEARTBEAT", "AUTOPILOT_VERSION", "PARAM_VALUE")
+#: The receiver's velocity, the clock that maps its UNIX time to boot time, and the fallback.
+GNSS_MESSAGES = ("GPS_RAW_INT", "SYSTEM_TIME", "GLOBAL_POSITION_INT")
+MIN_3D_FIX = 3  # GPS_FIX_TYPE_3D_FIX (4..8: DGPS, RTK float/fixed, static, PPP)
+GPS_UNKNOWN_U16 = 65535  # GPS_RAW_INT vel / cog: unknown
 
 #: A back step of the boot clock larger than this (s) may be a reboot ...
 REBOOT_BACKSTEP_S = 1.0
@@ -92,7 +107,7 @@ _FW_TYPES = {0: "dev", 64: "alpha", 128: "beta", 192: "rc", 255: "official"}
 
 def read(path: str | os.PathLike, imu: int | None = None, reference: str | None = None) -> RawLog:
     """Parse a MAVLink tlog into raw streams (SI units, the autopilot's own clock)."""
-    names = (*IMU_MESSAGES, *REF_MESSAGES, *META_MESSAGES)
+    names = (*IMU_MESSAGES, *REF_MESSAGES, *META_MESSAGES, *GNSS_MESSAGES)
     try:
         scan = scan_tlog(path, names)
     except OSError as exc:
@@ -118,10 +133,11 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     for name in (n for n in names if n != "HEARTBEAT"):
         fr = scan.frames.pop(name)  # drop the scan's copy as we go (memory)
         mine = (fr.sysid == sysid) & (fr.compid == MAV_COMP_ID_AUTOPILOT1)
-        if name not in META_MESSAGES:
+        if name not in META_MESSAGES + GNSS_MESSAGES:
             other_src += int((~mine).sum())
         frames[name] = (fr.offset, fr.fields) if mine.all() else (fr.offset[mine], fr.fields[mine])
         del fr
+    gnss_frames = {n: frames.pop(n) for n in GNSS_MESSAGES}
     firmware = _firmware(frames.pop("AUTOPILOT_VERSION")[1])
     params = _params(frames.pop("PARAM_VALUE")[1], TRIM_PARAMS)
     if other_src:
@@ -192,6 +208,10 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     # ---- boot epochs from every boot-clock time stamp of the autopilot's data messages
     clocked = [s for s in live] + list(refs.values())
     _assign_epochs(clocked)
+
+    # ---- GNSS velocity on the IMU's clock and boot epochs
+    gnss = _gnss(gnss_frames, sel, notes)
+    del gnss_frames
 
     # ---- the IMU's arrays
     order = _time_order(sel["t_s"], sel["epoch"])
@@ -268,7 +288,7 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     n_epochs = int(imu_stream.epoch.max()) + 1 if len(imu_stream.epoch) else 0
     if n_epochs > 1:
         notes.append(f"{n_epochs - 1} autopilot reboot(s) detected (boot time went back)")
-    return RawLog(imu=imu_stream, mag=mag, ref=ref, meta=meta)
+    return RawLog(imu=imu_stream, mag=mag, ref=ref, meta=meta, gnss=gnss)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -518,6 +538,71 @@ def _assign_epochs(streams: list[dict]) -> None:
     del t
     for s, p in zip(boot, pos):
         s["epoch"] = np.searchsorted(starts, p, side="right").astype(np.int64, copy=False)
+
+
+def _gnss(frames: dict, sel: dict, notes: list[str]) -> GnssVelStream | None:
+    """The receiver's horizontal velocity (``GPS_RAW_INT``, 3-D fixes) on the clock and boot epochs
+    of the IMU stream ``sel`` (see the module docstring), or None (with a note where the log has
+    GPS_RAW_INT rows but none usable)."""
+    off, f = frames["GPS_RAW_INT"]
+    if len(off) == 0:
+        return None
+    good = ((f["fix_type"] >= MIN_3D_FIX) & (f["vel"] != GPS_UNKNOWN_U16) & (f["cog"] != GPS_UNKNOWN_U16)
+            & (f["time_usec"] > 0))  # fmt: skip
+    if not good.any():
+        notes.append(f"GPS_RAW_INT: none of its {len(off)} message(s) has a 3-D fix with a known velocity: "
+                     "no GNSS velocity")  # fmt: skip
+        return None
+    t_us = f["time_usec"][good].astype(np.int64)
+    clock = "unix" if np.median(t_us) > UNIX_TIME_THRESHOLD_US else "boot"
+    vel = f["vel"][good] * 0.01
+    cog = f["cog"][good] * (0.01 * np.pi / 180.0)
+    vel_ne = np.column_stack([vel * np.cos(cog), vel * np.sin(cog)])
+    g_off, source = off[good], "GPS_RAW_INT"
+    if clock != sel["clock"]:
+        st_off, st = frames["SYSTEM_TIME"]
+        unix_minus_boot_us = _unix_minus_boot_us(st_off, st, g_off)
+        if unix_minus_boot_us is not None:
+            t_us = t_us - unix_minus_boot_us if clock == "unix" else t_us + unix_minus_boot_us
+            notes.append(f"GPS_RAW_INT time_usec is {clock} time, the IMU's {sel['clock']}: mapped by SYSTEM_TIME")
+        elif sel["clock"] == "boot":  # the autopilot's fused velocity, on boot time
+            gp_off, gp = frames["GLOBAL_POSITION_INT"]
+            last_gps = np.searchsorted(off, gp_off, side="right") - 1  # the GPS_RAW_INT before each row
+            fixed = (last_gps >= 0) & good[np.maximum(last_gps, 0)]
+            if not fixed.any():
+                notes.append("GPS_RAW_INT time_usec is UNIX time, no SYSTEM_TIME maps it to boot time and no "
+                             "GLOBAL_POSITION_INT follows a 3-D fix: no GNSS velocity")  # fmt: skip
+                return None
+            notes.append("GPS_RAW_INT time_usec is UNIX time and no SYSTEM_TIME maps it to boot time: GNSS "
+                         "velocity from GLOBAL_POSITION_INT (the autopilot's fused velocity)")  # fmt: skip
+            gp, g_off, source = gp[fixed], gp_off[fixed], "GLOBAL_POSITION_INT"
+            t_us = gp["time_boot_ms"].astype(np.int64) * 1000
+            vel_ne = np.column_stack([gp["vx"], gp["vy"]]).astype(np.float64) * 0.01
+        else:
+            notes.append("GPS_RAW_INT is on boot time, the IMU on UNIX time, and no SYSTEM_TIME relates them: "
+                         "no GNSS velocity")  # fmt: skip
+            return None
+    t_s = t_us / 1e6
+    before = np.searchsorted(sel["offset"], g_off, side="right") - 1  # the IMU row written before each
+    epoch = sel["epoch"][np.maximum(before, 0)]
+    o = _time_order(t_s, epoch)
+    return GnssVelStream(t_s=t_s[o], vel_ne_m_s=vel_ne[o], source=source, epoch=epoch[o])
+
+
+def _unix_minus_boot_us(st_off: np.ndarray, st: np.ndarray, at_off: np.ndarray) -> np.ndarray | None:
+    """UNIX − boot time (µs, int64) at the file offsets ``at_off`` from the SYSTEM_TIME rows: the
+    median of ``time_unix_usec − 1000·time_boot_ms`` over each run of rows between reboots (a reboot
+    moves it by more than 1 s), that of the row before each offset. None without a row that knows
+    UNIX time."""
+    ok = st["time_unix_usec"] > UNIX_TIME_THRESHOLD_US
+    if not ok.any():
+        return None
+    d_us = st["time_unix_usec"][ok].astype(np.int64) - 1000 * st["time_boot_ms"][ok].astype(np.int64)
+    runs = np.split(d_us, np.flatnonzero(np.abs(np.diff(d_us)) > 1_000_000) + 1)
+    med_us = np.array([np.median(r) for r in runs]).round().astype(np.int64)
+    run_of = np.repeat(np.arange(len(runs)), [len(r) for r in runs])
+    before = np.maximum(np.searchsorted(st_off[ok], at_off, side="right") - 1, 0)
+    return med_us[run_of[before]]
 
 
 def _unknown_scale_reason(s: dict, autopilot: str) -> str:

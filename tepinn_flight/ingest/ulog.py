@@ -30,6 +30,10 @@ selects one by topic name (``name`` or ``name[k]`` for instance k). ``q`` is w, 
 → NED. Its time is ``timestamp_sample`` where that field holds plausible values (the v1.13 SITL
 groundtruth logs it as 0), else ``timestamp``.
 
+GNSS velocity: ``vehicle_gps_position`` instance 0 (else ``sensor_gps`` instance 0), rows with
+``fix_type`` ≥ 3 and ``vel_ned_valid``: ``vel_n_m_s``, ``vel_e_m_s`` at ``timestamp`` (the clock of
+sensor_combined).
+
 Reference resets: an EKF quaternion reset (``quat_reset_counter`` changes) makes the attitude
 jump; the samples right after it are dropped so that the reference is left uncovered (NaN) across
 the jump instead of being slerped through it.
@@ -62,12 +66,16 @@ import numpy as np
 from ..conventions import GAUSS_TO_UT, UNIX_TIME_THRESHOLD_US
 from ..errors import ConfigError, CorruptLog, NoImuData, TepinnError
 from .assemble import GAP_PERIODS
-from .streams import ImuStream, MagStream, RawLog, RefStream, nominal_period_s
+from .streams import GnssVelStream, ImuStream, MagStream, RawLog, RefStream, nominal_period_s
 
 #: Attitude topics with ``q[0..3]`` = w, x, y, z body FRD → NED, in default-preference order.
 REFERENCE_TOPICS = ("vehicle_attitude_groundtruth", "vehicle_attitude", "estimator_attitude", "control_state")
 IMU_TOPICS = ("sensor_combined", "vehicle_imu", "sensor_gyro", "sensor_accel", "sensor_selection")
 MAG_TOPICS = ("vehicle_magnetometer", "sensor_mag")
+#: The receiver's solution, preferred first (instance 0 of the first one logged).
+GNSS_TOPICS = ("vehicle_gps_position", "sensor_gps")
+GNSS_FIELDS = ("fix_type", "vel_ned_valid", "vel_n_m_s", "vel_e_m_s")
+MIN_3D_FIX = 3  # fix_type: 3 = 3-D fix (4..8: RTCM/DGPS, RTK float/fixed, extrapolated)
 
 #: uORB's marker for an invalid relative timestamp (``RELATIVE_TIMESTAMP_INVALID``).
 RELATIVE_TIMESTAMP_INVALID = 2147483647
@@ -244,7 +252,7 @@ def _parse(path: str | os.PathLike):
     """pyulog parse restricted to the topics we use; its prints are captured, errors → CorruptLog."""
     from pyulog import ULog
 
-    topics = list(IMU_TOPICS + MAG_TOPICS + REFERENCE_TOPICS)
+    topics = list(IMU_TOPICS + MAG_TOPICS + REFERENCE_TOPICS + GNSS_TOPICS)
     out = io.StringIO()
     fh = _GuardedFile(path)
     try:
@@ -523,6 +531,25 @@ def _reference(ds, reference: str | None, notes: list[str]) -> tuple[RefStream |
     return RefStream(t_s, q, topic_label(*key)), labels
 
 
+def _gnss(ds, notes: list[str]) -> GnssVelStream | None:
+    """The receiver's horizontal velocity (3-D fixes, valid NED velocity) on the log's clock, or
+    None (with a note where the topic is logged but none of its rows is usable)."""
+    name = next((n for n in GNSS_TOPICS if (n, 0) in ds), None)
+    if name is None:
+        return None
+    d = ds[(name, 0)]
+    if not all(f in d for f in GNSS_FIELDS):
+        notes.append(f"{name} lacks {', '.join(f for f in GNSS_FIELDS if f not in d)}: no GNSS velocity")
+        return None
+    ok = (np.asarray(d["fix_type"]) >= MIN_3D_FIX) & (np.asarray(d["vel_ned_valid"]) != 0)
+    vel_ne = np.column_stack([np.asarray(d["vel_n_m_s"], np.float64), np.asarray(d["vel_e_m_s"], np.float64)])
+    ok &= np.all(np.isfinite(vel_ne), axis=1)
+    if not ok.any():
+        notes.append(f"{name}: none of its {len(ok)} row(s) has a 3-D fix with a valid velocity: no GNSS velocity")
+        return None
+    return GnssVelStream(us_to_s(np.asarray(d["timestamp"], np.int64)[ok]), vel_ne[ok], name)
+
+
 # --------------------------------------------------------------------------- entry point
 
 
@@ -540,6 +567,7 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
         imu_stream, imu_meta = _select_imu(ds, imu, notes)
         mag, mag_source = _mag(ds, notes)
         ref, cands = _reference(ds, reference, notes)
+        gnss = _gnss(ds, notes)
     except TepinnError:
         raise
     except (KeyError, ValueError, IndexError) as exc:
@@ -590,4 +618,4 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
         "ulog_dropouts": drop_info,
         "notes": notes,
     }
-    return RawLog(imu=imu_stream, mag=mag, ref=ref, meta=meta)
+    return RawLog(imu=imu_stream, mag=mag, ref=ref, meta=meta, gnss=gnss)
