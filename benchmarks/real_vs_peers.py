@@ -92,6 +92,8 @@ def main() -> int:
             r[e.name] = float(np.degrees(np.sqrt(np.mean(inclination_error_rad(qe) ** 2)))) if mm.any() else np.nan
             if e.name == "tepinn" and str(df.attrs.get("gyro_selfcal", "")).endswith("; applied"):
                 r["selfcal"] = df.attrs["gyro_selfcal"]
+            if e.name == "tepinn" and str(df.attrs.get("gnss_aid", "")).endswith("; applied"):
+                r["gnss"] = df.attrs["gnss_aid"]
             if e.name == "tepinn" and kind != "simulated" and "sigma_rad" in df:
                 u = uncertainty_metrics(tilt_error_vector_rad(qe), df["sigma_rad"].to_numpy()[mm])
                 r["nees"], r["in3"] = u["nees"], u["coverage_3sigma"]
@@ -106,6 +108,9 @@ def main() -> int:
     applied = [r for r in rows if "selfcal" in r]
     print(f"\nTE-PINN's gyro self-calibration applied on {len(applied)} of {len(rows)} files"
           + "".join(f"\n  {r['name'][:44]}: {r['selfcal']}" for r in applied))
+    aided = [r for r in rows if "gnss" in r]
+    print(f"TE-PINN's GNSS-aided tilt applied on {len(aided)} of {len(rows)} files"
+          + "".join(f"\n  {r['name'][:44]}: {r['gnss']}" for r in aided))
     print()
     for kind in ("drone log", "BROAD", "simulated"):
         for held in (True, False):

@@ -354,3 +354,34 @@ def test_magnetometer_motor_interference_follows_the_thrust_and_disturbances_com
     # switched off, the earlier realisation is unchanged
     y0, _ = _magnetometer(np.random.default_rng(5), t, q, b, MagConfig(rate_hz=100.0), 100.0, acc)
     np.testing.assert_allclose(y0, base, atol=1e-9)
+
+
+# --------------------------------------------------------------------------- GNSS receiver
+
+
+def test_gnss_velocity_is_the_true_one_latency_late_with_the_configured_noise_and_its_own_stream():
+    from tepinn_flight.sim.sensors import GnssConfig
+
+    rate = 400.0
+    truth = wobble_truth(40_000, rate)  # 100 s
+    t = truth.t_s
+    truth = dataclasses.replace(truth, vel_ned_m_s=np.c_[3.0 * np.sin(0.5 * t), 2.0 * np.cos(0.3 * t), np.zeros_like(t)])
+    g = GnssConfig(rate_hz=5.0, vel_noise_m_s=0.0, latency_s=0.2)
+    out = run(truth, cfg(gnss=g))
+    v = out.gnss_vel_ne_m_s
+    last_fix = 0.2 + np.floor((t[-1] - 0.2) * 5.0) / 5.0
+    inside = (t >= 0.2 - 1e-9) & (t <= last_fix + 1e-9)
+    assert np.isfinite(v[inside]).all() and np.isnan(v[~inside]).all()  # the first fix comes latency_s late
+    fix = np.isclose((t - 0.2) * 5.0, np.round((t - 0.2) * 5.0)) & (t >= 0.2)  # samples at a fix time
+    np.testing.assert_allclose(v[fix, 0], 3.0 * np.sin(0.5 * (t[fix] - 0.2)), atol=1e-9)
+    np.testing.assert_allclose(v[fix, 1], 2.0 * np.cos(0.3 * (t[fix] - 0.2)), atol=1e-9)
+    noisy = run(truth, cfg(gnss=dataclasses.replace(g, vel_noise_m_s=0.1))).gnss_vel_ne_m_s
+    assert abs(np.std(noisy[fix] - v[fix]) - 0.1) < 0.01
+    # its draws are its own: the IMU's realisations do not change with the receiver on, off or noisy
+    base = run(truth, cfg(gyro={"arw_deg_sqrt_h": 0.3}, gnss=GnssConfig(enabled=False)))
+    assert base.gnss_vel_ne_m_s is None
+    other = run(truth, cfg(gyro={"arw_deg_sqrt_h": 0.3}, gnss=dataclasses.replace(g, vel_noise_m_s=0.1)))
+    np.testing.assert_array_equal(base.gyr_rad_s, other.gyr_rad_s)
+    rec = record_from_truth(truth, cfg(gnss=g), 0)
+    np.testing.assert_array_equal(rec.gnss_vel_ne_m_s, v)
+    assert rec.meta["gnss_source"] == "simulated" and rec.meta["gnss_rate_hz"] == 5.0

@@ -46,6 +46,10 @@ def add_arguments(p) -> None:
     p.add_argument("--no-gyro-selfcal", action="store_true",
                    help="do not read the gyro's per-axis scale from the record's rests (the estimate the live bridge "
                         "gives; by default it is read and applied where the record shows one: README, the shipped estimator)")
+    p.add_argument("--no-gnss-aid", action="store_true",
+                   help="do not take the motion acceleration the record's GNSS velocity shows out of the accelerometer "
+                        "(the estimate the live bridge gives; by default it is, where the record has a receiver's "
+                        "velocity and it agrees with the accelerometer: README, the shipped estimator)")
     p.add_argument("--tlog", default=None, metavar="FILE|DIR",
                    help="also write a tlog (file for one record, folder for several): the source tlog's messages (or, for "
                         "other sources, the record's IMU and reference attitude) plus the estimate from component 191, "
@@ -83,7 +87,7 @@ def _run(args) -> int:
     from ..errors import TepinnError
     from ..model.anchor import with_busy_stride
     from ..model.checkpoint import default_model_path
-    from ..model.estimate import estimate_record
+    from ..model.estimate import OFFLINE_STEPS, estimate_record
     from ..model.runtime import default_onnx_path, load_runner, resolve_runtime
     from ..ingest import load_record
     from ..ingest.sniff import sniff
@@ -103,6 +107,8 @@ def _run(args) -> int:
     fusion = with_busy_stride(fusion, args.busy_stride, ckpt_path.name)
     if args.no_gyro_selfcal and getattr(fusion, "gyro_selfcal", False):
         fusion = dataclasses.replace(fusion, gyro_selfcal=False)
+    if args.no_gnss_aid and getattr(fusion, "gnss_aid", False):
+        fusion = dataclasses.replace(fusion, gnss_aid=False)
     if args.yaw and hasattr(fusion, "yaw"):  # the network-centred fusion only (the anchored one has VQF's heading)
         fusion = dataclasses.replace(fusion, yaw=args.yaw)
     paths = [Path(p) for p in args.records]
@@ -135,13 +141,14 @@ def _run(args) -> int:
             sys.stderr.write(f"tepinn-flight estimate: error: {exc if exc.path else f'{src}: {exc}'}\n")
             continue
         table = pa.Table.from_pandas(df, preserve_index=False)
-        selfcal = df.attrs.get("gyro_selfcal")  # what the record's own gyro calibration gave (offline)
+        # what the record's own gyro calibration and GNSS velocity gave (offline)
+        found = {k: df.attrs[k] for k in OFFLINE_STEPS if df.attrs.get(k)}
         table = table.replace_schema_metadata({b"source_record": str(src.name).encode(), b"model": str(ckpt_path.name).encode(),
-                                               **({b"gyro_selfcal": selfcal.encode()} if selfcal else {})})  # fmt: skip
+                                               **{k.encode(): v.encode() for k, v in found.items()}})  # fmt: skip
         atomic_write(dst, lambda tmp: pq.write_table(table, tmp))
         if not args.quiet:
             ok = df["q_est_w"].notna().mean()
-            print(f"{src} -> {dst}: {len(df)} rows, {100 * ok:.1f}% estimated" + (f"; {selfcal}" if selfcal else ""))
+            print(f"{src} -> {dst}: {len(df)} rows, {100 * ok:.1f}% estimated" + "".join(f"; {v}" for v in found.values()))
         if tlogs:
             try:
                 _write_tlog(args, src, rec, df, tlogs[paths.index(src)])

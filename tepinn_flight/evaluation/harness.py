@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ConfigError, TepinnError
+from ..model.estimate import OFFLINE_STEPS
 from ..record import GYR_BIAS_COLS, FlightRecord, estimation_ok
 from ..record_gaps import bridge_gaps
 from . import metrics as M
@@ -177,10 +178,11 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
         res["estimation_ok"] = estimation_ok(m)
         res["imu_rate_hz"] = m.get("imu_rate_hz")
         res["reference_source"] = m.get("reference_source", "none")
-        cal = {name: df.attrs["gyro_selfcal"] for name, (df, _) in rr.items() if df.attrs.get("gyro_selfcal")}
-        if cal:  # what the record's own gyro calibration gave each anchored TE-PINN (offline)
-            res["gyro_selfcal"] = cal
-            notes.extend(f"{names[i]}: {display_name(name)}: {line}" for name, line in cal.items() if line.endswith("; applied"))
+        for step in OFFLINE_STEPS:  # what the record's own gyro calibration and GNSS velocity gave each anchored TE-PINN
+            found = {name: df.attrs[step] for name, (df, _) in rr.items() if df.attrs.get(step)}
+            if found:
+                res[step] = found
+                notes.extend(f"{names[i]}: {display_name(name)}: {line}" for name, line in found.items() if line.endswith("; applied"))
         rec_results.append(res)
         if keep_series:
             series.append(ser)

@@ -120,6 +120,9 @@ class AnchorConfig:
     # offline, the gyro's per-axis scale is also read from the record itself (rests' gravity vs the
     # gyro's turn between them) and applied on evidence only (:mod:`.gyro_selfcal`); live: not
     gyro_selfcal: bool = True
+    # offline, the motion acceleration the record's GNSS velocity shows is taken out of the
+    # accelerometer (:mod:`.gnss_aid`; records without GNSS velocity: nothing changes); live: not
+    gnss_aid: bool = True
     # the older fusion's settings (the checkpoint's fusion_config; filled in when loaded)
     fusion_config: FusionConfig | None = field(default=None, compare=False)
 
@@ -176,7 +179,7 @@ class AnchorConfig:
 
         return dataclasses.replace(self, pull_gain=0.0, centripetal=False, bias_gate_weight=0.0,
                                    bias_deadzone_deg_s=1e9, sigma_net_scale=0.0, gyro_scale=(1.0, 1.0, 1.0),
-                                   gyro_selfcal=False)  # fmt: skip
+                                   gyro_selfcal=False, gnss_aid=False)  # fmt: skip
 
 
 @dataclass
@@ -189,6 +192,10 @@ class WindowOutput:
     vel_m_s: np.ndarray  # (3,) body velocity v̂ (zeros where the model has no such head)
     acc_m_s2: np.ndarray  # (3,) its rate â
     fusion_bias_rad_s: np.ndarray | None = None  # (3,) the older fusion's gyro-bias estimate (pull target "fusion")
+    # the GNSS aid holds at this window's end (:mod:`.gnss_aid`): the receiver measured the motion
+    # acceleration, already out of the accelerometer, so the flight-speed gate (v̂, â, its time
+    # constant) stays shut and the uncalibrated-gyro gate removes the bias without pulling the tilt
+    gnss_aided: bool = False
 
 
 def to_sensor(v_b: np.ndarray) -> np.ndarray:
@@ -344,7 +351,7 @@ class AnchoredVQF:
     def correct(self, w: WindowOutput) -> None:
         """Apply the network's window made at the last sample pushed (see module doc)."""
         c = self.cfg
-        vx, vy, vz = _floats(w.vel_m_s)
+        vx, vy, vz = (0.0, 0.0, 0.0) if w.gnss_aided else _floats(w.vel_m_s)
         speed = math.sqrt(vx * vx + vy * vy + vz * vz)
         g_flight = min(1.0, max(0.0, (speed - c.speed_lo_m_s) / (c.speed_hi_m_s - c.speed_lo_m_s)))
         ct = self.clip_times  # enough saturated time in the last clip_hold_s (clip_min_s 0: one sample)
@@ -373,7 +380,7 @@ class AnchoredVQF:
         self.sigma_net = float(w.sigma_rad)
         if c.centripetal:
             self.vel = np.array([g_flight * vx, g_flight * vy, g_flight * vz])
-            self.acc_v = np.array([g_flight * v for v in _floats(w.acc_m_s2)])
+            self.acc_v = np.array([g_flight * v for v in _floats(w.acc_m_s2)])  # (g_flight 0 where GNSS-aided)
             self.turn_on = bool(self.vel.any() or self.acc_v.any())
         if self.bias_latched:  # the older fusion's bias where it runs (bias states), else the network's
             nb = _norm3(b_h)

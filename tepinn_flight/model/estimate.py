@@ -19,6 +19,7 @@ from ..record import FlightRecord
 from ..record_gaps import bridge_gaps
 from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows
 from .fusion import FusionConfig, FusionRun, feedback_bias
+from .gnss_aid import GnssAidConfig, motion_acc_body, summarize
 from .gyro_selfcal import GyroSelfCal, self_calibrate
 from .runtime import as_runner
 from .streaming import TS_STEPS
@@ -29,6 +30,9 @@ if TYPE_CHECKING:
 
 EST_Q_COLS = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
 EST_BIAS_COLS = ["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]
+#: What the anchored estimate reads from the whole record before its pass (offline only): each one
+#: line in the result's ``attrs`` under this key, ending with "; applied" where it changed the estimate
+OFFLINE_STEPS = ("gyro_selfcal", "gnss_aid")
 
 
 def network_on_windows(model: TEPINN, tok, ends: np.ndarray, gyr_offset: np.ndarray | None = None,
@@ -265,24 +269,45 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     one. ``windows`` takes :func:`anchored_windows`' result when already at hand. Non-finite IMU
     samples are holes, bridged with the last finite sample. With ``anchor.gyro_selfcal`` the gyro's
     scale is first read from the record (:func:`self_calibrated`; offline only), and what was found
-    is in the result's ``attrs["gyro_selfcal"]``."""
+    is in the result's ``attrs["gyro_selfcal"]``. With ``anchor.gnss_aid`` and a record carrying GNSS
+    velocity, the motion acceleration it shows is then taken out of the accelerometer and the filter
+    run again (:func:`gnss_aided_acc`; offline only): ``attrs["gnss_aid"]``."""
     anchor = anchor or AnchorConfig()
     rec, _ = bridge_holes(rec)
     anchor, cal = self_calibrated(anchor, rec)
     if windows is None:
         windows = anchored_windows(model, rec, batch_size, anchor.fusion_config or FusionConfig(), anchor)
     idx, out = windows
-    q_pull = out.get("q_target", out["q"])
-    b_fus = out.get("bias_target")
     use_mag = wants_mag(anchor, rec)
-    n = len(rec)
-    q_out = np.full((n, 4), np.nan)
-    s_out = np.full(n, np.nan)
-    b_out = np.full((n, 3), np.nan)
     t, gyr, acc, mag = rec.t_s, rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut
     cols = (t, gyr, acc, mag, rec.gyr_clipped)  # read from the frame once (each property access copies); the
     # saturation gate opens on the gyro's clipping alone
-    seg = rec.segment
+    q_out, s_out, b_out = _anchored_pass(anchor, rec.segment, cols, idx, out, use_mag)
+    aid = None
+    if anchor.gnss_aid:
+        aid, acc_aided, out_aided = gnss_aided_acc(rec, q_out, anchor, idx, out, cols, use_mag)
+        if acc_aided is not None:
+            q_out, s_out, b_out = _anchored_pass(anchor, rec.segment, (t, gyr, acc_aided, mag, cols[4]), idx,
+                                                 out_aided, use_mag)  # fmt: skip
+    df = _frame(t, q_out, s_out, b_out)
+    if cal is not None:
+        df.attrs["gyro_selfcal"] = cal.describe()
+    if aid is not None:
+        df.attrs["gnss_aid"] = aid.describe()
+    return df
+
+
+def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
+    """One run of the anchored filter over every segment with the network's windows ``(idx, out)``
+    applied at their last samples → (q_nb, sigma, bias) per sample."""
+    t = cols[0]
+    q_pull = out.get("q_target", out["q"])
+    b_fus = out.get("bias_target")
+    aided = out.get("gnss_aided", np.zeros(len(idx), bool))
+    n = len(t)
+    q_out = np.full((n, 4), np.nan)
+    s_out = np.full(n, np.nan)
+    b_out = np.full((n, 3), np.nan)
     bounds = np.flatnonzero(np.diff(seg)) + 1
     for a, b in zip(np.r_[0, bounds], np.r_[bounds, n]):
         dt = np.diff(t[a : min(b, a + TS_STEPS + 1)])  # as the live estimator: its first steps
@@ -294,13 +319,44 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
                 _put(flt, cols, cur, i, q_out, s_out, b_out, use_mag)
                 cur = i
             flt.correct(WindowOutput(q_pull[j], float(out["sigma"][j]), out["bias"][j], out["vel"][j], out["acc_v"][j],
-                                     None if b_fus is None else b_fus[j]))  # fmt: skip
+                                     None if b_fus is None else b_fus[j], bool(aided[j])))  # fmt: skip
         if cur < b:
             _put(flt, cols, cur, b, q_out, s_out, b_out, use_mag)
-    df = _frame(t, q_out, s_out, b_out)
-    if cal is not None:
-        df.attrs["gyro_selfcal"] = cal.describe()
-    return df
+    return q_out, s_out, b_out
+
+
+def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, idx, out, cols, use_mag: bool,
+                   cfg: GnssAidConfig | None = None):  # fmt: skip
+    """The accelerometer (``cols[2]``) with the motion acceleration the record's GNSS velocity shows
+    taken out (:mod:`.gnss_aid`), from the estimate ``q_nb`` and ``cfg.passes`` rounds of
+    re-estimation → (the :class:`GnssAid` found, the aided accelerometer or None where it does not
+    apply, the windows' outputs for the aided filter: each window marked where the aid holds at its
+    end, :class:`.anchor.WindowOutput`'s ``gnss_aided``)."""
+    cfg = cfg or GnssAidConfig()
+    t, acc = cols[0], cols[2]
+    vel = rec.gnss_vel_ne_m_s
+    n = len(acc)
+    none = np.zeros(n, bool)
+    if vel is None:
+        return summarize(none, none, np.zeros((n, 3)), None, cfg), None, out
+    seg = rec.segment
+    bounds = np.flatnonzero(np.diff(seg)) + 1
+    found = (none, none, np.zeros((n, 3)))
+    aided, out_aided = None, out
+    for p in range(cfg.passes):
+        a_b, trusted, covered = np.zeros((n, 3)), none.copy(), none.copy()
+        for a, b in zip(np.r_[0, bounds], np.r_[bounds, n]):
+            a_b[a:b], trusted[a:b], covered[a:b] = motion_acc_body(t[a:b], q_nb[a:b], acc[a:b], vel[a:b], cfg)
+        if not trusted.any():
+            found = found if aided is not None else (trusted, covered, a_b)
+            break
+        found = (trusted, covered, a_b)
+        aided = acc - a_b
+        out_aided = dict(out, gnss_aided=trusted[np.asarray(idx, np.int64)] if len(idx) else np.zeros(0, bool))
+        if p + 1 < cfg.passes:
+            q_nb = _anchored_pass(anchor, seg, (t, cols[1], aided, cols[3], cols[4]), idx, out_aided, use_mag)[0]
+    trusted, covered, a_b = found
+    return summarize(trusted, covered, a_b, vel, cfg), aided, out_aided
 
 
 def self_calibrated(anchor: AnchorConfig, rec: FlightRecord) -> tuple[AnchorConfig, GyroSelfCal | None]:

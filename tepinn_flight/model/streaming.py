@@ -11,9 +11,11 @@ logging dropout (≤ ``record_gaps.MAX_BRIDGED_GAP_S``), bridged as offline: the
 The network runs through a :class:`~.runtime.NetworkRunner`: a :class:`~.network.TEPINN` module
 (PyTorch) or e.g. an :class:`~.runtime.OnnxRunner` (no torch).
 
-One offline step has no live counterpart: the gyro self-calibration (``AnchorConfig.gyro_selfcal``,
-:mod:`.gyro_selfcal`) reads the whole record before the pass. Live, the gyro is scaled by
-``AnchorConfig.gyro_scale`` only, so where the offline self-calibration applies a scale the two differ.
+Two offline steps have no live counterpart, both reading the whole record around the pass: the gyro
+self-calibration (``AnchorConfig.gyro_selfcal``, :mod:`.gyro_selfcal`) and the GNSS-aided tilt
+(``AnchorConfig.gnss_aid``, :mod:`.gnss_aid`: centred averages, a heading fitted over 30 s, a second
+pass). Live, the gyro is scaled by ``AnchorConfig.gyro_scale`` only and the accelerometer is taken as
+it is, so where either offline step applies the two differ.
 """
 
 from __future__ import annotations

@@ -16,7 +16,9 @@ The magnetometer reads ``m = S · (R_nbᵀ (B_n + d_n(t))) + h + k·T(t)·u + n`
 ``S = I + E`` (``E`` symmetric), hard-iron ``h``, white noise, local disturbance episodes ``d_n``
 (earth frame, 1–10 s each) and motor-current interference along a body-fixed unit vector ``u``
 proportional to the thrust ``T`` (true specific force along −z, in g), is sampled at its own rate
-and held (zero-order hold) onto the IMU samples. Datasheet units in the configuration, converted here:
+and held (zero-order hold) onto the IMU samples. The GNSS receiver reports the true horizontal velocity
+``latency_s`` late with white noise, ``rate_hz`` fixes a second, linear between fixes on the IMU samples
+(:class:`GnssConfig`; what ``ingest`` makes of a log's fixes). Datasheet units in the configuration, converted here:
 
 - ``gyro.arw_deg_sqrt_h`` (°/√h = 60 × °/s/√Hz): N = arw / 60 · π/180 rad/s/√Hz;
 - ``accel.vrw_m_s_sqrt_h`` (m/s/√h; 400 µg/√Hz = 0.2354 m/s/√h): N = vrw / 60 m/s²/√Hz;
@@ -120,6 +122,24 @@ class MagConfig:
 
 
 @dataclass(frozen=True)
+class GnssConfig:
+    """GNSS receiver velocity over ground (what a u-blox M8/M9 class receiver reports), horizontal:
+    a fix every ``1 / rate_hz`` s, the true velocity ``latency_s`` earlier plus white noise of
+    σ ``vel_noise_m_s`` per axis, linear between fixes on the IMU samples (as ``ingest`` puts a log's
+    fixes there). Its draws come from a stream of their own: the IMU's realisations do not change."""
+
+    enabled: bool = True
+    rate_hz: float = 5.0  # 5–10 Hz typical (ArduPilot's default GPS rate 5 Hz)
+    vel_noise_m_s: float = 0.05  # u-blox M8: 0.05 m/s speed accuracy (datasheet, 50 %)
+    latency_s: float = 0.1  # measurement to log: 0.05–0.2 s
+
+    def __post_init__(self):
+        check(self.rate_hz > 0 and math.isfinite(self.rate_hz), f"'rate_hz' must be > 0, got {self.rate_hz!r}")
+        for name in ("vel_noise_m_s", "latency_s"):
+            finite_nonneg(name, getattr(self, name))
+
+
+@dataclass(frozen=True)
 class SensorConfig:
     """One sensor suite (a TOML preset in ``flight_sims/sensors/``)."""
 
@@ -130,6 +150,7 @@ class SensorConfig:
     gyro: GyroConfig = field(default_factory=GyroConfig)
     accel: AccelConfig = field(default_factory=AccelConfig)
     mag: MagConfig = field(default_factory=MagConfig)
+    gnss: GnssConfig = field(default_factory=GnssConfig)
 
     def __post_init__(self):
         if self.rate_hz is not None:
@@ -208,6 +229,7 @@ class SensorOutput:
     gyr_bias_rad_s: np.ndarray  # (M, 3) true total bias (turn-on + in-run)
     acc_bias_m_s2: np.ndarray  # (M, 3)
     q_nb_wxyz: np.ndarray  # (M, 4) true attitude at the output samples
+    gnss_vel_ne_m_s: np.ndarray | None = None  # (M, 2) GNSS velocity north, east on the IMU samples (None: off)
     truth: dict = field(default_factory=dict)  # drawn constants: matrices, turn-on biases, iron
 
 
@@ -346,16 +368,32 @@ def apply_sensors(truth: TruthTrajectory, cfg: SensorConfig, rng: np.random.Gene
     q = np.asarray(truth.q_nb_wxyz, np.float64)[idx]
     t = np.asarray(truth.t_s, np.float64)[idx]
 
-    seeds = np.random.SeedSequence(rng.integers(0, 2**63, size=4).tolist()).spawn(3)
-    r_gyr, r_acc, r_mag = (np.random.default_rng(s) for s in seeds)
+    seeds = np.random.SeedSequence(rng.integers(0, 2**63, size=4).tolist()).spawn(4)  # spawn(n)'s first
+    r_gyr, r_acc, r_mag, r_gnss = (np.random.default_rng(s) for s in seeds)  # children do not depend on n
     gyr, gclip, gbias, gtruth = _triad(r_gyr, gyr_x, _gyro_si(cfg.gyro), rate)
     acc, aclip, abias, atruth = _triad(r_acc, acc_x, _accel_si(cfg.accel), rate)
     mag, mtruth = _magnetometer(r_mag, t, q, np.asarray(truth.mag_earth_ut, np.float64), cfg.mag, rate, acc_x)
+    gnss = _gnss(r_gnss, np.asarray(truth.t_s, np.float64), truth.vel_ned_m_s, t, cfg.gnss)
     return SensorOutput(
         t_s=t, index=idx, gyr_rad_s=gyr, acc_m_s2=acc, mag_ut=mag, clipped=gclip | aclip, gyr_clipped=gclip,
-        gyr_bias_rad_s=gbias, acc_bias_m_s2=abias, q_nb_wxyz=q,
+        gyr_bias_rad_s=gbias, acc_bias_m_s2=abias, q_nb_wxyz=q, gnss_vel_ne_m_s=gnss,
         truth={"gyro": gtruth, "accel": atruth, "mag": mtruth, "rate_hz": rate, "decimation": k},
     )  # fmt: skip
+
+
+def _gnss(rng, t_truth, vel_ned_m_s, t_imu, cfg: GnssConfig) -> np.ndarray | None:
+    """GNSS horizontal velocity on the IMU samples (NaN before the first fix; None: disabled or no
+    velocity in the truth)."""
+    if not cfg.enabled or vel_ned_m_s is None or len(t_truth) < 2:
+        return None
+    v = np.asarray(vel_ned_m_s, np.float64)[:, :2]
+    t_fix = np.arange(t_truth[0] + cfg.latency_s, t_truth[-1] + 1e-9, 1.0 / cfg.rate_hz)
+    if len(t_fix) < 2:
+        return None
+    v_fix = np.stack([np.interp(t_fix - cfg.latency_s, t_truth, v[:, k]) for k in range(2)], 1)
+    v_fix += rng.standard_normal(v_fix.shape) * cfg.vel_noise_m_s
+    out = np.stack([np.interp(t_imu, t_fix, v_fix[:, k], left=np.nan, right=np.nan) for k in range(2)], 1)
+    return out
 
 
 def _magnetometer(rng, t, q, b_earth, cfg: MagConfig, imu_rate: float, acc_true=None):

@@ -90,6 +90,7 @@ def record_from_truth(
     df = make_frame(
         out.t_s - out.t_s[0], np.zeros(len(out.t_s), np.int32), out.gyr_rad_s, out.acc_m_s2, out.mag_ut, q,
         out.clipped, gyr_clipped=out.gyr_clipped, gyr_bias_rad_s=out.gyr_bias_rad_s, acc_bias_m_s2=out.acc_bias_m_s2,
+        gnss_vel_ne_m_s=out.gnss_vel_ne_m_s,
     )  # fmt: skip
     tm = _jsonable(truth.meta)
     rate = float(out.truth["rate_hz"])
@@ -113,6 +114,8 @@ def record_from_truth(
         "reference_source": "jsbsim-truth",
         "reference_rate_hz": rate,
         "reference_coverage": 1.0,
+        "gnss_source": "simulated" if out.gnss_vel_ne_m_s is not None else "none",
+        "gnss_rate_hz": float(cfg.gnss.rate_hz) if out.gnss_vel_ne_m_s is not None else None,
         "corrupt_frames": 0,
         "skipped_frames": 0,
         "segments": 1,

@@ -1,0 +1,183 @@
+"""GNSS-aided tilt: the motion acceleration the receiver's velocity shows, taken out of the
+accelerometer before the filter reads it as gravity (offline, whole records).
+
+A gravity-referenced filter (VQF, ours) takes the accelerometer's low-passed direction for "down".
+In a turn, a pull-up or a long acceleration the specific force is ``f = R_bn (a_n − g_n)``: it
+points away from down by ``a_n``, and the filter tilts toward it. The autopilot's own EKF removes
+that with the GNSS velocity; this does the same for any estimator, in three steps:
+
+1. **Motion acceleration in NED** from the receiver: ``a_n = dv/dt``, the velocity's difference
+   over ``smooth_s`` (a centred average of the derivative), read ``latency_s`` later (the fix
+   describes the vehicle a little before it is logged). Horizontal only: a vertical acceleration
+   changes the specific force's length, not its direction.
+2. **The filter's heading**: a 6-D filter's heading is arbitrary and drifts, so ``a_n`` cannot be
+   turned into body axes directly. In the filter's earth frame the specific force's horizontal
+   part *is* the horizontal acceleration, turned by the heading offset ψ: with complex numbers
+   ``f_h ≈ e^{iψ} a_h``. ψ is read over a sliding ``heading_window_s`` as the argument of
+   ``Σ f_h · conj(a_h)``, and trusted where the two agree (coherence
+   ``|Σ f_h conj(a_h)| / √(Σ|f_h|² Σ|a_h|²) ≥ min_coherence``) with enough acceleration to read a
+   direction from (``min_accel_m_s2`` RMS). Elsewhere no correction: where the vehicle hardly
+   accelerates there is nothing to correct either.
+3. **Body axes**: ``a_b = R_nbᵀ e^{iψ} a_h`` with the first pass's attitude; the filter then runs
+   again on ``f − a_b``.
+
+No learned part, no reference. A record without GNSS velocity, or one where it never agrees with
+the accelerometer, gets no correction (the estimate is the plain one, bit for bit).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..config import check, finite_nonneg
+from ..quat import quat_rotate
+
+
+@dataclass(frozen=True)
+class GnssAidConfig:
+    """Settings of the GNSS-aided tilt; the defaults are the shipped estimator's."""
+
+    smooth_s: float = 1.0  # the velocity's difference (and the specific force's average) over this
+    latency_s: float = 0.1  # a fix describes the vehicle this long before its log time
+    heading_window_s: float = 30.0  # the heading offset ψ is read over this sliding window
+    min_coherence: float = 0.7  # ψ trusted where |Σ f conj(a)| / √(Σ|f|² Σ|a|²) reaches this
+    min_accel_m_s2: float = 0.2  # … and the window's RMS horizontal acceleration reaches this
+    # the correction is clipped to this length: beyond it a 5 Hz receiver's differenced velocity is too
+    # coarse to follow (aerobatics: loops at 3 g). Clipped, not dropped: removing the small
+    # accelerations of a manoeuvre and leaving its peaks biases the filter's low-pass, which the
+    # manoeuvre's accelerations otherwise average out of
+    max_accel_m_s2: float = 15.0
+    # no correction above this ground speed (and margin_s around): fast flight is the flight-speed
+    # gate's (the network's motion estimate, :class:`.anchor.AnchorConfig`'s speed_lo_m_s); there the
+    # aid, measured on the training campaign's fixed-wing flights, turned loops, pull-ups and
+    # pushovers into flips
+    max_speed_m_s: float = 20.0
+    margin_s: float = 1.0
+    passes: int = 2  # attitude → correction → attitude, this many corrections
+
+    def __post_init__(self):
+        finite_nonneg("margin_s", self.margin_s)
+        for name in ("smooth_s", "heading_window_s", "min_accel_m_s2", "max_accel_m_s2", "max_speed_m_s"):
+            check(np.isfinite(getattr(self, name)) and getattr(self, name) > 0, f"'{name}' must be > 0")
+        finite_nonneg("latency_s", self.latency_s)
+        check(0.0 <= self.min_coherence <= 1.0, "'min_coherence' must be in [0, 1]")
+        check(int(self.passes) == self.passes and self.passes >= 1, "'passes' must be an integer ≥ 1")
+
+
+@dataclass(frozen=True)
+class GnssAid:
+    """What the GNSS aid found on a record (``describe()`` is what ``estimate`` prints and stores)."""
+
+    applied: bool
+    covered_fraction: float  # samples with a usable GNSS acceleration
+    corrected_fraction: float  # samples whose heading offset was trusted (correction applied)
+    accel_rms_m_s2: float  # RMS of the horizontal motion acceleration where corrected
+    reason: str
+
+    def describe(self) -> str:
+        """One line for a user (ends with "; applied" where it was)."""
+        if not self.applied:
+            return f"GNSS-aided tilt: {self.reason}; not applied"
+        return (f"GNSS-aided tilt: motion acceleration {self.accel_rms_m_s2:.2f} m/s² RMS taken out of the accelerometer on "
+                f"{100 * self.corrected_fraction:.0f} % of the samples (GNSS acceleration on {100 * self.covered_fraction:.0f} %); "
+                "applied")  # fmt: skip
+
+
+def _centred_mean(x: np.ndarray, k: int) -> np.ndarray:
+    """Centred moving average over k samples (fewer at the ends), NaN-aware: NaN where any sample of
+    the window is NaN."""
+    n = len(x)
+    bad = ~np.isfinite(x)
+    z = np.where(bad, 0.0, x)
+    cs = np.concatenate([np.zeros((1,) + z.shape[1:]), np.cumsum(z, axis=0)])
+    cb = np.concatenate([[0], np.cumsum(bad.reshape(n, -1).any(axis=1))])
+    i = np.arange(n)
+    lo = np.clip(i - k // 2, 0, n)
+    hi = np.clip(i - k // 2 + k, 0, n)
+    cnt = (hi - lo).reshape((n,) + (1,) * (x.ndim - 1))
+    out = (cs[hi] - cs[lo]) / cnt
+    out[(cb[hi] - cb[lo]) > 0] = np.nan
+    return out
+
+
+def motion_acc_ne(t_s: np.ndarray, vel_ne_m_s: np.ndarray, cfg: GnssAidConfig) -> np.ndarray:
+    """(N, 2) horizontal motion acceleration (north, east) from the GNSS velocity on the IMU samples:
+    the velocity's difference over ``smooth_s``, read ``latency_s`` later; NaN where either end has no fix."""
+    h = cfg.smooth_s
+    ok = np.all(np.isfinite(vel_ne_m_s), axis=1)
+    out = np.full((len(t_s), 2), np.nan)
+    if ok.sum() < 2:
+        return out
+    tk, vk = t_s[ok], vel_ne_m_s[ok]
+    t_hi = t_s + cfg.latency_s + h / 2
+    t_lo = t_s + cfg.latency_s - h / 2
+    for k in range(2):
+        out[:, k] = (np.interp(t_hi, tk, vk[:, k]) - np.interp(t_lo, tk, vk[:, k])) / h
+    # no fix at either end (outside the covered span, or across a hole in the fixes): NaN
+    covered = np.interp(t_hi, t_s, ok.astype(float)) > 0.999
+    covered &= np.interp(t_lo, t_s, ok.astype(float)) > 0.999
+    covered &= (t_lo >= tk[0]) & (t_hi <= tk[-1])
+    out[~covered] = np.nan
+    return out
+
+
+def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig):
+    """The motion acceleration in body axes (N, 3) to take out of the accelerometer, for one segment
+    estimated as ``q_nb_wxyz`` (any heading origin), and the per-sample mask where it is applied."""
+    n = len(t_s)
+    zero = np.zeros((n, 3))
+    if n < 3:
+        return zero, np.zeros(n, bool), np.zeros(n, bool)
+    dt = float(np.median(np.diff(t_s)))
+    k = max(1, int(round(cfg.smooth_s / dt)))
+    a_ne = motion_acc_ne(t_s, vel_ne_m_s, cfg)
+    covered = np.all(np.isfinite(a_ne), axis=1)
+    f_ne = _centred_mean(quat_rotate(q_nb_wxyz, acc_b)[:, :2], k)  # specific force in the filter's earth frame
+    zf = f_ne[:, 0] + 1j * f_ne[:, 1]
+    za = a_ne[:, 0] + 1j * a_ne[:, 1]
+    use = covered & np.isfinite(zf)
+    w = max(1, int(round(cfg.heading_window_s / dt)))
+    c = _centred_mean(np.where(use, zf * np.conj(za), 0), w)
+    pf = _centred_mean(np.where(use, np.abs(zf) ** 2, 0.0), w)
+    pa = _centred_mean(np.where(use, np.abs(za) ** 2, 0.0), w)
+    frac = _centred_mean(use.astype(float), w)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        coh = np.abs(c) / np.sqrt(pf * pa)
+        rms_a = np.sqrt(pa / np.maximum(frac, 1e-12))
+    trusted = use & (frac > 0.5) & (coh >= cfg.min_coherence) & (rms_a >= cfg.min_accel_m_s2)
+    rot = np.exp(1j * np.angle(c))
+    za_e = rot * za  # the GNSS acceleration in the filter's earth frame
+    speed = np.hypot(vel_ne_m_s[:, 0], vel_ne_m_s[:, 1])
+    wild = ~(speed < cfg.max_speed_m_s)  # NaN (no fix): only where covered, below
+    m = max(1, int(round(2 * cfg.margin_s / dt)) + 1)
+    near_wild = _centred_mean((wild & covered).astype(float), m) > 0
+    trusted &= ~near_wild
+    a_n = np.zeros((n, 3))
+    za_t = za_e[trusted]
+    za_t = za_t * np.minimum(1.0, cfg.max_accel_m_s2 / np.maximum(np.abs(za_t), 1e-12))
+    a_n[trusted, 0] = za_t.real
+    a_n[trusted, 1] = za_t.imag
+    q_conj = q_nb_wxyz * np.array([1.0, -1.0, -1.0, -1.0])
+    a_b = quat_rotate(q_conj, a_n)
+    a_b[~trusted] = 0.0
+    return a_b, trusted, covered
+
+
+def summarize(trusted: np.ndarray, covered: np.ndarray, a_b: np.ndarray, vel_ne_m_s: np.ndarray | None,
+              cfg: GnssAidConfig) -> GnssAid:  # fmt: skip
+    """The :class:`GnssAid` of a record from its per-sample masks and its GNSS velocity (None: none)."""
+    n = max(len(trusted), 1)
+    if vel_ne_m_s is None:
+        return GnssAid(False, 0.0, 0.0, 0.0, "no GNSS velocity in the record")
+    if not covered.any():
+        return GnssAid(False, 0.0, 0.0, 0.0, "no stretch with GNSS fixes long enough for an acceleration")
+    if not trusted.any() and not np.any(np.hypot(vel_ne_m_s[:, 0], vel_ne_m_s[:, 1]) < cfg.max_speed_m_s):
+        return GnssAid(False, float(covered.mean()), 0.0, 0.0,
+                       f"faster than {cfg.max_speed_m_s:g} m/s throughout (fast flight is the flight-speed gate's)")  # fmt: skip
+    if not trusted.any():
+        return GnssAid(False, float(covered.mean()), 0.0, 0.0,
+                       "the GNSS acceleration never agreed with the accelerometer's (or was too small)")  # fmt: skip
+    rms = float(np.sqrt(np.mean(np.sum(a_b[trusted] ** 2, axis=1))))
+    return GnssAid(True, float(covered.sum() / n), float(trusted.sum() / n), rms, "applied")
