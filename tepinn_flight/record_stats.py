@@ -58,6 +58,11 @@ def summarize(rec: FlightRecord) -> dict:
     )
     if "gyr_clipped" in rec.data:
         out["gyr_clipped_samples"] = int(rec.gyr_clipped.sum())
+    vel = rec.gnss_vel_ne_m_s
+    if vel is not None:  # what the GNSS-aided tilt reads
+        ok = np.all(np.isfinite(vel), axis=1)
+        out["gnss"] = {"source": m.get("gnss_source"), "rate_hz": m.get("gnss_rate_hz"), "coverage": float(ok.mean()),
+                       "max_speed_m_s": float(np.hypot(vel[ok, 0], vel[ok, 1]).max()) if ok.any() else 0.0}  # fmt: skip
     if "valid" in rec.data:
         out["valid_fraction"] = float(rec.valid.mean())
     return out

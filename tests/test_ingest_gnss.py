@@ -391,3 +391,18 @@ def test_gnss_columns_survive_a_write_read_round_trip(tmp_path):
     np.testing.assert_array_equal(back.gnss_vel_ne_m_s, rec.gnss_vel_ne_m_s)  # NaN where NaN
     assert np.isfinite(back.gnss_vel_ne_m_s).any()
     assert back.meta["gnss_source"] == "GPS" and back.meta["gnss_rate_hz"] == pytest.approx(rec.meta["gnss_rate_hz"])
+
+
+def test_info_says_whether_a_record_carries_gnss_velocity():
+    from tepinn_flight.cli.summary import render_info
+    from tepinn_flight.record_stats import summarize
+
+    rec = load_record(real_log(ERLE))
+    s = summarize(rec)
+    vel = rec.gnss_vel_ne_m_s
+    ok = np.all(np.isfinite(vel), axis=1)
+    assert s["gnss"]["source"] == "GPS" and s["gnss"]["coverage"] == pytest.approx(ok.mean())
+    assert s["gnss"]["max_speed_m_s"] == pytest.approx(np.hypot(vel[ok, 0], vel[ok, 1]).max())
+    assert "GNSS velocity        GPS at 5.0 Hz" in render_info("erle", s)
+    bare = summarize(load_record(real_log("ardusub_small.BIN")))
+    assert "gnss" not in bare and "GNSS velocity        no" in render_info("sub", bare)

@@ -46,6 +46,10 @@ def render_info(path, s: dict) -> str:
         clip = f"{clip} (gyro {s['gyr_clipped_samples']}: only those open the saturation gate)"
     add("clipped samples", clip)
     add("magnetometer", "yes" if s.get("has_mag") else "no")
+    g = s.get("gnss")
+    add("GNSS velocity", "no (the GNSS-aided tilt does not apply)" if not g else
+        f"{g['source']} at {_hz(g['rate_hz'])}, covers {100 * g['coverage']:.1f}% of IMU samples, "
+        f"ground speed up to {g['max_speed_m_s']:.1f} m/s")  # fmt: skip
     if "valid_fraction" in s:
         add("valid (scored)", f"{100 * s['valid_fraction']:.1f}% of samples")
     add("corrupt frames", s.get("corrupt_frames"))
