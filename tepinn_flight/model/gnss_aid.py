@@ -16,10 +16,17 @@ that with the GNSS velocity; this does the same for any estimator, in three step
    ``f_h ≈ e^{iψ} a_h``. ψ is read over a sliding ``heading_window_s`` as the argument of
    ``Σ f_h · conj(a_h)``, and trusted where the two agree (coherence
    ``|Σ f_h conj(a_h)| / √(Σ|f_h|² Σ|a_h|²) ≥ min_coherence``) with enough acceleration to read a
-   direction from (``min_accel_m_s2`` RMS). Elsewhere no correction: where the vehicle hardly
+   direction from (``min_accel_m_s2`` RMS), below ``max_speed_m_s`` of ground speed (fast flight is
+   the network's flight-speed gate's). Elsewhere no correction: where the vehicle hardly
    accelerates there is nothing to correct either.
-3. **Body axes**: ``a_b = R_nbᵀ e^{iψ} a_h`` with the first pass's attitude; the filter then runs
-   again on ``f − a_b``.
+3. **Body axes**: ``a_b = R_nbᵀ e^{iψ} a_h``, clipped to ``max_accel_m_s2``, with the previous
+   pass's attitude; the filter then runs again on ``f − a_b`` (``passes`` corrections in all:
+   :func:`tepinn_flight.model.estimate.gnss_aided_acc`, which also keeps the flight-speed gate shut
+   in the windows where the aid holds).
+
+Offline only: the averages are centred and the filter runs over the record again. A causal version
+(the acceleration of the last second of fixes, ~0.6 s old) gained nothing on the training flights
+(docs/design-log.md, session 14).
 
 No learned part, no reference. A record without GNSS velocity, or one where it never agrees with
 the accelerometer, gets no correction (the estimate is the plain one, bit for bit).
