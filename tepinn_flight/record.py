@@ -165,6 +165,14 @@ class FlightRecord:
             raise RecordFormatError("gyr_clipped marks samples that clipped does not")
 
 
+def segment_slices(segment: np.ndarray) -> list[slice]:
+    """The rows of each segment (``segment`` is non-decreasing), in order; none for no rows."""
+    if len(segment) == 0:
+        return []
+    bounds = np.flatnonzero(np.diff(segment)) + 1
+    return [slice(int(a), int(b)) for a, b in zip(np.r_[0, bounds], np.r_[bounds, len(segment)])]
+
+
 def make_frame(
     t_s: np.ndarray,
     segment: np.ndarray,

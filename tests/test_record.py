@@ -221,3 +221,14 @@ def test_reference_nan_sample_is_a_hole_and_knots_are_exact():
     ok = np.ones(len(t), bool)
     ok[50] = False
     np.testing.assert_allclose(q[ok], Q.quat_canonical(qr[ok]), atol=1e-12)  # 49 and 51 kept
+
+
+def test_segment_slices_cover_each_segment_in_order():
+    from tepinn_flight.record import segment_slices
+
+    seg = np.array([0, 0, 0, 1, 3, 3, 4], np.int32)
+    sl = segment_slices(seg)
+    assert [(s.start, s.stop) for s in sl] == [(0, 3), (3, 4), (4, 6), (6, 7)]
+    for s in sl:  # a naive reference: every slice holds one segment id, and all of it
+        assert len(set(seg[s])) == 1 and (seg == seg[s][0]).sum() == s.stop - s.start
+    assert segment_slices(np.zeros(0, np.int32)) == []

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..record import FlightRecord
+from ..record import FlightRecord, segment_slices
 
 EST_Q_COLS = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
 EST_BIAS_COLS = ["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]
@@ -39,13 +39,6 @@ def estimate_frame(t_s, q, sigma=None, bias=None) -> pd.DataFrame:
         for i, c in enumerate(EST_BIAS_COLS):
             df[c] = bias[:, i]
     return df
-
-
-def segment_slices(record: FlightRecord):
-    seg = record.segment
-    n = len(seg)
-    bounds = np.flatnonzero(np.diff(seg)) + 1
-    return [slice(a, b) for a, b in zip(np.r_[0, bounds], np.r_[bounds, n])]
 
 
 def record_mag(record: FlightRecord) -> np.ndarray | None:
@@ -71,7 +64,7 @@ class FilterEstimator:
         sigma = bias = None
         gyr, acc, t = record.gyr_rad_s, record.acc_m_s2, record.t_s
         mag = record_mag(record) if self.uses_mag else None
-        for sl in segment_slices(record):
+        for sl in segment_slices(record.segment):
             kw = {}
             if self.q0_fn is not None:
                 kw["q0"] = self.q0_fn(record, sl)

@@ -34,7 +34,7 @@ import numpy as np
 
 from ..errors import ConfigError, TepinnError
 from ..model.estimate import OFFLINE_STEPS
-from ..record import GYR_BIAS_COLS, FlightRecord, estimation_ok
+from ..record import GYR_BIAS_COLS, FlightRecord, estimation_ok, segment_slices
 from ..record_gaps import bridge_gaps
 from . import metrics as M
 from .estimators import EST_BIAS_COLS, EST_Q_COLS
@@ -73,9 +73,8 @@ def scoring_mask(rec: FlightRecord, warmup_s: float) -> np.ndarray:
     seg = rec.segment
     n = len(t)
     start = np.empty(n)
-    bounds = np.flatnonzero(np.diff(seg)) + 1
-    for a, b in zip(np.r_[0, bounds], np.r_[bounds, n]):
-        start[a:b] = t[a]
+    for sl in segment_slices(seg):
+        start[sl] = t[sl.start]
     return rec.valid & np.all(np.isfinite(rec.q_ref_wxyz), axis=1) & (t - start >= warmup_s)
 
 

@@ -25,8 +25,8 @@ from ..conventions import GRAVITY_M_S2
 from ..quat import quat_mul, quat_normalize
 from ..model.anchor import _FLIP, Q_NED_ENU, Q_SENSOR_BODY  # the frames VQF works in: one home
 from ..model.anchor import to_sensor as body_to_zup_sensor  # body FRD → the z-up sensor frame S
-from ..record import FlightRecord
-from .estimators import estimate_frame, record_mag, segment_slices
+from ..record import FlightRecord, segment_slices
+from .estimators import estimate_frame, record_mag
 from .names import display_name
 
 
@@ -57,7 +57,7 @@ class _PeerBase:
         bias = None
         gyr, acc, t = record.gyr_rad_s, record.acc_m_s2, record.t_s
         mag = record_mag(record) if self.uses_mag else None
-        for sl in segment_slices(record):
+        for sl in segment_slices(record.segment):
             g = body_to_zup_sensor(np.nan_to_num(gyr[sl]))
             a = body_to_zup_sensor(np.nan_to_num(acc[sl]))
             m = None if mag is None else body_to_zup_sensor(np.nan_to_num(mag[sl]))

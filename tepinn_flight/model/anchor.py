@@ -194,7 +194,7 @@ class WindowOutput:
     fusion_bias_rad_s: np.ndarray | None = None  # (3,) the older fusion's gyro-bias estimate (pull target "fusion")
     # the GNSS aid holds at this window's end (:mod:`.gnss_aid`): the receiver measured the motion
     # acceleration, already out of the accelerometer, so the flight-speed gate (v̂, â, its time
-    # constant) stays shut and the uncalibrated-gyro gate removes the bias without pulling the tilt
+    # constant and its pull) stays shut; the other gates act as elsewhere
     gnss_aided: bool = False
 
 

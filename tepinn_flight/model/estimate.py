@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import TepinnError
-from ..record import FlightRecord
+from ..record import FlightRecord, segment_slices
 from ..record_gaps import bridge_gaps
 from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows
 from .fusion import FusionConfig, FusionRun, feedback_bias
@@ -128,8 +128,8 @@ def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | Anc
     t = rec.t_s
     gyr = rec.gyr_rad_s
     clipped = rec.clipped
-    bounds = np.flatnonzero(np.diff(seg)) + 1
-    for a, b in zip(np.r_[0, bounds], np.r_[bounds, n]):
+    for sl in segment_slices(seg):
+        a, b = sl.start, sl.stop
         m = (idx >= a) & (idx < b)
         run = FusionRun(t[a:b], gyr[a:b], fusion, clipped[a:b])
         if feedback > 0:
@@ -190,8 +190,8 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
     b_old = np.full((n, 3), np.nan)
     parts, chosen = [], []
     t, gyr, clipped = rec.t_s, rec.gyr_rad_s, rec.clipped
-    bounds = np.flatnonzero(np.diff(rec.segment)) + 1
-    for a, b in zip(np.r_[0, bounds], np.r_[bounds, n]):
+    for sl in segment_slices(rec.segment):
+        a, b = sl.start, sl.stop
         pos = np.flatnonzero((idx >= a) & (idx < b))
         e_seg, i_seg = ends[pos], idx[pos] - a
         run = FusionRun(t[a:b], gyr[a:b], fusion, clipped[a:b])
@@ -308,8 +308,8 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
     q_out = np.full((n, 4), np.nan)
     s_out = np.full(n, np.nan)
     b_out = np.full((n, 3), np.nan)
-    bounds = np.flatnonzero(np.diff(seg)) + 1
-    for a, b in zip(np.r_[0, bounds], np.r_[bounds, n]):
+    for sl in segment_slices(seg):
+        a, b = sl.start, sl.stop
         dt = np.diff(t[a : min(b, a + TS_STEPS + 1)])  # as the live estimator: its first steps
         flt = AnchoredVQF(anchor, float(np.median(dt)) if dt.size else 0.01, use_mag)
         cur = a
@@ -340,15 +340,15 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
     if vel is None:
         return summarize(none, none, np.zeros((n, 3)), None, cfg), None, out
     seg = rec.segment
-    bounds = np.flatnonzero(np.diff(seg)) + 1
-    found = (none, none, np.zeros((n, 3)))
+    found = (none, none, np.zeros((n, 3)))  # the masks and correction of the last pass that applied
     aided, out_aided = None, out
     for p in range(cfg.passes):
         a_b, trusted, covered = np.zeros((n, 3)), none.copy(), none.copy()
-        for a, b in zip(np.r_[0, bounds], np.r_[bounds, n]):
-            a_b[a:b], trusted[a:b], covered[a:b] = motion_acc_body(t[a:b], q_nb[a:b], acc[a:b], vel[a:b], cfg)
+        for sl in segment_slices(seg):
+            a_b[sl], trusted[sl], covered[sl] = motion_acc_body(t[sl], q_nb[sl], acc[sl], vel[sl], cfg)
         if not trusted.any():
-            found = found if aided is not None else (trusted, covered, a_b)
+            if aided is None:  # nothing applies: say why from this pass's masks
+                found = (trusted, covered, a_b)
             break
         found = (trusted, covered, a_b)
         aided = acc - a_b

@@ -94,7 +94,8 @@ class GnssAid:
 
 def _centred_mean(x: np.ndarray, k: int) -> np.ndarray:
     """Centred moving average over k samples (fewer at the ends), NaN-aware: NaN where any sample of
-    the window is NaN."""
+    the window is NaN. (``gyro_selfcal._boxcar`` is the rest detector's: NaN-free input, the edges
+    holding the nearest full average.)"""
     n = len(x)
     bad = ~np.isfinite(x)
     z = np.where(bad, 0.0, x)
@@ -134,9 +135,8 @@ def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig):
     """The motion acceleration in body axes (N, 3) to take out of the accelerometer, for one segment
     estimated as ``q_nb_wxyz`` (any heading origin), and the per-sample mask where it is applied."""
     n = len(t_s)
-    zero = np.zeros((n, 3))
     if n < 3:
-        return zero, np.zeros(n, bool), np.zeros(n, bool)
+        return np.zeros((n, 3)), np.zeros(n, bool), np.zeros(n, bool)
     dt = float(np.median(np.diff(t_s)))
     k = max(1, int(round(cfg.smooth_s / dt)))
     a_ne = motion_acc_ne(t_s, vel_ne_m_s, cfg)
@@ -167,9 +167,7 @@ def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig):
     a_n[trusted, 0] = za_t.real
     a_n[trusted, 1] = za_t.imag
     q_conj = q_nb_wxyz * np.array([1.0, -1.0, -1.0, -1.0])
-    a_b = quat_rotate(q_conj, a_n)
-    a_b[~trusted] = 0.0
-    return a_b, trusted, covered
+    return quat_rotate(q_conj, a_n), trusted, covered  # zero where not trusted
 
 
 def summarize(trusted: np.ndarray, covered: np.ndarray, a_b: np.ndarray, vel_ne_m_s: np.ndarray | None,

@@ -382,8 +382,8 @@ def apply_sensors(truth: TruthTrajectory, cfg: SensorConfig, rng: np.random.Gene
 
 
 def _gnss(rng, t_truth, vel_ned_m_s, t_imu, cfg: GnssConfig) -> np.ndarray | None:
-    """GNSS horizontal velocity on the IMU samples (NaN before the first fix; None: disabled or no
-    velocity in the truth)."""
+    """GNSS horizontal velocity on the IMU samples (NaN before the first fix and after the last; None:
+    disabled or no velocity in the truth)."""
     if not cfg.enabled or vel_ned_m_s is None or len(t_truth) < 2:
         return None
     v = np.asarray(vel_ned_m_s, np.float64)[:, :2]
@@ -392,8 +392,7 @@ def _gnss(rng, t_truth, vel_ned_m_s, t_imu, cfg: GnssConfig) -> np.ndarray | Non
         return None
     v_fix = np.stack([np.interp(t_fix - cfg.latency_s, t_truth, v[:, k]) for k in range(2)], 1)
     v_fix += rng.standard_normal(v_fix.shape) * cfg.vel_noise_m_s
-    out = np.stack([np.interp(t_imu, t_fix, v_fix[:, k], left=np.nan, right=np.nan) for k in range(2)], 1)
-    return out
+    return np.stack([np.interp(t_imu, t_fix, v_fix[:, k], left=np.nan, right=np.nan) for k in range(2)], 1)
 
 
 def _magnetometer(rng, t, q, b_earth, cfg: MagConfig, imu_rate: float, acc_true=None):
