@@ -10,8 +10,9 @@ Inclination RMSE per file (5 s warm-up, the same samples for every estimator), t
 TE-PINN's gyro self-calibration applied (with what it read), the mean per kind,
 ratios to VQF side by side, the per-file check of the issue (TE-PINN ≤ max(1.5× VQF, VQF + 0.5°)),
 and TE-PINN's σ calibration on the real files (mean NEES, share within 3σ, per file averaged).
+`--smooth` adds TE-PINN with the opt-in offline tilt smoothing (`estimate --smooth`) as its own column.
 
-    python benchmarks/real_vs_peers.py [--shared ../shared] [--sim-every 4] [--model CKPT] [--lstm CKPT]
+    python benchmarks/real_vs_peers.py [--shared ../shared] [--sim-every 4] [--model CKPT] [--lstm CKPT] [--smooth]
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ def main() -> int:
     ap.add_argument("--sim-every", type=int, default=4, help="every N-th held-out flight (0: none)")
     ap.add_argument("--model", default=None, help="TE-PINN checkpoint (default: shipped)")
     ap.add_argument("--lstm", default=None, help="LSTM baseline checkpoint (default: shipped)")
+    ap.add_argument("--smooth", action="store_true", help="add TE-PINN with the offline tilt smoothing (estimate --smooth)")
     args = ap.parse_args()
 
     import torch
@@ -77,6 +79,8 @@ def main() -> int:
 
     ests = [TepinnEstimator.from_checkpoint(args.model or default_model_path(), "tepinn"), VqfEstimator(),
             TepinnEstimator.from_checkpoint(args.lstm or default_lstm_path(), "lstm"), FilterEstimator(Ekf(), name="ekf")]  # fmt: skip
+    if args.smooth:
+        ests.insert(1, ests[0].smoothed())
     names = [e.name for e in ests]
     rows = []
     t0 = time.perf_counter()
@@ -94,9 +98,11 @@ def main() -> int:
                 r["selfcal"] = df.attrs["gyro_selfcal"]
             if e.name == "tepinn" and str(df.attrs.get("gnss_aid", "")).endswith("; applied"):
                 r["gnss"] = df.attrs["gnss_aid"]
-            if e.name == "tepinn" and kind != "simulated" and "sigma_rad" in df:
+            if e.name.startswith("tepinn") and kind != "simulated" and "sigma_rad" in df:
                 u = uncertainty_metrics(tilt_error_vector_rad(qe), df["sigma_rad"].to_numpy()[mm])
-                r["nees"], r["in3"] = u["nees"], u["coverage_3sigma"]
+                r[f"nees:{e.name}"], r[f"in3:{e.name}"] = u["nees"], u["coverage_3sigma"]
+            if e.name == "tepinn-smooth" and str(df.attrs.get("smoother", "")).endswith("; applied"):
+                r["smooth"] = df.attrs["smoother"]
         rows.append(r)
     print(f"\n{len(files)} files, {time.perf_counter() - t0:.0f} s; inclination RMSE (deg), 5 s warm-up\n")
     head = f"{'kind':<10} {'group':<26} {'file':<44} {'split':<9}" + "".join(f"{display_name(n):>9}" for n in names)
@@ -111,6 +117,9 @@ def main() -> int:
     aided = [r for r in rows if "gnss" in r]
     print(f"TE-PINN's GNSS-aided tilt applied on {len(aided)} of {len(rows)} files"
           + "".join(f"\n  {r['name'][:44]}: {r['gnss']}" for r in aided))
+    if args.smooth:
+        sm = [r for r in rows if "smooth" in r]
+        print(f"TE-PINN --smooth: offline tilt smoothing applied on {len(sm)} of {len(rows)} files")
     print()
     for kind in ("drone log", "BROAD", "simulated"):
         for held in (True, False):
@@ -123,10 +132,15 @@ def main() -> int:
                 f" {display_name(n)} {means[n]:.2f}" for n in names)
             print(line + f" | TE-PINN/VQF {means['tepinn'] / means['vqf']:.3f}, /LSTM {means['tepinn'] / means['lstm']:.3f}"
                          f", /EKF {means['tepinn'] / means['ekf']:.3f}; files failing the per-file check: {fails}")  # fmt: skip
-            nees = [r["nees"] for r in sel if "nees" in r and np.isfinite(r["nees"])]
-            if nees:
-                print(f"{'':<10} σ: mean NEES {np.mean(nees):.2f} (target 1.5–2.5), within 3σ "
-                      f"{100 * np.mean([r['in3'] for r in sel if 'in3' in r]):.1f} % (target ≥ 97 %), per file averaged")
+            if "tepinn-smooth" in names:
+                print(f"{'':<10} TE-PINN --smooth/VQF {means['tepinn-smooth'] / means['vqf']:.3f}, /LSTM "
+                      f"{means['tepinn-smooth'] / means['lstm']:.3f}; files failing the per-file check: "
+                      f"{sum(r['tepinn-smooth'] > max(1.5 * r['vqf'], r['vqf'] + 0.5) for r in sel)}")
+            for n in [n for n in names if n.startswith("tepinn")]:
+                nees = [r[f"nees:{n}"] for r in sel if np.isfinite(r.get(f"nees:{n}", np.nan))]
+                if nees:
+                    print(f"{'':<10} σ of {display_name(n)}: mean NEES {np.mean(nees):.2f} (target 1.5–2.5), within 3σ "
+                          f"{100 * np.mean([r[f'in3:{n}'] for r in sel if f'in3:{n}' in r]):.1f} % (target ≥ 97 %), per file averaged")
     return 0
 
 

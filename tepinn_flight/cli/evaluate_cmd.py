@@ -37,6 +37,8 @@ def add_arguments(p) -> None:
     p.add_argument("--busy-stride", type=busy_stride, default=0, metavar="N",
                    help="add each TE-PINN model once more, running every N-th window where the network stays busy "
                         "(estimate --busy-stride N: the speed knob), to see what it costs on these records")
+    p.add_argument("--smooth", action="store_true",
+                   help="add TE-PINN with the offline tilt smoothing (estimate --smooth) beside the model as it ships")
     p.add_argument("--with-mag", action="store_true", help="add 9-D variants (magnetometer) of TE-PINN, the filters and the peers: scored without the heading alignment")
     p.add_argument("--no-peers", action="store_true", help="skip the published peers (VQF, RIANN, Fusion)")
     p.add_argument("--config", metavar="TOML", help="filter parameters: [madgwick], [complementary], [ekf] tables, peers = [...]")
@@ -110,6 +112,12 @@ def _run(args) -> int:
             if not strided:
                 notes.append(f"--busy-stride {args.busy_stride}: no model here runs the anchored estimator; nothing added")
             estimators += strided
+        if args.smooth:  # the opt-in offline smoothing beside the model as it ships (6-D)
+            smooth = [es for e in list(estimators) if hasattr(e, "smoothed") and not e.uses_mag and "-stride" not in e.name
+                      and (es := e.smoothed()) is not None]  # fmt: skip
+            if not smooth:
+                notes.append("--smooth: no model here runs the anchored estimator; nothing added")
+            estimators += smooth
     else:
         notes.append("TE-PINN not evaluated (--no-model)")
     estimators += baseline_estimators(cfg, with_mag=args.with_mag)

@@ -83,10 +83,17 @@ class TepinnEstimator:
     """TE-PINN from a checkpoint: ``tepinn_flight.model.estimate.estimate_record``."""
 
     kind = "learned"
-    causal = True
 
     def __init__(self, model, fusion, name: str = "tepinn", checkpoint: str | None = None):
         self.model, self.fusion, self.name, self.checkpoint = model, fusion, name, checkpoint
+
+    @property
+    def causal(self) -> bool:
+        """Each estimate from past samples only: not where an offline step reads the whole record
+        (the anchored estimator's gyro self-calibration, GNSS aid or smoothing: ``OFFLINE_STEPS``)."""
+        from ..model.estimate import OFFLINE_STEPS
+
+        return not any(getattr(self.fusion, step, False) for step in OFFLINE_STEPS)
 
     @property
     def uses_mag(self) -> bool:
@@ -113,6 +120,18 @@ class TepinnEstimator:
         if not isinstance(self.fusion, AnchorConfig):
             return None
         return TepinnEstimator(self.model, with_busy_stride(self.fusion, n), f"{self.name}-stride{n}", self.checkpoint)
+
+    def smoothed(self) -> TepinnEstimator | None:
+        """The same model with the offline tilt smoothing on (``name-smooth``:
+        :mod:`~tepinn_flight.model.smoother`), or None for a checkpoint that runs the older
+        network-centred fusion."""
+        import dataclasses
+
+        from ..model.anchor import AnchorConfig
+
+        if not isinstance(self.fusion, AnchorConfig):
+            return None
+        return TepinnEstimator(self.model, dataclasses.replace(self.fusion, smoother=True), self.name + "-smooth", self.checkpoint)
 
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike, name: str | None = None) -> TepinnEstimator:

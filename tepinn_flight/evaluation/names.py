@@ -49,6 +49,8 @@ def display_name(name: str) -> str:
     name = str(name)
     if name in _BASE:
         return _BASE[name]
+    if name.endswith("-smooth") and name[: -len("-smooth")] in _BASE:  # evaluate --smooth
+        return f"{_BASE[name[: -len('-smooth')]]}, smoothed offline"
     m = re.fullmatch(r"(.+)-stride([0-9]+)", name)  # evaluate --busy-stride N
     if m and m.group(1) in _BASE:
         return f"{_BASE[m.group(1)]}, busy stride {m.group(2)}"

@@ -123,6 +123,11 @@ class AnchorConfig:
     # offline, the motion acceleration the record's GNSS velocity shows is taken out of the
     # accelerometer (:mod:`.gnss_aid`; records without GNSS velocity: nothing changes); live: not
     gnss_aid: bool = True
+    # offline, opt-in (`estimate --smooth`): the tilt of every long stretch where no gate acts is VQF's
+    # run forward and backward on the same inputs (:mod:`.smoother`, ``vqf.offlineVQF``; heading kept).
+    # Not the shipped default: nearer the true attitude (BROAD's optical truth, simulations), farther
+    # from an autopilot's own causal estimate on the held-out drone logs (session 15, README)
+    smoother: bool = False
     # the older fusion's settings (the checkpoint's fusion_config; filled in when loaded)
     fusion_config: FusionConfig | None = field(default=None, compare=False)
 
@@ -179,7 +184,7 @@ class AnchorConfig:
 
         return dataclasses.replace(self, pull_gain=0.0, centripetal=False, bias_gate_weight=0.0,
                                    bias_deadzone_deg_s=1e9, sigma_net_scale=0.0, gyro_scale=(1.0, 1.0, 1.0),
-                                   gyro_selfcal=False, gnss_aid=False)  # fmt: skip
+                                   gyro_selfcal=False, gnss_aid=False, smoother=False)  # fmt: skip
 
 
 @dataclass

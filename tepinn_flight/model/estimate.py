@@ -1,6 +1,7 @@
 """Offline estimation over whole records: batched sliding windows, then the causal pass — the
-filter-anchored VQF (:func:`estimate_anchored`, the shipped model) or the older network-centred
-fusion (:func:`estimate_record` with a :class:`FusionConfig`).
+filter-anchored VQF (:func:`estimate_anchored`, the shipped model, followed offline by the tilt
+smoothing of its ungated stretches) or the older network-centred fusion (:func:`estimate_record`
+with a :class:`FusionConfig`).
 
 ``model`` is a :class:`~.network.TEPINN` (run in PyTorch) or any :class:`~.runtime.NetworkRunner`
 (e.g. :class:`~.runtime.OnnxRunner`: no torch needed)."""
@@ -17,11 +18,12 @@ import pandas as pd
 from ..errors import TepinnError
 from ..record import FlightRecord, segment_slices
 from ..record_gaps import bridge_gaps
-from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows
+from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows, q_nb_from_vqf, to_sensor
 from .fusion import FusionConfig, FusionRun, feedback_bias
 from .gnss_aid import GnssAidConfig, motion_acc_body, summarize
 from .gyro_selfcal import GyroSelfCal, self_calibrate
 from .runtime import as_runner
+from .smoother import SmootherConfig, smooth
 from .streaming import TS_STEPS
 from .tokens import tokenize, tokenize_record
 
@@ -30,9 +32,9 @@ if TYPE_CHECKING:
 
 EST_Q_COLS = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
 EST_BIAS_COLS = ["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]
-#: What the anchored estimate reads from the whole record before its pass (offline only): each one
-#: line in the result's ``attrs`` under this key, ending with "; applied" where it changed the estimate
-OFFLINE_STEPS = ("gyro_selfcal", "gnss_aid")
+#: What the anchored estimate reads from the whole record (offline only): each one line in the
+#: result's ``attrs`` under this key, ending with "; applied" where it changed the estimate
+OFFLINE_STEPS = ("gyro_selfcal", "gnss_aid", "smoother")
 
 
 def network_on_windows(model: TEPINN, tok, ends: np.ndarray, gyr_offset: np.ndarray | None = None,
@@ -271,7 +273,9 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     scale is first read from the record (:func:`self_calibrated`; offline only), and what was found
     is in the result's ``attrs["gyro_selfcal"]``. With ``anchor.gnss_aid`` and a record carrying GNSS
     velocity, the motion acceleration it shows is then taken out of the accelerometer and the filter
-    run again (:func:`gnss_aided_acc`; offline only): ``attrs["gnss_aid"]``."""
+    run again (:func:`gnss_aided_acc`; offline only): ``attrs["gnss_aid"]``. With ``anchor.smoother``
+    the tilt of every long enough stretch where no gate acts is then VQF's run forward and backward
+    on the same inputs (:mod:`.smoother`; offline only): ``attrs["smoother"]``."""
     anchor = anchor or AnchorConfig()
     rec, _ = bridge_holes(rec)
     anchor, cal = self_calibrated(anchor, rec)
@@ -282,24 +286,42 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     t, gyr, acc, mag = rec.t_s, rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut
     cols = (t, gyr, acc, mag, rec.gyr_clipped)  # read from the frame once (each property access copies); the
     # saturation gate opens on the gyro's clipping alone
-    q_out, s_out, b_out = _anchored_pass(anchor, rec.segment, cols, idx, out, use_mag)
+    q_out, s_out, b_out, gate = _anchored_pass(anchor, rec.segment, cols, idx, out, use_mag)
     aid = None
     if anchor.gnss_aid:
         aid, acc_aided, out_aided = gnss_aided_acc(rec, q_out, anchor, idx, out, cols, use_mag)
         if acc_aided is not None:
-            q_out, s_out, b_out = _anchored_pass(anchor, rec.segment, (t, gyr, acc_aided, mag, cols[4]), idx,
-                                                 out_aided, use_mag)  # fmt: skip
+            cols = (t, gyr, acc_aided, mag, cols[4])
+            q_out, s_out, b_out, gate = _anchored_pass(anchor, rec.segment, cols, idx, out_aided, use_mag)
+    done = None
+    if anchor.smoother:
+        q_out, s_out, done = smooth(t, q_out, s_out, gate, rec.segment, SmootherConfig(),
+                             lambda sl: offline_vqf(anchor, t[sl], gyr[sl], cols[2][sl]))  # fmt: skip
     df = _frame(t, q_out, s_out, b_out)
-    if cal is not None:
-        df.attrs["gyro_selfcal"] = cal.describe()
-    if aid is not None:
-        df.attrs["gnss_aid"] = aid.describe()
+    for key, found in (("gyro_selfcal", cal), ("gnss_aid", aid), ("smoother", done)):
+        if found is not None:
+            df.attrs[key] = found.describe()
     return df
+
+
+def offline_vqf(anchor: AnchorConfig, t_s, gyr_b, acc_b) -> np.ndarray:
+    """``vqf.offlineVQF`` (forward and backward, acausal) on one run of samples with the anchored
+    filter's settings (its accelerometer time constant, bias limit and gyro scale; its sampling
+    time as the live estimator takes it) → its 6-D attitude, body→NED, per sample."""
+    import vqf
+
+    dt = np.diff(t_s[: TS_STEPS + 1])
+    ts = float(np.median(dt)) if dt.size else 0.01
+    g = np.asarray(gyr_b, np.float64) * np.asarray(anchor.gyro_scale)
+    params = {"tauAcc": float(anchor.tau_acc_s), "biasClip": float(anchor.bias_clip_deg_s)}
+    res = vqf.offlineVQF(to_sensor(g), to_sensor(acc_b), None, ts, params)
+    return q_nb_from_vqf(res["quat6D"])
 
 
 def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
     """One run of the anchored filter over every segment with the network's windows ``(idx, out)``
-    applied at their last samples → (q_nb, sigma, bias) per sample."""
+    applied at their last samples → (q_nb, sigma, bias, gate) per sample; the gate (the largest of
+    the filter's gates, 0 where the estimate is VQF's) is each window's from the sample after it."""
     t = cols[0]
     q_pull = out.get("q_target", out["q"])
     b_fus = out.get("bias_target")
@@ -308,6 +330,7 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
     q_out = np.full((n, 4), np.nan)
     s_out = np.full(n, np.nan)
     b_out = np.full((n, 3), np.nan)
+    gate = np.zeros(n)
     for sl in segment_slices(seg):
         a, b = sl.start, sl.stop
         dt = np.diff(t[a : min(b, a + TS_STEPS + 1)])  # as the live estimator: its first steps
@@ -320,9 +343,10 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
                 cur = i
             flt.correct(WindowOutput(q_pull[j], float(out["sigma"][j]), out["bias"][j], out["vel"][j], out["acc_v"][j],
                                      None if b_fus is None else b_fus[j], bool(aided[j])))  # fmt: skip
+            gate[i:b] = flt.gate
         if cur < b:
             _put(flt, cols, cur, b, q_out, s_out, b_out, use_mag)
-    return q_out, s_out, b_out
+    return q_out, s_out, b_out, gate
 
 
 def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, idx, out, cols, use_mag: bool,
