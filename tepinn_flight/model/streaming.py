@@ -11,11 +11,12 @@ logging dropout (≤ ``record_gaps.MAX_BRIDGED_GAP_S``), bridged as offline: the
 The network runs through a :class:`~.runtime.NetworkRunner`: a :class:`~.network.TEPINN` module
 (PyTorch) or e.g. an :class:`~.runtime.OnnxRunner` (no torch).
 
-Two offline steps have no live counterpart, both reading the whole record around the pass: the gyro
-self-calibration (``AnchorConfig.gyro_selfcal``, :mod:`.gyro_selfcal`) and the GNSS-aided tilt
+Three offline steps have no live counterpart, all reading the whole record around the pass: the gyro
+self-calibration (``AnchorConfig.gyro_selfcal``, :mod:`.gyro_selfcal`), the GNSS-aided tilt
 (``AnchorConfig.gnss_aid``, :mod:`.gnss_aid`: centred averages, a heading fitted over 30 s, a second
-pass). Live, the gyro is scaled by ``AnchorConfig.gyro_scale`` only and the accelerometer is taken as
-it is, so where either offline step applies the two differ.
+pass) and the opt-in tilt smoothing (``AnchorConfig.smoother``, :mod:`.smoother`: VQF backward too).
+Live, the gyro is scaled by ``AnchorConfig.gyro_scale`` only, the accelerometer is taken as it is and
+nothing is smoothed, so where an offline step applies the two differ.
 """
 
 from __future__ import annotations
