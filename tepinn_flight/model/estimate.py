@@ -1,5 +1,5 @@
 """Offline estimation over whole records: batched sliding windows, then the causal pass — the
-filter-anchored VQF (:func:`estimate_anchored`, the shipped model, followed offline by the tilt
+filter-anchored VQF (:func:`estimate_anchored`, the shipped model; on request followed by the tilt
 smoothing of its ungated stretches) or the older network-centred fusion (:func:`estimate_record`
 with a :class:`FusionConfig`).
 
