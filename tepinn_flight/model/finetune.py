@@ -8,7 +8,10 @@ file. Then the anchored estimator's VQF accelerometer time constant is chosen on
 trade-off between gyro and accelerometer, and the one that fits the vehicle's logs is a property of
 the vehicle (vibration, typical accelerations). So is its gyro's scale per axis, fitted next on the
 same files and kept only where it gains 2 % (session 10: on the BROAD trials, one IMU, a z scale of
-1.005 took VQF from 0.683° to 0.550°). ``RUN_DIR/model.pt`` then works with
+1.005 took VQF from 0.683° to 0.550°). Last, σ (``sigma_floor_deg`` σ₀, ``sigma_acc_gain`` c) is
+fitted on the same files against their reference (:func:`fit_anchor_sigma`): how far the estimate
+strays from the vehicle's own autopilot is the vehicle's too — the shipped σ was fitted on BROAD's
+optical truth. ``RUN_DIR/model.pt`` then works with
 ``estimate --model``; ``RUN_DIR/finetune.json`` holds the before/after figures on the validation
 files.
 """
@@ -35,6 +38,9 @@ GYRO_SCALE_GRID = (0.99, 0.995, 0.9975, 1.0025, 1.005, 1.01)
 GYRO_SCALE_MIN_GAIN = 0.02
 #: passes over the three axes (a second one undoes what the first axis took from the others' errors)
 GYRO_SCALE_PASSES = 2
+#: σ is fitted for mean NEES nearest 2 among the (σ₀, c) keeping at least this share of the samples
+#: within 3σ, per file averaged (a margin over the 97 % that a calibrated σ should reach)
+SIGMA_COVERAGE = 0.975
 
 
 def finetune_config(model_config, records: list[str], minutes: float = 6.0, seed: int = 0) -> TrainConfig:
@@ -114,6 +120,43 @@ def tune_anchor(model, anchor, records: list[FlightRecord], grid=TAU_ACC_GRID_S,
     return cur, table, scales
 
 
+def sigma_samples(model, anchor, records: list[FlightRecord], warmup_s: float = 5.0):
+    """Per file, the scored samples' squared 2-D tilt error against the reference and the σ model's
+    input e (:mod:`~tepinn_flight.evaluation.sigma_calibration`), from the estimator ``anchor`` itself."""
+    from ..evaluation.harness import scoring_mask
+    from ..evaluation.metrics import error_quat_earth, tilt_error_vector_rad
+    from ..evaluation.sigma_calibration import ErrorSamples
+    from .estimate import estimate_anchored
+
+    probe = dataclasses.replace(anchor, sigma_floor_deg=0.0, sigma_acc_gain=1.0, sigma_net_scale=0.0)  # σ = e
+    out = []
+    for i, r in enumerate(records):
+        est = estimate_anchored(model, r, probe)
+        q = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+        e = est["sigma_rad"].to_numpy()
+        m = scoring_mask(r, warmup_s) & np.all(np.isfinite(q), axis=1) & np.isfinite(e)
+        ev = tilt_error_vector_rad(error_quat_earth(q[m], r.q_ref_wxyz[m]))
+        out.append(ErrorSamples(str(i), np.sum(ev**2, axis=1), e[m]))
+    return out
+
+
+def fit_anchor_sigma(model, anchor, records: list[FlightRecord], warmup_s: float = 5.0, coverage: float = SIGMA_COVERAGE):
+    """``anchor`` with σ₀ and c fitted on ``records`` against their reference (mean NEES nearest 2 at a
+    3σ-coverage floor: :func:`~tepinn_flight.evaluation.sigma_calibration.fit_sigma`), and the fit
+    (σ₀, c, NEES and share within 3σ on those files)."""
+    from ..evaluation.sigma_calibration import fit_sigma
+
+    fit = fit_sigma(sigma_samples(model, anchor, records, warmup_s), coverage=coverage)
+    return dataclasses.replace(anchor, sigma_floor_deg=fit.sigma_floor_deg, sigma_acc_gain=fit.sigma_acc_gain), fit
+
+
+def sigma_scores(model, anchor, records: list[FlightRecord], warmup_s: float = 5.0) -> tuple[float, float]:
+    """(mean NEES, share within 3σ), per file averaged, of ``anchor``'s σ on ``records``."""
+    from ..evaluation.sigma_calibration import score
+
+    return score(sigma_samples(model, anchor, records, warmup_s), anchor.sigma_floor_deg, anchor.sigma_acc_gain)
+
+
 def inclination_rmse_deg(rec: FlightRecord, est, warmup_s: float = 5.0) -> float:
     """Inclination RMSE (°) of an estimate frame against the record's reference (the harness's mask)."""
     from ..evaluation.harness import scoring_mask
@@ -160,16 +203,22 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     val = [recs[i] for i in va] or [recs[i] for i in tr]
     model1, _, ck = load_model(out / "model.pt")
     anchor, table, scales = tune_anchor(model1, est0, [recs[i] for i in tr])
+    anchor, sfit = fit_anchor_sigma(model1, anchor, [recs[i] for i in tr])
     save_checkpoint(out / "model.pt", model1, fusion_config_from(ck.get("fusion_config")), anchor,
                     **{k: v for k, v in ck.items() if k not in ("format", "version", "model_config", "fusion_config",
                                                                  "anchor_config", "state_dict", "conventions")})  # fmt: skip
     before = [inclination_rmse_deg(r, _est(model0, est0, r)) for r in val]
     after = [inclination_rmse_deg(r, _est(model1, anchor, r)) for r in val]
+    (nees0, in3_0), (nees1, in3_1) = sigma_scores(model0, est0, val), sigma_scores(model1, anchor, val)
     summary = {
         "init": str(init_path), "files": paths, "train_files": [paths[i] for i in tr], "val_files": [paths[i] for i in va],
         "tau_acc_grid_deg": {f"{k:g}": v for k, v in table.items()}, "tau_acc_s": anchor.tau_acc_s,
         "gyro_scale_grid_deg": scales, "gyro_scale": list(anchor.gyro_scale),
         "val_inclination_rmse_deg_before": float(np.mean(before)), "val_inclination_rmse_deg_after": float(np.mean(after)),
+        "sigma_floor_deg": anchor.sigma_floor_deg, "sigma_acc_gain": anchor.sigma_acc_gain,
+        "train_sigma_nees": sfit.nees, "train_sigma_within_3sigma": sfit.coverage_3sigma,
+        "val_sigma_nees_before": nees0, "val_sigma_nees_after": nees1,
+        "val_sigma_within_3sigma_before": in3_0, "val_sigma_within_3sigma_after": in3_1,
         "validation_note": "" if va else "one file only: the figures are on the file it was tuned on",
         **{k: v for k, v in result.items() if isinstance(v, (int, float, str))},
     }  # fmt: skip
