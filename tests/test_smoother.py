@@ -130,6 +130,11 @@ def test_gated_samples_and_short_stretches_keep_the_causal_estimate():
     np.testing.assert_allclose(sig[2000:4000], 0.005, rtol=1e-12)
     assert done.applied and done.n_stretches == 1 and done.n_smoothed == 2499 and done.n_gated == 500
     assert done.describe().endswith("; applied") and "1 stretch" in done.describe()
+    # everything gated, or too short: said so
+    _, _, none = smooth(t, q, sigma, np.ones(n), seg, cfg, offline)
+    assert none.describe().endswith("none (no stretch of 22 s without a gate); not applied")
+    _, _, short = smooth(t[:1000], q[:1000], sigma[:1000], gate[:1000], seg[:1000], cfg, offline)
+    assert short.describe().endswith("none (no segment of 22 s); not applied") and not short.applied
 
 
 def test_the_settings_are_checked():

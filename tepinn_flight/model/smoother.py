@@ -62,6 +62,7 @@ class Smoothing:
     n_smoothed: int  # samples with a smoothed-tilt weight > 0
     n_stretches: int
     n_gated: int  # samples where a gate acts
+    min_stretch_s: float = 30.0
 
     @property
     def applied(self) -> bool:
@@ -72,7 +73,8 @@ class Smoothing:
         gated = 100.0 * self.n_gated / max(self.n_samples, 1)
         head = "offline tilt smoothing (VQF forward and backward where no gate acts)"
         if not self.applied:
-            why = "a gate acts on every stretch long enough" if self.n_gated else "no segment long enough"
+            why = (f"no stretch of {self.min_stretch_s:g} s without a gate" if self.n_gated
+                   else f"no segment of {self.min_stretch_s:g} s")  # fmt: skip
             return f"{head}: none ({why}); not applied"
         return (f"{head}: {pct:.0f} % of the samples in {self.n_stretches} stretch(es)"
                 f"{f'; gates act on {gated:.0f} %' if self.n_gated else ''}; applied")  # fmt: skip
@@ -139,4 +141,4 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline) -> tup
             sig[rows] *= 1.0 - w[ok] * (1.0 - cfg.sigma_scale)
             n_smoothed += int(ok.sum())
             n_stretches += 1
-    return out, sig, Smoothing(len(t_s), n_smoothed, n_stretches, int(np.sum(gate > 0)))
+    return out, sig, Smoothing(len(t_s), n_smoothed, n_stretches, int(np.sum(gate > 0)), cfg.min_stretch_s)
