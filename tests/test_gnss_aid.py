@@ -135,6 +135,45 @@ def test_a_checkpoint_written_before_the_gnss_aid_runs_without_it():
     old = {"anchor_config": {"enabled": True, "pull_target": "fusion"}, "fusion_config": None}
     assert anchor_config_from(old).gnss_aid is False
     assert AnchorConfig().gnss_aid is True
+    # session 14's aid (gnss_aid without gnss_aid_in_flight) loads as it ran
+    s14 = {"anchor_config": {"enabled": True, "pull_target": "fusion", "gnss_aid": True}, "fusion_config": None}
+    assert anchor_config_from(s14).gnss_aid and not anchor_config_from(s14).gnss_aid_in_flight
+    assert AnchorConfig().gnss_aid_in_flight is True
+
+
+def test_aided_windows_keep_the_flight_gate_in_fast_flight_without_its_centripetal_term():
+    # a window 20° tilted whose v̂ says 60 m/s (flight gate 1; pull 0.5 → 10°): unaided it pulls and removes ω × v̂ + â; aided below
+    # 20 m/s of ground speed the gate stays shut (the receiver says the vehicle is slow); aided at speed
+    # (gnss_fast) it pulls, keeps its 10-s time constant, and the receiver's acceleration replaces ω × v̂ + â
+    import math
+
+    from tepinn_flight.model.anchor import AnchorConfig, AnchoredVQF, WindowOutput
+
+    n = 100
+    t = np.arange(n) * 0.01
+    gyr, acc = np.tile([0.0, 0.0, 0.2], (n, 1)), np.tile([0.0, 0.0, -9.81], (n, 1))
+    tilted = np.array([math.cos(math.radians(10)), math.sin(math.radians(10)), 0.0, 0.0])
+
+    def after(cfg, aided, fast):
+        f = AnchoredVQF(cfg, 0.01)
+        f.update(t, gyr, acc)
+        f.correct(WindowOutput(tilted, 0.01, np.zeros(3), np.array([60.0, 0, 0]), np.array([0.0, 1.0, 0]),
+                               None, aided, fast))  # fmt: skip
+        q = f.update(t[-1:] + 0.01, gyr[:1], acc[:1])[0][0]
+        incl = math.degrees(2 * math.acos(min(1.0, math.sqrt(q[0] ** 2 + q[3] ** 2))))
+        return incl, f.gate, f.tau_acc, f.vel.tolist(), f.acc_v.tolist()
+
+    cfg = AnchorConfig(pull_gain=0.5)
+    incl_u, gate, tau, vel, acc_v = after(cfg, False, False)
+    assert gate == 1.0 and tau == 10.0 and vel == [60.0, 0, 0] and acc_v == [0, 1.0, 0]
+    incl, gate, tau, vel, acc_v = after(cfg, True, False)
+    assert gate == 0.0 and incl < 0.05 and tau == 3.0 and vel == [0, 0, 0] and acc_v == [0, 0, 0]
+    incl, gate, tau, vel, acc_v = after(cfg, True, True)
+    assert gate == 1.0 and incl == pytest.approx(10.0, abs=0.15) and tau == 10.0 and vel == [0, 0, 0] and acc_v == [0, 0, 0]
+    assert incl_u > incl + 0.3  # unaided, ω × v̂ + â (13 m/s² sideways) also leaves the accelerometer VQF sees
+    # session 14's aid: aided windows shut the gate whatever the speed
+    incl, gate, tau, vel, acc_v = after(dataclasses.replace(cfg, gnss_aid_in_flight=False), True, True)
+    assert gate == 0.0 and incl < 0.05 and vel == [0, 0, 0]
 
 
 def test_the_settings_are_checked():

@@ -123,6 +123,12 @@ class AnchorConfig:
     # offline, the motion acceleration the record's GNSS velocity shows is taken out of the
     # accelerometer (:mod:`.gnss_aid`; records without GNSS velocity: nothing changes); live: not
     gnss_aid: bool = True
+    # ... also in fast flight: where the aid holds at a window's end and the receiver's ground speed is
+    # at least GnssAidConfig.max_speed_m_s, the flight-speed gate keeps its pull and time constant and
+    # drops only its centripetal term ω × v̂ + â, which the receiver measured (session 15). Slower, and
+    # always with False (session 14: the aid stops at max_speed_m_s), aided windows shut the gate:
+    # the receiver says the vehicle is not flying fast, whatever v̂ says
+    gnss_aid_in_flight: bool = True
     # offline, opt-in (`estimate --smooth`): the tilt of every long stretch where no gate acts is VQF's
     # run forward and backward on the same inputs (:mod:`.smoother`, ``vqf.offlineVQF``; heading kept).
     # Not the shipped default: nearer the true attitude (BROAD's optical truth, simulations), farther
@@ -198,9 +204,12 @@ class WindowOutput:
     acc_m_s2: np.ndarray  # (3,) its rate â
     fusion_bias_rad_s: np.ndarray | None = None  # (3,) the older fusion's gyro-bias estimate (pull target "fusion")
     # the GNSS aid holds at this window's end (:mod:`.gnss_aid`): the receiver measured the motion
-    # acceleration, already out of the accelerometer, so the flight-speed gate (v̂, â, its time
-    # constant and its pull) stays shut; the other gates act as elsewhere
+    # acceleration, already out of the accelerometer, so the flight-speed gate's centripetal term
+    # (ω × v̂ + â) stays off; its pull and time constant act as elsewhere (with
+    # AnchorConfig.gnss_aid_in_flight and the receiver's ground speed at least GnssAidConfig's
+    # max_speed_m_s, ``gnss_fast``; else the whole gate stays shut), as do the other gates
     gnss_aided: bool = False
+    gnss_fast: bool = False
 
 
 def to_sensor(v_b: np.ndarray) -> np.ndarray:
@@ -356,7 +365,8 @@ class AnchoredVQF:
     def correct(self, w: WindowOutput) -> None:
         """Apply the network's window made at the last sample pushed (see module doc)."""
         c = self.cfg
-        vx, vy, vz = (0.0, 0.0, 0.0) if w.gnss_aided else _floats(w.vel_m_s)
+        shut = w.gnss_aided and not (c.gnss_aid_in_flight and w.gnss_fast)  # aided and slow: the gate shut
+        vx, vy, vz = (0.0, 0.0, 0.0) if shut else _floats(w.vel_m_s)
         speed = math.sqrt(vx * vx + vy * vy + vz * vz)
         g_flight = min(1.0, max(0.0, (speed - c.speed_lo_m_s) / (c.speed_hi_m_s - c.speed_lo_m_s)))
         ct = self.clip_times  # enough saturated time in the last clip_hold_s (clip_min_s 0: one sample)
@@ -383,9 +393,10 @@ class AnchoredVQF:
                 self.f.setTauAcc(tau)
                 self.tau_acc = tau
         self.sigma_net = float(w.sigma_rad)
-        if c.centripetal:
-            self.vel = np.array([g_flight * vx, g_flight * vy, g_flight * vz])
-            self.acc_v = np.array([g_flight * v for v in _floats(w.acc_m_s2)])  # (g_flight 0 where GNSS-aided)
+        if c.centripetal:  # not where GNSS-aided: the receiver's acceleration is already out of the accelerometer
+            g_cen = 0.0 if w.gnss_aided else g_flight
+            self.vel = np.array([g_cen * vx, g_cen * vy, g_cen * vz])
+            self.acc_v = np.array([g_cen * v for v in _floats(w.acc_m_s2)])
             self.turn_on = bool(self.vel.any() or self.acc_v.any())
         if self.bias_latched:  # the older fusion's bias where it runs (bias states), else the network's
             nb = _norm3(b_h)

@@ -326,6 +326,7 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
     q_pull = out.get("q_target", out["q"])
     b_fus = out.get("bias_target")
     aided = out.get("gnss_aided", np.zeros(len(idx), bool))
+    fast = out.get("gnss_fast", np.zeros(len(idx), bool))
     n = len(t)
     q_out = np.full((n, 4), np.nan)
     s_out = np.full(n, np.nan)
@@ -342,7 +343,7 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
                 _put(flt, cols, cur, i, q_out, s_out, b_out, use_mag)
                 cur = i
             flt.correct(WindowOutput(q_pull[j], float(out["sigma"][j]), out["bias"][j], out["vel"][j], out["acc_v"][j],
-                                     None if b_fus is None else b_fus[j], bool(aided[j])))  # fmt: skip
+                                     None if b_fus is None else b_fus[j], bool(aided[j]), bool(fast[j])))  # fmt: skip
             gate[i:b] = flt.gate
         if cur < b:
             _put(flt, cols, cur, b, q_out, s_out, b_out, use_mag)
@@ -357,6 +358,9 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
     apply, the windows' outputs for the aided filter: each window marked where the aid holds at its
     end, :class:`.anchor.WindowOutput`'s ``gnss_aided``)."""
     cfg = cfg or GnssAidConfig()
+    fast_m_s = cfg.max_speed_m_s  # at this ground speed and above, the flight-speed gate acts beside the aid
+    if anchor.gnss_aid_in_flight:
+        cfg = replace(cfg, max_speed_m_s=float("inf"))
     t, acc = cols[0], cols[2]
     vel = rec.gnss_vel_ne_m_s
     n = len(acc)
@@ -376,7 +380,10 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
             break
         found = (trusted, covered, a_b)
         aided = acc - a_b
-        out_aided = dict(out, gnss_aided=trusted[np.asarray(idx, np.int64)] if len(idx) else np.zeros(0, bool))
+        at = np.asarray(idx, np.int64)
+        fast = np.hypot(vel[:, 0], vel[:, 1]) >= fast_m_s  # (NaN: no fix, not fast)
+        out_aided = dict(out, gnss_aided=trusted[at] if len(idx) else np.zeros(0, bool),
+                         gnss_fast=fast[at] if len(idx) else np.zeros(0, bool))  # fmt: skip
         if p + 1 < cfg.passes:
             q_nb = _anchored_pass(anchor, seg, (t, cols[1], aided, cols[3], cols[4]), idx, out_aided, use_mag)[0]
     trusted, covered, a_b = found

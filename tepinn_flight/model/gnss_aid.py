@@ -21,8 +21,8 @@ that with the GNSS velocity; this does the same for any estimator, in three step
    accelerates there is nothing to correct either.
 3. **Body axes**: ``a_b = R_nbᵀ e^{iψ} a_h``, clipped to ``max_accel_m_s2``, with the previous
    pass's attitude; the filter then runs again on ``f − a_b`` (``passes`` corrections in all:
-   :func:`tepinn_flight.model.estimate.gnss_aided_acc`, which also keeps the flight-speed gate shut
-   in the windows where the aid holds).
+   :func:`tepinn_flight.model.estimate.gnss_aided_acc`, which also marks the windows where the aid
+   holds: there the flight-speed gate drops its centripetal term, :class:`.anchor.WindowOutput`).
 
 Offline only: the averages are centred and the filter runs over the record again. A causal version
 (the acceleration of the last second of fixes, ~0.6 s old) gained nothing on the training flights
@@ -56,18 +56,19 @@ class GnssAidConfig:
     # accelerations of a manoeuvre and leaving its peaks biases the filter's low-pass, which the
     # manoeuvre's accelerations otherwise average out of
     max_accel_m_s2: float = 15.0
-    # no correction above this ground speed (and margin_s around): fast flight is the flight-speed
-    # gate's (the network's motion estimate, :class:`.anchor.AnchorConfig`'s speed_lo_m_s); there the
-    # aid, measured on the training campaign's fixed-wing flights, turned loops, pull-ups and
-    # pushovers into flips
+    # no correction above this ground speed (and margin_s around) where aided windows shut the
+    # flight-speed gate (AnchorConfig.gnss_aid_in_flight false, session 14): measured on the training
+    # campaign's fixed-wing flights, the aid alone turned loops, pull-ups and pushovers into flips.
+    # With the gate kept beside it (gnss_aid_in_flight, the shipped estimator) there is no limit
     max_speed_m_s: float = 20.0
     margin_s: float = 1.0
     passes: int = 2  # attitude → correction → attitude, this many corrections
 
     def __post_init__(self):
         finite_nonneg("margin_s", self.margin_s)
-        for name in ("smooth_s", "heading_window_s", "min_accel_m_s2", "max_accel_m_s2", "max_speed_m_s"):
+        for name in ("smooth_s", "heading_window_s", "min_accel_m_s2", "max_accel_m_s2"):
             check(np.isfinite(getattr(self, name)) and getattr(self, name) > 0, f"'{name}' must be > 0")
+        check(self.max_speed_m_s > 0, "'max_speed_m_s' must be > 0 (inf: no limit)")
         finite_nonneg("latency_s", self.latency_s)
         check(0.0 <= self.min_coherence <= 1.0, "'min_coherence' must be in [0, 1]")
         check(int(self.passes) == self.passes and self.passes >= 1, "'passes' must be an integer ≥ 1")
@@ -178,7 +179,7 @@ def summarize(trusted: np.ndarray, covered: np.ndarray, a_b: np.ndarray, vel_ne_
         return GnssAid(False, 0.0, 0.0, 0.0, "no GNSS velocity in the record")
     if not covered.any():
         return GnssAid(False, 0.0, 0.0, 0.0, "no stretch with GNSS fixes long enough for an acceleration")
-    if not trusted.any() and not np.any(np.hypot(vel_ne_m_s[:, 0], vel_ne_m_s[:, 1]) < cfg.max_speed_m_s):
+    if not trusted.any() and np.isfinite(cfg.max_speed_m_s) and not np.any(np.hypot(vel_ne_m_s[:, 0], vel_ne_m_s[:, 1]) < cfg.max_speed_m_s):
         return GnssAid(False, float(covered.mean()), 0.0, 0.0,
                        f"faster than {cfg.max_speed_m_s:g} m/s throughout (fast flight is the flight-speed gate's)")  # fmt: skip
     if not trusted.any():
