@@ -16,9 +16,10 @@ that with the GNSS velocity; this does the same for any estimator, in three step
    ``f_h ≈ e^{iψ} a_h``. ψ is read over a sliding ``heading_window_s`` as the argument of
    ``Σ f_h · conj(a_h)``, and trusted where the two agree (coherence
    ``|Σ f_h conj(a_h)| / √(Σ|f_h|² Σ|a_h|²) ≥ min_coherence``) with enough acceleration to read a
-   direction from (``min_accel_m_s2`` RMS), below ``max_speed_m_s`` of ground speed (fast flight is
-   the network's flight-speed gate's). Elsewhere no correction: where the vehicle hardly
-   accelerates there is nothing to correct either.
+   direction from (``min_accel_m_s2`` RMS), below ``max_speed_m_s`` of ground speed — a limit the
+   shipped estimator lifts (``AnchorConfig.gnss_aid_in_flight``: at speed the network's flight-speed
+   gate acts beside the aid). Elsewhere no correction: where the vehicle hardly accelerates there is
+   nothing to correct either.
 3. **Body axes**: ``a_b = R_nbᵀ e^{iψ} a_h``, clipped to ``max_accel_m_s2``, with the previous
    pass's attitude; the filter then runs again on ``f − a_b`` (``passes`` corrections in all:
    :func:`tepinn_flight.model.estimate.gnss_aided_acc`, which also marks the windows where the aid
