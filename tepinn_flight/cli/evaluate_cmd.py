@@ -103,18 +103,18 @@ def _run(args) -> int:
         notes.append("some records share a name; they are numbered #2, #3, ... in the tables")
     estimators = []
     if not args.no_model:
-        estimators += learned_estimators(args.model, notes)
+        base = learned_estimators(args.model, notes)  # each variant below is made from these
+        estimators += base
         if args.with_mag:  # TE-PINN 9-D beside VQF 9-D (anchored checkpoints)
-            estimators += [e9 for e in list(estimators) if hasattr(e, "nine_d") and (e9 := e.nine_d()) is not None]
+            estimators += [e9 for e in base if hasattr(e, "nine_d") and (e9 := e.nine_d()) is not None]
         if args.busy_stride:  # the speed knob beside the model as it ships (6-D)
-            strided = [es for e in list(estimators) if hasattr(e, "strided") and not e.uses_mag
+            strided = [es for e in base if hasattr(e, "strided") and not e.uses_mag
                        and (es := e.strided(args.busy_stride)) is not None]  # fmt: skip
             if not strided:
                 notes.append(f"--busy-stride {args.busy_stride}: no model here runs the anchored estimator; nothing added")
             estimators += strided
         if args.smooth:  # the opt-in offline smoothing beside the model as it ships (6-D)
-            smooth = [es for e in list(estimators) if hasattr(e, "smoothed") and not e.uses_mag and "-stride" not in e.name
-                      and (es := e.smoothed()) is not None]  # fmt: skip
+            smooth = [es for e in base if hasattr(e, "smoothed") and not e.uses_mag and (es := e.smoothed()) is not None]
             if not smooth:
                 notes.append("--smooth: no model here runs the anchored estimator; nothing added")
             estimators += smooth

@@ -3,7 +3,8 @@ real files with a trusted reference.
 
 With every gate off (the case on real data; :mod:`.anchor`), ``σ² = σ₀² + (c·e)²``, e the
 accelerometer-disagreement angle the filter computes anyway. :func:`error_samples` runs the plain
-filter over a record once and keeps, per scored sample, the squared 2-D tilt error and e; then any
+filter over a record once (:func:`estimator_error_samples`: the whole anchored estimator, what the
+fine-tuning fits on) and keeps, per scored sample, the squared 2-D tilt error and e; then any
 (σ₀, c) is scored without running the filter again. :func:`fit_sigma` picks, on a grid, the pair
 whose mean NEES (per file averaged) is nearest 2 (a 2-D error: E[NEES] = 2 when σ is right) among
 those that keep at least ``coverage`` of the samples within 3σ, per file averaged.
@@ -50,8 +51,26 @@ def error_samples(rec: FlightRecord, name: str = "", anchor: AnchorConfig | None
     dt = np.diff(t[: TS_STEPS + 1])
     flt = AnchoredVQF(cfg, float(np.median(dt)) if dt.size else 0.01)
     q, _, e, _ = flt.update(t, rec.gyr_rad_s[seg0], rec.acc_m_s2[seg0], None, rec.gyr_clipped[seg0])
-    m = (scoring_mask(rec, warmup_s) & seg0)[seg0] & np.all(np.isfinite(q), axis=1)
-    ev = tilt_error_vector_rad(error_quat_earth(q[m], rec.q_ref_wxyz[seg0][m]))
+    return _scored(name, q, e, rec.q_ref_wxyz[seg0], (scoring_mask(rec, warmup_s) & seg0)[seg0])
+
+
+def estimator_error_samples(model, rec: FlightRecord, anchor: AnchorConfig, name: str = "",
+                            warmup_s: float = 5.0) -> ErrorSamples:  # fmt: skip
+    """The scored samples of the whole anchored estimator ``anchor`` (every segment, its gates and
+    offline steps) on ``rec``: e is read from its own σ with σ₀ = 0, c = 1 and the network's share
+    off (σ = e). What the fine-tuning fits σ on."""
+    from ..model.estimate import EST_Q_COLS, estimate_anchored
+
+    probe = dataclasses.replace(anchor, sigma_floor_deg=0.0, sigma_acc_gain=1.0, sigma_net_scale=0.0)
+    est = estimate_anchored(model, rec, probe)
+    return _scored(name, est[EST_Q_COLS].to_numpy(), est["sigma_rad"].to_numpy(), rec.q_ref_wxyz,
+                   scoring_mask(rec, warmup_s))  # fmt: skip
+
+
+def _scored(name: str, q, e, q_ref, mask) -> ErrorSamples:
+    """The samples of ``mask`` where the estimate and e are finite: squared 2-D tilt error and e."""
+    m = mask & np.all(np.isfinite(q), axis=1) & np.isfinite(e)
+    ev = tilt_error_vector_rad(error_quat_earth(q[m], q_ref[m]))
     return ErrorSamples(name, np.sum(ev**2, axis=1), e[m])
 
 

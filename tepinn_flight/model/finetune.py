@@ -121,23 +121,11 @@ def tune_anchor(model, anchor, records: list[FlightRecord], grid=TAU_ACC_GRID_S,
 
 
 def sigma_samples(model, anchor, records: list[FlightRecord], warmup_s: float = 5.0):
-    """Per file, the scored samples' squared 2-D tilt error against the reference and the σ model's
-    input e (:mod:`~tepinn_flight.evaluation.sigma_calibration`), from the estimator ``anchor`` itself."""
-    from ..evaluation.harness import scoring_mask
-    from ..evaluation.metrics import error_quat_earth, tilt_error_vector_rad
-    from ..evaluation.sigma_calibration import ErrorSamples
-    from .estimate import estimate_anchored
+    """Per file, what σ is fitted and scored on: the estimator ``anchor``'s own scored samples
+    (:func:`~tepinn_flight.evaluation.sigma_calibration.estimator_error_samples`)."""
+    from ..evaluation.sigma_calibration import estimator_error_samples
 
-    probe = dataclasses.replace(anchor, sigma_floor_deg=0.0, sigma_acc_gain=1.0, sigma_net_scale=0.0)  # σ = e
-    out = []
-    for i, r in enumerate(records):
-        est = estimate_anchored(model, r, probe)
-        q = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
-        e = est["sigma_rad"].to_numpy()
-        m = scoring_mask(r, warmup_s) & np.all(np.isfinite(q), axis=1) & np.isfinite(e)
-        ev = tilt_error_vector_rad(error_quat_earth(q[m], r.q_ref_wxyz[m]))
-        out.append(ErrorSamples(str(i), np.sum(ev**2, axis=1), e[m]))
-    return out
+    return [estimator_error_samples(model, r, anchor, str(i), warmup_s) for i, r in enumerate(records)]
 
 
 def fit_anchor_sigma(model, anchor, records: list[FlightRecord], warmup_s: float = 5.0, coverage: float = SIGMA_COVERAGE):

@@ -62,7 +62,7 @@ class Smoothing:
     n_smoothed: int  # samples with a smoothed-tilt weight > 0
     n_stretches: int
     n_gated: int  # samples where a gate acts
-    min_stretch_s: float = 30.0
+    min_stretch_s: float  # the setting it ran with (to say why nothing was smoothed)
 
     @property
     def applied(self) -> bool:
@@ -91,14 +91,12 @@ def ramp_weight(t_s: np.ndarray, ramp_in: bool, ramp_out: bool, ramp_s: float) -
     """The smoothed tilt's weight over one stretch: 0 → 1 over ``ramp_s`` from its start where a
     gate precedes it (``ramp_in``) and 1 → 0 toward its end where one follows (``ramp_out``)."""
     t = np.asarray(t_s, np.float64)
-    d = np.full(len(t), np.inf)
+    d = np.full(len(t), np.inf)  # seconds from the nearest gated edge
     if ramp_in:
         d = np.minimum(d, t - t[0])
     if ramp_out:
         d = np.minimum(d, t[-1] - t)
-    if ramp_s <= 0:
-        return np.ones(len(t))
-    return np.clip(d / ramp_s, 0.0, 1.0)
+    return np.clip(d / ramp_s, 0.0, 1.0) if ramp_s > 0 else np.ones(len(t))
 
 
 def with_down(q_nb: np.ndarray, down_b: np.ndarray) -> np.ndarray:
