@@ -21,7 +21,8 @@ and its rate ``â``. Each enters only where there is run-time evidence that VQF'
   nor does a handful of clipped samples, whose missed rotation is smaller than the network's error
   on real sensors.
 - **gyro bias beyond VQF's clip** (VQF's bias estimate reaches ``bias_clip_deg_s``, an
-  uncalibrated gyro): from then on, in that segment, the network's bias beyond
+  uncalibrated gyro; or the older fusion's horizontal bias stays beyond ``bias_gate_fusion_deg_s``
+  for 2 s while VQF's own estimate reaches ``bias_gate_vqf_deg_s``): from then on, in that segment, the network's bias beyond
   ``bias_deadzone_deg_s`` is removed from the gyro VQF sees, and its tilt pulls with weight
   ``bias_gate_weight``.
 
@@ -99,6 +100,12 @@ class AnchorConfig:
     # ... and the gate also opens when the older fusion's bias estimate (pull target "fusion") exceeds
     # this on an axis (calibrated autopilot gyros and BROAD stay below 1 °/s there; 0: off)
     bias_gate_fusion_deg_s: float = 3.0
+    # ... while VQF's own bias estimate reaches this on an axis (0: the older fusion's evidence alone,
+    # before session 16). Out of its domain, the older fusion's bias can pass 3 °/s within seconds
+    # of a record that starts mid-motion: seen BROAD trials cut to start during fast rotation latched
+    # the gate on it alone (3 of 51, each then over the per-file bound; VQF's bias there 0.04–0.06 °/s;
+    # where the training flights' uncalibrated gyros latched it, VQF's bias was 0.22–1.2 °/s)
+    bias_gate_vqf_deg_s: float = 0.2
     sigma_floor_deg: float = 0.45  # σ₀ (fitted on the 17 BROAD trials the network was trained or validated on)
     sigma_acc_gain: float = 0.025  # c
     sigma_net_scale: float = 1.0  # s
@@ -157,7 +164,7 @@ class AnchorConfig:
         check_range("quiet_memory_blocks", self.quiet_memory_blocks, 0, 10**6)
         check_range("busy_stride", self.busy_stride, 1, 10**6)
         check_range("speed_hi_m_s", self.speed_hi_m_s, self.speed_lo_m_s, None, lo_open=True)
-        for name in ("clip_min_s", "quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "sigma_floor_deg", "sigma_acc_gain",
+        for name in ("clip_min_s", "quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "bias_gate_vqf_deg_s", "sigma_floor_deg", "sigma_acc_gain",
                      "sigma_net_scale"):  # fmt: skip
             check_range(name, getattr(self, name), 0, None)
 
@@ -383,6 +390,7 @@ class AnchoredVQF:
             self.bias_latched = max(abs(b[0]), abs(b[1]), abs(b[2])) >= 0.95 * math.radians(c.bias_clip_deg_s)
             if c.bias_gate_fusion_deg_s > 0 and w.fusion_bias_rad_s is not None:  # for 2 s on end
                 over = _norm3(b_h) > math.radians(c.bias_gate_fusion_deg_s)
+                over &= max(abs(b[0]), abs(b[1]), abs(b[2])) >= math.radians(c.bias_gate_vqf_deg_s)  # VQF agrees
                 self.t_bias_over = (self.t_bias_over if self.t_bias_over is not None else self.t) if over else None
                 self.bias_latched |= over and self.t - self.t_bias_over >= BIAS_EVIDENCE_S
         g_bias = c.bias_gate_weight if self.bias_latched else 0.0

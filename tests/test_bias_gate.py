@@ -1,0 +1,95 @@
+"""The uncalibrated-gyro gate's evidence from the older fusion counts only where VQF's own bias
+estimate agrees (``AnchorConfig.bias_gate_vqf_deg_s``, session 16): out of its domain — a record
+that starts mid-motion — the older fusion's bias passes its 3 °/s within seconds while a calibrated
+gyro's VQF bias stays near zero."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from tepinn_flight.model.anchor import AnchorConfig, AnchoredVQF, WindowOutput
+from tests.conftest import broad_trial
+
+LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
+
+
+def _latched(cfg: AnchorConfig, gyro_bias_deg_s: float, fusion_bias_deg_s: float, seconds: float = 30.0) -> bool:
+    """A level IMU at rest (gyro reading ``gyro_bias_deg_s`` on x) for ``seconds`` at 100 Hz, a window
+    every 0.1 s whose older-fusion bias is ``fusion_bias_deg_s`` on x (horizontal) → the gate latched?"""
+    ts = 0.01
+    f = AnchoredVQF(cfg, ts)
+    gyr = np.array([math.radians(gyro_bias_deg_s), 0.0, 0.0])
+    acc = np.array([0.0, 0.0, -9.81])
+    fb = np.array([math.radians(fusion_bias_deg_s), 0.0, 0.0])
+    for k in range(int(seconds / 0.1)):
+        t = k * 0.1 + np.arange(10) * ts
+        f.update(t, np.tile(gyr, (10, 1)), np.tile(acc, (10, 1)))
+        f.correct(WindowOutput(LEVEL, 0.01, np.zeros(3), np.zeros(3), np.zeros(3), fb))
+    return f.bias_latched
+
+
+def test_the_fusions_evidence_latches_only_where_vqf_sees_a_bias_too():
+    cfg = AnchorConfig()
+    assert cfg.bias_gate_vqf_deg_s == 0.2 and cfg.bias_gate_fusion_deg_s == 3.0
+    before = dataclasses.replace(cfg, bias_gate_vqf_deg_s=0.0)
+    # a calibrated gyro, the older fusion claiming 5 °/s: latched before (its evidence alone), not now
+    assert _latched(before, 0.0, 5.0)
+    assert not _latched(cfg, 0.0, 5.0)
+    # a gyro 1 °/s off at rest: VQF's rest bias estimate moves toward 1 °/s (past 0.2) but never to its
+    # own latch (0.95 × its 2 °/s clip), so with the fusion's evidence the gate latches through this path
+    assert _latched(cfg, 1.0, 5.0)
+    assert not _latched(cfg, 1.0, 0.0)  # ... and not without it
+    assert not _latched(dataclasses.replace(cfg, bias_gate_vqf_deg_s=1.5), 1.0, 5.0)  # VQF's 1 °/s does not reach 1.5
+
+
+def test_a_real_trial_started_mid_motion_no_longer_latches_the_gate_on_the_fusions_evidence():
+    """BROAD trial 08 (fast rotation; seen by the network) cut to start 40 s in, during the motion:
+    the older fusion's bias passed 3 °/s within 7 s and latched the gate (over the per-file bound
+    against the optical truth); with VQF asked too it stays VQF's. The same record with a 5 °/s gyro
+    bias still latches it and stays far ahead of VQF."""
+    from tepinn_flight.evaluation.harness import scoring_mask
+    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
+    from tepinn_flight.evaluation.peers import VqfEstimator
+    from tepinn_flight.ingest import load_record
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.estimate import EST_Q_COLS, anchored_windows, estimate_anchored
+    from tepinn_flight.record import GYR_COLS
+
+    rec0 = load_record(broad_trial("broad_08_*.hdf5"))
+    rec = copy.copy(rec0)
+    rec.data = rec0.data[rec0.t_s >= rec0.t_s[0] + 40.0].reset_index(drop=True)
+    model, anchor, _ = load_model(default_model_path())
+    assert anchor.bias_gate_vqf_deg_s == 0.2  # the shipped estimator asks VQF
+
+    def rmse(r, q):
+        m = scoring_mask(r, 5.0) & np.all(np.isfinite(q), 1)
+        return float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], r.q_ref_wxyz[m])) ** 2))))
+
+    def scores(r):
+        w = anchored_windows(model, r, 256, anchor.fusion_config, anchor)
+        new, old = (rmse(r, estimate_anchored(model, r, a, windows=w)[EST_Q_COLS].to_numpy())
+                    for a in (anchor, dataclasses.replace(anchor, bias_gate_vqf_deg_s=0.0)))  # fmt: skip
+        return new, old, rmse(r, VqfEstimator().estimate(r)[EST_Q_COLS].to_numpy())
+
+    new, old, vqf = scores(rec)
+    assert old > max(1.5 * vqf, vqf + 0.5), (old, vqf)  # the false latch (2.73° against VQF's 1.77°)
+    assert new < vqf, (new, vqf)  # VQF's, with the gyro's scale read from the record (1.10°)
+    biased = copy.copy(rec)
+    biased.data = rec.data.copy()
+    biased.data[GYR_COLS] = rec.gyr_rad_s + math.radians(5.0)
+    new, old, vqf = scores(biased)
+    assert new < 0.7 * vqf, (new, vqf)  # the gate latched: the network's bias beyond 2 °/s taken out (5.4° against 9.3°)
+    assert new == pytest.approx(old, abs=0.3), (new, old)  # as it latched before
+
+
+def test_a_checkpoint_written_before_runs_the_fusions_evidence_alone():
+    from tepinn_flight.model.checkpoint import anchor_config_from
+
+    old = {"anchor_config": {"enabled": True, "pull_target": "fusion", "bias_gate_fusion_deg_s": 3.0}, "fusion_config": None}
+    assert anchor_config_from(old).bias_gate_vqf_deg_s == 0.0
+    assert anchor_config_from({**old, "anchor_config": {**old["anchor_config"], "bias_gate_vqf_deg_s": 0.2}}).bias_gate_vqf_deg_s == 0.2
