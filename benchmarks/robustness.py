@@ -28,11 +28,16 @@ files, and low IMU rates on held-out simulated flights that saturate the gyro or
    (a log that begins mid-flight: no rest for the filters to start from; session 16 found the
    uncalibrated-gyro gate latching on the older fusion's evidence alone there). Off by default.
 
+8. `--mounts 90:0:0,0:90:0`: the same real files with the IMU mounted turned by these x:y:z Euler
+   angles (degrees, scipy's ``Rotation``; sensor axes and reference turned alike) — a hand-held IMU
+   held on its side, a board not rotated into the body frame (session 16: the uncalibrated-gyro gate
+   latched on the older fusion's evidence there). Off by default.
+
 `--broad-every N` takes every N-th shared BROAD trial (default 3; 1: all 17).
 
     python benchmarks/robustness.py [--model CKPT] [--acc-scales 1.0,0.8] [--rates 1,8,16] [--acc-clip-every 3]
                                     [--gyro-biases 5] [--gyro-ranges 300] [--gyro-scales 1.02]
-                                    [--start-cuts 30,40,50] [--broad-every 3]
+                                    [--start-cuts 30,40,50] [--mounts 90:0:0] [--broad-every 3]
 """
 
 from __future__ import annotations
@@ -61,6 +66,7 @@ def main() -> int:
     ap.add_argument("--gyro-ranges", default="300", help="gyro full scales to saturate at, °/s ('': skip)")
     ap.add_argument("--start-cuts", default="", help="s cut from each real file's start, comma-separated ('': skip)")
     ap.add_argument("--broad-every", type=int, default=3, help="every N-th shared BROAD trial")
+    ap.add_argument("--mounts", default="", help="IMU mountings as x:y:z Euler degrees, comma-separated ('': skip)")
     ap.add_argument("--gyro-scales", default="1.02", help="gyro scale errors, a factor or x:y:z per axis, comma-separated ('': skip)")
     args = ap.parse_args()
 
@@ -151,6 +157,19 @@ def main() -> int:
             r.data = rec.data[keep].reset_index(drop=True)
             res.append((n, *both(r)))
         report(f"started {c:g} s late (mid-motion)", res)
+    for mount in [x for x in args.mounts.split(",") if x]:
+        from scipy.spatial.transform import Rotation
+
+        from tepinn_flight.quat import quat_mul
+        from tepinn_flight.record import QREF_COLS
+
+        rot = Rotation.from_euler("xyz", [float(v) for v in mount.split(":")], degrees=True)  # v_sensor = Rᵀ v_body
+        res = []
+        for n, rec in recs:
+            q_ref = quat_mul(np.array(rec.q_ref_wxyz), np.tile(rot.as_quat(scalar_first=True), (len(rec), 1)))
+            turn = [rot.inv().apply(np.array(v, dtype=float)) for v in (rec.gyr_rad_s, rec.acc_m_s2)]
+            res.append((n, *both(changed(rec, gyr=turn[0], acc=turn[1], **dict(zip(QREF_COLS, q_ref.T))))))
+        report(f"IMU mounted turned {mount} (x:y:z °)", res)
     pick = [p for p in sorted(Path(args.sim).glob("*.parquet")) if "c172x" in p.name or read_record(p).clipped.any()]
     pick = pick[:: max(1, len(pick) // 10)][:10]
     out: dict[int, list] = {}

@@ -18,13 +18,15 @@ from tests.conftest import broad_trial
 LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
 
 
-def _latched(cfg: AnchorConfig, gyro_bias_deg_s: float, fusion_bias_deg_s: float, seconds: float = 30.0) -> bool:
-    """A level IMU at rest (gyro reading ``gyro_bias_deg_s`` on x) for ``seconds`` at 100 Hz, a window
-    every 0.1 s whose older-fusion bias is ``fusion_bias_deg_s`` on x (horizontal) → the gate latched?"""
+def _latched(cfg: AnchorConfig, gyro_bias_deg_s: float, fusion_bias_deg_s: float, seconds: float = 30.0,
+             acc=(0.0, 0.0, -9.81)) -> bool:  # fmt: skip
+    """An IMU at rest (level, or as ``acc`` says; gyro reading ``gyro_bias_deg_s`` on x) for ``seconds``
+    at 100 Hz, a window every 0.1 s whose older-fusion bias is ``fusion_bias_deg_s`` on x (horizontal)
+    → the gate latched?"""
     ts = 0.01
     f = AnchoredVQF(cfg, ts)
     gyr = np.array([math.radians(gyro_bias_deg_s), 0.0, 0.0])
-    acc = np.array([0.0, 0.0, -9.81])
+    acc = np.asarray(acc, float)
     fb = np.array([math.radians(fusion_bias_deg_s), 0.0, 0.0])
     for k in range(int(seconds / 0.1)):
         t = k * 0.1 + np.arange(10) * ts
@@ -47,10 +49,23 @@ def test_the_fusions_evidence_latches_only_where_vqf_sees_a_bias_too():
     assert not _latched(dataclasses.replace(cfg, bias_gate_vqf_deg_s=1.5), 1.0, 5.0)  # VQF's 1 °/s does not reach 1.5
 
 
+@pytest.mark.parametrize("tilt_deg, latched", [(0.0, True), (45.0, True), (75.0, False), (90.0, False)])
+def test_the_fusions_evidence_counts_only_where_the_accelerometer_points_along_the_bodys_z(tilt_deg, latched):
+    """The same 1 °/s gyro at rest, the IMU rolled by ``tilt_deg`` (its x axis stays horizontal, so the
+    bias stays perpendicular to gravity): within 60° of level the fusion's evidence latches the gate;
+    on its side (a hand-held IMU, out of the network's domain) it does not — and did before."""
+    cfg = AnchorConfig()
+    assert cfg.bias_gate_thrust_deg == 60.0
+    r = math.radians(tilt_deg)
+    acc = (0.0, -9.81 * math.sin(r), -9.81 * math.cos(r))  # FRD, rolled right by tilt_deg
+    assert _latched(cfg, 1.0, 5.0, acc=acc) is latched
+    assert _latched(dataclasses.replace(cfg, bias_gate_thrust_deg=0.0), 1.0, 5.0, acc=acc)  # before: any orientation
+
+
 def test_a_real_trial_started_mid_motion_no_longer_latches_the_gate_on_the_fusions_evidence():
     """BROAD trial 08 (fast rotation; seen by the network) cut to start 40 s in, during the motion:
-    the older fusion's bias passed 3 °/s within 7 s and latched the gate (over the per-file bound
-    against the optical truth); with VQF asked too it stays VQF's. The same record with a 5 °/s gyro
+    the older fusion's bias passed 3 °/s within 7 s and latched the gate (session 15's estimator: over
+    the per-file bound against the optical truth); now it stays VQF's. The same record with a 5 °/s gyro
     bias still latches it and stays far ahead of VQF."""
     from tepinn_flight.evaluation.harness import scoring_mask
     from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
@@ -73,7 +88,7 @@ def test_a_real_trial_started_mid_motion_no_longer_latches_the_gate_on_the_fusio
     def scores(r):
         w = anchored_windows(model, r, 256, anchor.fusion_config, anchor)
         new, old = (rmse(r, estimate_anchored(model, r, a, windows=w)[EST_Q_COLS].to_numpy())
-                    for a in (anchor, dataclasses.replace(anchor, bias_gate_vqf_deg_s=0.0)))  # fmt: skip
+                    for a in (anchor, dataclasses.replace(anchor, bias_gate_vqf_deg_s=0.0, bias_gate_thrust_deg=0.0)))  # fmt: skip
         return new, old, rmse(r, VqfEstimator().estimate(r)[EST_Q_COLS].to_numpy())
 
     new, old, vqf = scores(rec)
@@ -93,3 +108,42 @@ def test_a_checkpoint_written_before_runs_the_fusions_evidence_alone():
     old = {"anchor_config": {"enabled": True, "pull_target": "fusion", "bias_gate_fusion_deg_s": 3.0}, "fusion_config": None}
     assert anchor_config_from(old).bias_gate_vqf_deg_s == 0.0
     assert anchor_config_from({**old, "anchor_config": {**old["anchor_config"], "bias_gate_vqf_deg_s": 0.2}}).bias_gate_vqf_deg_s == 0.2
+
+
+def test_a_real_trial_with_the_imu_on_its_side_no_longer_latches_the_gate():
+    """BROAD trial 12 (slow translation; seen by the network) with the IMU mounted 90° about x (sensor
+    axes and optical reference turned by scipy's Rotation): the older fusion's bias, the network out of
+    its domain, latched the gate (8.75° against VQF's 0.25°); now the estimate is the upright one's."""
+    from scipy.spatial.transform import Rotation
+
+    from tepinn_flight.evaluation.harness import scoring_mask
+    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
+    from tepinn_flight.evaluation.peers import VqfEstimator
+    from tepinn_flight.ingest import load_record
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.estimate import EST_Q_COLS, anchored_windows, estimate_anchored
+    from tepinn_flight.quat import quat_mul
+    from tepinn_flight.record import ACC_COLS, GYR_COLS, QREF_COLS
+
+    up = load_record(broad_trial("broad_12_*.hdf5"))
+    rot = Rotation.from_euler("x", 90.0, degrees=True)  # body → mounted sensor: v_s = Rᵀ v_b
+    side = copy.copy(up)
+    side.data = up.data.copy()
+    for cols in (ACC_COLS, GYR_COLS):
+        side.data[cols] = rot.inv().apply(np.array(up.data[cols].to_numpy(), dtype=float))
+    side.data[QREF_COLS] = quat_mul(np.array(up.q_ref_wxyz), np.tile(rot.as_quat(scalar_first=True), (len(up), 1)))
+    model, anchor, _ = load_model(default_model_path())
+
+    def rmse(r, a):
+        q = estimate_anchored(model, r, a, windows=anchored_windows(model, r, 256, anchor.fusion_config, a))[EST_Q_COLS].to_numpy()
+        m = scoring_mask(r, 5.0) & np.all(np.isfinite(q), 1)
+        return float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], r.q_ref_wxyz[m])) ** 2))))
+
+    vqf = VqfEstimator().estimate(side)[EST_Q_COLS].to_numpy()
+    m = scoring_mask(side, 5.0)
+    vqf_rmse = float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(vqf[m], side.q_ref_wxyz[m])) ** 2))))
+    before = rmse(side, dataclasses.replace(anchor, bias_gate_thrust_deg=0.0))
+    assert before > max(1.5 * vqf_rmse, vqf_rmse + 0.5), (before, vqf_rmse)
+    now, upright = rmse(side, anchor), rmse(up, anchor)
+    assert now == pytest.approx(upright, abs=0.02), (now, upright)  # VQF turns with its sensor; the gate stays shut
+    assert now <= vqf_rmse + 0.02

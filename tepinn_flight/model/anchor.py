@@ -22,7 +22,8 @@ and its rate ``â``. Each enters only where there is run-time evidence that VQF'
   on real sensors.
 - **gyro bias beyond VQF's clip** (VQF's bias estimate reaches ``bias_clip_deg_s``, an
   uncalibrated gyro; or the older fusion's horizontal bias stays beyond ``bias_gate_fusion_deg_s``
-  for 2 s while VQF's own estimate reaches ``bias_gate_vqf_deg_s``): from then on, in that segment, the network's bias beyond
+  for 2 s while VQF's own estimate reaches ``bias_gate_vqf_deg_s`` and the accelerometer's 10-s mean
+  lies within ``bias_gate_thrust_deg`` of the body's −z axis, the vehicles the network learned): from then on, in that segment, the network's bias beyond
   ``bias_deadzone_deg_s`` is removed from the gyro VQF sees, and its tilt pulls with weight
   ``bias_gate_weight``.
 
@@ -70,6 +71,7 @@ from .anchor_kernels import (horizontal_bias, q_nb_from_vqf_f, q_nb_rows, sigma_
                              vqf_inputs, vqf_outputs)  # fmt: skip
 from .fusion import FusionConfig
 BIAS_EVIDENCE_S = 2.0  # the older fusion's bias must stay beyond its gate this long
+THRUST_TAU_S = 10.0  # the accelerometer's mean direction (bias_gate_thrust_deg) is low-passed over this
 MODES = ("6d", "9d", "auto")
 
 
@@ -106,6 +108,12 @@ class AnchorConfig:
     # the gate on it alone (3 of 51, each then over the per-file bound; VQF's bias there 0.04–0.06 °/s;
     # where the training flights' uncalibrated gyros latched it, VQF's bias was 0.22–1.2 °/s)
     bias_gate_vqf_deg_s: float = 0.2
+    # ... and only while the accelerometer's mean over the last THRUST_TAU_S points within this of the
+    # body's −z axis (thrust, lift, or gravity near level: the vehicles the network learned from; 0:
+    # off, before session 16). A hand-held IMU held on its side reads it at 90°: the network's tilt is
+    # out of its domain there and the older fusion's bias with it (seen BROAD trials mounted 90° about
+    # x latched the gate on 12 of 17, each then over the per-file bound)
+    bias_gate_thrust_deg: float = 60.0
     sigma_floor_deg: float = 0.45  # σ₀ (fitted on the 17 BROAD trials the network was trained or validated on)
     sigma_acc_gain: float = 0.025  # c
     sigma_net_scale: float = 1.0  # s
@@ -164,6 +172,7 @@ class AnchorConfig:
         check_range("quiet_memory_blocks", self.quiet_memory_blocks, 0, 10**6)
         check_range("busy_stride", self.busy_stride, 1, 10**6)
         check_range("speed_hi_m_s", self.speed_hi_m_s, self.speed_lo_m_s, None, lo_open=True)
+        check_range("bias_gate_thrust_deg", self.bias_gate_thrust_deg, 0, 180)
         for name in ("clip_min_s", "quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "bias_gate_vqf_deg_s", "sigma_floor_deg", "sigma_acc_gain",
                      "sigma_net_scale"):  # fmt: skip
             check_range(name, getattr(self, name), 0, None)
@@ -272,6 +281,8 @@ class AnchoredVQF:
         self.gyr_corr = np.zeros(3)  # body axes, removed from the gyro
         self.bias_latched = False
         self.t_bias_over = None  # since when the older fusion's horizontal bias is beyond its gate
+        self.acc_mean = None  # the accelerometer low-passed window by window (THRUST_TAU_S), body axes
+        self.t_acc_mean = 0.0
         self.tau_acc = c.tau_acc_s
         self.clip_times = deque()  # times of the saturated samples of the last clip_hold_s
         self.t = 0.0
@@ -391,6 +402,8 @@ class AnchoredVQF:
             if c.bias_gate_fusion_deg_s > 0 and w.fusion_bias_rad_s is not None:  # for 2 s on end
                 over = _norm3(b_h) > math.radians(c.bias_gate_fusion_deg_s)
                 over &= max(abs(b[0]), abs(b[1]), abs(b[2])) >= math.radians(c.bias_gate_vqf_deg_s)  # VQF agrees
+                if c.bias_gate_thrust_deg > 0:  # ... in the network's domain
+                    over &= self._thrust_cos() > math.cos(math.radians(c.bias_gate_thrust_deg))
                 self.t_bias_over = (self.t_bias_over if self.t_bias_over is not None else self.t) if over else None
                 self.bias_latched |= over and self.t - self.t_bias_over >= BIAS_EVIDENCE_S
         g_bias = c.bias_gate_weight if self.bias_latched else 0.0
@@ -414,6 +427,19 @@ class AnchoredVQF:
         if k > 0:
             d = down_in_body(*_floats(w.q_nb_wxyz))  # the target's down in body axes; its up in S: (−d₀, d₁, d₂)
             self.pull(tilt_pull_f(qw, qx, qy, qz, -d[0], d[1], d[2], float(k)))
+
+    def _thrust_cos(self) -> float:
+        """Cosine of the angle between the body's −z axis and the accelerometer's mean, the last sample
+        of each window low-passed over :data:`THRUST_TAU_S` (1 until there is one)."""
+        a = [float(v) for v in self.last_imu[1]]
+        if self.acc_mean is None:
+            self.acc_mean = a
+        else:
+            k = min(1.0, max(0.0, self.t - self.t_acc_mean) / THRUST_TAU_S)
+            self.acc_mean = [m + k * (x - m) for m, x in zip(self.acc_mean, a)]
+        self.t_acc_mean = self.t
+        n = _norm3(self.acc_mean)
+        return -self.acc_mean[2] / n if n > 0 else 1.0
 
     def pull(self, d) -> None:
         """Turn the filter's attitude by the earth-frame rotation ``d`` (horizontal axis): its
