@@ -23,9 +23,9 @@ and its rate ``â``. Each enters only where there is run-time evidence that VQF'
 - **gyro bias beyond VQF's clip** (VQF's bias estimate reaches ``bias_clip_deg_s``, an
   uncalibrated gyro; or the older fusion's horizontal bias stays beyond ``bias_gate_fusion_deg_s``
   for 2 s while VQF's own estimate reaches ``bias_gate_vqf_deg_s`` and the accelerometer's 10-s mean
-  lies within ``bias_gate_thrust_deg`` of the body's −z axis, the vehicles the network learned): from then on, in that segment, the network's bias beyond
-  ``bias_deadzone_deg_s`` is removed from the gyro VQF sees, and its tilt pulls with weight
-  ``bias_gate_weight``.
+  lies within ``bias_gate_thrust_deg`` of the body's −z axis, the vehicles the network learned): from
+  then on, in that segment, the network's bias beyond ``bias_deadzone_deg_s`` is removed from the
+  gyro VQF sees, and its tilt pulls with weight ``bias_gate_weight``.
 
 **Quiet blocks** (``quiet_blocks``): where every gate stays shut the estimate is VQF's whatever the
 windows say, so the network need not run there. Windows come in the older fusion's bias-feedback
@@ -430,7 +430,7 @@ class AnchoredVQF:
 
     def _thrust_cos(self) -> float:
         """Cosine of the angle between the body's −z axis and the accelerometer's mean, the last sample
-        of each window low-passed over :data:`THRUST_TAU_S` (1 until there is one)."""
+        of each window low-passed over :data:`THRUST_TAU_S` (1 while that mean is zero)."""
         a = [float(v) for v in self.last_imu[1]]
         if self.acc_mean is None:
             self.acc_mean = a
