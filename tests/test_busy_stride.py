@@ -30,8 +30,10 @@ Q = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
 def record(tmp_path_factory):
     # 24 s at 100 Hz with a 5.7 °/s gyro bias: blocks stay busy after the 10 s start-up (522 -> 391
     # windows at a stride of 2 with the shipped settings) and the uncalibrated-gyro gate opens, so the
-    # windows reach the estimate (at the synthetic default of 1.1 °/s no gate opens: VQF's output at any stride)
-    rec = synthetic_record(seed=2, duration_s=24.0, rate_hz=100.0, gyr_bias_rad_s=0.1)
+    # windows reach the estimate (at the synthetic default of 1.1 °/s no gate opens: VQF's output at any
+    # stride). Turning at up to ~1 rad/s from level: the synthetic default (4 rad/s, every orientation)
+    # leaves the network's domain, where the gate no longer takes the older fusion's evidence (session 16)
+    rec = synthetic_record(seed=2, duration_s=24.0, rate_hz=100.0, gyr_bias_rad_s=0.1, max_rate_rad_s=1.0)
     path = tmp_path_factory.mktemp("stride") / "syn.parquet"
     write_record(rec, path)
     return rec, path
@@ -88,7 +90,8 @@ def test_evaluate_busy_stride_adds_the_strided_model(record, tmp_path, capsys):
     rec, _ = record
     runner, settings, _ = load_runner(default_onnx_path(), "onnx")
     want = inclination_rmse_deg(rec, estimate_record(runner, rec, with_busy_stride(settings, 3)))
-    assert ds["tepinn-stride3"]["inclination_rmse_deg"] == pytest.approx(want, abs=1e-6)
+    # (to 1e-4°: the network in float32, batched otherwise by the harness; the stride itself moves it > 1e-3°)
+    assert ds["tepinn-stride3"]["inclination_rmse_deg"] == pytest.approx(want, abs=1e-4)
     assert abs(ds["tepinn-stride3"]["inclination_rmse_deg"] - ds["tepinn"]["inclination_rmse_deg"]) > 1e-3
     assert "TE-PINN, busy stride 3" in (out / "report.md").read_text()
 
