@@ -67,12 +67,11 @@ def test_a_real_trial_started_mid_motion_no_longer_latches_the_gate_on_the_fusio
     the older fusion's bias passed 3 °/s within 7 s and latched the gate (session 15's estimator: over
     the per-file bound against the optical truth); now it stays VQF's. The same record with a 5 °/s gyro
     bias still latches it and stays far ahead of VQF."""
-    from tepinn_flight.evaluation.harness import scoring_mask
-    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
     from tepinn_flight.evaluation.peers import VqfEstimator
     from tepinn_flight.ingest import load_record
     from tepinn_flight.model.checkpoint import default_model_path, load_model
-    from tepinn_flight.model.estimate import EST_Q_COLS, anchored_windows, estimate_anchored
+    from tepinn_flight.model.estimate import anchored_windows, estimate_anchored
+    from tepinn_flight.model.finetune import inclination_rmse_deg as rmse
     from tepinn_flight.record import GYR_COLS
 
     rec0 = load_record(broad_trial("broad_08_*.hdf5"))
@@ -81,15 +80,11 @@ def test_a_real_trial_started_mid_motion_no_longer_latches_the_gate_on_the_fusio
     model, anchor, _ = load_model(default_model_path())
     assert anchor.bias_gate_vqf_deg_s == 0.2  # the shipped estimator asks VQF
 
-    def rmse(r, q):
-        m = scoring_mask(r, 5.0) & np.all(np.isfinite(q), 1)
-        return float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], r.q_ref_wxyz[m])) ** 2))))
-
     def scores(r):
         w = anchored_windows(model, r, 256, anchor.fusion_config, anchor)
-        new, old = (rmse(r, estimate_anchored(model, r, a, windows=w)[EST_Q_COLS].to_numpy())
+        new, old = (rmse(r, estimate_anchored(model, r, a, windows=w))
                     for a in (anchor, dataclasses.replace(anchor, bias_gate_vqf_deg_s=0.0, bias_gate_thrust_deg=0.0)))  # fmt: skip
-        return new, old, rmse(r, VqfEstimator().estimate(r)[EST_Q_COLS].to_numpy())
+        return new, old, rmse(r, VqfEstimator().estimate(r))
 
     new, old, vqf = scores(rec)
     assert old > max(1.5 * vqf, vqf + 0.5), (old, vqf)  # the false latch (2.73° against VQF's 1.77°)
@@ -116,12 +111,11 @@ def test_a_real_trial_with_the_imu_on_its_side_no_longer_latches_the_gate():
     its domain, latched the gate (8.75° against VQF's 0.25°); now the estimate is the upright one's."""
     from scipy.spatial.transform import Rotation
 
-    from tepinn_flight.evaluation.harness import scoring_mask
-    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
     from tepinn_flight.evaluation.peers import VqfEstimator
     from tepinn_flight.ingest import load_record
     from tepinn_flight.model.checkpoint import default_model_path, load_model
-    from tepinn_flight.model.estimate import EST_Q_COLS, anchored_windows, estimate_anchored
+    from tepinn_flight.model.estimate import anchored_windows, estimate_anchored
+    from tepinn_flight.model.finetune import inclination_rmse_deg
     from tepinn_flight.quat import quat_mul
     from tepinn_flight.record import ACC_COLS, GYR_COLS, QREF_COLS
 
@@ -135,13 +129,9 @@ def test_a_real_trial_with_the_imu_on_its_side_no_longer_latches_the_gate():
     model, anchor, _ = load_model(default_model_path())
 
     def rmse(r, a):
-        q = estimate_anchored(model, r, a, windows=anchored_windows(model, r, 256, anchor.fusion_config, a))[EST_Q_COLS].to_numpy()
-        m = scoring_mask(r, 5.0) & np.all(np.isfinite(q), 1)
-        return float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], r.q_ref_wxyz[m])) ** 2))))
+        return inclination_rmse_deg(r, estimate_anchored(model, r, a, windows=anchored_windows(model, r, 256, anchor.fusion_config, a)))
 
-    vqf = VqfEstimator().estimate(side)[EST_Q_COLS].to_numpy()
-    m = scoring_mask(side, 5.0)
-    vqf_rmse = float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(vqf[m], side.q_ref_wxyz[m])) ** 2))))
+    vqf_rmse = inclination_rmse_deg(side, VqfEstimator().estimate(side))
     before = rmse(side, dataclasses.replace(anchor, bias_gate_thrust_deg=0.0))
     assert before > max(1.5 * vqf_rmse, vqf_rmse + 0.5), (before, vqf_rmse)
     now, upright = rmse(side, anchor), rmse(up, anchor)

@@ -368,6 +368,8 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
     if vel is None:
         return summarize(none, none, np.zeros((n, 3)), None, cfg), None, out
     seg = rec.segment
+    at = np.asarray(idx, np.int64)
+    fast = np.hypot(vel[at, 0], vel[at, 1]) >= fast_m_s  # the windows' ends (NaN: no fix, not fast)
     found = (none, none, np.zeros((n, 3)))  # the masks and correction of the last pass that applied
     aided, out_aided = None, out
     for p in range(cfg.passes):
@@ -380,10 +382,7 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
             break
         found = (trusted, covered, a_b)
         aided = acc - a_b
-        at = np.asarray(idx, np.int64)
-        fast = np.hypot(vel[:, 0], vel[:, 1]) >= fast_m_s  # (NaN: no fix, not fast)
-        out_aided = dict(out, gnss_aided=trusted[at] if len(idx) else np.zeros(0, bool),
-                         gnss_fast=fast[at] if len(idx) else np.zeros(0, bool))  # fmt: skip
+        out_aided = dict(out, gnss_aided=trusted[at], gnss_fast=fast)
         if p + 1 < cfg.passes:
             q_nb = _anchored_pass(anchor, seg, (t, cols[1], aided, cols[3], cols[4]), idx, out_aided, use_mag)[0]
     trusted, covered, a_b = found
