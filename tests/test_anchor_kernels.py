@@ -71,15 +71,15 @@ def test_block_inputs_against_numpy():
     assert vqf_inputs(gyr, acc, corr, vel, acc_v, True, g_s, a_s) == 2
 
 
-def _sigma_reference(q_es, a_s, e0, alpha, var0, gain, var_net):
+def _sigma_reference(q_es, a_s, g_s, e0, alpha, var0, gain, samp, var_net):
     """σ row by row, the slow way: the earth's vertical in sensor axes from scipy, the angle to the
-    accelerometer, a first-order low-pass."""
+    accelerometer, a first-order low-pass; the sampling term from the gyro's norm."""
     up = _scipy(q_es).inv().apply([0.0, 0.0, 1.0])
     ang = [math.acos(min(1.0, max(-1.0, float(u @ a) / np.linalg.norm(a)))) for u, a in zip(up, a_s)]
     e, out = e0, []
-    for x in ang:
+    for x, w in zip(ang, np.linalg.norm(g_s, axis=1)):
         e = e + alpha * (x - e)
-        out.append(math.sqrt(var0 + (gain * e) ** 2 + var_net))
+        out.append(math.sqrt(var0 + (gain * e) ** 2 + samp * w**2 + var_net))
     return np.array(out), e
 
 
@@ -90,22 +90,26 @@ def test_block_outputs_against_scipy_and_a_slow_sigma():
     a_s = rng.normal(0, 1, (300, 3)) + _scipy(q).inv().apply([0.0, 0.0, 9.81])  # roughly the vertical
     bias_s, corr = rng.normal(0, 0.01, (300, 3)), rng.normal(0, 0.01, 3)
     q_nb, bias_b, sigma = np.empty((300, 4)), np.empty((300, 3)), np.empty(300)
-    args = (0.02, 0.0025, math.radians(0.45) ** 2, 0.025, 1e-5)
-    e = vqf_outputs(q, bias_s, a_s, corr, *args, q_nb, bias_b, sigma)
+    g_s = rng.normal(0, 3.0, (300, 3))  # rad/s
+    args = (0.02, 0.0025, math.radians(0.45) ** 2, 0.025, 0.01**2 / 12, 1e-5)  # Δt 10 ms
+    e = vqf_outputs(q, bias_s, a_s, g_s, corr, *args, q_nb, bias_b, sigma)
     np.testing.assert_array_equal(q_nb, q_nb_from_earth_sensor(q, Q_NED_ENU))
     np.testing.assert_array_equal(bias_b, bias_s * [1.0, -1.0, -1.0] + corr)
-    want, e_want = _sigma_reference(q, a_s, *args)
+    want, e_want = _sigma_reference(q, a_s, g_s, *args)
     np.testing.assert_allclose(sigma, want, rtol=0, atol=1e-13)  # acos near 0: ~1e-16 / sin(angle)
     assert e == pytest.approx(e_want, abs=1e-13)
     # one sample at a time (the live path) gives the same bits
     e1 = args[0]
     for i in range(300):
-        s, e1 = sigma_step(*q[i], *a_s[i], e1, *args[1:])
+        s, e1 = sigma_step(*q[i], *a_s[i], *g_s[i], e1, *args[1:])
         assert s == sigma[i]
     assert e1 == e
     # a low-pass gain of 1 (τ below the sample period): the angle itself
-    vqf_outputs(q, bias_s, a_s, corr, 0.3, 1.0, 0.0, 1.0, 0.0, q_nb, bias_b, sigma)
-    np.testing.assert_allclose(sigma, _sigma_reference(q, a_s, 0.0, 1.0, 0.0, 1.0, 0.0)[0], rtol=0, atol=1e-13)
+    vqf_outputs(q, bias_s, a_s, g_s, corr, 0.3, 1.0, 0.0, 1.0, 0.0, 0.0, q_nb, bias_b, sigma)
+    np.testing.assert_allclose(sigma, _sigma_reference(q, a_s, g_s, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0)[0], rtol=0, atol=1e-13)
+    # the sampling term alone: |ω|·Δt/√12, the closed form of a uniform timing offset within a sample
+    vqf_outputs(q, bias_s, a_s, g_s, corr, 0.3, 1.0, 0.0, 0.0, 0.01**2 / 12, 0.0, q_nb, bias_b, sigma)
+    np.testing.assert_allclose(sigma, np.linalg.norm(g_s, axis=1) * 0.01 / math.sqrt(12), rtol=1e-12)
 
 
 def test_horizontal_bias_against_a_projection():

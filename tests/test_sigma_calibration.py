@@ -11,14 +11,16 @@ from tepinn_flight.evaluation.sigma_calibration import ErrorSamples, error_sampl
 from .conftest import broad_trial
 
 
-def _synthetic_files(f0_deg, c, n_files=6, n=20000, seed=0):
+def _synthetic_files(f0_deg, c, n_files=6, n=20000, seed=0, g=None):
+    """g None: files without a sampling term; else one (|ω| up to 10 rad/s at 50 Hz) counted g times."""
     rng = np.random.default_rng(seed)
     out = []
     for i in range(n_files):
         e = np.abs(rng.normal(0, np.radians(20), n))  # the accelerometer-disagreement input
-        s = np.sqrt(np.radians(f0_deg) ** 2 + (c * e) ** 2)
+        v = None if g is None else (rng.uniform(0, 10, n) * 0.02) ** 2 / 12
+        s = np.sqrt(np.radians(f0_deg) ** 2 + (c * e) ** 2 + (0 if v is None else g * v))
         err = rng.normal(size=(n, 2)) * s[:, None]  # a 2-D tilt error with exactly that σ per axis
-        out.append(ErrorSamples(f"f{i}", np.sum(err**2, 1), e))
+        out.append(ErrorSamples(f"f{i}", np.sum(err**2, 1), e, v))
     return out
 
 
@@ -35,6 +37,16 @@ def test_fit_recovers_a_known_noise_model():
     assert tight.sigma_acc_gain == 0.01
     with pytest.raises(ValueError):
         fit_sigma([ErrorSamples("x", np.zeros(0), np.zeros(0))])
+
+
+@pytest.mark.parametrize("g", [0.0, 1.0])
+def test_fit_tells_whether_the_sampling_term_is_there(g):
+    files = _synthetic_files(0.3, 0.02, g=g, seed=3)
+    n, cv = score(files, 0.3, 0.02, g)
+    assert abs(n - 2.0) < 0.05 and abs(cv - (1 - np.exp(-4.5))) < 0.003
+    fit = fit_sigma(files, coverage=0.975, sampling_gains=(0.0, 1.0))
+    assert fit.sigma_sampling_gain == g and abs(fit.sigma_floor_deg - 0.3) <= 0.1, fit
+    assert abs(fit.nees - 2.0) < 0.1 and fit.coverage_3sigma >= 0.975
 
 
 @pytest.mark.slow
@@ -55,4 +67,14 @@ def test_fast_scoring_equals_the_evaluations_metrics_on_a_real_trial():
     u = uncertainty_metrics(tilt_error_vector_rad(error_quat_earth(q[m], rec.q_ref_wxyz[seg0][m])), s[m])
     n, cv = score([f], cfg.sigma_floor_deg, cfg.sigma_acc_gain)
     assert n == pytest.approx(u["nees"], rel=1e-6) and cv == pytest.approx(u["coverage_3sigma"], abs=1e-9)
+    # ... and with the sampling term on (g = 1, c = 0.01): read through its own probe, the same figures
+    import dataclasses
+
+    cfg = dataclasses.replace(cfg, sigma_acc_gain=0.01, sigma_sampling_gain=1.0)
+    flt = AnchoredVQF(cfg, float(np.median(np.diff(rec.t_s[seg0][: TS_STEPS + 1]))))
+    q, _, s, _ = flt.update(rec.t_s[seg0], rec.gyr_rad_s[seg0], rec.acc_m_s2[seg0])
+    u = uncertainty_metrics(tilt_error_vector_rad(error_quat_earth(q[m], rec.q_ref_wxyz[seg0][m])), s[m])
+    n, cv = score([f], cfg.sigma_floor_deg, cfg.sigma_acc_gain, 1.0)
+    assert n == pytest.approx(u["nees"], rel=1e-6) and cv == pytest.approx(u["coverage_3sigma"], abs=1e-9)
+    assert n != pytest.approx(score([f], cfg.sigma_floor_deg, cfg.sigma_acc_gain, 0.0)[0], rel=1e-3)  # the term counts
 

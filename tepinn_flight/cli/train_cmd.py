@@ -66,7 +66,8 @@ def run(args) -> int:
         print(f"fine-tuned on {len(s['train_files'])} file(s), validated on {len(s['val_files'])}: validation "
               f"inclination RMSE {s['val_inclination_rmse_deg_before']:.3f}° -> {s['val_inclination_rmse_deg_after']:.3f}° "
               f"(VQF accelerometer time constant {s['tau_acc_s']:g} s, gyro scale "
-              f"{', '.join(f'{v:g}' for v in s['gyro_scale'])}; σ₀ {s['sigma_floor_deg']:g}°, c {s['sigma_acc_gain']:g}: "
+              f"{', '.join(f'{v:g}' for v in s['gyro_scale'])}; σ₀ {s['sigma_floor_deg']:g}°, c {s['sigma_acc_gain']:g}, sampling term "
+              f"{'on' if s['sigma_sampling_gain'] else 'off'}: "
               f"validation NEES {s['val_sigma_nees_before']:.2f} -> {s['val_sigma_nees_after']:.2f}, within 3σ "
               f"{100 * s['val_sigma_within_3sigma_before']:.1f} -> {100 * s['val_sigma_within_3sigma_after']:.1f} %); "
               f"model: {out / 'model.pt'}")  # fmt: skip

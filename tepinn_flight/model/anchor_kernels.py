@@ -49,10 +49,12 @@ def q_nb_rows(q_es, q_nb):
 
 
 @njit(cache=True)
-def sigma_step(qw, qx, qy, qz, ax, ay, az, e, alpha, var0, gain, var_net):
+def sigma_step(qw, qx, qy, qz, ax, ay, az, gx, gy, gz, e, alpha, var0, gain, samp, var_net):
     """One sample's σ (rad) → (σ, e): ``e`` low-passes (``e ← (1 − α) e + α·angle``) the angle between
     the accelerometer VQF saw (``a``, sensor axes) and its earth vertical (attitude ``q``, sensor →
-    earth); ``σ² = var0 + (gain·e)² + var_net``."""
+    earth); ``σ² = var0 + (gain·e)² + samp·|ω|² + var_net`` with ω the gyro VQF integrated (``g``) and
+    ``samp`` = g·Δt²/12: the sampling term, the attitude's change within one sample period Δt (an
+    estimate held over a sample against a reference taken anywhere in it: std |ω|·Δt/√12)."""
     ux, uy, uz = down_in_body(qw, qx, qy, qz)  # R's third row: the earth's z axis in sensor axes
     an = math.sqrt(ax * ax + ay * ay + az * az)
     c = (ux * ax + uy * ay + uz * az) / max(an, 1e-9)
@@ -65,6 +67,8 @@ def sigma_step(qw, qx, qy, qz, ax, ay, az, e, alpha, var0, gain, var_net):
     e = beta * e + alpha * ang if beta > 0 else ang
     ge = gain * e
     var = var0 + ge * ge
+    if samp > 0.0:  # (0: the σ of checkpoints before session 17, to the bit)
+        var += samp * (gx * gx + gy * gy + gz * gz)
     var += var_net
     return math.sqrt(var), e
 
@@ -98,17 +102,18 @@ def vqf_inputs(gyr_b, acc_b, gyr_corr, vel, acc_v, centripetal, g_s, a_s):
 
 
 @njit(cache=True)
-def vqf_outputs(q_es, bias_s, a_s, gyr_corr, e, alpha, var0, gain, var_net, q_nb, bias_b, sigma):
+def vqf_outputs(q_es, bias_s, a_s, g_s, gyr_corr, e, alpha, var0, gain, samp, var_net, q_nb, bias_b, sigma):
     """VQF's block out to the estimator's frames: ``q_nb`` (n, 4) body FRD → NED, ``bias_b`` (n, 3) its
     bias in body axes plus ``gyr_corr`` (what was removed before VQF), ``sigma`` (n,) by
-    :func:`sigma_step` from state ``e``. Returns the last ``e``."""
+    :func:`sigma_step` from state ``e`` (``a_s``, ``g_s``: the block VQF saw). Returns the last ``e``."""
     for i in range(q_es.shape[0]):
         qw, qx, qy, qz = q_es[i, 0], q_es[i, 1], q_es[i, 2], q_es[i, 3]
         q_nb[i, 0], q_nb[i, 1], q_nb[i, 2], q_nb[i, 3] = q_nb_from_vqf_f(qw, qx, qy, qz)
         bias_b[i, 0] = bias_s[i, 0] + gyr_corr[0]
         bias_b[i, 1] = -bias_s[i, 1] + gyr_corr[1]
         bias_b[i, 2] = -bias_s[i, 2] + gyr_corr[2]
-        sigma[i], e = sigma_step(qw, qx, qy, qz, a_s[i, 0], a_s[i, 1], a_s[i, 2], e, alpha, var0, gain, var_net)
+        sigma[i], e = sigma_step(qw, qx, qy, qz, a_s[i, 0], a_s[i, 1], a_s[i, 2], g_s[i, 0], g_s[i, 1], g_s[i, 2], e,
+                                 alpha, var0, gain, samp, var_net)  # fmt: skip
     return e
 
 

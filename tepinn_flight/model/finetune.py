@@ -8,8 +8,8 @@ file. Then the anchored estimator's VQF accelerometer time constant is chosen on
 trade-off between gyro and accelerometer, and the one that fits the vehicle's logs is a property of
 the vehicle (vibration, typical accelerations). So is its gyro's scale per axis, fitted next on the
 same files and kept only where it gains 2 % (session 10: on the BROAD trials, one IMU, a z scale of
-1.005 took VQF from 0.683° to 0.550°). Last, σ (``sigma_floor_deg`` σ₀, ``sigma_acc_gain`` c) is
-fitted on the same files against their reference (:func:`fit_anchor_sigma`): how far the estimate
+1.005 took VQF from 0.683° to 0.550°). Last, σ (``sigma_floor_deg`` σ₀, ``sigma_acc_gain`` c, and
+whether the sampling term counts, ``sigma_sampling_gain`` g: 0 or 1) is fitted on the same files against their reference (:func:`fit_anchor_sigma`): how far the estimate
 strays from the vehicle's own autopilot is the vehicle's too — the shipped σ was fitted on BROAD's
 optical truth. ``RUN_DIR/model.pt`` then works with
 ``estimate --model``; ``RUN_DIR/finetune.json`` holds the before/after figures on the validation
@@ -134,15 +134,17 @@ def fit_anchor_sigma(model, anchor, records: list[FlightRecord], warmup_s: float
     (σ₀, c, NEES and share within 3σ on those files)."""
     from ..evaluation.sigma_calibration import fit_sigma
 
-    fit = fit_sigma(sigma_samples(model, anchor, records, warmup_s), coverage=coverage)
-    return dataclasses.replace(anchor, sigma_floor_deg=fit.sigma_floor_deg, sigma_acc_gain=fit.sigma_acc_gain), fit
+    fit = fit_sigma(sigma_samples(model, anchor, records, warmup_s), coverage=coverage, sampling_gains=(0.0, 1.0))
+    return dataclasses.replace(anchor, sigma_floor_deg=fit.sigma_floor_deg, sigma_acc_gain=fit.sigma_acc_gain,
+                               sigma_sampling_gain=fit.sigma_sampling_gain), fit  # fmt: skip
 
 
 def sigma_scores(model, anchor, records: list[FlightRecord], warmup_s: float = 5.0) -> tuple[float, float]:
     """(mean NEES, share within 3σ), per file averaged, of ``anchor``'s σ on ``records``."""
     from ..evaluation.sigma_calibration import score
 
-    return score(sigma_samples(model, anchor, records, warmup_s), anchor.sigma_floor_deg, anchor.sigma_acc_gain)
+    return score(sigma_samples(model, anchor, records, warmup_s), anchor.sigma_floor_deg, anchor.sigma_acc_gain,
+                 anchor.sigma_sampling_gain)  # fmt: skip
 
 
 def inclination_rmse_deg(rec: FlightRecord, est, warmup_s: float = 5.0) -> float:
@@ -204,6 +206,7 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
         "gyro_scale_grid_deg": scales, "gyro_scale": list(anchor.gyro_scale),
         "val_inclination_rmse_deg_before": float(np.mean(before)), "val_inclination_rmse_deg_after": float(np.mean(after)),
         "sigma_floor_deg": anchor.sigma_floor_deg, "sigma_acc_gain": anchor.sigma_acc_gain,
+        "sigma_sampling_gain": anchor.sigma_sampling_gain,
         "train_sigma_nees": sfit.nees, "train_sigma_within_3sigma": sfit.coverage_3sigma,
         "val_sigma_nees_before": nees0, "val_sigma_nees_after": nees1,
         "val_sigma_within_3sigma_before": in3_0, "val_sigma_within_3sigma_after": in3_1,
