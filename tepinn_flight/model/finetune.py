@@ -129,9 +129,10 @@ def sigma_samples(model, anchor, records: list[FlightRecord], warmup_s: float = 
 
 
 def fit_anchor_sigma(model, anchor, records: list[FlightRecord], warmup_s: float = 5.0, coverage: float = SIGMA_COVERAGE):
-    """``anchor`` with σ₀ and c fitted on ``records`` against their reference (mean NEES nearest 2 at a
-    3σ-coverage floor: :func:`~tepinn_flight.evaluation.sigma_calibration.fit_sigma`), and the fit
-    (σ₀, c, NEES and share within 3σ on those files)."""
+    """``anchor`` with σ₀, c and the sampling term's g (0 or 1) fitted on ``records`` against their
+    reference (mean NEES nearest 2 at a 3σ-coverage floor:
+    :func:`~tepinn_flight.evaluation.sigma_calibration.fit_sigma`), and the fit (σ₀, c, g, NEES and
+    share within 3σ on those files)."""
     from ..evaluation.sigma_calibration import fit_sigma
 
     fit = fit_sigma(sigma_samples(model, anchor, records, warmup_s), coverage=coverage, sampling_gains=(0.0, 1.0))
