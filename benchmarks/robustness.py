@@ -33,11 +33,17 @@ files, and low IMU rates on held-out simulated flights that saturate the gyro or
    held on its side, a board not rotated into the body frame (session 16: the uncalibrated-gyro gate
    latched on the older fusion's evidence there). Off by default.
 
-`--broad-every N` takes every N-th shared BROAD trial (default 3; 1: all 17).
+9. `--real-rates 6,11`: the same real files decimated by averaging (the training's `decimate`) by
+   these factors — BROAD's 286 Hz to 48 and 26 Hz, the IMU rates of the ArduCopter logs users bring
+   (50 Hz DataFlash, 25 Hz). Off by default.
+
+`--broad-every N` takes every N-th shared BROAD trial (default 3; 1: all 17); `--seen-only` leaves the
+held-out drone logs out (a check that must not look at them).
 
     python benchmarks/robustness.py [--model CKPT] [--acc-scales 1.0,0.8] [--rates 1,8,16] [--acc-clip-every 3]
                                     [--gyro-biases 5] [--gyro-ranges 300] [--gyro-scales 1.02]
-                                    [--start-cuts 30,40,50] [--mounts 90:0:0] [--broad-every 3]
+                                    [--start-cuts 30,40,50] [--mounts 90:0:0] [--real-rates 6,11]
+                                    [--broad-every 3] [--seen-only]
 """
 
 from __future__ import annotations
@@ -68,6 +74,8 @@ def main() -> int:
     ap.add_argument("--broad-every", type=int, default=3, help="every N-th shared BROAD trial")
     ap.add_argument("--mounts", default="", help="IMU mountings as x:y:z Euler degrees, comma-separated ('': skip)")
     ap.add_argument("--gyro-scales", default="1.02", help="gyro scale errors, a factor or x:y:z per axis, comma-separated ('': skip)")
+    ap.add_argument("--real-rates", default="", help="decimation factors of the real files, comma-separated ('': skip)")
+    ap.add_argument("--seen-only", action="store_true", help="leave the held-out drone logs out")
     args = ap.parse_args()
 
     import torch
@@ -96,7 +104,8 @@ def main() -> int:
     split = tomllib.loads((REPO / "train/splits/real.toml").read_text())
     sh = Path(args.shared)
     broad = split["heldout"].get("broad", []) + split["seen"]["broad"]
-    files = [p for p in [sh / "real-logs" / n for n in split["heldout"]["real_logs"]] + [sh / "broad" / n for n in broad[:: max(1, args.broad_every)]] if p.exists()]
+    held = [] if args.seen_only else [sh / "real-logs" / n for n in split["heldout"]["real_logs"]]
+    files = [p for p in held + [sh / "broad" / n for n in broad[:: max(1, args.broad_every)]] if p.exists()]
     recs = [(p.name, ingest_log(p)) for p in files]  # read once, changed per condition below
 
     def changed(rec, **cols):
@@ -117,6 +126,17 @@ def main() -> int:
               f"failed on: {worse or 'none'}", flush=True)  # fmt: skip
         for n, a, b in res:
             print(f"  {n:<60} TE-PINN {a:6.2f}  VQF {b:6.2f}", flush=True)
+
+    def decimated(r, f):
+        """``r`` decimated by averaging by ``f`` (the training's ``decimate``; flags kept where any
+        sample of a block had them)."""
+        flags = {"clipped": r.clipped, "gyr_clipped": r.gyr_clipped}
+        t, seg, arr, kept = decimate(r.t_s, r.segment, {"g": r.gyr_rad_s, "a": r.acc_m_s2, **flags}, f)
+        df = r.data.iloc[kept].reset_index(drop=True).copy()
+        df[GYR_COLS], df[ACC_COLS], df["clipped"], df["segment"] = arr["g"], arr["a"], arr["clipped"], seg
+        if "gyr_clipped" in df:
+            df["gyr_clipped"] = arr["gyr_clipped"]
+        return FlightRecord(df, {**r.meta, "imu_rate_hz": r.meta["imu_rate_hz"] / f})
 
     def saturated(rec, rng_deg_s):
         """``rec`` with each gyro axis clipped at ±``rng_deg_s`` and those samples marked, as a reader
@@ -170,19 +190,19 @@ def main() -> int:
             turn = [rot.inv().apply(np.array(v, dtype=float)) for v in (rec.gyr_rad_s, rec.acc_m_s2)]
             res.append((n, *both(changed(rec, gyr=turn[0], acc=turn[1], **dict(zip(QREF_COLS, q_ref.T))))))
         report(f"IMU mounted turned {mount} (x:y:z °)", res)
+    for f in [int(x) for x in args.real_rates.split(",") if x]:
+        res = []
+        for n, rec in recs:
+            r = decimated(rec, f)
+            res.append((f"{n} ({r.meta['imu_rate_hz']:.0f} Hz)", *both(r)))
+        report(f"real files decimated ×{f}", res)
     pick = [p for p in sorted(Path(args.sim).glob("*.parquet")) if "c172x" in p.name or read_record(p).clipped.any()]
     pick = pick[:: max(1, len(pick) // 10)][:10]
     out: dict[int, list] = {}
     for p in pick:
         r = read_record(p)
         for f in [int(x) for x in args.rates.split(",") if x]:
-            flags = {"clipped": r.clipped, "gyr_clipped": r.gyr_clipped}
-            t, seg, arr, kept = decimate(r.t_s, r.segment, {"g": r.gyr_rad_s, "a": r.acc_m_s2, **flags}, f)
-            df = r.data.iloc[kept].reset_index(drop=True).copy()
-            df[GYR_COLS], df[ACC_COLS], df["clipped"], df["segment"] = arr["g"], arr["a"], arr["clipped"], seg
-            if "gyr_clipped" in df:
-                df["gyr_clipped"] = arr["gyr_clipped"]
-            rr = FlightRecord(df, {**r.meta, "imu_rate_hz": r.meta["imu_rate_hz"] / f})
+            rr = decimated(r, f)
             out.setdefault(f, []).append(both(rr))
             a, b = out[f][-1]
             print(f"{p.stem[:40]:<40} {rr.meta['imu_rate_hz']:5.0f} Hz  TE-PINN {a:6.2f}  VQF {b:6.2f}", flush=True)
