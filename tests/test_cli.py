@@ -274,22 +274,32 @@ def test_info_real_record_and_log(erle, capsys):
 
 @pytest.mark.slow
 def test_estimate_real_record_equals_the_pinned_estimates(erle, tmp_path):
-    """The shipped model through the verb: the pinned values of tests/test_pinned_estimates.py (the
-    estimator without the GNSS aid is causal, so the cut record gives the full log's estimates)."""
+    """The shipped model through the verb: the pinned attitudes of tests/test_pinned_estimates.py (the
+    estimator without the GNSS aid is causal, so the cut record gives the full log's estimates), and
+    σ in closed form where no gate acts (session 17's σ: σ₀² + (|ω|·Δt)²/12, c = 0; the pins hold the
+    σ before it)."""
+    import math
+
     import numpy as np
     import pandas as pd
 
+    from tepinn_flight.model.streaming import TS_STEPS
+    from tepinn_flight.record import read_record
     from tests.test_pinned_estimates import PINNED
 
     out = tmp_path / "est.parquet"
     assert main(["estimate", str(erle["crop"]), "-o", str(out), "-q", "--no-gnss-aid"]) == 0
     est = pd.read_parquet(out)
     assert len(est) == N_CROP
+    rec = read_record(erle["crop"])
     for row in (r for r in PINNED if r < N_CROP):
-        q_pin, s_pin = PINNED[row]
+        q_pin, _ = PINNED[row]
         np.testing.assert_allclose(est.loc[row, ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy(float), q_pin,
                                    rtol=0, atol=1e-9)  # fmt: skip
-        assert est.loc[row, "sigma_rad"] == pytest.approx(s_pin, abs=1e-9)
+        seg_t = rec.t_s[rec.segment == rec.segment[row]]
+        ts = float(np.median(np.diff(seg_t[: TS_STEPS + 1])))  # the filter's sample period
+        want = math.sqrt(math.radians(0.45) ** 2 + float(np.sum(rec.gyr_rad_s[row] ** 2)) * ts**2 / 12)
+        assert est.loc[row, "sigma_rad"] == pytest.approx(want, rel=1e-9)
 
 
 @pytest.mark.slow
