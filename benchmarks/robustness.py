@@ -86,9 +86,9 @@ def main() -> int:
     from tepinn_flight.evaluation.peers import VqfEstimator
     from tepinn_flight.ingest import ingest_log
     from tepinn_flight.model.checkpoint import default_model_path
-    from tepinn_flight.model.tokens import decimate
+    from tepinn_flight.model.tokens import decimate_record
     from tepinn_flight.record_gaps import bridge_gaps
-    from tepinn_flight.record import ACC_COLS, GYR_COLS, FlightRecord, read_record
+    from tepinn_flight.record import ACC_COLS, GYR_COLS, read_record
 
     torch.set_num_threads(1)
     tp, vq = TepinnEstimator.from_checkpoint(args.model or default_model_path(), "tepinn"), VqfEstimator()
@@ -126,17 +126,6 @@ def main() -> int:
               f"failed on: {worse or 'none'}", flush=True)  # fmt: skip
         for n, a, b in res:
             print(f"  {n:<60} TE-PINN {a:6.2f}  VQF {b:6.2f}", flush=True)
-
-    def decimated(r, f):
-        """``r`` decimated by averaging by ``f`` (the training's ``decimate``; flags kept where any
-        sample of a block had them)."""
-        flags = {"clipped": r.clipped, "gyr_clipped": r.gyr_clipped}
-        t, seg, arr, kept = decimate(r.t_s, r.segment, {"g": r.gyr_rad_s, "a": r.acc_m_s2, **flags}, f)
-        df = r.data.iloc[kept].reset_index(drop=True).copy()
-        df[GYR_COLS], df[ACC_COLS], df["clipped"], df["segment"] = arr["g"], arr["a"], arr["clipped"], seg
-        if "gyr_clipped" in df:
-            df["gyr_clipped"] = arr["gyr_clipped"]
-        return FlightRecord(df, {**r.meta, "imu_rate_hz": r.meta["imu_rate_hz"] / f})
 
     def saturated(rec, rng_deg_s):
         """``rec`` with each gyro axis clipped at ±``rng_deg_s`` and those samples marked, as a reader
@@ -193,7 +182,7 @@ def main() -> int:
     for f in [int(x) for x in args.real_rates.split(",") if x]:
         res = []
         for n, rec in recs:
-            r = decimated(rec, f)
+            r = decimate_record(rec, f)
             res.append((f"{n} ({r.meta['imu_rate_hz']:.0f} Hz)", *both(r)))
         report(f"real files decimated ×{f}", res)
     pick = [p for p in sorted(Path(args.sim).glob("*.parquet")) if "c172x" in p.name or read_record(p).clipped.any()]
@@ -202,7 +191,7 @@ def main() -> int:
     for p in pick:
         r = read_record(p)
         for f in [int(x) for x in args.rates.split(",") if x]:
-            rr = decimated(r, f)
+            rr = decimate_record(r, f)
             out.setdefault(f, []).append(both(rr))
             a, b = out[f][-1]
             print(f"{p.stem[:40]:<40} {rr.meta['imu_rate_hz']:5.0f} Hz  TE-PINN {a:6.2f}  VQF {b:6.2f}", flush=True)

@@ -17,10 +17,14 @@ nearest 2 among the grid points with at least `--coverage` of the samples within
    (session 17: NEES 1.94 / 1.97 / 1.18 → 1.75 / 2.04 / 1.73, within 3σ 97.2 / 97.5 / 99.5 → 98.8 /
    98.2 / 98.2 %).
 
+4. `--rates 6,11`: the same trials decimated by averaging (the training's `decimate`) to the rates of
+   ArduCopter logs (48 and 26 Hz): the shipped σ beside the σ before session 17 (σ₀ 0.45°, c 0.025,
+   g 0) (session 17: 1.03 / 1.77 against 3.03 / 9.15, 99.1 / 97.9 % against 90.7 / 72.6 % within 3σ).
+
 `--heldout` also scores the shipped σ and the refit of 2 on the held-out drone logs (reference: the
 autopilot's estimate) — each such run is a look at the held-out files: say so where it decides anything.
 
-    python benchmarks/sigma_fit.py [--shared ../shared] [--coverage 0.975] [--heldout]
+    python benchmarks/sigma_fit.py [--shared ../shared] [--coverage 0.975] [--rates 6,11] [--heldout]
 """
 
 from __future__ import annotations
@@ -43,6 +47,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--shared", default=str(REPO.parent / "shared"))
     ap.add_argument("--coverage", type=float, default=0.975, help="3σ-coverage floor of the fit")
+    ap.add_argument("--rates", default="", help="decimation factors for part 4, comma-separated ('': skip)")
     ap.add_argument("--heldout", action="store_true", help="also score on the held-out drone logs (a look at them)")
     args = ap.parse_args()
 
@@ -50,6 +55,7 @@ def main() -> int:
     from tepinn_flight.ingest import load_record
     from tepinn_flight.model.checkpoint import default_model_path, load_model
     from tepinn_flight.model.finetune import sigma_samples
+    from tepinn_flight.model.tokens import decimate_record
 
     split = tomllib.loads((REPO / "train/splits/real.toml").read_text())
     shared = Path(args.shared)
@@ -58,7 +64,8 @@ def main() -> int:
         print(f"need at least 6 seen BROAD trials in {shared / 'broad'}")
         return 2
     model, anchor, _ = load_model(default_model_path())
-    files = sigma_samples(model, anchor, [load_record(p) for p in seen])
+    recs = [load_record(p) for p in seen]
+    files = sigma_samples(model, anchor, recs)
     ship = (anchor.sigma_floor_deg, anchor.sigma_acc_gain, anchor.sigma_sampling_gain)
     print(f"{len(files)} seen BROAD trials, the shipped estimator's errors")
     print(f"1. shipped σ₀ {ship[0]:g}°, c {ship[1]:g}, g {ship[2]:g}: {_fmt(score(files, *ship))}")
@@ -84,6 +91,11 @@ def main() -> int:
             row.append(f"fit g in {gs} (σ₀ {f.sigma_floor_deg:g}°, c {f.sigma_acc_gain:g}, g {f.sigma_sampling_gain:g}) "
                        f"{_fmt(score(other, f.sigma_floor_deg, f.sigma_acc_gain, f.sigma_sampling_gain))}")  # fmt: skip
         print("; ".join(row))
+
+    for f in [int(x) for x in args.rates.split(",") if x]:
+        low = sigma_samples(model, anchor, [decimate_record(r, f) for r in recs])
+        print(f"4. decimated ×{f} ({recs[0].meta['imu_rate_hz'] / f:.0f} Hz): shipped {_fmt(score(low, *ship))}; "
+              f"before session 17 (σ₀ 0.45°, c 0.025, g 0) {_fmt(score(low, 0.45, 0.025))}")  # fmt: skip
 
     if args.heldout:
         held = [shared / "real-logs" / n for n in split["heldout"]["real_logs"] if (shared / "real-logs" / n).exists()]

@@ -88,14 +88,10 @@ def test_the_shipped_sigma_covers_a_real_trial_at_an_ardupilot_log_rate():
     # 1.77, 97.9 % with it; this trial with the plain filter: 5.25, 79.3 % -> 1.14, 99.9 %)
     from tepinn_flight.ingest import ingest_log
     from tepinn_flight.model.anchor import AnchorConfig
-    from tepinn_flight.model.tokens import decimate
-    from tepinn_flight.record import ACC_COLS, GYR_COLS, FlightRecord
+    from tepinn_flight.model.tokens import decimate_record
 
-    rec = ingest_log(broad_trial("broad_01_*.hdf5"))
-    t, seg, arr, kept = decimate(rec.t_s, rec.segment, {"g": rec.gyr_rad_s, "a": rec.acc_m_s2}, 11)
-    df = rec.data.iloc[kept].reset_index(drop=True).copy()
-    df[GYR_COLS], df[ACC_COLS], df["segment"] = arr["g"], arr["a"], seg
-    low = FlightRecord(df, {**rec.meta, "imu_rate_hz": rec.meta["imu_rate_hz"] / 11})
+    low = decimate_record(ingest_log(broad_trial("broad_01_*.hdf5")), 11)
+    assert low.meta["imu_rate_hz"] == pytest.approx(286 / 11, rel=0.01)
     cfg = AnchorConfig()
     f = error_samples(low, "b01 at 26 Hz", cfg)
     n, cv = score([f], cfg.sigma_floor_deg, cfg.sigma_acc_gain, cfg.sigma_sampling_gain)

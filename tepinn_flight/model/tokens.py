@@ -151,3 +151,18 @@ def decimate(t_s, segment, arrays: dict[str, np.ndarray], factor: int) -> tuple:
             with np.errstate(invalid="ignore"):
                 out[name] = np.nanmean(v[gi], axis=1) if np.isnan(v).any() else v[gi].mean(axis=1)
     return t_s[kept], segment[kept], out, kept
+
+
+def decimate_record(rec: FlightRecord, factor: int) -> FlightRecord:
+    """``rec`` at ``1/factor`` of its IMU rate by :func:`decimate` (gyro and accelerometer averaged,
+    the clip flags kept where any sample of a group had them, every other column taken at each group's
+    last sample): a real or simulated record as a slower IMU would have logged it."""
+    from ..record import ACC_COLS, GYR_COLS
+
+    flags = {"clipped": rec.clipped, "gyr_clipped": rec.gyr_clipped}
+    _, seg, arr, kept = decimate(rec.t_s, rec.segment, {"g": rec.gyr_rad_s, "a": rec.acc_m_s2, **flags}, factor)
+    df = rec.data.iloc[kept].reset_index(drop=True).copy()
+    df[GYR_COLS], df[ACC_COLS], df["clipped"], df["segment"] = arr["g"], arr["a"], arr["clipped"], seg
+    if "gyr_clipped" in df:
+        df["gyr_clipped"] = arr["gyr_clipped"]
+    return FlightRecord(df, {**rec.meta, "imu_rate_hz": rec.meta["imu_rate_hz"] / factor})
