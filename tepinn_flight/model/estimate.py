@@ -264,7 +264,7 @@ def wants_mag(anchor: AnchorConfig, rec: FlightRecord) -> bool:
 
 
 def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | None = None,
-                      batch_size: int = 256, windows=None) -> pd.DataFrame:  # fmt: skip
+                      batch_size: int = 256, windows=None, smoother: SmootherConfig | None = None) -> pd.DataFrame:  # fmt: skip
     """The filter-anchored estimate (:mod:`.anchor`): one row per record row, ``t_s``, ``q_est_*``
     (body→NED; 9-D heading where ``wants_mag``), ``sigma_rad``, ``gyr_bias_est_*``. Estimates start
     at a segment's first sample (VQF); the network's windows apply from the sample after their last
@@ -275,7 +275,8 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     velocity, the motion acceleration it shows is then taken out of the accelerometer and the filter
     run again (:func:`gnss_aided_acc`; offline only): ``attrs["gnss_aid"]``. With ``anchor.smoother``
     the tilt of every long enough stretch where no gate acts is then VQF's run forward and backward
-    on the same inputs (:mod:`.smoother`; offline only): ``attrs["smoother"]``."""
+    on the same inputs (:mod:`.smoother`; offline only, its settings ``smoother``, default the
+    shipped ones): ``attrs["smoother"]``."""
     anchor = anchor or AnchorConfig()
     rec, _ = bridge_holes(rec)
     anchor, cal = self_calibrated(anchor, rec)
@@ -295,7 +296,7 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
             q_out, s_out, b_out, gate = _anchored_pass(anchor, rec.segment, cols, idx, out_aided, use_mag)
     done = None
     if anchor.smoother:
-        q_out, s_out, done = smooth(t, q_out, s_out, gate, rec.segment, SmootherConfig(),
+        q_out, s_out, done = smooth(t, q_out, s_out, gate, rec.segment, smoother or SmootherConfig(),
                              lambda sl: offline_vqf(anchor, t[sl], gyr[sl], cols[2][sl]))  # fmt: skip
     df = _frame(t, q_out, s_out, b_out)
     for key, found in (("gyro_selfcal", cal), ("gnss_aid", aid), ("smoother", done)):
