@@ -227,9 +227,11 @@ def test_an_estimator_with_an_offline_step_is_not_called_causal():
     from tepinn_flight.model.checkpoint import default_model_path
 
     shipped = TepinnEstimator.from_checkpoint(default_model_path(), "tepinn")
-    assert not shipped.causal  # the gyro self-calibration and the GNSS aid read the whole record
-    live = TepinnEstimator(shipped.model, dataclasses.replace(shipped.fusion, gyro_selfcal=False, gnss_aid=False))
+    assert not shipped.causal  # the scale reads, the gyro self-calibration and the GNSS aid read the whole record
+    live = TepinnEstimator(shipped.model, dataclasses.replace(shipped.fusion, gyro_selfcal=False, gnss_aid=False,
+                                                              accel_scale_selfcal=False))  # fmt: skip
     assert live.causal
+    assert not TepinnEstimator(shipped.model, dataclasses.replace(live.fusion, accel_scale_selfcal=True)).causal
     sm = shipped.smoothed()
     assert sm.name == "tepinn-smooth" and sm.fusion.smoother and not sm.causal
 

@@ -43,6 +43,10 @@ def add_arguments(p) -> None:
                         "after a segment's first 10 s (windows holding a saturated sample always run): about N "
                         "times less network time there, at some accuracy (held-out simulated fixed wing 6.76 -> "
                         "7.40 deg at 6; README, Speed); default: the model's (1: every window)")
+    p.add_argument("--no-accel-scale", action="store_true",
+                   help="do not read the accelerometer's scale from the record's quiet, steady samples (the estimate the "
+                        "live bridge gives; by default it is divided out where it reads 10 %% or more off 1 g: README, the "
+                        "shipped estimator)")
     p.add_argument("--no-gyro-selfcal", action="store_true",
                    help="do not read the gyro's per-axis scale from the record's rests (the estimate the live bridge "
                         "gives; by default it is read and applied where the record shows one: README, the shipped estimator)")
@@ -110,6 +114,8 @@ def _run(args) -> int:
             raise TepinnError(f"--mode {args.mode}: {ckpt_path.name} runs the older network-centred fusion, 6-D only")
         fusion = dataclasses.replace(fusion, mode=args.mode)
     fusion = with_busy_stride(fusion, args.busy_stride, ckpt_path.name)
+    if args.no_accel_scale and getattr(fusion, "accel_scale_selfcal", False):
+        fusion = dataclasses.replace(fusion, accel_scale_selfcal=False)
     if args.no_gyro_selfcal and getattr(fusion, "gyro_selfcal", False):
         fusion = dataclasses.replace(fusion, gyro_selfcal=False)
     if args.no_gnss_aid and getattr(fusion, "gnss_aid", False):

@@ -155,6 +155,10 @@ class AnchorConfig:
     # always with False (session 14: the aid stops at max_speed_m_s), aided windows shut the gate:
     # the receiver says the vehicle is not flying fast, whatever v̂ says
     gnss_aid_in_flight: bool = True
+    # offline: the accelerometer divided by the scale the record itself shows at its quiet, steady
+    # moments (rest, hover, straight flight) where that is clearly not 1 (:mod:`.accel_scale`: ≥ 10 %;
+    # a board at 0.8 g); every other record is estimated bit for bit as without it. Live: not
+    accel_scale_selfcal: bool = True
     # offline, opt-in (`estimate --smooth`): the tilt of every long stretch where no gate acts is VQF's
     # run forward and backward on the same inputs (:mod:`.smoother`, ``vqf.offlineVQF``; heading kept).
     # Not the shipped default: nearer the true attitude (BROAD's optical truth, simulations), farther
@@ -217,7 +221,8 @@ class AnchorConfig:
 
         return dataclasses.replace(self, pull_gain=0.0, centripetal=False, bias_gate_weight=0.0,
                                    bias_deadzone_deg_s=1e9, sigma_net_scale=0.0, gyro_scale=(1.0, 1.0, 1.0),
-                                   gyro_selfcal=False, gnss_aid=False, smoother=False)  # fmt: skip
+                                   gyro_selfcal=False, gnss_aid=False, smoother=False,
+                                   accel_scale_selfcal=False)  # fmt: skip
 
 
 @dataclass

@@ -16,10 +16,11 @@ import numpy as np
 import pandas as pd
 
 from ..errors import TepinnError
-from ..record import FlightRecord, segment_slices
+from ..record import ACC_COLS, FlightRecord, segment_slices
 from ..record_gaps import bridge_gaps
 from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows, q_nb_from_vqf, to_sensor
 from .fusion import FusionConfig, FusionRun, feedback_bias
+from .accel_scale import AccelScale, read_accel_scale
 from .gnss_aid import GnssAidConfig, motion_acc_body, summarize
 from .gyro_selfcal import GyroSelfCal, self_calibrate
 from .runtime import as_runner
@@ -34,7 +35,7 @@ EST_Q_COLS = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
 EST_BIAS_COLS = ["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]
 #: What the anchored estimate reads from the whole record (offline only): each one line in the
 #: result's ``attrs`` under this key, ending with "; applied" where it changed the estimate
-OFFLINE_STEPS = ("gyro_selfcal", "gnss_aid", "smoother")
+OFFLINE_STEPS = ("accel_scale_selfcal", "gyro_selfcal", "gnss_aid", "smoother")
 
 
 def network_on_windows(model: TEPINN, tok, ends: np.ndarray, gyr_offset: np.ndarray | None = None,
@@ -171,6 +172,22 @@ def bridge_holes(rec: FlightRecord) -> tuple[FlightRecord, int]:
     return FlightRecord(data, dict(rec.meta)), int(bad.sum())
 
 
+def prepared(rec: FlightRecord, anchor: AnchorConfig | None) -> tuple[FlightRecord, AccelScale | None]:
+    """``rec`` as the anchored estimator reads it: holes bridged (:func:`bridge_holes`) and, with
+    ``anchor.accel_scale_selfcal``, the accelerometer divided by the scale the record itself shows
+    where it is clearly not 1 (:mod:`.accel_scale`; offline only) → (record, what was found; None:
+    not asked)."""
+    rec, _ = bridge_holes(rec)
+    if anchor is None or not anchor.accel_scale_selfcal:
+        return rec, None
+    found = read_accel_scale(rec.t_s, rec.gyr_rad_s, rec.acc_m_s2)
+    if found.applied:
+        data = rec.data.copy()
+        data[list(ACC_COLS)] = rec.acc_m_s2 / found.scale
+        rec = FlightRecord(data, dict(rec.meta))
+    return rec, found
+
+
 def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fusion: FusionConfig | None = None,
                      anchor: AnchorConfig | None = None):  # fmt: skip
     """(sample_index (W,), outputs dict) of the windows :func:`estimate_anchored` applies.
@@ -178,8 +195,9 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
     the windows are made as its bias feedback makes them and ``outputs["q_target"]`` is its
     estimate at each window's last sample (before that window is applied: causal). With ``anchor``'s
     quiet blocks on, a quiet block runs only its first window and those holding a saturated token
-    (:meth:`AnchorConfig.block_busy`; the live estimator decides the same way)."""
-    rec, _ = bridge_holes(rec)
+    (:meth:`AnchorConfig.block_busy`; the live estimator decides the same way). The record is read as
+    :func:`prepared` makes it for ``anchor``."""
+    rec, _ = prepared(rec, anchor)
     tok = tokenize_record(rec, model.config.token_rate_hz)
     ends = tok.windows_ending(model.config.window_tokens)
     idx = tok.last_index[ends]
@@ -269,7 +287,9 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     (body→NED; 9-D heading where ``wants_mag``), ``sigma_rad``, ``gyr_bias_est_*``. Estimates start
     at a segment's first sample (VQF); the network's windows apply from the sample after their last
     one. ``windows`` takes :func:`anchored_windows`' result when already at hand. Non-finite IMU
-    samples are holes, bridged with the last finite sample. With ``anchor.gyro_selfcal`` the gyro's
+    samples are holes, bridged with the last finite sample. With ``anchor.accel_scale_selfcal`` the
+    accelerometer is first divided by its scale where the record shows one clearly not 1
+    (:func:`prepared`; offline only): ``attrs["accel_scale_selfcal"]``. With ``anchor.gyro_selfcal`` the gyro's
     scale is first read from the record (:func:`self_calibrated`; offline only), and what was found
     is in the result's ``attrs["gyro_selfcal"]``. With ``anchor.gnss_aid`` and a record carrying GNSS
     velocity, the motion acceleration it shows is then taken out of the accelerometer and the filter
@@ -278,7 +298,7 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     on the same inputs (:mod:`.smoother`; offline only, its settings ``smoother``, default the
     shipped ones): ``attrs["smoother"]``."""
     anchor = anchor or AnchorConfig()
-    rec, _ = bridge_holes(rec)
+    rec, acal = prepared(rec, anchor)
     anchor, cal = self_calibrated(anchor, rec)
     if windows is None:
         windows = anchored_windows(model, rec, batch_size, anchor.fusion_config or FusionConfig(), anchor)
@@ -299,7 +319,7 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
         q_out, s_out, done = smooth(t, q_out, s_out, gate, rec.segment, smoother or SmootherConfig(),
                              lambda sl: offline_vqf(anchor, t[sl], gyr[sl], cols[2][sl]))  # fmt: skip
     df = _frame(t, q_out, s_out, b_out)
-    for key, found in (("gyro_selfcal", cal), ("gnss_aid", aid), ("smoother", done)):
+    for key, found in (("accel_scale_selfcal", acal), ("gyro_selfcal", cal), ("gnss_aid", aid), ("smoother", done)):
         if found is not None:
             df.attrs[key] = found.describe()
     return df

@@ -1,0 +1,123 @@
+"""The accelerometer's scale read from a record (model/accel_scale.py) and divided out offline where it
+is clearly not 1: closed forms on synthetic IMUs, and a real BROAD trial read as a board at 1.25 g."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+
+import numpy as np
+import pytest
+
+from tepinn_flight.conventions import GRAVITY_M_S2
+from tepinn_flight.model.accel_scale import AccelScaleConfig, read_accel_scale
+from tepinn_flight.model.checkpoint import anchor_config_from
+
+from .conftest import broad_trial
+
+
+def _imu(seconds: float, rate_hz: float, scale: float, rate_rad_s: float = 0.0, seed: int = 0):
+    """A level IMU (specific force −g·scale on z, white noise 0.5 m/s² per axis) turning about z at
+    ``rate_rad_s``."""
+    rng = np.random.default_rng(seed)
+    n = int(seconds * rate_hz)
+    t = np.arange(n) / rate_hz
+    gyr = rng.normal(0.0, 0.01, (n, 3)) + np.array([0.0, 0.0, rate_rad_s])
+    acc = rng.normal(0.0, 0.5, (n, 3)) + np.array([0.0, 0.0, -GRAVITY_M_S2 * scale])
+    return t, gyr, acc
+
+
+@pytest.mark.parametrize("scale", [0.8, 1.25])
+def test_a_board_off_by_a_fifth_is_read_and_divided_out(scale):
+    t, gyr, acc = _imu(30.0, 200.0, scale)
+    found = read_accel_scale(t, gyr, acc)
+    assert found.applied and found.read == pytest.approx(scale, abs=0.005) and found.scale == found.read
+    assert found.quiet_s > 25.0 and found.describe().endswith("; applied")
+
+
+def test_a_board_within_the_tolerance_keeps_its_scale():
+    t, gyr, acc = _imu(30.0, 200.0, 1.03)
+    found = read_accel_scale(t, gyr, acc)
+    assert found.read == pytest.approx(1.03, abs=0.005) and not found.applied and found.scale == 1.0
+    # a tighter tolerance takes it: the rule is |s − 1| ≥ tolerance
+    assert read_accel_scale(t, gyr, acc, AccelScaleConfig(tolerance=0.02)).applied
+
+
+def test_turning_or_accelerating_samples_give_no_reading():
+    # turning at 0.2 rad/s throughout (a banked turn reads more than g): never quiet
+    t, gyr, acc = _imu(30.0, 200.0, 1.2, rate_rad_s=0.2)
+    assert read_accel_scale(t, gyr, acc).read is None
+    # not turning, but the norm swinging by ±3 m/s² at 0.5 Hz (a vehicle speeding up and slowing down)
+    t, gyr, acc = _imu(30.0, 200.0, 1.0)
+    acc[:, 2] += 3.0 * np.sin(2 * np.pi * 0.5 * t)
+    assert read_accel_scale(t, gyr, acc).read is None
+
+
+def test_records_too_short_or_without_a_finite_sample_give_no_reading():
+    for seconds in (0.004, 0.05, 1.0, 1.9):  # shorter than the averaging, than the steadiness window
+        t, gyr, acc = _imu(seconds, 200.0, 0.8)
+        found = read_accel_scale(t, gyr, acc)
+        assert found.read is None and not found.applied and found.scale == 1.0
+    t, gyr, acc = _imu(30.0, 200.0, 0.8)
+    acc[:] = np.nan
+    assert read_accel_scale(t, gyr, acc).read is None
+
+
+def test_checkpoints_written_before_it_run_without_it():
+    old = {"bias_gate_fusion_deg_s": 3.0}  # a checkpoint of session 16 (written after pull_target's removal)
+    assert anchor_config_from({"anchor_config": old}).accel_scale_selfcal is False
+    assert anchor_config_from({"anchor_config": {**old, "accel_scale_selfcal": True}}).accel_scale_selfcal is True
+
+
+@pytest.mark.slow
+def test_a_real_trial_read_as_a_board_at_1_25_g_is_estimated_as_the_trial_itself():
+    """BROAD trial 05 (hand-held, optical truth) with its accelerometer × 1.25: the shipped estimator
+    without the scale read loses to its own estimate of the trial as logged by far (a gate opens); with
+    it, the trial's scale is read as 1.25 and the estimate is the logged trial's."""
+    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
+    from tepinn_flight.evaluation.harness import scoring_mask
+    from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.estimate import EST_Q_COLS, estimate_anchored
+    from tepinn_flight.record import ACC_COLS
+
+    rec = ingest_log(broad_trial("broad_05_*.hdf5"))
+    model, anchor, _ = load_model(default_model_path())
+    assert anchor.accel_scale_selfcal  # shipped on
+    big = copy.copy(rec)
+    big.data = rec.data.copy()
+    big.data[ACC_COLS] = rec.acc_m_s2 * 1.25
+
+    def rmse(r, a):
+        est = estimate_anchored(model, r, a)
+        q = est[EST_Q_COLS].to_numpy()
+        m = scoring_mask(r, 5.0) & np.all(np.isfinite(q), 1)
+        return float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], r.q_ref_wxyz[m])) ** 2)))), est
+
+    logged, est0 = rmse(rec, anchor)
+    fixed, est1 = rmse(big, anchor)
+    without, _ = rmse(big, dataclasses.replace(anchor, accel_scale_selfcal=False))
+    assert "not applied" in est0.attrs["accel_scale_selfcal"] and est1.attrs["accel_scale_selfcal"].endswith("; applied")
+    assert abs(fixed - logged) < 0.01
+    assert without > 2.0 * logged
+
+
+def test_estimate_says_what_it_read_keeps_it_in_the_output_and_no_accel_scale_turns_it_off(tmp_path, capsys):
+    import pyarrow.parquet as pq
+
+    from tepinn_flight.cli.main import main
+    from tepinn_flight.record import ACC_COLS, FlightRecord, write_record
+
+    from .test_gyro_selfcal import turns_with_rests
+
+    rec, _ = turns_with_rests((1.0, 1.0, 1.0), seed=3)  # turns between rests, the accelerometer as true
+    data = rec.data.copy()
+    data[ACC_COLS] = rec.acc_m_s2 * 0.8  # a board at 0.8 g
+    write_record(FlightRecord(data, dict(rec.meta)), tmp_path / "low.parquet")
+    assert main(["estimate", str(tmp_path / "low.parquet"), "-o", str(tmp_path / "est.parquet")]) == 0
+    out = capsys.readouterr().out
+    line = pq.read_schema(tmp_path / "est.parquet").metadata[b"accel_scale_selfcal"].decode()
+    assert line.startswith("accelerometer scale: 0.80") and line.endswith("; applied") and line in out
+    assert main(["estimate", str(tmp_path / "low.parquet"), "-o", str(tmp_path / "off.parquet"), "--no-accel-scale"]) == 0
+    assert "accelerometer scale" not in capsys.readouterr().out
+    assert b"accel_scale_selfcal" not in (pq.read_schema(tmp_path / "off.parquet").metadata or {})
