@@ -121,3 +121,51 @@ def test_estimate_says_what_it_read_keeps_it_in_the_output_and_no_accel_scale_tu
     assert main(["estimate", str(tmp_path / "low.parquet"), "-o", str(tmp_path / "off.parquet"), "--no-accel-scale"]) == 0
     assert "accelerometer scale" not in capsys.readouterr().out
     assert b"accel_scale_selfcal" not in (pq.read_schema(tmp_path / "off.parquet").metadata or {})
+
+
+def test_the_live_reading_decides_once_from_the_first_quiet_seconds_and_matches_the_offline_one():
+    from tepinn_flight.model.accel_scale import AccelScaleTracker
+
+    t, gyr, acc = _imu(30.0, 200.0, 1.25)
+    tr = AccelScaleTracker()
+    out = np.array([tr.update(float(ti), g, a) for ti, g, a in zip(t, gyr, acc)])
+    found = tr.decided
+    assert found is not None and found.applied and found.read == pytest.approx(read_accel_scale(t, gyr, acc).read, abs=0.005)
+    first = int(np.argmax(np.any(out != acc, axis=1)))  # the first sample divided: after 0.5 + 2 + 5 s
+    assert 7.4 <= t[first] <= 7.7
+    np.testing.assert_array_equal(out[:first], acc[:first])
+    np.testing.assert_allclose(out[first:], acc[first:] / found.scale, rtol=1e-12)
+    # a board within the tolerance passes unchanged, bit for bit
+    t, gyr, acc = _imu(30.0, 200.0, 1.03)
+    tr = AccelScaleTracker()
+    out = np.array([tr.update(float(ti), g, a) for ti, g, a in zip(t, gyr, acc)])
+    assert tr.decided is not None and not tr.decided.applied
+    np.testing.assert_array_equal(out, acc)
+
+
+@pytest.mark.slow
+def test_the_live_estimator_on_a_real_trial_read_as_a_board_at_1_25_g():
+    """BROAD trial 05 × 1.25 streamed sample by sample (what the bridge runs): with the causal reading,
+    near the trial's own live estimate; without it, far off (the flight-speed gate opens)."""
+    from tepinn_flight.evaluation.harness import scoring_mask
+    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
+    from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.streaming import StreamingEstimator
+
+    rec = ingest_log(broad_trial("broad_05_*.hdf5"))
+    n = int(np.searchsorted(rec.t_s, rec.t_s[0] + 90.0))  # its first 90 s
+    model, anchor, _ = load_model(default_model_path())
+
+    def live(a, scale):
+        se = StreamingEstimator(model, a)
+        est = [se.push(t, g, acc * scale, None, c).q_nb_wxyz for t, g, acc, c in
+               zip(rec.t_s[:n], rec.gyr_rad_s[:n], rec.acc_m_s2[:n], rec.clipped[:n])]  # fmt: skip
+        q = np.array([(np.nan,) * 4 if e is None else tuple(e) for e in est], np.float64)
+        m = scoring_mask(rec, 5.0)[:n] & np.all(np.isfinite(q), 1)
+        return float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], rec.q_ref_wxyz[:n][m])) ** 2))))
+
+    logged = live(anchor, 1.0)
+    fixed = live(anchor, 1.25)
+    without = live(dataclasses.replace(anchor, accel_scale_selfcal=False), 1.25)
+    assert fixed < logged + 0.1 and without > 2.0 * logged, (logged, fixed, without)

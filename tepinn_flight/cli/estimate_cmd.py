@@ -44,8 +44,8 @@ def add_arguments(p) -> None:
                         "times less network time there, at some accuracy (held-out simulated fixed wing 6.76 -> "
                         "7.40 deg at 6; README, Speed); default: the model's (1: every window)")
     p.add_argument("--no-accel-scale", action="store_true",
-                   help="do not read the accelerometer's scale from the record's quiet, steady samples (the estimate the "
-                        "live bridge gives; by default it is divided out where it reads 10 %% or more off 1 g: README, the "
+                   help="do not read the accelerometer's scale from the record's quiet, steady samples (by default it is "
+                        "divided out where it reads 10 %% or more off 1 g; the live bridge reads it causally: README, the "
                         "shipped estimator)")
     p.add_argument("--no-gyro-selfcal", action="store_true",
                    help="do not read the gyro's per-axis scale from the record's rests (the estimate the live bridge "

@@ -157,7 +157,8 @@ class AnchorConfig:
     gnss_aid_in_flight: bool = True
     # offline: the accelerometer divided by the scale the record itself shows at its quiet, steady
     # moments (rest, hover, straight flight) where that is clearly not 1 (:mod:`.accel_scale`: ≥ 10 %;
-    # a board at 0.8 g); every other record is estimated bit for bit as without it. Live: not
+    # a board at 0.8 g); every other record is estimated bit for bit as without it. Live: read causally
+    # from the first quiet seconds and applied from then on (:class:`.accel_scale.AccelScaleTracker`)
     accel_scale_selfcal: bool = True
     # offline, opt-in (`estimate --smooth`): the tilt of every long stretch where no gate acts is VQF's
     # run forward and backward on the same inputs (:mod:`.smoother`, ``vqf.offlineVQF``; heading kept).

@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..record_gaps import GAP_PERIODS, filler_times, interpolate_rows, is_bridgeable
+from .accel_scale import AccelScaleTracker
 from .anchor import AnchorConfig, AnchoredVQF, WindowOutput
 from .fusion import AttitudeFusion, FusionConfig, feedback_bias
 from .runtime import NetworkRunner, as_runner
@@ -114,6 +115,8 @@ class StreamingEstimator:
         self.last_raw = None  # the previous sample's gyro, accelerometer, magnetometer (gap filling)
         self.bridged_gaps = 0  # short logging dropouts propagated through
         self.delta = 1.0 / self.cfg.token_rate_hz
+        # the accelerometer's scale, read causally and kept across segments (a sensor's property)
+        self.acc_scale = AccelScaleTracker() if a is not None and a.accel_scale_selfcal else None
         if threads:
             self.runner.set_threads(threads)
         self.reset()
@@ -172,6 +175,9 @@ class StreamingEstimator:
                 and is_bridgeable(t - self.t_prev, self.period):  # fmt: skip
             self._bridge(t, (*gyr_rad_s, *acc_m_s2, *mag_row))
         self.last_raw = (*gyr_rad_s, *acc_m_s2, *mag_row)
+        if self.acc_scale is not None:  # divided by the accelerometer's scale once read (where ≥ 10 % off)
+            acc_m_s2 = self.acc_scale.update(t, gyr_rad_s, acc_m_s2)
+            ax, ay, az = acc_m_s2
         if self._new_segment(t):
             self.reset()
             self.t0 = t
