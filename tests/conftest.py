@@ -26,3 +26,22 @@ def broad_trial(pattern: str = "broad_01_*.hdf5") -> Path:
     if not hits:
         pytest.skip(f"BROAD trial {pattern} not available (expected in {BROAD}; set TEPINN_SHARED)")
     return hits[0]
+
+
+def estimate_says_and_stores(tmp_path, capsys, record_path, key: str, off_flag: str, phrase: str):
+    """``estimate`` on ``record_path``: the offline step's line (stored under ``key`` in the output's
+    metadata) is printed; with ``off_flag`` nothing about it (``phrase``) is printed or stored.
+    → (the line, the estimate's frame, the frame with ``off_flag``)."""
+    import pyarrow.parquet as pq
+
+    from tepinn_flight.cli.main import main
+
+    on_path, off_path = tmp_path / "est.parquet", tmp_path / "off.parquet"
+    assert main(["estimate", str(record_path), "-o", str(on_path)]) == 0
+    out = capsys.readouterr().out
+    line = pq.read_schema(on_path).metadata[key.encode()].decode()
+    assert line in out
+    assert main(["estimate", str(record_path), "-o", str(off_path), off_flag]) == 0
+    assert phrase not in capsys.readouterr().out
+    assert key.encode() not in (pq.read_schema(off_path).metadata or {})
+    return line, pq.read_table(on_path).to_pandas(), pq.read_table(off_path).to_pandas()

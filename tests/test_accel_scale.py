@@ -13,7 +13,7 @@ from tepinn_flight.conventions import GRAVITY_M_S2
 from tepinn_flight.model.accel_scale import AccelScaleConfig, read_accel_scale
 from tepinn_flight.model.checkpoint import anchor_config_from
 
-from .conftest import broad_trial
+from .conftest import broad_trial, estimate_says_and_stores
 
 
 def _imu(seconds: float, rate_hz: float, scale: float, rate_rad_s: float = 0.0, seed: int = 0):
@@ -103,9 +103,6 @@ def test_a_real_trial_read_as_a_board_at_1_25_g_is_estimated_as_the_trial_itself
 
 
 def test_estimate_says_what_it_read_keeps_it_in_the_output_and_no_accel_scale_turns_it_off(tmp_path, capsys):
-    import pyarrow.parquet as pq
-
-    from tepinn_flight.cli.main import main
     from tepinn_flight.record import ACC_COLS, FlightRecord, write_record
 
     from .test_gyro_selfcal import turns_with_rests
@@ -114,13 +111,10 @@ def test_estimate_says_what_it_read_keeps_it_in_the_output_and_no_accel_scale_tu
     data = rec.data.copy()
     data[ACC_COLS] = rec.acc_m_s2 * 0.8  # a board at 0.8 g
     write_record(FlightRecord(data, dict(rec.meta)), tmp_path / "low.parquet")
-    assert main(["estimate", str(tmp_path / "low.parquet"), "-o", str(tmp_path / "est.parquet")]) == 0
-    out = capsys.readouterr().out
-    line = pq.read_schema(tmp_path / "est.parquet").metadata[b"accel_scale_selfcal"].decode()
-    assert line.startswith("accelerometer scale: 0.80") and line.endswith("; applied") and line in out
-    assert main(["estimate", str(tmp_path / "low.parquet"), "-o", str(tmp_path / "off.parquet"), "--no-accel-scale"]) == 0
-    assert "accelerometer scale" not in capsys.readouterr().out
-    assert b"accel_scale_selfcal" not in (pq.read_schema(tmp_path / "off.parquet").metadata or {})
+    line, on, off = estimate_says_and_stores(tmp_path, capsys, tmp_path / "low.parquet", "accel_scale_selfcal",
+                                             "--no-accel-scale", "accelerometer scale")  # fmt: skip
+    assert line.startswith("accelerometer scale: 0.80") and line.endswith("; applied")
+    assert np.abs(on["q_est_x"].to_numpy() - off["q_est_x"].to_numpy()).max() > 0  # divided out, or not
 
 
 def test_the_live_reading_decides_once_from_the_first_quiet_seconds_and_matches_the_offline_one():

@@ -185,22 +185,16 @@ def test_the_settings_are_checked():
 
 
 def test_estimate_says_what_the_gnss_aid_did_and_keeps_it_in_the_output(tmp_path, capsys):
-    import pyarrow.parquet as pq
-
-    from tepinn_flight.cli.main import main
     from tepinn_flight.record import write_record
+
+    from .conftest import estimate_says_and_stores
 
     rec, _ = accelerating_flight(60.0)
     write_record(rec, tmp_path / "fly.parquet")
-    assert main(["estimate", str(tmp_path / "fly.parquet"), "-o", str(tmp_path / "est.parquet")]) == 0
-    out = capsys.readouterr().out
-    line = pq.read_schema(tmp_path / "est.parquet").metadata[b"gnss_aid"].decode()
-    assert line.startswith("GNSS-aided tilt: motion acceleration") and line.endswith("; applied") and line in out
     # --no-gnss-aid: the estimate the live bridge gives, nothing said or stored about it
-    assert main(["estimate", str(tmp_path / "fly.parquet"), "-o", str(tmp_path / "off.parquet"), "--no-gnss-aid"]) == 0
-    assert "GNSS-aided" not in capsys.readouterr().out
-    assert b"gnss_aid" not in (pq.read_schema(tmp_path / "off.parquet").metadata or {})
-    on, off = pq.read_table(tmp_path / "est.parquet").to_pandas(), pq.read_table(tmp_path / "off.parquet").to_pandas()
+    line, on, off = estimate_says_and_stores(tmp_path, capsys, tmp_path / "fly.parquet", "gnss_aid", "--no-gnss-aid",
+                                             "GNSS-aided")  # fmt: skip
+    assert line.startswith("GNSS-aided tilt: motion acceleration") and line.endswith("; applied")
     assert np.abs(on["q_est_x"].to_numpy() - off["q_est_x"].to_numpy()).max() > 1e-2
 
 
