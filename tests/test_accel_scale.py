@@ -137,6 +137,20 @@ def test_the_live_reading_decides_once_from_the_first_quiet_seconds_and_matches_
     np.testing.assert_array_equal(out, acc)
 
 
+def test_the_live_reading_restarts_its_windows_at_a_time_jump():
+    from tepinn_flight.model.accel_scale import AccelScaleTracker
+
+    t, gyr, acc = _imu(30.0, 200.0, 0.8)
+    t = np.where(t < 4.0, t + 1000.0, t)  # the clock jumps back 1000 s after 4 s (an autopilot reboot)
+    tr = AccelScaleTracker()
+    for i, (ti, g, a) in enumerate(zip(t, gyr, acc)):
+        tr.update(float(ti), g, a)
+        if tr.decided is None:
+            assert len(tr._avg) <= 101 and len(tr._norms) <= 401  # the trailing windows stay their length
+    # the 4 s before the jump were quiet but too short; after it, 2.5 s to fill the windows, then 5 s
+    assert tr.decided is not None and tr.decided.applied and tr.decided.read == pytest.approx(0.8, abs=0.005)
+
+
 @pytest.mark.slow
 def test_the_live_estimator_on_a_real_trial_read_as_a_board_at_1_25_g():
     """BROAD trial 05 × 1.25 streamed sample by sample (what the bridge runs): with the causal reading,

@@ -105,6 +105,10 @@ def read_accel_scale(t_s, gyr, acc, cfg: AccelScaleConfig | None = None) -> Acce
     return AccelScale(s if applied else 1.0, applied, s, quiet_s)
 
 
+#: a step longer than this (or backwards) restarts the live reading's trailing windows
+MAX_STEP_S = 1.0
+
+
 class AccelScaleTracker:
     """The same reading made causally, for the live estimator: trailing averages instead of centred
     ones, and the scale decided once, from the first ``min_quiet_s`` of quiet, steady samples (a vehicle
@@ -133,13 +137,18 @@ class AccelScaleTracker:
             s = self.scale
             return (ax / s, ay / s, az / s) if s != 1.0 else (ax, ay, az)
         c = self.cfg
-        if self._t_first is None:
-            self._t_first = t
         dt = 0.0 if self._t_prev is None else t - self._t_prev
+        if self._t_first is None or not 0.0 < dt <= MAX_STEP_S:  # the start, a time jump or a dropout:
+            self._t_first, dt = t, 0.0  # the trailing windows start again (the quiet samples so far are kept)
+            self._avg.clear()
+            self._norms.clear()
+            self._sums = [0.0, 0.0, 0.0, 0.0]
+            self._n1 = self._n2 = 0.0
         self._t_prev = t
         w = math.sqrt(gyr[0] * gyr[0] + gyr[1] * gyr[1] + gyr[2] * gyr[2])
-        avg, sums = self._avg, self._sums
+        avg = self._avg
         avg.append((t, w, ax, ay, az))
+        sums = self._sums
         sums[0] += w
         sums[1] += ax
         sums[2] += ay
