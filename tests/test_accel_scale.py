@@ -111,10 +111,11 @@ def test_estimate_says_what_it_read_keeps_it_in_the_output_and_no_accel_scale_tu
     data = rec.data.copy()
     data[ACC_COLS] = rec.acc_m_s2 * 0.8  # a board at 0.8 g
     write_record(FlightRecord(data, dict(rec.meta)), tmp_path / "low.parquet")
-    line, on, off = estimate_says_and_stores(tmp_path, capsys, tmp_path / "low.parquet", "accel_scale_selfcal",
-                                             "--no-accel-scale", "accelerometer scale")  # fmt: skip
+    line, _, _ = estimate_says_and_stores(tmp_path, capsys, tmp_path / "low.parquet", "accel_scale_selfcal",
+                                          "--no-accel-scale", "accelerometer scale")  # fmt: skip
     assert line.startswith("accelerometer scale: 0.80") and line.endswith("; applied")
-    assert np.abs(on["q_est_x"].to_numpy() - off["q_est_x"].to_numpy()).max() > 0  # divided out, or not
+    # (what dividing it out does to the estimate: the real trial × 1.25 above; on this record no gate
+    # opens at any scale, so the estimate is VQF's either way)
 
 
 def test_the_live_reading_decides_once_from_the_first_quiet_seconds_and_matches_the_offline_one():

@@ -175,8 +175,8 @@ def bridge_holes(rec: FlightRecord) -> tuple[FlightRecord, int]:
 def prepared(rec: FlightRecord, anchor: AnchorConfig | None) -> tuple[FlightRecord, AccelScale | None]:
     """``rec`` as the anchored estimator reads it: holes bridged (:func:`bridge_holes`) and, with
     ``anchor.accel_scale_selfcal``, the accelerometer divided by the scale the record itself shows
-    where it is clearly not 1 (:mod:`.accel_scale`; offline only) → (record, what was found; None:
-    not asked)."""
+    where it is clearly not 1 (:mod:`.accel_scale`, over the whole record) → (record, what was found;
+    None: not asked)."""
     rec, _ = bridge_holes(rec)
     if anchor is None or not anchor.accel_scale_selfcal:
         return rec, None
@@ -289,7 +289,8 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     one. ``windows`` takes :func:`anchored_windows`' result when already at hand. Non-finite IMU
     samples are holes, bridged with the last finite sample. With ``anchor.accel_scale_selfcal`` the
     accelerometer is first divided by its scale where the record shows one clearly not 1
-    (:func:`prepared`; offline only): ``attrs["accel_scale_selfcal"]``. With ``anchor.gyro_selfcal`` the gyro's
+    (:func:`prepared`; read over the whole record — the live estimator reads it causally):
+    ``attrs["accel_scale_selfcal"]``. With ``anchor.gyro_selfcal`` the gyro's
     scale is first read from the record (:func:`self_calibrated`; offline only), and what was found
     is in the result's ``attrs["gyro_selfcal"]``. With ``anchor.gnss_aid`` and a record carrying GNSS
     velocity, the motion acceleration it shows is then taken out of the accelerometer and the filter
@@ -300,8 +301,9 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     anchor = anchor or AnchorConfig()
     rec, acal = prepared(rec, anchor)
     anchor, cal = self_calibrated(anchor, rec)
-    if windows is None:
-        windows = anchored_windows(model, rec, batch_size, anchor.fusion_config or FusionConfig(), anchor)
+    if windows is None:  # on the record as prepared: its accelerometer scale is not read a second time
+        windows = anchored_windows(model, rec, batch_size, anchor.fusion_config or FusionConfig(),
+                                   replace(anchor, accel_scale_selfcal=False))  # fmt: skip
     idx, out = windows
     use_mag = wants_mag(anchor, rec)
     t, gyr, acc, mag = rec.t_s, rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut
