@@ -395,3 +395,20 @@ def test_only_the_gyro_clipping_opens_the_saturation_gate_on_a_real_log():
     ang = np.degrees(2 * np.arccos(np.clip(np.abs(np.sum(gyro * plain, 1)), 0, 1)))
     np.testing.assert_allclose(gyro[rec.t_s < 60.0], plain[rec.t_s < 60.0], rtol=0, atol=1e-12)  # causal
     assert ang[(rec.t_s >= 60.0) & (rec.t_s < 70.0)].max() > 0.05  # the gate pulled toward the network
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_gate_per_sample_is_what_writing_each_window_to_the_end_would_give(seed):
+    """The per-sample gate of a pass (each window's from the sample after it on) is filled once at
+    the end; the reference writes every window's gate up to the segment's end in turn (the former,
+    quadratic, way), repeated starts and a window at the segment's last sample included."""
+    from tepinn_flight.model.estimate import _piecewise
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 200))
+    starts = np.sort(rng.integers(0, n + 1, size=int(rng.integers(1, 40))))
+    values = rng.choice([0.0, 0.25, 1.0], size=len(starts))
+    ref = np.zeros(n)
+    for s, v in zip(starts, values):
+        ref[s:] = v
+    np.testing.assert_array_equal(_piecewise(starts, values, n), ref)

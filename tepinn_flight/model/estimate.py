@@ -360,6 +360,7 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
         dt = np.diff(t[a : min(b, a + TS_STEPS + 1)])  # as the live estimator: its first steps
         flt = AnchoredVQF(anchor, float(np.median(dt)) if dt.size else 0.01, use_mag)
         cur = a
+        starts, gates = [], []  # each window's gate holds from the sample after it to the next one's
         for j in np.flatnonzero((idx >= a) & (idx < b)):
             i = int(idx[j]) + 1
             if i > cur:
@@ -367,10 +368,20 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
                 cur = i
             flt.correct(WindowOutput(q_pull[j], float(out["sigma"][j]), out["bias"][j], out["vel"][j], out["acc_v"][j],
                                      None if b_fus is None else b_fus[j], bool(aided[j]), bool(fast[j])))  # fmt: skip
-            gate[i:b] = flt.gate
+            starts.append(i)
+            gates.append(flt.gate)
         if cur < b:
             _put(flt, cols, cur, b, q_out, s_out, b_out, use_mag)
+        if starts:  # filled once at the end (per window up to the segment's end was quadratic in its length)
+            gate[a:b] = _piecewise(np.asarray(starts) - a, np.asarray(gates, np.float64), b - a)
     return q_out, s_out, b_out, gate
+
+
+def _piecewise(starts: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """(n,) ``values[k]`` from ``starts[k]`` (non-decreasing offsets) up to the next start, 0 before
+    the first; a later value at the same start wins (as successive writes would)."""
+    k = np.searchsorted(starts, np.arange(n), side="right") - 1
+    return np.where(k >= 0, values[np.maximum(k, 0)], 0.0)
 
 
 def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, idx, out, cols, use_mag: bool,
