@@ -306,7 +306,9 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
                                    replace(anchor, accel_scale_selfcal=False))  # fmt: skip
     idx, out = windows
     use_mag = wants_mag(anchor, rec)
-    t, gyr, acc, mag = rec.t_s, rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut
+    # row-major once: the passes hand the filter a window's rows at a time, and a column-major
+    # slice would be copied for the compiled kernels at every window
+    t, gyr, acc, mag = rec.t_s, *(np.ascontiguousarray(x) for x in (rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut))
     cols = (t, gyr, acc, mag, rec.gyr_clipped)  # read from the frame once (each property access copies); the
     # saturation gate opens on the gyro's clipping alone
     q_out, s_out, b_out, gate = _anchored_pass(anchor, rec.segment, cols, idx, out, use_mag)
