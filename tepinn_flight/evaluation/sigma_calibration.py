@@ -1,9 +1,11 @@
 """Fitting the anchored estimator's σ (``AnchorConfig.sigma_floor_deg`` σ₀, ``sigma_acc_gain`` c) to
 real files with a trusted reference.
 
-With every gate off (the case on real data; :mod:`.anchor`), ``σ² = σ₀² + (c·e)² + g·v``, e the
-accelerometer-disagreement angle the filter computes anyway and v the sampling term (the attitude's
-turn within a sample period, ``AnchorConfig.sigma_sampling_gain`` g: 0 or its physical 1).
+With every gate off (the case on real data; :mod:`.anchor`), ``σ² = σ₀² + (c·e)² + g·v + E²``, e the
+accelerometer-disagreement angle the filter computes anyway, v the sampling term (the attitude's
+turn within a sample period, ``AnchorConfig.sigma_sampling_gain`` g: 0 or its physical 1) and E the
+gyro-saturation term (``sigma_clip_gain``, ``sigma_clip_tau_s``: kept as configured, not fitted; zero
+on a file whose gyro never clips).
 :func:`error_samples` runs the plain filter over a record (:func:`estimator_error_samples`: the whole
 anchored estimator, what the fine-tuning fits on) and keeps, per scored sample, the squared 2-D tilt
 error, e and v — each read from the filter's own σ with the other parts switched off; then any
@@ -28,19 +30,23 @@ from .metrics import error_quat_earth, tilt_error_vector_rad
 
 @dataclass(frozen=True)
 class ErrorSamples:
-    """One file's scored samples: squared tilt error (rad²), the σ model's input e (rad) and its
-    sampling term at g = 1 (rad²; None: zero)."""
+    """One file's scored samples: squared tilt error (rad²), the σ model's input e (rad), its
+    sampling term at g = 1 (rad²; None: zero) and its saturation term E² as configured (rad²; None:
+    zero)."""
 
     name: str
     err2_rad2: np.ndarray
     e_acc_rad: np.ndarray
     samp_var_rad2: np.ndarray | None = None
+    clip_var_rad2: np.ndarray | None = None
 
     def var_rad2(self, sigma_floor_deg: float, sigma_acc_gain: float, sigma_sampling_gain: float = 0.0) -> np.ndarray:
         """σ² of each sample for (σ₀, c, g)."""
         v = np.radians(sigma_floor_deg) ** 2 + (sigma_acc_gain * self.e_acc_rad) ** 2
         if sigma_sampling_gain and self.samp_var_rad2 is not None:
             v = v + sigma_sampling_gain * self.samp_var_rad2
+        if self.clip_var_rad2 is not None:
+            v = v + self.clip_var_rad2
         return v
 
 
@@ -61,12 +67,13 @@ def error_samples(rec: FlightRecord, name: str = "", anchor: AnchorConfig | None
     seg0 = rec.segment == rec.segment[0]
     t = rec.t_s[seg0]
     dt = np.diff(t[: TS_STEPS + 1])
+    clipped = rec.gyr_clipped[seg0]
     outs = []
-    for probe in _probes(off):
+    for probe in _probes(off, bool(np.any(clipped))):
         flt = AnchoredVQF(probe, float(np.median(dt)) if dt.size else 0.01)
-        outs.append(flt.update(t, rec.gyr_rad_s[seg0], rec.acc_m_s2[seg0], None, rec.gyr_clipped[seg0]))
+        outs.append(flt.update(t, rec.gyr_rad_s[seg0], rec.acc_m_s2[seg0], None, clipped))
     return _scored(name, outs[0][0], outs[0][2], outs[1][2], rec.q_ref_wxyz[seg0],
-                   (scoring_mask(rec, warmup_s) & seg0)[seg0])  # fmt: skip
+                   (scoring_mask(rec, warmup_s) & seg0)[seg0], outs[2][2] if len(outs) > 2 else None)  # fmt: skip
 
 
 def estimator_error_samples(model, rec: FlightRecord, anchor: AnchorConfig, name: str = "",
@@ -74,30 +81,35 @@ def estimator_error_samples(model, rec: FlightRecord, anchor: AnchorConfig, name
     """The scored samples of the whole anchored estimator ``anchor`` (every segment, its gates and
     offline steps) on ``rec``: e is read from its own σ with σ₀ = 0, c = 1 and the other parts off
     (σ = e), the sampling term with σ₀ = c = 0, g = 1 (σ² = the term; the estimates are the same: σ is
-    an output only). What the fine-tuning fits σ on."""
+    an output only), the saturation term alone where the gyro clips. What the fine-tuning fits σ on."""
     from ..model.estimate import EST_Q_COLS, estimate_anchored
 
-    est = [estimate_anchored(model, rec, p) for p in _probes(anchor)]
+    est = [estimate_anchored(model, rec, p) for p in _probes(anchor, bool(np.any(rec.gyr_clipped)))]
     return _scored(name, est[0][EST_Q_COLS].to_numpy(), est[0]["sigma_rad"].to_numpy(),
-                   est[1]["sigma_rad"].to_numpy(), rec.q_ref_wxyz, scoring_mask(rec, warmup_s))  # fmt: skip
+                   est[1]["sigma_rad"].to_numpy(), rec.q_ref_wxyz, scoring_mask(rec, warmup_s),
+                   est[2]["sigma_rad"].to_numpy() if len(est) > 2 else None)  # fmt: skip
 
 
-def _probes(anchor: AnchorConfig) -> tuple[AnchorConfig, AnchorConfig]:
+def _probes(anchor: AnchorConfig, clips: bool = False) -> tuple[AnchorConfig, ...]:
     """``anchor`` whose σ is e alone, and whose σ² is the sampling term at g = 1 alone (the network's
-    share off)."""
-    e_only = dataclasses.replace(anchor, sigma_floor_deg=0.0, sigma_acc_gain=1.0, sigma_net_scale=0.0,
-                                 sigma_sampling_gain=0.0)  # fmt: skip
-    samp_only = dataclasses.replace(anchor, sigma_floor_deg=0.0, sigma_acc_gain=0.0, sigma_net_scale=0.0,
-                                    sigma_sampling_gain=1.0)  # fmt: skip
-    return e_only, samp_only
+    share and the saturation term off); with ``clips`` (the gyro clips), a third whose σ is the
+    saturation term alone, as ``anchor`` sets it."""
+    off = dict(sigma_floor_deg=0.0, sigma_net_scale=0.0, sigma_clip_gain=0.0)
+    e_only = dataclasses.replace(anchor, **off, sigma_acc_gain=1.0, sigma_sampling_gain=0.0)
+    samp_only = dataclasses.replace(anchor, **off, sigma_acc_gain=0.0, sigma_sampling_gain=1.0)
+    if not (clips and anchor.sigma_clip_gain > 0):
+        return e_only, samp_only
+    clip_only = dataclasses.replace(anchor, **{**off, "sigma_clip_gain": anchor.sigma_clip_gain}, sigma_acc_gain=0.0,
+                                    sigma_sampling_gain=0.0)  # fmt: skip
+    return e_only, samp_only, clip_only
 
 
-def _scored(name: str, q, e, s_samp, q_ref, mask) -> ErrorSamples:
-    """The samples of ``mask`` where the estimate and e are finite: squared 2-D tilt error, e and the
-    sampling term (``s_samp``² per sample)."""
+def _scored(name: str, q, e, s_samp, q_ref, mask, s_clip=None) -> ErrorSamples:
+    """The samples of ``mask`` where the estimate and e are finite: squared 2-D tilt error, e, the
+    sampling term (``s_samp``² per sample) and the saturation term (``s_clip``²; None: zero)."""
     m = mask & np.all(np.isfinite(q), axis=1) & np.isfinite(e) & np.isfinite(s_samp)
     ev = tilt_error_vector_rad(error_quat_earth(q[m], q_ref[m]))
-    return ErrorSamples(name, np.sum(ev**2, axis=1), e[m], s_samp[m] ** 2)
+    return ErrorSamples(name, np.sum(ev**2, axis=1), e[m], s_samp[m] ** 2, None if s_clip is None else s_clip[m] ** 2)
 
 
 def score(files: list[ErrorSamples], sigma_floor_deg: float, sigma_acc_gain: float,

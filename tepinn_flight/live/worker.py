@@ -189,16 +189,19 @@ def warm_up(est, seconds: float = 4.0, rate_hz: float = 200.0) -> None:
     """Run ``est`` over ``seconds`` of a still, level IMU (longer than one network window), then
     reset it: the compiled loops (numba, built on first use after a fresh install) and the network
     runtime are ready before the bridge's first real sample, so no real sample waits for them and
-    goes stale. Only the shipped kind of estimator (:class:`StreamingEstimator`); an error here is
-    left to show on the real samples."""
+    goes stale — the last few samples marked saturated, so those paths are built too (a flip's
+    first clipped sample must not wait for a compile). Only the shipped kind of estimator
+    (:class:`StreamingEstimator`); an error here is left to show on the real samples."""
     from ..model.streaming import StreamingEstimator
 
     if not isinstance(est, StreamingEstimator):
         return
     acc = (0.0, 0.0, -9.80665)  # specific force of a level FRD body at rest
+    n = int(seconds * rate_hz)
     try:
-        for i in range(int(seconds * rate_hz)):
-            est.push(i / rate_hz, (0.0, 0.0, 0.0), acc, None)
+        for i in range(n):
+            sat = i >= n - 3
+            est.push(i / rate_hz, (0.0, 0.0, 0.0), acc, None, sat, sat)
     except Exception:  # noqa: BLE001 - reported when it happens on real samples
         pass
     est.reset()

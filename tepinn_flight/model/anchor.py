@@ -44,10 +44,12 @@ accelerometer, so the pull rotates that filter state with it (``accLpState``, ``
 turning only ``accQuat`` would be undone at the next sample.
 
 σ (``sigma_rad``, per-axis σ of the 2-D tilt error): ``σ² = σ₀² + (c·e)² + g·(|ω|·Δt)²/12 +
-w·(s·σ_net)²`` with e a 1-s average of the angle between the accelerometer VQF sees and its gravity
+w·(s·σ_net)² + E²`` with e a 1-s average of the angle between the accelerometer VQF sees and its gravity
 (motion acceleration the filter is averaging out), the sampling term (|ω| the gyro VQF integrates,
 Δt its sample period: how far the attitude turns within one sample, which a sample rate of 25–50 Hz
-makes large in fast motion), w the gate, σ_net the network's σ;
+makes large in fast motion), w the gate, σ_net the network's σ, and E the tilt a saturated gyro may have lost (each sample with
+the gyro clipped adds k·|ω|·Δt, |ω| its clipped reading; E decays with time constant τ after; at
+most π/2: ``sigma_clip_gain``, ``sigma_clip_tau_s``, fitted on simulated flights that clip);
 σ₀ and c fitted on real files with a trusted reference (and g chosen there, by the fine-tuning).
 
 Frames: VQF works in a z-up sensor frame ``S`` (body FRD turned 180° about x) and a z-up earth
@@ -70,11 +72,12 @@ from ..errors import ConfigError
 from ..quat_scalar import down_in_body
 from .anchor_kernels import FLIP as _FLIP
 from .anchor_kernels import Q_NED_ENU, Q_SENSOR_BODY  # noqa: F401  (VQF's frames; peers import them from here)
-from .anchor_kernels import (horizontal_bias, q_nb_from_vqf_f, q_nb_rows, sigma_step, tilt_pull_f, turn_acc_state,
-                             vqf_inputs, vqf_outputs)  # fmt: skip
+from .anchor_kernels import (clip_sigma_rows, clip_sigma_step, horizontal_bias, q_nb_from_vqf_f, q_nb_rows, sigma_step,
+                             tilt_pull_f, turn_acc_state, vqf_inputs, vqf_outputs)  # fmt: skip
 from .fusion import FusionConfig
 BIAS_EVIDENCE_S = 2.0  # the older fusion's bias must stay beyond its gate this long
 THRUST_TAU_S = 10.0  # the accelerometer's mean direction (bias_gate_thrust_deg) is low-passed over this
+CLIP_SIGMA_CAP_RAD = math.pi / 2  # the saturation term's most: a tilt σ of 90° says nothing is known
 MODES = ("6d", "9d", "auto")
 
 
@@ -129,6 +132,15 @@ class AnchorConfig:
     sigma_sampling_gain: float = 1.0
     sigma_net_scale: float = 1.0  # s
     sigma_acc_tau_s: float = 1.0
+    # k and τ of the gyro-saturation term E (σ² += E²; 0: off, before session 20): a clipped sample
+    # adds k·|ω|·Δt (|ω| its clipped reading, of which k went missing), E decays over τ after. Fitted
+    # by fit_sigma's rule (per-file NEES nearest 2 with ≥ 97 % within 3σ) on simulated multirotor
+    # flights whose ±400 °/s gyro clips (training flights at 400, 50, 25 Hz; seeds 77 and 78 at 400,
+    # 50 Hz as validation); tested on fresh ones (seed 79, 24 flights): per-file NEES 19.17 → 1.23,
+    # 77.4 → 96.6 % within 3σ at 400 Hz (50 Hz: 13.25 → 1.05, 79.2 → 97.3 %). No shared real file
+    # clips: σ there is unchanged (docs/design-log.md, session 20)
+    sigma_clip_gain: float = 0.3
+    sigma_clip_tau_s: float = 1.75
     # quiet blocks (speed): the windows matter only where a gate may open. A block of the older
     # fusion's bias feedback (its bias_feedback_windows tokens) whose first window shows |v̂| below
     # quiet_speed_m_s and a fusion gyro bias below quiet_bias_deg_s on every axis runs only that window
@@ -178,7 +190,7 @@ class AnchorConfig:
         for v in gs:
             check_range("gyro_scale", v, 0.5, 2.0)
         object.__setattr__(self, "gyro_scale", tuple(float(v) for v in gs))
-        for name in ("tau_acc_s", "bias_clip_deg_s", "sigma_acc_tau_s"):
+        for name in ("tau_acc_s", "bias_clip_deg_s", "sigma_acc_tau_s", "sigma_clip_tau_s"):
             check_range(name, getattr(self, name), 0, None, lo_open=True)
         check_range("tau_acc_flight_s", self.tau_acc_flight_s, 0, None)  # 0: tau_acc_s
         check_range("pull_gain", self.pull_gain, 0, 1)
@@ -190,7 +202,7 @@ class AnchorConfig:
         check_range("speed_hi_m_s", self.speed_hi_m_s, self.speed_lo_m_s, None, lo_open=True)
         check_range("bias_gate_thrust_deg", self.bias_gate_thrust_deg, 0, 180)
         for name in ("clip_min_s", "quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "bias_gate_vqf_deg_s", "sigma_floor_deg", "sigma_acc_gain",
-                     "sigma_net_scale", "sigma_sampling_gain"):  # fmt: skip
+                     "sigma_net_scale", "sigma_sampling_gain", "sigma_clip_gain"):  # fmt: skip
             check_range(name, getattr(self, name), 0, None)
 
     def quiet_in(self, fusion: FusionConfig) -> int:
@@ -310,6 +322,9 @@ class AnchoredVQF:
         self.sigma_var0 = math.radians(c.sigma_floor_deg) ** 2
         self.sigma_gain = float(c.sigma_acc_gain)
         self.sigma_samp = float(c.sigma_sampling_gain) * self.ts * self.ts / 12.0  # × |ω|²: the sampling term
+        self.e_clip = 0.0  # the gyro-saturation term E (rad)
+        self.clip_decay = math.exp(-self.ts / c.sigma_clip_tau_s)
+        self.clip_gain_dt = float(c.sigma_clip_gain) * self.ts
         self.last_imu = (np.zeros(3), np.zeros(3))  # the last finite gyro/accelerometer sample
         self.holes = 0  # non-finite samples bridged
         self.gscale = None if c.gyro_scale == (1.0, 1.0, 1.0) else c.gyro_scale  # gyro × this (calibration)
@@ -324,6 +339,7 @@ class AnchoredVQF:
         if self.gscale is not None:  # the vehicle's gyro calibration (a hole stays a hole)
             gyr_b = gyr_b * np.array(self.gscale)
         n = len(t_s)
+        cl = None
         if clipped is not None:
             cl = np.flatnonzero(np.atleast_1d(clipped))
             self.clip_times.extend(t_s[cl].tolist())
@@ -349,6 +365,11 @@ class AnchoredVQF:
         self.e_acc = vqf_outputs(_rows(out["quat6D"]), _rows(out["bias"]), a_s, g_s, self.gyr_corr, self.e_acc,
                                  self.sigma_alpha, self.sigma_var0, self.sigma_gain, self.sigma_samp, self._var_net(),
                                  q6, bias, sig)  # fmt: skip
+        if self.clip_gain_dt > 0 and (self.e_clip > 0 or (cl is not None and cl.size)):  # the saturation term
+            flags = np.zeros(n, np.bool_)
+            if cl is not None:
+                flags[cl] = True
+            self.e_clip = clip_sigma_rows(sig, flags, g_s, self.e_clip, self.clip_decay, self.clip_gain_dt, CLIP_SIGMA_CAP_RAD)
         q9 = q_nb_from_vqf(out["quat9D"]) if self.use_mag else None
         if n:
             self.t = float(t_s[-1])
@@ -390,6 +411,9 @@ class AnchoredVQF:
         sig, self.e_acc = sigma_step(qw, qx, qy, qz, a_s[0], a_s[1], a_s[2], gx, -gy, -gz, self.e_acc,
                                      self.sigma_alpha, self.sigma_var0, self.sigma_gain, self.sigma_samp,
                                      self._var_net())  # fmt: skip
+        if self.clip_gain_dt > 0 and (clipped or self.e_clip > 0):  # the saturation term
+            sig, self.e_clip = clip_sigma_step(sig, self.e_clip, bool(clipped), gx, -gy, -gz, self.clip_decay,
+                                               self.clip_gain_dt, CLIP_SIGMA_CAP_RAD)  # fmt: skip
         self.t = float(t_s)
         return q6, q9, sig, bias
 

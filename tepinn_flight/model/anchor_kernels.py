@@ -74,6 +74,31 @@ def sigma_step(qw, qx, qy, qz, ax, ay, az, gx, gy, gz, e, alpha, var0, gain, sam
 
 
 @njit(cache=True)
+def clip_sigma_step(sig, e, clipped, gx, gy, gz, decay, gain_dt, cap):
+    """One sample's σ with the gyro-saturation term → (σ, e): ``e`` (rad), the tilt a saturated gyro
+    may have lost, decays by ``decay`` (exp(−Δt/τ)) and grows by ``gain_dt``·|ω| (``gain_dt`` = k·Δt,
+    ω the clipped reading: k of the rotation those samples show went missing) where the sample is
+    ``clipped``, at most ``cap``; ``σ ← √(σ² + e²)``. Below 1e-9 rad ``e`` is 0 (callers skip it)."""
+    e = e * decay
+    if clipped:
+        e += gain_dt * math.sqrt(gx * gx + gy * gy + gz * gz)
+        if e > cap:
+            e = cap
+    if e < 1e-9:
+        return sig, 0.0
+    return math.sqrt(sig * sig + e * e), e
+
+
+@njit(cache=True)
+def clip_sigma_rows(sigma, clipped, g_s, e, decay, gain_dt, cap):
+    """:func:`clip_sigma_step` over a block in place: ``sigma`` (n,), ``clipped`` (n,) bool, ``g_s``
+    (n, 3) the gyro VQF integrated. Returns the last ``e``."""
+    for i in range(sigma.shape[0]):
+        sigma[i], e = clip_sigma_step(sigma[i], e, clipped[i], g_s[i, 0], g_s[i, 1], g_s[i, 2], decay, gain_dt, cap)
+    return e
+
+
+@njit(cache=True)
 def vqf_inputs(gyr_b, acc_b, gyr_corr, vel, acc_v, centripetal, g_s, a_s):
     """The block VQF sees, in its sensor frame: ``g_s`` ← gyro − ``gyr_corr``; ``a_s`` ←
     accelerometer − (ω × ``vel`` + ``acc_v``) when ``centripetal`` and either is non-zero (ω: the
