@@ -47,9 +47,10 @@ turning only ``accQuat`` would be undone at the next sample.
 w·(s·σ_net)² + E²`` with e a 1-s average of the angle between the accelerometer VQF sees and its gravity
 (motion acceleration the filter is averaging out), the sampling term (|ω| the gyro VQF integrates,
 Δt its sample period: how far the attitude turns within one sample, which a sample rate of 25–50 Hz
-makes large in fast motion), w the gate, σ_net the network's σ, and E the tilt a saturated gyro may have lost (each sample with
-the gyro clipped adds k·|ω|·Δt, |ω| its clipped reading; E decays with time constant τ after; at
-most π/2: ``sigma_clip_gain``, ``sigma_clip_tau_s``, fitted on simulated flights that clip);
+makes large in fast motion), w the gate, σ_net the network's σ, and E the tilt a saturated gyro may
+have lost (each sample with the gyro clipped adds k·|ω|·Δt, |ω| its clipped reading; E decays with
+time constant τ after; at most π/2: ``sigma_clip_gain``, ``sigma_clip_tau_s``, fitted on simulated
+flights that clip);
 σ₀ and c fitted on real files with a trusted reference (and g chosen there, by the fine-tuning).
 
 Frames: VQF works in a z-up sensor frame ``S`` (body FRD turned 180° about x) and a z-up earth
@@ -369,7 +370,8 @@ class AnchoredVQF:
             flags = np.zeros(n, np.bool_)
             if cl is not None:
                 flags[cl] = True
-            self.e_clip = clip_sigma_rows(sig, flags, g_s, self.e_clip, self.clip_decay, self.clip_gain_dt, CLIP_SIGMA_CAP_RAD)
+            self.e_clip = clip_sigma_rows(sig, flags, g_s, self.e_clip, self.clip_decay, self.clip_gain_dt,
+                                          CLIP_SIGMA_CAP_RAD)  # fmt: skip
         q9 = q_nb_from_vqf(out["quat9D"]) if self.use_mag else None
         if n:
             self.t = float(t_s[-1])
