@@ -20,7 +20,8 @@ files, and low IMU rates on held-out simulated flights that saturate the gyro or
 
 5. `--gyro-ranges 300`: the same real files with the gyro saturating at ±N °/s (each axis clipped
    there and those samples marked clipped, as a reader marks them) — a smaller gyro range on real
-   sensors (the saturation gate and the network's declipping).
+   sensors (the saturation gate and the network's declipping); also TE-PINN's σ calibration there
+   (σ's saturation term, session 20).
 
 6. `--gyro-scales 1.02`: the same real files with the gyro reading that factor too high on every
    axis (or `x:y:z` per axis) — an uncalibrated consumer gyro (±3 % tolerance) on real sensors (the
@@ -84,7 +85,7 @@ def main() -> int:
 
     from tepinn_flight.evaluation.estimators import TepinnEstimator
     from tepinn_flight.evaluation.harness import scoring_mask
-    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
+    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad, tilt_error_vector_rad
     from tepinn_flight.evaluation.peers import VqfEstimator
     from tepinn_flight.ingest import ingest_log
     from tepinn_flight.model.checkpoint import default_model_path
@@ -99,9 +100,17 @@ def main() -> int:
         m = scoring_mask(rec, 5.0) & np.all(np.isfinite(q), 1)
         return float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], rec.q_ref_wxyz[m])) ** 2))))
 
-    def both(rec):
+    sigma_seen = []  # (NEES, within 3σ) of TE-PINN's σ on each file of the last condition that asked
+
+    def both(rec, sigma=False):
         br = bridge_gaps(rec)  # short logging dropouts bridged for both, as `evaluate` does
-        return tuple(rmse(rec, br.original(e.estimate(br.record))[Q].to_numpy()) for e in (tp, vq))
+        est = [br.original(e.estimate(br.record)) for e in (tp, vq)]
+        if sigma:  # σ's calibration against the reference (the gyro-range condition: its saturation term)
+            q, s = est[0][Q].to_numpy(), est[0]["sigma_rad"].to_numpy()
+            m = scoring_mask(rec, 5.0) & np.all(np.isfinite(q), 1) & np.isfinite(s)
+            e2 = np.sum(tilt_error_vector_rad(error_quat_earth(q[m], rec.q_ref_wxyz[m])) ** 2, axis=1)
+            sigma_seen.append((float(np.mean(e2 / s[m] ** 2)), float(np.mean(e2 <= 9 * s[m] ** 2))))
+        return tuple(rmse(rec, e[Q].to_numpy()) for e in est)
 
     split = tomllib.loads((REPO / "train/splits/real.toml").read_text())
     sh = Path(args.shared)
@@ -151,10 +160,14 @@ def main() -> int:
         report(f"gyro bias +{b:g} °/s on every axis", [(n, *both(changed(rec, gyr=rec.gyr_rad_s + np.radians(b)))) for n, rec in recs])
     for g in [float(x) for x in args.gyro_ranges.split(",") if x]:
         res = []
+        sigma_seen.clear()
         for n, rec in recs:
             r, frac = saturated(rec, g)
-            res.append((f"{n} ({100 * frac:.1f} % of samples saturated)", *both(r)))
+            res.append((f"{n} ({100 * frac:.1f} % of samples saturated)", *both(r, sigma=True)))
         report(f"gyro saturating at ±{g:g} °/s", res)
+        v = np.array(sigma_seen)
+        print(f"  TE-PINN's σ there, per file averaged: NEES {v[:, 0].mean():.2f}, {100 * v[:, 1].mean():.1f} % within 3σ "
+              f"(lowest {100 * v[:, 1].min():.1f} %)", flush=True)  # fmt: skip
     for sc in [x for x in args.gyro_scales.split(",") if x]:
         f = np.array([float(v) for v in sc.split(":")]) if ":" in sc else float(sc)
         report(f"gyro × {sc}", [(n, *both(changed(rec, gyr=rec.gyr_rad_s * f))) for n, rec in recs])
