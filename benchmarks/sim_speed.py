@@ -2,7 +2,11 @@
 
 For each aircraft, measured in the same process, one core, at 400 Hz:
 
-* ceiling: JSBSim's own ``run()`` loop on the same aircraft and start condition, no Python I/O;
+* ceiling: JSBSim's own ``run()`` loop on the same aircraft (the model as JSBSim ships it) and start
+  condition, no Python I/O;
+* lean ``run()``: the same loop on the model ``fly()`` loads where it leaves out parts it never reads
+  (:mod:`tepinn_flight.sim.lean_model`: the F450's own sensor models and its disengaged SCAS; the
+  flights are bit-identical) — so ``fly()`` against it is our loop's own overhead;
 * dynamics: ``fly()`` (our controller in the loop, truth logging, post-processing);
 * full chain: ``simulate_record()`` (dynamics + sensor model + record building), if present.
 
@@ -10,7 +14,9 @@ Then campaign throughput: the same campaign with 1 and with 2 worker processes (
 runner ``run_campaign`` when it exists, else ``multiprocessing`` over ``fly``); a speed-up needs
 two idle cores.
 
-Usage: python benchmarks/sim_speed.py [--duration 60] [--aircraft c172x F450 agile_quad]
+Each figure is the best of ``--repeats`` interleaved rounds (CPU time; the machine may be shared).
+
+Usage: python benchmarks/sim_speed.py [--duration 60] [--aircraft c172x F450 agile_quad] [--repeats 3]
 The target is >= 100x real time at 400 Hz for the full chain on one core.
 """
 
@@ -40,14 +46,22 @@ class Clock:
         self.cpu = time.process_time() - self.c0
 
 
-def bare_rtf(aircraft: str, duration_s: float) -> tuple[float, float]:
-    """Real-time factor of JSBSim's run() alone from the same start condition as fly()."""
+def bare_rtf(aircraft: str, duration_s: float, lean: bool = False) -> tuple[float, float] | None:
+    """Real-time factor of JSBSim's run() alone from the same start condition as fly(): the model as
+    JSBSim ships it, or (``lean``) the one fly() loads (None where that is the same)."""
     from tepinn_flight.sim.flight import AIRCRAFT, _site
     from tepinn_flight.sim.jsbsim_env import open_fdm
 
     vehicle = AIRCRAFT[aircraft].build()
+    spec = getattr(vehicle, "lean", None)
+    if lean and spec is None:
+        return None
     rng = np.random.default_rng(0)
-    with open_fdm(vehicle.model, 1.0 / RATE_HZ, own_aircraft=vehicle.own_aircraft) as fdm:
+    info = {}
+    with open_fdm(vehicle.model, 1.0 / RATE_HZ, own_aircraft=vehicle.own_aircraft, lean=spec if lean else None,
+                  info=info) as fdm:  # fmt: skip
+        if lean and info["jsbsim_model"] == vehicle.model:
+            return None  # this jsbsim's files differ: fly() loads the stock model too
         ctl = vehicle.start(fdm, _site(rng), rng, 1.0 / RATE_HZ)
         for _ in range(400):  # motors spun up / trimmed state, as in fly()'s warm-up
             ctl.step()
@@ -130,19 +144,38 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float, default=60.0, help="simulated seconds per flight")
     ap.add_argument("--aircraft", nargs="+", default=["c172x", "F450", "agile_quad"])
     ap.add_argument("--campaign-flights", type=int, default=4)
+    ap.add_argument("--repeats", type=int, default=3, help="interleaved rounds; the best of each is printed")
     args = ap.parse_args(argv)
     print(f"cpu cores: {os.cpu_count()}, load average: {os.getloadavg()[0]:.2f}, rate {RATE_HZ:g} Hz, "
           f"{args.duration:g} s flights")  # fmt: skip
     print("real-time factors (simulated s per s), wall clock | CPU time of this process")
     print(f"{'aircraft':11s} {'bare run() (ceiling)':>21s} {'fly() dynamics':>17s} {'ratio':>5s} "
           f"{'full chain + record':>20s} {'ratio':>5s}  termination")  # fmt: skip
+    best = lambda xs: tuple(max(x[i] for x in xs) for i in range(2))  # noqa: E731  (fastest round)
+    lean_rows = []
     for ac in args.aircraft:
         fly_rtf(ac, 2.0, 0)  # import / first-load costs out of the way
-        bw, bc = bare_rtf(ac, args.duration)
-        dw, dc, term = fly_rtf(ac, args.duration, 1)
-        chain = chain_rtf(ac, args.duration, 1)
+        bare, lean, dyn, chains = [], [], [], []
+        for _ in range(max(1, args.repeats)):
+            bare.append(bare_rtf(ac, args.duration))
+            lean.append(bare_rtf(ac, args.duration, lean=True))
+            dyn.append(fly_rtf(ac, args.duration, 1))
+            chains.append(chain_rtf(ac, args.duration, 1))
+        bw, bc = best(bare)
+        dw, dc = best(dyn)
+        term = dyn[0][2]
+        chain = best(chains) if chains[0] else None
         chain_s = f"{chain[0]:8.0f}x |{chain[1]:6.0f}x {chain[1] / bc:6.2f}" if chain else f"{'n/a':>20s} {'':5s}"
         print(f"{ac:11s} {bw:10.0f}x |{bc:6.0f}x {dw:7.0f}x |{dc:6.0f}x {dc / bc:5.2f} {chain_s}  {term}")
+        if lean[0] is not None:
+            lw, lc = best(lean)
+            lean_rows.append(f"{ac:11s} lean model's bare run() {lw:6.0f}x |{lc:6.0f}x ({lc / bc:.2f} of the stock "
+                             f"model's): fly() is {dc / lc:.2f} of it (our loop's own overhead)")  # fmt: skip
+    if lean_rows:
+        print("fly() loads a lean copy of these stock models (their own sensor models and disengaged SCAS left out; "
+              "flights bit-identical):")  # fmt: skip
+        for row in lean_rows:
+            print("  " + row)
     ac = args.aircraft[0]
     how, t_s, t_p, same = campaign_speedup(ac, args.duration, args.campaign_flights)
     print(f"campaign via {how} ({args.campaign_flights} x {args.duration:g} s {ac}, wall clock): "

@@ -186,7 +186,9 @@ def fly(aircraft: str, duration_s: float, rate_hz: float = 400.0, seed: int = 0,
     wind_dir = float(rng_site.uniform(0.0, 2.0 * math.pi))
     vehicle = spec.build()
 
-    with open_fdm(vehicle.model, dt_sim, own_aircraft=vehicle.own_aircraft) as fdm:
+    loaded = {}
+    with open_fdm(vehicle.model, dt_sim, own_aircraft=vehicle.own_aircraft, lean=getattr(vehicle, "lean", None),
+                  info=loaded) as fdm:  # fmt: skip
         fdm["simulation/randomseed"] = int(rng_site.integers(0, 2**31 - 1))
         # the controller runs at about vehicle.control_hz (zero-order hold between updates)
         div = max(1, int(round(rate_hz * sub / vehicle.control_hz)))
@@ -286,6 +288,7 @@ def fly(aircraft: str, duration_s: float, rate_hz: float = 400.0, seed: int = 0,
         "rate_hz": rate_hz,
         "duration_s": duration_s,
         "jsbsim_version": jsbsim_version(),
+        "jsbsim_model": loaded.get("jsbsim_model", vehicle.model),
         "termination": termination,
         "site": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in site.items()},
         "turbulence": turbulence,

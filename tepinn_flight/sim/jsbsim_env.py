@@ -13,10 +13,13 @@ import shutil
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterator
 
 from tepinn_flight.errors import ConfigError
 from tepinn_flight.sim import FLIGHT_SIMS_DIR
+
+if TYPE_CHECKING:
+    from tepinn_flight.sim.lean_model import LeanModel
 
 #: Our own aircraft definitions (``flight_sims/aircraft/<name>/<name>.xml``).
 AIRCRAFT_DIR = FLIGHT_SIMS_DIR / "aircraft"
@@ -54,11 +57,15 @@ def silence() -> None:
 
 
 @contextmanager
-def open_fdm(model: str, dt_s: float, own_aircraft: bool = False) -> Iterator[object]:
+def open_fdm(model: str, dt_s: float, own_aircraft: bool = False,
+             lean: LeanModel | None = None, info: dict | None = None) -> Iterator[object]:
     """Yield a loaded, silent ``FGFDMExec`` stepping at ``dt_s``; clean up its output folder.
 
     ``own_aircraft`` loads ``flight_sims/aircraft/<model>`` with the package's engines and
-    systems; otherwise the aircraft that ships with JSBSim.
+    systems; otherwise the aircraft that ships with JSBSim, without ``lean``'s parts where given
+    (:mod:`tepinn_flight.sim.lean_model`: the same flights; the stock model where its files are not
+    as expected). ``info``, where given, gets ``"jsbsim_model"``: what was loaded ("<model>",
+    "<model> (lean)" or "<model> (own)").
     """
     jsbsim = jsbsim_module()
     silence()
@@ -68,10 +75,21 @@ def open_fdm(model: str, dt_s: float, own_aircraft: bool = False) -> Iterator[ob
         fdm.set_debug_level(0)
         fdm.set_output_path(out_dir)  # P8: <output> files go here, never to the working folder
         fdm.set_dt(dt_s)  # P1: before load_model
+        root = Path(jsbsim.get_default_root_dir())
+        aircraft_dir, variant = None, model
         if own_aircraft:
-            root = Path(jsbsim.get_default_root_dir())
+            aircraft_dir, variant = AIRCRAFT_DIR, f"{model} (own)"
+        elif lean is not None:
+            from tepinn_flight.sim.lean_model import build_lean_aircraft
+
+            try:  # a copy in this flight's own folder (a few ms), removed with it
+                aircraft_dir = build_lean_aircraft(model, root / "aircraft", lean, Path(out_dir) / "aircraft")
+                variant = f"{model} (lean)"
+            except ConfigError:
+                aircraft_dir = None  # this jsbsim's files differ: the stock model
+        if aircraft_dir is not None:
             ok = fdm.load_model_with_paths(
-                model, str(AIRCRAFT_DIR), str(root / "engine"), str(root / "systems")
+                model, str(aircraft_dir), str(root / "engine"), str(root / "systems")
             )
         else:
             ok = fdm.load_model(model)
@@ -83,6 +101,8 @@ def open_fdm(model: str, dt_s: float, own_aircraft: bool = False) -> Iterator[ob
         # logged rates between samples implies (the JSBSim default, rectangular Euler, lags
         # by half a step: 0.75 deg of attitude error per 600 deg/s of rate change).
         fdm["simulation/integrator/position/rotational"] = INTEGRATOR_BUSS2
+        if info is not None:
+            info["jsbsim_model"] = variant
         yield fdm
     finally:
         shutil.rmtree(out_dir, ignore_errors=True)

@@ -20,6 +20,7 @@ import numpy as np
 
 from tepinn_flight.quat import gravity_body_f, quat_from_euler_zyx_f
 from tepinn_flight.sim.jsbsim_env import FT_TO_M, getter, setter
+from tepinn_flight.sim.lean_model import LeanModel
 from tepinn_flight.sim.quad_control_law import G0, attitude_step, pack_params, position_step, rate_step
 
 
@@ -59,6 +60,8 @@ class QuadParams:
     flip_rate_rad_s: tuple[float, float]  # range drawn for flips and rolls
     spin_rate_rad_s: tuple[float, float]  # range drawn for yaw spins
     start_agl_m: tuple[float, float]
+    #: a stock JSBSim model's parts our simulation never reads, left out (None: the model as is)
+    lean: LeanModel | None = None
 
 
 F450 = QuadParams(
@@ -89,6 +92,13 @@ F450 = QuadParams(
     flip_rate_rad_s=(math.radians(700.0), math.radians(900.0)),
     spin_rate_rad_s=(math.radians(120.0), math.radians(200.0)),
     start_agl_m=(80.0, 150.0),
+    # its own IMU/barometer/GPS models (ours are applied to the truth) and the disengaged SCAS, whose
+    # mixer adds 0.0 to each external command: a third of each run(), the flights unchanged
+    lean=LeanModel(
+        drop_systems=("SensorImu.xml", "SensorBaro.xml", "SensorGps.xml"),
+        fcs_file="FlightControl.xml",
+        external_commands=tuple((f"fcs/cmd{m}_ext_nd", f"fcs/cmdEsc{m}_nd") for m in ("FR", "AL", "FL", "AR")),
+    ),
 )
 
 AGILE_QUAD = QuadParams(
@@ -263,6 +273,7 @@ class QuadVehicle:
         self.p = params
         self.model = params.model
         self.own_aircraft = params.own_aircraft
+        self.lean = params.lean
         self.min_agl_m = 2.0
         self.ctl: QuadController | None = None
 

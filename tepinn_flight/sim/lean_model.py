@@ -1,0 +1,76 @@
+"""A stock JSBSim aircraft without the parts our simulation never reads: the same flights, faster.
+
+JSBSim's F450 computes, every step, its own IMU, barometer and GPS sensor models (three
+``<system>`` files, about 60 components with their noise) and a rate SCAS whose output is summed
+into the motor commands. ``fly()`` models the sensors itself from the truth and drives the motors
+with ``ScasEngage = 0``, where the SCAS's rate errors are multiplied by zero and it adds exactly
+0.0 to each external command — work whose result is thrown away or is the identity, yet about a
+third of each ``run()``. :class:`LeanModel` names what to leave out; :func:`build_lean_aircraft`
+writes a copy of the installed aircraft folder with those ``<system>`` files removed and the flight
+control replaced by the external commands' path alone (each ``fcs/cmd*_ext_nd`` into its ESC
+input), leaving the aerodynamics, mass, propulsion, gear and effectors files untouched. The
+flights are bit-identical to the stock model's (each sensor has its own random stream, so the
+Dryden turbulence draws the same numbers; tested with turbulence on).
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+from tepinn_flight.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class LeanModel:
+    """What to leave out of a stock JSBSim aircraft (``aircraft/<model>/`` of the jsbsim package)."""
+
+    #: ``<system file="...">`` entries of the model's main file to drop (as written there)
+    drop_systems: tuple[str, ...]
+    #: the flight-control file to replace, and each (external command, ESC input) it then wires
+    fcs_file: str
+    external_commands: tuple[tuple[str, str], ...]
+
+
+def external_fcs_xml(commands: tuple[tuple[str, str], ...], declare: tuple[str, ...] = ()) -> str:
+    """A flight control that only passes each external command to its ESC input (a one-input
+    summer: the value itself, as the stock mixer's ``0.0 + command``). ``declare``: further
+    properties the stock file declared and the simulation writes (kept at 0.0 unless written)."""
+    props = [f'  <property value="0.0">{p}</property>' for p in (*declare, *(c for c, _ in commands))]
+    summers = [f"    <summer>\n      <input>{c}</input>\n      <output>{o}</output>\n    </summer>" for c, o in commands]
+    return ('<?xml version="1.0"?>\n'
+            "<!-- written by tepinn_flight.sim.lean_model: the stock flight control's external-command path "
+            "alone -->\n"
+            '<flight_control name="external commands only">\n' + "\n".join(props) + "\n"
+            '  <channel name="External Input Summations">\n' + "\n".join(summers) + "\n  </channel>\n"
+            "</flight_control>\n")  # fmt: skip
+
+
+_FCS_DECLARED = ("fcs/ScasEngage",)  # the stock file's own property, written by the controller's set-up
+
+
+def build_lean_aircraft(model: str, stock_root: Path, lean: LeanModel, dest_root: Path) -> Path:
+    """Write ``dest_root/<model>/`` from ``stock_root/<model>/`` without ``lean``'s parts; return
+    ``dest_root`` (the aircraft path for ``load_model_with_paths``). ConfigError where the stock
+    files are not as expected (a different jsbsim version): the caller then flies the stock model."""
+    src = Path(stock_root) / model
+    main = src / f"{model}.xml"
+    if not main.is_file() or not (src / lean.fcs_file).is_file():
+        raise ConfigError(f"JSBSim's {model} has no {main.name} or {lean.fcs_file}")
+    text = main.read_text()
+    for name in lean.drop_systems:
+        pattern = re.compile(r'^[ \t]*<system\s+file="' + re.escape(name) + r'"\s*/>[ \t]*\n', re.M)
+        text, n = pattern.subn("", text)
+        if n != 1:
+            raise ConfigError(f"JSBSim's {model} does not load {name} once ({n} times)")
+    fcs_stock = (src / lean.fcs_file).read_text()
+    for cmd, esc in lean.external_commands:  # the stock path this replaces: cmd summed into esc
+        if cmd not in fcs_stock or f"<output>{esc}</output>" not in fcs_stock:
+            raise ConfigError(f"JSBSim's {model} flight control has no {cmd} -> {esc} path")
+    dest = Path(dest_root) / model
+    shutil.copytree(src, dest)
+    (dest / main.name).write_text(text)
+    (dest / lean.fcs_file).write_text(external_fcs_xml(lean.external_commands, _FCS_DECLARED))
+    return Path(dest_root)

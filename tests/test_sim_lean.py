@@ -1,0 +1,69 @@
+"""The lean F450 (JSBSim's own sensor models and disengaged SCAS left out): the same flights as the
+stock model, bit for bit, and the parts really gone; a jsbsim whose files differ gets the stock model."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+jsbsim = pytest.importorskip("jsbsim")
+
+from tepinn_flight.errors import ConfigError  # noqa: E402
+from tepinn_flight.sim import multirotor  # noqa: E402
+from tepinn_flight.sim.flight import fly  # noqa: E402
+from tepinn_flight.sim.jsbsim_env import getter, open_fdm, setter  # noqa: E402
+from tepinn_flight.sim.lean_model import LeanModel, build_lean_aircraft  # noqa: E402
+
+ARRAYS = ("t_s", "q_nb_wxyz", "gyr_true_rad_s", "acc_true_m_s2", "pos_ned_m", "vel_ned_m_s")
+STOCK_ROOT = Path(jsbsim.get_default_root_dir()) / "aircraft"
+
+
+@pytest.mark.parametrize("seed, turbulence", [(3, "moderate"), (11, "severe")])
+def test_lean_f450_flies_the_stock_models_flights_bit_for_bit(monkeypatch, seed, turbulence):
+    lean = fly("F450", 6.0, 400.0, seed=seed, turbulence=turbulence)
+    monkeypatch.setattr(multirotor, "F450", dataclasses.replace(multirotor.F450, lean=None))
+    stock = fly("F450", 6.0, 400.0, seed=seed, turbulence=turbulence)
+    assert lean.meta["jsbsim_model"] == "F450 (lean)" and stock.meta["jsbsim_model"] == "F450"
+    assert len(lean.t_s) == 6 * 400
+    for name in ARRAYS:
+        assert np.array_equal(getattr(lean, name), getattr(stock, name)), name
+    assert lean.maneuvers == stock.maneuvers
+    assert np.ptp(lean.gyr_true_rad_s[:, 0]) > 1.0  # a flight that moves, not a hover at rest
+
+
+def test_lean_model_leaves_the_sensor_models_out_and_passes_the_commands_through():
+    spec = multirotor.F450.lean
+    info = {}
+    with open_fdm("F450", 1 / 400, lean=spec, info=info) as fdm:
+        assert info["jsbsim_model"] == "F450 (lean)"
+        pm = fdm.get_property_manager()
+        assert pm.get_node("sensor/imu/gyroZ_rps") is None and pm.get_node("sensor/gps/lat_rad") is None
+        assert pm.get_node("fcs/cmdRoll_rps") is None  # the SCAS is gone
+        fdm["ic/h-agl-ft"] = 300.0
+        fdm.run_ic()
+        cmds = [0.61, 0.37, 0.52, 0.44]
+        for (cmd, esc), c in zip(spec.external_commands, cmds):
+            setter(fdm, cmd)(c)
+        fdm.run()
+        assert [getter(fdm, esc)() for _, esc in spec.external_commands] == cmds
+    with open_fdm("F450", 1 / 400, info=info) as fdm:  # the stock model has them
+        assert info["jsbsim_model"] == "F450"
+        assert fdm.get_property_manager().get_node("sensor/imu/gyroZ_rps") is not None
+
+
+def test_unexpected_stock_files_fall_back_to_the_stock_model(tmp_path):
+    bad = dataclasses.replace(multirotor.F450.lean, drop_systems=("SensorImu.xml", "NoSuchSystem.xml"))
+    with pytest.raises(ConfigError, match="NoSuchSystem.xml"):
+        build_lean_aircraft("F450", STOCK_ROOT, bad, tmp_path / "a")
+    wrong_path = dataclasses.replace(multirotor.F450.lean, external_commands=(("fcs/cmdXX_ext_nd", "fcs/cmdEscXX_nd"),))
+    with pytest.raises(ConfigError, match="cmdXX_ext_nd"):
+        build_lean_aircraft("F450", STOCK_ROOT, wrong_path, tmp_path / "b")
+    with pytest.raises(ConfigError, match="no c172x.xml or"):
+        build_lean_aircraft("c172x", STOCK_ROOT, LeanModel((), "NoFcs.xml", ()), tmp_path / "c")
+    info = {}
+    with open_fdm("F450", 1 / 400, lean=bad, info=info) as fdm:
+        assert info["jsbsim_model"] == "F450"
+        assert fdm.get_property_manager().get_node("sensor/imu/gyroZ_rps") is not None
