@@ -1,5 +1,6 @@
-"""The lean F450 (JSBSim's own sensor models and disengaged SCAS left out): the same flights as the
-stock model, bit for bit, and the parts really gone; a jsbsim whose files differ gets the stock model."""
+"""The lean F450 (JSBSim's own sensor models, disengaged SCAS and ground contacts left out): the same
+flights as the stock model, bit for bit, and the parts really gone; a jsbsim whose files differ gets
+the stock model."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ jsbsim = pytest.importorskip("jsbsim")
 from tepinn_flight.errors import ConfigError  # noqa: E402
 from tepinn_flight.sim import multirotor  # noqa: E402
 from tepinn_flight.sim.flight import fly  # noqa: E402
-from tepinn_flight.sim.jsbsim_env import getter, open_fdm, setter  # noqa: E402
+from tepinn_flight.sim.jsbsim_env import FT_TO_M, getter, open_fdm, setter  # noqa: E402
 from tepinn_flight.sim.lean_model import LeanModel, build_lean_aircraft  # noqa: E402
 
 ARRAYS = ("t_s", "q_nb_wxyz", "gyr_true_rad_s", "acc_true_m_s2", "pos_ned_m", "vel_ned_m_s")
@@ -42,6 +43,7 @@ def test_lean_model_leaves_the_sensor_models_out_and_passes_the_commands_through
         pm = fdm.get_property_manager()
         assert pm.get_node("sensor/imu/gyroZ_rps") is None and pm.get_node("sensor/gps/lat_rad") is None
         assert pm.get_node("fcs/cmdRoll_rps") is None  # the SCAS is gone
+        assert fdm["gear/num-units"] == 0  # and the ground contacts
         fdm["ic/h-agl-ft"] = 300.0
         fdm.run_ic()
         cmds = [0.61, 0.37, 0.52, 0.44]
@@ -52,6 +54,7 @@ def test_lean_model_leaves_the_sensor_models_out_and_passes_the_commands_through
     with open_fdm("F450", 1 / 400, info=info) as fdm:  # the stock model has them
         assert info["jsbsim_model"] == "F450"
         assert fdm.get_property_manager().get_node("sensor/imu/gyroZ_rps") is not None
+        assert fdm["gear/num-units"] == 3
 
 
 def test_unexpected_stock_files_fall_back_to_the_stock_model(tmp_path):
@@ -61,9 +64,38 @@ def test_unexpected_stock_files_fall_back_to_the_stock_model(tmp_path):
     wrong_path = dataclasses.replace(multirotor.F450.lean, external_commands=(("fcs/cmdXX_ext_nd", "fcs/cmdEscXX_nd"),))
     with pytest.raises(ConfigError, match="cmdXX_ext_nd"):
         build_lean_aircraft("F450", STOCK_ROOT, wrong_path, tmp_path / "b")
+    no_gear = dataclasses.replace(multirotor.F450.lean, empty_files=(("Gear.xml", "landing_gear"),))
+    with pytest.raises(ConfigError, match="Gear.xml with <landing_gear>"):
+        build_lean_aircraft("F450", STOCK_ROOT, no_gear, tmp_path / "d")
     with pytest.raises(ConfigError, match="no c172x.xml or"):
         build_lean_aircraft("c172x", STOCK_ROOT, LeanModel((), "NoFcs.xml", ()), tmp_path / "c")
     info = {}
     with open_fdm("F450", 1 / 400, lean=bad, info=info) as fdm:
         assert info["jsbsim_model"] == "F450"
         assert fdm.get_property_manager().get_node("sensor/imu/gyroZ_rps") is not None
+
+
+def test_lean_f450_falls_like_the_stock_one_down_to_the_stop_height():
+    """No ground contacts in the lean model: the same fall down to where fly() stops a flight."""
+    stop_m = multirotor.QuadVehicle(multirotor.F450).min_agl_m
+    paths = ("position/h-agl-ft", "attitude/phi-rad", "velocities/v-down-fps", "forces/fbz-total-lbs",
+             "velocities/qi-rad_sec")
+    runs = {}
+    for lean in (multirotor.F450.lean, None):
+        with open_fdm("F450", 1 / 400, lean=lean) as fdm:
+            fdm["ic/h-agl-ft"] = (stop_m + 1.5) / FT_TO_M
+            fdm["ic/phi-deg"] = 20.0
+            fdm.run_ic()
+            fdm.get_propulsion().init_running(-1)
+            fdm["fcs/ScasEngage"] = 0.0
+            for cmd, _ in multirotor.F450.lean.external_commands:
+                fdm[cmd] = 0.35  # too little thrust: it sinks, tilted
+            rows = []
+            while not rows or rows[-1][0] * FT_TO_M > stop_m:
+                fdm.run()
+                rows.append([fdm[p] for p in paths])
+                assert len(rows) < 4000
+            runs[lean is None] = np.array(rows)
+    assert runs[True].shape == runs[False].shape and len(runs[True]) > 100
+    assert np.array_equal(runs[True], runs[False])
+    assert runs[True][-1, 0] * FT_TO_M <= stop_m < runs[True][-2, 0] * FT_TO_M

@@ -148,11 +148,18 @@ class FixedWingController:
         self.alt_ref_m = max(self.agl_m, self.p.floor_agl_m) if climb else self.agl_m
         self.speed_ref_kt = self.cruise_kt
 
-    def step(self) -> None:
+    def step(self, state: tuple | None = None) -> None:
+        """One control update. ``state``: the values :func:`~tepinn_flight.sim.flight.fly` read
+        after the last ``run()`` (:data:`~tepinn_flight.sim.flight.STATE_PATHS`), the same numbers
+        this would read; None: read here."""
         p = self.p
         dt = self.dt
-        phi, theta = self._phi(), self._theta()
-        wp, wq, wr = self._p(), self._q(), self._r()
+        if state is None:
+            phi, theta = self._phi(), self._theta()
+            wp, wq, wr = self._p(), self._q(), self._r()
+            h_ft = None
+        else:
+            phi, theta, _, wp, wq, wr, h_ft = state[:7]
         self.phi, self.theta = phi, theta
         self.w = (wp, wq, wr)
         vc = self._vc()
@@ -194,7 +201,7 @@ class FixedWingController:
                 qc = self.q_ref
             else:
                 if pm == PITCH_ALT:
-                    h = self._h() * FT_TO_M
+                    h = (self._h() if h_ft is None else h_ft) * FT_TO_M
                     self.agl_m = h
                     tr = p.alt_kp * (self.alt_ref_m - h) - p.vs_kd * self._hdot() * FT_TO_M
                     tr = -0.2 if tr < -0.2 else (0.25 if tr > 0.25 else tr)

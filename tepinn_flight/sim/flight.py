@@ -40,6 +40,11 @@ MAX_RATE_HZ = 4000.0
 MIN_SIM_HZ = 400.0  # below this output rate JSBSim takes several steps per logged sample
 N_COLUMNS = 20  # logged per sample: Euler angles, rates, ECEF, NED velocity, 4 extras, forces, mass
 WARMUP_S = 1.0  # controller settles before logging starts (motors spun up, trim transients gone)
+#: what the controllers' ``step(state)`` takes: read by fly() with the truth after a run() that a
+#: control update follows (the same numbers the controller would read: property reads saved)
+STATE_PATHS = ("attitude/phi-rad", "attitude/theta-rad", "attitude/psi-rad", "velocities/pi-rad_sec",
+               "velocities/qi-rad_sec", "velocities/ri-rad_sec", "position/h-agl-ft", "velocities/v-north-fps",
+               "velocities/v-east-fps", "velocities/v-down-fps")  # fmt: skip
 
 #: MIL-F-8785C (Dryden) turbulence presets: wind speed at 20 ft AGL (ft/s) and severity index
 TURBULENCE = {
@@ -236,10 +241,12 @@ def fly(aircraft: str, duration_s: float, rate_hz: float = 400.0, seed: int = 0,
         rows = []
         append = rows.append
         termination = "completed"
+        state = None  # the controller's inputs when the step before a control update read them
         for i in range(n_steps * sub):  # JSBSim steps; a sample is logged after every sub-th
             if i % div == 0:
                 seq_update(ctl, i * dt_sim)
-                ctl_step()
+                ctl_step(state)
+                state = None
             run()
             if sub > 1 and (i + 1) % sub:
                 continue
@@ -250,8 +257,15 @@ def fly(aircraft: str, duration_s: float, rate_hz: float = 400.0, seed: int = 0,
                 termination = (f"stopped at t={i // sub * dt:.3f} s: "
                                + ("ground proximity" if math.isfinite(h) else "non-finite state"))
                 break
-            append(pack(phi(), theta(), psi(), gp(), gq(), gr(), ex(), ey(), ez(), vn(), ve(), vd(),
-                        x0(), x1(), x2(), x3(), fx(), fy(), fz(), mass()))
+            if (i + 1) % div:
+                append(pack(phi(), theta(), psi(), gp(), gq(), gr(), ex(), ey(), ez(), vn(), ve(), vd(),
+                            x0(), x1(), x2(), x3(), fx(), fy(), fz(), mass()))
+            else:  # a control update follows: it takes these (STATE_PATHS) instead of reading them again
+                s_phi, s_theta, s_psi, s_p, s_q, s_r = phi(), theta(), psi(), gp(), gq(), gr()
+                s_vn, s_ve, s_vd = vn(), ve(), vd()
+                append(pack(s_phi, s_theta, s_psi, s_p, s_q, s_r, ex(), ey(), ez(), s_vn, s_ve, s_vd,
+                            x0(), x1(), x2(), x3(), fx(), fy(), fz(), mass()))
+                state = (s_phi, s_theta, s_psi, s_p, s_q, s_r, h, s_vn, s_ve, s_vd)
         t_end = len(rows) * dt
         seq.close(ctl, t_end)
 

@@ -1,16 +1,18 @@
-"""A stock JSBSim aircraft without the parts our simulation never reads: the same flights, faster.
+"""A stock JSBSim aircraft without the parts our simulation never uses: the same flights, faster.
 
 JSBSim's F450 computes, every step, its own IMU, barometer and GPS sensor models (three
-``<system>`` files, about 60 components with their noise) and a rate SCAS whose output is summed
-into the motor commands. ``fly()`` models the sensors itself from the truth and drives the motors
-with ``ScasEngage = 0``, where the SCAS's rate errors are multiplied by zero and it adds exactly
-0.0 to each external command — work whose result is thrown away or is the identity, yet about a
-third of each ``run()``. :class:`LeanModel` names what to leave out; :func:`build_lean_aircraft`
-writes a copy of the installed aircraft folder with those ``<system>`` files removed and the flight
-control replaced by the external commands' path alone (each ``fcs/cmd*_ext_nd`` into its ESC
-input), leaving the aerodynamics, mass, propulsion, gear and effectors files untouched. The
-flights are bit-identical to the stock model's (each sensor has its own random stream, so the
-Dryden turbulence draws the same numbers; tested with turbulence on).
+``<system>`` files, about 60 components with their noise), a rate SCAS whose output is summed
+into the motor commands, and three ground-contact points. ``fly()`` models the sensors itself from
+the truth, drives the motors with ``ScasEngage = 0`` (the SCAS's rate errors are multiplied by zero
+and it adds exactly 0.0 to each external command) and stops a flight 2 m above the ground, where the
+contacts (0.15 m below the centre of gravity) give zero force — work whose result is thrown away or
+is the identity, yet about 40 % of each ``run()``. :class:`LeanModel` names what to leave out;
+:func:`build_lean_aircraft` writes a copy of the installed aircraft folder with those ``<system>``
+files removed, the flight control replaced by the external commands' path alone (each
+``fcs/cmd*_ext_nd`` into its ESC input) and the named files emptied, leaving the aerodynamics,
+mass, propulsion and effectors files untouched. The flights are bit-identical to the stock model's
+(each sensor has its own random stream, so the Dryden turbulence draws the same numbers; tested
+with turbulence on, and down to the stop height).
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ class LeanModel:
     #: the flight-control file to replace, and each (external command, ESC input) it then wires
     fcs_file: str
     external_commands: tuple[tuple[str, str], ...]
+    #: (file, its root element) to leave empty: ground contacts of a vehicle that never touches down
+    empty_files: tuple[tuple[str, str], ...] = ()
 
 
 def external_fcs_xml(commands: tuple[tuple[str, str], ...], declare: tuple[str, ...] = ()) -> str:
@@ -69,8 +73,13 @@ def build_lean_aircraft(model: str, stock_root: Path, lean: LeanModel, dest_root
     for cmd, esc in lean.external_commands:  # the stock path this replaces: cmd summed into esc
         if cmd not in fcs_stock or f"<output>{esc}</output>" not in fcs_stock:
             raise ConfigError(f"JSBSim's {model} flight control has no {cmd} -> {esc} path")
+    for name, root in lean.empty_files:
+        if not re.search(r"<" + re.escape(root) + r"[\s>]", (src / name).read_text() if (src / name).is_file() else ""):
+            raise ConfigError(f"JSBSim's {model} has no {name} with <{root}>")
     dest = Path(dest_root) / model
     shutil.copytree(src, dest)
     (dest / main.name).write_text(text)
     (dest / lean.fcs_file).write_text(external_fcs_xml(lean.external_commands, _FCS_DECLARED))
+    for name, root in lean.empty_files:
+        (dest / name).write_text(f'<?xml version="1.0"?>\n<!-- emptied by tepinn_flight.sim.lean_model -->\n<{root}/>\n')
     return Path(dest_root)

@@ -92,12 +92,14 @@ F450 = QuadParams(
     flip_rate_rad_s=(math.radians(700.0), math.radians(900.0)),
     spin_rate_rad_s=(math.radians(120.0), math.radians(200.0)),
     start_agl_m=(80.0, 150.0),
-    # its own IMU/barometer/GPS models (ours are applied to the truth) and the disengaged SCAS, whose
-    # mixer adds 0.0 to each external command: a third of each run(), the flights unchanged
+    # its own IMU/barometer/GPS models (ours are applied to the truth), the disengaged SCAS, whose
+    # mixer adds 0.0 to each external command, and the ground contacts (0.15 m below the CG; a flight
+    # stops at QuadVehicle.min_agl_m): 40 % of each run(), the flights unchanged
     lean=LeanModel(
         drop_systems=("SensorImu.xml", "SensorBaro.xml", "SensorGps.xml"),
         fcs_file="FlightControl.xml",
         external_commands=tuple((f"fcs/cmd{m}_ext_nd", f"fcs/cmdEsc{m}_nd") for m in ("FR", "AL", "FL", "AR")),
+        empty_files=(("Gear.xml", "ground_reactions"),),
     ),
 )
 
@@ -223,21 +225,30 @@ class QuadController:
         return (math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw))
 
     # -------------------------------------------------------------- control
-    def step(self) -> None:
+    def step(self, state: tuple | None = None) -> None:
         """One control update: read the state, run the compiled laws for the mode, write the motors.
 
         The laws are :mod:`tepinn_flight.sim.quad_control_law`; this method only moves floats
         between JSBSim, the references the maneuvers wrote and the compiled code (about 2 us).
+        ``state``: the values :func:`~tepinn_flight.sim.flight.fly` read after the last ``run()``
+        (:data:`~tepinn_flight.sim.flight.STATE_PATHS`), the same numbers this would read; None:
+        read here.
         """
-        phi, theta, psi = self._phi(), self._theta(), self._psi()
-        wp, wq, wr = self._p(), self._q(), self._r()
+        if state is None:
+            phi, theta, psi = self._phi(), self._theta(), self._psi()
+            wp, wq, wr = self._p(), self._q(), self._r()
+            h_ft = None
+        else:
+            phi, theta, psi, wp, wq, wr, h_ft, vn, ve, vd = state
         pd, qd = self._pd(), self._qd()
         mode = self.mode
         if mode == MODE_POS:
-            h = self._h() * FT_TO_M
+            if h_ft is None:
+                h_ft, vn, ve, vd = self._h(), self._vn(), self._ve(), self._vd()
+            h = h_ft * FT_TO_M
             self.agl_m = h
             pos = self.pos = [self._pn() * FT_TO_M, self._pe() * FT_TO_M, self.start_agl_m - h]
-            vel = self.vel = [self._vn() * FT_TO_M, self._ve() * FT_TO_M, self._vd() * FT_TO_M]
+            vel = self.vel = [vn * FT_TO_M, ve * FT_TO_M, vd * FT_TO_M]
             pr, vf, af = self.pos_ref, self.vel_ff, self.acc_ff
             qw, qx, qy, qz, self.yaw_ref, c0, c1, c2, c3 = position_step(self._par, self._st, (
                 phi, theta, psi, wp, wq, wr, pd, qd, pos[0], pos[1], pos[2], vel[0], vel[1], vel[2],
@@ -274,7 +285,7 @@ class QuadVehicle:
         self.model = params.model
         self.own_aircraft = params.own_aircraft
         self.lean = params.lean
-        self.min_agl_m = 2.0
+        self.min_agl_m = 2.0  # the flight stops here (the lean F450 has no ground contacts: keep it >= 0.5 m)
         self.ctl: QuadController | None = None
 
     @property
