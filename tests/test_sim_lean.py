@@ -58,7 +58,7 @@ def test_lean_model_leaves_the_sensor_models_out_and_passes_the_commands_through
 
 
 def test_unexpected_stock_files_fall_back_to_the_stock_model(tmp_path):
-    bad = dataclasses.replace(multirotor.F450.lean, drop_systems=("SensorImu.xml", "NoSuchSystem.xml"))
+    bad = dataclasses.replace(multirotor.F450.lean, drop=('<system file="SensorImu.xml"/>', '<system file="NoSuchSystem.xml"/>'))
     with pytest.raises(ConfigError, match="NoSuchSystem.xml"):
         build_lean_aircraft("F450", STOCK_ROOT, bad, tmp_path / "a")
     wrong_path = dataclasses.replace(multirotor.F450.lean, external_commands=(("fcs/cmdXX_ext_nd", "fcs/cmdEscXX_nd"),))
@@ -68,7 +68,7 @@ def test_unexpected_stock_files_fall_back_to_the_stock_model(tmp_path):
     with pytest.raises(ConfigError, match="Gear.xml with <landing_gear>"):
         build_lean_aircraft("F450", STOCK_ROOT, no_gear, tmp_path / "d")
     with pytest.raises(ConfigError, match="no c172x.xml or"):
-        build_lean_aircraft("c172x", STOCK_ROOT, LeanModel((), "NoFcs.xml", ()), tmp_path / "c")
+        build_lean_aircraft("c172x", STOCK_ROOT, LeanModel(fcs_file="NoFcs.xml"), tmp_path / "c")
     info = {}
     with open_fdm("F450", 1 / 400, lean=bad, info=info) as fdm:
         assert info["jsbsim_model"] == "F450"
@@ -99,3 +99,28 @@ def test_lean_f450_falls_like_the_stock_one_down_to_the_stop_height():
     assert runs[True].shape == runs[False].shape and len(runs[True]) > 100
     assert np.array_equal(runs[True], runs[False])
     assert runs[True][-1, 0] * FT_TO_M <= stop_m < runs[True][-2, 0] * FT_TO_M
+
+
+def test_build_drops_whole_elements_and_keeps_the_rest(tmp_path):
+    """On a toy aircraft folder: a self-closing element and one with a body go, line and all;
+    everything else is copied as it was; the emptied file keeps its root element."""
+    src = tmp_path / "stock" / "toy"
+    src.mkdir(parents=True)
+    main = ('<?xml version="1.0"?>\n<fdm_config name="toy">\n  <metrics file="M.xml"/>\n'
+            '  <system file="Noisy.xml"/>\n  <system file="Autopilot">\n    <property value="0.5"> a/b </property>\n'
+            '  </system>\n  <system file="Kept.xml"/>\n  <ground_reactions file="G.xml"/>\n</fdm_config>\n')
+    (src / "toy.xml").write_text(main)
+    (src / "G.xml").write_text("<?xml version='1.0'?>\n<ground_reactions>\n  <contact/>\n</ground_reactions>\n")
+    (src / "M.xml").write_text("<metrics/>\n")
+    spec = LeanModel(drop=('<system file="Noisy.xml"/>', '<system file="Autopilot">'),
+                     empty_files=(("G.xml", "ground_reactions"),))
+    root = build_lean_aircraft("toy", tmp_path / "stock", spec, tmp_path / "lean")
+    out = (root / "toy" / "toy.xml").read_text()
+    assert out == ('<?xml version="1.0"?>\n<fdm_config name="toy">\n  <metrics file="M.xml"/>\n'
+                   '  <system file="Kept.xml"/>\n  <ground_reactions file="G.xml"/>\n</fdm_config>\n')
+    assert (root / "toy" / "M.xml").read_text() == "<metrics/>\n"
+    assert "<contact" not in (root / "toy" / "G.xml").read_text()
+    assert "<ground_reactions/>" in (root / "toy" / "G.xml").read_text()
+    assert (src / "toy.xml").read_text() == main  # the stock folder untouched
+    with pytest.raises(ConfigError, match="not closed"):
+        build_lean_aircraft("toy", tmp_path / "stock", LeanModel(drop=('<ground_reactions file="G.xml"',)), tmp_path / "x")

@@ -96,7 +96,7 @@ F450 = QuadParams(
     # mixer adds 0.0 to each external command, and the ground contacts (0.15 m below the CG; a flight
     # stops at QuadVehicle.min_agl_m): 40 % of each run(), the flights unchanged
     lean=LeanModel(
-        drop_systems=("SensorImu.xml", "SensorBaro.xml", "SensorGps.xml"),
+        drop=tuple(f'<system file="Sensor{x}.xml"/>' for x in ("Imu", "Baro", "Gps")),
         fcs_file="FlightControl.xml",
         external_commands=tuple((f"fcs/cmd{m}_ext_nd", f"fcs/cmdEsc{m}_nd") for m in ("FR", "AL", "FL", "AR")),
         empty_files=(("Gear.xml", "ground_reactions"),),
