@@ -1,6 +1,6 @@
-"""The lean F450 (JSBSim's own sensor models, disengaged SCAS and ground contacts left out): the same
-flights as the stock model, bit for bit, and the parts really gone; a jsbsim whose files differ gets
-the stock model."""
+"""The lean F450 (JSBSim's own sensor models, disengaged SCAS and ground contacts left out) and the lean
+c172x (its disengaged autopilot but for one noisy sensor, its ground contacts): the same flights as the
+stock models, bit for bit, and the parts really gone; a jsbsim whose files differ gets the stock model."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import pytest
 jsbsim = pytest.importorskip("jsbsim")
 
 from tepinn_flight.errors import ConfigError  # noqa: E402
-from tepinn_flight.sim import multirotor  # noqa: E402
+from tepinn_flight.sim import fixed_wing, multirotor  # noqa: E402
 from tepinn_flight.sim.flight import fly  # noqa: E402
 from tepinn_flight.sim.jsbsim_env import FT_TO_M, getter, open_fdm, setter  # noqa: E402
 from tepinn_flight.sim.lean_model import LeanModel, build_lean_aircraft  # noqa: E402
@@ -33,6 +33,25 @@ def test_lean_f450_flies_the_stock_models_flights_bit_for_bit(monkeypatch, seed,
         assert np.array_equal(getattr(lean, name), getattr(stock, name)), name
     assert lean.maneuvers == stock.maneuvers
     assert np.ptp(lean.gyr_true_rad_s[:, 0]) > 1.0  # a flight that moves, not a hover at rest
+
+
+def test_lean_c172x_flies_the_stock_models_flights_bit_for_bit(monkeypatch):
+    """Its autopilot's attitude sensor draws noise from the turbulence's generator: kept, the
+    turbulence is the same; a flight through loops and pull-ups in severe turbulence."""
+    spec = fixed_wing.C172X.lean
+    lean = fly("c172x", 25.0, 400.0, seed=7, turbulence="severe")
+    monkeypatch.setattr(fixed_wing, "C172X", dataclasses.replace(fixed_wing.C172X, lean=None))
+    stock = fly("c172x", 25.0, 400.0, seed=7, turbulence="severe")
+    assert lean.meta["jsbsim_model"] == "c172x (lean)" and stock.meta["jsbsim_model"] == "c172x"
+    for name in ARRAYS:
+        assert np.array_equal(getattr(lean, name), getattr(stock, name)), name
+    assert lean.maneuvers == stock.maneuvers and len(lean.maneuvers) >= 3
+    with open_fdm("c172x", 1 / 400, lean=spec) as fdm:
+        pm = fdm.get_property_manager()
+        assert fdm["gear/num-units"] == 0
+        assert pm.get_node("ap/roll-cmd-norm-output") is not None and fdm["ap/roll-cmd-norm-output"] == 0.0
+        assert pm.get_node("ap/heading_hold") is None  # the rest of the autopilot is gone
+        assert pm.get_node("fcs/attitude/sensor/phi-rad") is not None  # its noisy sensor stays
 
 
 def test_lean_model_leaves_the_sensor_models_out_and_passes_the_commands_through():
@@ -113,7 +132,7 @@ def test_build_drops_whole_elements_and_keeps_the_rest(tmp_path):
     (src / "G.xml").write_text("<?xml version='1.0'?>\n<ground_reactions>\n  <contact/>\n</ground_reactions>\n")
     (src / "M.xml").write_text("<metrics/>\n")
     spec = LeanModel(drop=('<system file="Noisy.xml"/>', '<system file="Autopilot">'),
-                     empty_files=(("G.xml", "ground_reactions"),))
+                     empty_files=(("G.xml", "ground_reactions"),))  # fmt: skip
     root = build_lean_aircraft("toy", tmp_path / "stock", spec, tmp_path / "lean")
     out = (root / "toy" / "toy.xml").read_text()
     assert out == ('<?xml version="1.0"?>\n<fdm_config name="toy">\n  <metrics file="M.xml"/>\n'
@@ -124,3 +143,31 @@ def test_build_drops_whole_elements_and_keeps_the_rest(tmp_path):
     assert (src / "toy.xml").read_text() == main  # the stock folder untouched
     with pytest.raises(ConfigError, match="not closed"):
         build_lean_aircraft("toy", tmp_path / "stock", LeanModel(drop=('<ground_reactions file="G.xml"',)), tmp_path / "x")
+
+
+def test_build_zero_properties_kept_elements_and_emptied_inline_elements(tmp_path):
+    src = tmp_path / "stock" / "toy"
+    src.mkdir(parents=True)
+    (src / "toy.xml").write_text(
+        '<fdm_config name="toy">\n  <ground_reactions>\n    <contact name="a"/>\n  </ground_reactions>\n'
+        '  <system file="Autopilot">\n    <property> x </property>\n  </system>\n  <autopilot file="ap"/>\n'
+        '  <output><ground_reactions> OFF </ground_reactions></output>\n</fdm_config>\n')
+    (src / "ap.xml").write_text('<?xml version="1.0"?>\n<autopilot name="AP">\n  <channel name="c">\n'
+                                '    <sensor name="s1">\n      <noise> 0.1 </noise>\n    </sensor>\n'
+                                '    <pid name="p"/>\n    <switch name="w">\n    </switch>\n  </channel>\n</autopilot>\n')
+    spec = LeanModel(drop=('<system file="Autopilot">',), zero_properties=("ap/out",),
+                     keep_only=(("ap.xml", "autopilot", ('<switch name="w">', '<sensor name="s1">'), ("ap/in",)),),
+                     empty=(("<ground_reactions>", "<contact"),))  # fmt: skip
+    root = build_lean_aircraft("toy", tmp_path / "stock", spec, tmp_path / "lean")
+    main = (root / "toy" / "toy.xml").read_text()
+    assert main == ('<fdm_config name="toy">\n  <ground_reactions/>\n'
+                    '  <system name="outputs of what tepinn_flight.sim.lean_model left out">\n'
+                    '    <property value="0.0">ap/out</property>\n  </system>\n  <autopilot file="ap"/>\n'
+                    '  <output><ground_reactions> OFF </ground_reactions></output>\n</fdm_config>\n')
+    ap = (root / "toy" / "ap.xml").read_text()
+    assert "<pid" not in ap and ap.index('<sensor name="s1">') < ap.index('<switch name="w">')  # stock order
+    assert "<property> ap/in </property>" in ap and "<noise> 0.1 </noise>" in ap and ap.rstrip().endswith("</autopilot>")
+    with pytest.raises(ConfigError, match="zero_properties"):
+        build_lean_aircraft("toy", tmp_path / "stock", LeanModel(zero_properties=("a",)), tmp_path / "x")
+    with pytest.raises(ConfigError, match="once"):  # two <ground_reactions> and none chosen
+        build_lean_aircraft("toy", tmp_path / "stock", LeanModel(empty=(("<ground_reactions>", "ground"),)), tmp_path / "y")

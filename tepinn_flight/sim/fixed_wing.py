@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 from tepinn_flight.errors import ConfigError
 from tepinn_flight.sim.jsbsim_env import FT_TO_M, getter, jsbsim_module, setter
+from tepinn_flight.sim.lean_model import LeanModel
 
 G0 = 9.80665
 KT_TO_M_S = 0.514444
@@ -61,6 +62,8 @@ class FixedWingParams:
     vne_kt: float  # never-exceed: throttle idle and pull up gently beyond this
     max_g: float  # load factor used for pulls (clamped by maneuvers)
     floor_agl_m: float  # recoveries climb when below this
+    #: a stock JSBSim model's parts our simulation never uses, left out (None: the model as is)
+    lean: LeanModel | None = None
 
 
 C172X = FixedWingParams(
@@ -86,6 +89,17 @@ C172X = FixedWingParams(
     vne_kt=175.0,
     max_g=5.5,
     floor_agl_m=700.0,
+    # JSBSim's own autopilot (c172ap, its Autopilot and GNCUtilities systems): disengaged, it adds
+    # exactly 0.0 to the surfaces our controller commands — but its attitude sensor draws noise from
+    # the generator the turbulence uses, so that one component stays; and the ground contacts (a
+    # flight stops at FixedWingVehicle.min_agl_m): 40 % of each run(), the flights unchanged
+    lean=LeanModel(
+        drop=('<system file="GNCUtilities"/>', '<system file="Autopilot">'),
+        zero_properties=("ap/roll-cmd-norm-output",),
+        keep_only=(("c172ap.xml", "autopilot", ('<sensor name="fcs/attitude/sensor/phi-rad">',),
+                    ("ap/aileron_cmd", "ap/elevator_cmd")),),
+        empty=(("<ground_reactions>", "<contact"),),
+    ),
 )
 
 
@@ -252,7 +266,8 @@ class FixedWingVehicle:
         self.p = params
         self.model = params.model
         self.own_aircraft = params.own_aircraft
-        self.min_agl_m = 60.0
+        self.lean = params.lean
+        self.min_agl_m = 60.0  # the flight stops here (the lean c172x has no ground contacts)
         self.ctl: FixedWingController | None = None
 
     def start(self, fdm, site: dict, rng, dt_s: float) -> FixedWingController:
