@@ -60,7 +60,8 @@ def external_fcs_xml(commands: tuple[tuple[str, str], ...], declare: tuple[str, 
     summer: the value itself, as the stock mixer's ``0.0 + command``). ``declare``: further
     properties the stock file declared and the simulation writes (kept at 0.0 unless written)."""
     props = [f'  <property value="0.0">{p}</property>' for p in (*declare, *(c for c, _ in commands))]
-    summers = [f"    <summer>\n      <input>{c}</input>\n      <output>{o}</output>\n    </summer>" for c, o in commands]
+    summers = [f"    <summer>\n      <input>{c}</input>\n      <output>{o}</output>\n    </summer>"
+               for c, o in commands]
     return ('<?xml version="1.0"?>\n'
             "<!-- written by tepinn_flight.sim.lean_model: the stock flight control's external-command path "
             "alone -->\n"
@@ -117,7 +118,13 @@ def _reduced(text: str, name: str, root: str, kept: tuple[str, ...], declared: t
     body = "".join(f"  <property> {p} </property>\n" for p in declared)
     body += '  <channel name="kept by tepinn_flight.sim.lean_model">\n'
     body += "".join(f"    {text[a:b]}\n" for a, b in parts) + "  </channel>\n"
-    return f'<?xml version="1.0"?>\n<!-- reduced by tepinn_flight.sim.lean_model -->\n<{root} name="{name} (reduced)">\n{body}</{root}>\n'
+    head = f'<?xml version="1.0"?>\n<!-- reduced by tepinn_flight.sim.lean_model -->\n<{root} name="{name} (reduced)">\n'
+    return f"{head}{body}</{root}>\n"
+
+
+def _read(path: Path) -> str:
+    """A stock file's text ("" where it is missing: the checks then name it)."""
+    return path.read_text() if path.is_file() else ""
 
 
 def build_lean_aircraft(model: str, stock_root: Path, lean: LeanModel, dest_root: Path) -> Path:
@@ -137,19 +144,20 @@ def build_lean_aircraft(model: str, stock_root: Path, lean: LeanModel, dest_root
         if first is None:
             raise ConfigError("zero_properties stand for the outputs of dropped parts: drop something")
         decl = "".join(f'\n    <property value="0.0">{p}</property>' for p in lean.zero_properties)
-        text = text[:first] + f'  <system name="outputs of what tepinn_flight.sim.lean_model left out">{decl}\n  </system>\n' + text[first:]  # fmt: skip
+        system = f'  <system name="outputs of what tepinn_flight.sim.lean_model left out">{decl}\n  </system>\n'
+        text = text[:first] + system + text[first:]
     for tag, holding in lean.empty:
         at, end = _element(text, tag, model, holding)
         text = text[:at] + "<" + re.match(r"<(\w+)", tag).group(1) + "/>" + text[end:]
-    reduced = {name: _reduced((src / name).read_text() if (src / name).is_file() else "", name, root, kept, declared, model)
-               for name, root, kept, declared in lean.keep_only}  # fmt: skip
+    reduced = {name: _reduced(_read(src / name), name, root, kept, declared, model)
+               for name, root, kept, declared in lean.keep_only}
     if lean.fcs_file is not None:
         fcs_stock = (src / lean.fcs_file).read_text()
         for cmd, esc in lean.external_commands:  # the stock path this replaces: cmd summed into esc
             if cmd not in fcs_stock or f"<output>{esc}</output>" not in fcs_stock:
                 raise ConfigError(f"JSBSim's {model} flight control has no {cmd} -> {esc} path")
     for name, root in lean.empty_files:
-        if not re.search(r"<" + re.escape(root) + r"[\s>]", (src / name).read_text() if (src / name).is_file() else ""):
+        if not re.search(r"<" + re.escape(root) + r"[\s>]", _read(src / name)):
             raise ConfigError(f"JSBSim's {model} has no {name} with <{root}>")
     dest = Path(dest_root) / model
     shutil.copytree(src, dest)
