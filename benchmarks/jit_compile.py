@@ -16,7 +16,9 @@ flight record, ``tlog-sync`` the frame sync of a real tlog (``scan_tlog``; skipp
 ``../shared/real-logs`` is missing), ``anchored`` the shipped estimator's kernels between network
 windows (``AnchoredVQF.update`` on a block, ``correct`` with every gate open, ``update_one``: what
 ``estimate`` and the live worker run; ``model/anchor_kernels.py``), ``features`` the token features the
-onnxruntime path computes for the network (``model/window_features.py``, session 11).
+onnxruntime path computes for the network (``model/window_features.py``, session 11), ``gnss-aid``
+the GNSS-aided tilt's window sums and rotations (``model/gnss_aid_kernels.py``, session 21; a record
+with GNSS velocity).
 
 Usage: python benchmarks/jit_compile.py [--compare /path/to/other/checkout] [--only fusion,filters]
 Wall-clock seconds; the machine may be shared, so compare the two checkouts within one run.
@@ -108,6 +110,16 @@ w = (np.full((1, k, 3), 0.1), np.tile([0.0, 0.0, -9.81], (1, k, 1)), np.full((1,
      (np.arange(k) - k + 1) / 25.0 * np.ones((1, k)), np.full((1, k), 0.04), None, np.zeros((1, k)))
 def call():
     window_features(cfg, SensorValues.identity(), *w)
+""",
+    "gnss-aid": """
+from tepinn_flight.model.gnss_aid import GnssAidConfig, motion_acc_body
+n = 4000
+t = np.arange(n) / 200.0
+q = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+acc = np.column_stack([np.sin(t), np.cos(t), np.full(n, -9.81)])
+vel = np.column_stack([-np.cos(t), np.sin(t)])
+def call():
+    motion_acc_body(t, q, acc, vel, GnssAidConfig())
 """,
     "tlog-sync": f"""
 from tepinn_flight.ingest.mavlink_scan import scan_tlog

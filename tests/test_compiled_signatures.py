@@ -91,8 +91,22 @@ _CALLS = textwrap.dedent("""
     turns, _ = turns_with_rests((1.0, 1.01, 0.99), n_turns=4)  # a record's read-only columns, and C arrays
     gs.self_calibrate(turns.t_s, turns.gyr_rad_s, turns.acc_m_s2, turns.segment, turns.gyr_clipped)
     gs.self_calibrate(list(turns.t_s), np.ascontiguousarray(turns.gyr_rad_s, np.float32), turns.acc_m_s2.tolist())
+    from tepinn_flight.model import gnss_aid as ga
+    from tepinn_flight.model import gnss_aid_kernels as gk
+
+    n = 300  # the aid on a record's read-only Fortran columns, on C arrays, float32 and lists, real and complex sums
+    t = np.arange(n) / 50.0
+    acc = np.asfortranarray(np.column_stack([np.sin(t), np.cos(t), np.full(n, -9.81)]))
+    acc.flags.writeable = False
+    vel = np.column_stack([-np.cos(t), np.sin(t)])
+    for q in (np.tile([1.0, 0, 0, 0], (n, 1)), np.tile(np.float32([1, 0, 0, 0]), (n, 1))):
+        ga.motion_acc_body(t, q, acc, vel, ga.GnssAidConfig())
+    ga.motion_acc_body(t, np.tile([1.0, 0, 0, 0], (n, 1)).tolist(), acc.tolist(), vel, ga.GnssAidConfig())
+    ga._centred_mean(np.exp(1j * t), 7)
+    ga._centred_mean(np.float32(t), np.int32(5))
     for name, d in (("fusion._run", fusion._run), ("fusion._step", fusion._step), ("wf._features", wf._features),
-                    ("gs.attitude_at", gs.attitude_at),
+                    ("gs.attitude_at", gs.attitude_at), ("gk.window_sums", gk.window_sums),
+                    ("gk.rotate_rows", gk.rotate_rows),
                     ("complementary._run", complementary._run), ("madgwick._run", madgwick._run),
                     ("ekf._loop", ekf._loop)) + tuple((f"ak.{k}", getattr(ak, k)) for k in ANCHOR_KERNELS):
         print(name, len(d.signatures))
@@ -107,4 +121,5 @@ def test_every_loop_is_compiled_for_one_signature(tmp_path):
     assert p.returncode == 0, p.stderr
     counts = dict(line.split() for line in p.stdout.splitlines())
     assert counts == {k: "1" for k in ("fusion._run", "fusion._step", "wf._features", "gs.attitude_at", "complementary._run", "madgwick._run",
-                                       "ekf._loop") + tuple(f"ak.{k}" for k in ANCHOR_KERNELS)}, p.stdout  # fmt: skip
+                                       "ekf._loop", "gk.window_sums", "gk.rotate_rows")
+                      + tuple(f"ak.{k}" for k in ANCHOR_KERNELS)}, p.stdout  # fmt: skip

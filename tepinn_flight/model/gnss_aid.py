@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import check, finite_nonneg
-from ..quat import quat_rotate
+from .gnss_aid_kernels import rotate_rows, window_sums
 
 
 @dataclass(frozen=True)
@@ -97,19 +97,27 @@ class GnssAid:
 def _centred_mean(x: np.ndarray, k: int) -> np.ndarray:
     """Centred moving average over k samples (fewer at the ends), NaN-aware: NaN where any sample of
     the window is NaN. (``gyro_selfcal._boxcar`` is the rest detector's: NaN-free input, the edges
-    holding the nearest full average.)"""
+    holding the nearest full average.) The sums are compiled (:func:`.gnss_aid_kernels.window_sums`:
+    the running sum's differences, numpy's operations in its order); the division stays numpy's
+    (a complex average divides as numpy divides complex numbers)."""
+    x = np.asarray(x)
     n = len(x)
+    if n == 0:
+        return np.array(x, dtype=np.complex128 if np.iscomplexobj(x) else np.float64)
     bad = ~np.isfinite(x)
-    z = np.where(bad, 0.0, x)
-    cs = np.concatenate([np.zeros((1,) + z.shape[1:]), np.cumsum(z, axis=0)])
-    cb = np.concatenate([[0], np.cumsum(bad.reshape(n, -1).any(axis=1))])
-    i = np.arange(n)
-    lo = np.clip(i - k // 2, 0, n)
-    hi = np.clip(i - k // 2 + k, 0, n)
-    cnt = (hi - lo).reshape((n,) + (1,) * (x.ndim - 1))
-    out = (cs[hi] - cs[lo]) / cnt
-    out[(cb[hi] - cb[lo]) > 0] = np.nan
+    z = np.where(bad, 0.0, x).astype(np.complex128 if np.iscomplexobj(x) else np.float64, copy=False)  # sums in 64 bits
+    row_bad = bad.reshape(n, -1).any(axis=1)
+    cols = np.ascontiguousarray(z).view(np.float64).reshape(n, -1)  # a complex column: its (re, im)
+    sums, cnt, nbad = window_sums(cols, row_bad, int(k))
+    sums = (sums.view(np.complex128) if np.iscomplexobj(z) else sums).reshape(z.shape)
+    out = sums / cnt.reshape((n,) + (1,) * (z.ndim - 1))
+    out[nbad > 0] = np.nan
     return out
+
+
+def _c_rows(x) -> np.ndarray:
+    """``x`` as float64 rows, C-ordered and writable (the compiled kernels' one signature)."""
+    return np.require(x, np.float64, ["C", "W"])
 
 
 def motion_acc_ne(t_s: np.ndarray, vel_ne_m_s: np.ndarray, cfg: GnssAidConfig) -> np.ndarray:
@@ -143,7 +151,7 @@ def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig):
     k = max(1, int(round(cfg.smooth_s / dt)))
     a_ne = motion_acc_ne(t_s, vel_ne_m_s, cfg)
     covered = np.all(np.isfinite(a_ne), axis=1)
-    f_ne = _centred_mean(quat_rotate(q_nb_wxyz, acc_b)[:, :2], k)  # specific force in the filter's earth frame
+    f_ne = _centred_mean(rotate_rows(_c_rows(q_nb_wxyz), _c_rows(acc_b))[:, :2], k)  # specific force, filter's earth frame
     zf = f_ne[:, 0] + 1j * f_ne[:, 1]
     za = a_ne[:, 0] + 1j * a_ne[:, 1]
     use = covered & np.isfinite(zf)
@@ -169,7 +177,7 @@ def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig):
     a_n[trusted, 0] = za_t.real
     a_n[trusted, 1] = za_t.imag
     q_conj = q_nb_wxyz * np.array([1.0, -1.0, -1.0, -1.0])
-    return quat_rotate(q_conj, a_n), trusted, covered  # zero where not trusted
+    return rotate_rows(_c_rows(q_conj), a_n), trusted, covered  # zero where not trusted
 
 
 def summarize(trusted: np.ndarray, covered: np.ndarray, a_b: np.ndarray, vel_ne_m_s: np.ndarray | None,
