@@ -85,8 +85,8 @@ def open_fdm(model: str, dt_s: float, own_aircraft: bool = False,
             try:  # a copy in this flight's own folder (a few ms), removed with it
                 aircraft_dir = build_lean_aircraft(model, root / "aircraft", lean, Path(out_dir) / "aircraft")
                 variant = f"{model} (lean)"
-            except ConfigError:
-                aircraft_dir = None  # this jsbsim's files differ: the stock model
+            except (ConfigError, OSError):
+                aircraft_dir = None  # this jsbsim's files differ (or the copy failed): the stock model
         if aircraft_dir is not None:
             ok = fdm.load_model_with_paths(
                 model, str(aircraft_dir), str(root / "engine"), str(root / "systems")
