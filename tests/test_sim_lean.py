@@ -1,6 +1,7 @@
-"""The lean F450 (JSBSim's own sensor models, disengaged SCAS and ground contacts left out) and the lean
-c172x (its disengaged autopilot but for one noisy sensor, its ground contacts): the same flights as the
-stock models, bit for bit, and the parts really gone; a jsbsim whose files differ gets the stock model."""
+"""The lean F450 (JSBSim's own sensor models, disengaged SCAS and ground contacts left out), the lean
+c172x (its disengaged autopilot but for one noisy sensor, its ground contacts) and our agile quad
+without its contacts: the same flights as the full models, bit for bit, and the parts really gone; a
+jsbsim whose files differ gets the stock model."""
 
 from __future__ import annotations
 
@@ -33,6 +34,34 @@ def test_lean_f450_flies_the_stock_models_flights_bit_for_bit(monkeypatch, seed,
         assert np.array_equal(getattr(lean, name), getattr(stock, name)), name
     assert lean.maneuvers == stock.maneuvers
     assert np.ptp(lean.gyr_true_rad_s[:, 0]) > 1.0  # a flight that moves, not a hover at rest
+
+
+def test_lean_agile_quad_flies_its_full_models_flights_bit_for_bit(monkeypatch):
+    """Our own quad without its ground contacts: the same flights, and the same fall to the stop height."""
+    spec = multirotor.AGILE_QUAD.lean
+    lean = fly("agile_quad", 8.0, 400.0, seed=5, turbulence="severe")
+    monkeypatch.setattr(multirotor, "AGILE_QUAD", dataclasses.replace(multirotor.AGILE_QUAD, lean=None))
+    full = fly("agile_quad", 8.0, 400.0, seed=5, turbulence="severe")
+    assert lean.meta["jsbsim_model"] == "agile_quad (own) (lean)" and full.meta["jsbsim_model"] == "agile_quad (own)"
+    for name in ARRAYS:
+        assert np.array_equal(getattr(lean, name), getattr(full, name)), name
+    stop_m = multirotor.QuadVehicle(multirotor.AGILE_QUAD).min_agl_m
+    runs = {}
+    for s in (spec, None):
+        with open_fdm("agile_quad", 1 / 400, own_aircraft=True, lean=s) as fdm:
+            assert fdm["gear/num-units"] == (0 if s else 4)
+            fdm["ic/h-agl-ft"] = (stop_m + 1.0) / FT_TO_M
+            fdm["ic/theta-deg"] = 30.0
+            fdm.run_ic()
+            for i in range(4):
+                fdm[f"fcs/motor-cmd[{i}]"] = 0.2  # it sinks, pitched
+            rows = []
+            while not rows or rows[-1][0] * FT_TO_M > stop_m:
+                fdm.run()
+                rows.append([fdm["position/h-agl-ft"], fdm["attitude/theta-rad"], fdm["forces/fbz-total-lbs"]])
+                assert len(rows) < 4000
+            runs[s is None] = np.array(rows)
+    assert np.array_equal(runs[True], runs[False]) and len(runs[True]) > 50
 
 
 def test_lean_c172x_flies_the_stock_models_flights_bit_for_bit(monkeypatch):

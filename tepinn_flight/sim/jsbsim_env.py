@@ -62,10 +62,10 @@ def open_fdm(model: str, dt_s: float, own_aircraft: bool = False,
     """Yield a loaded, silent ``FGFDMExec`` stepping at ``dt_s``; clean up its output folder.
 
     ``own_aircraft`` loads ``flight_sims/aircraft/<model>`` with the package's engines and
-    systems; otherwise the aircraft that ships with JSBSim, without ``lean``'s parts where given
-    (:mod:`tepinn_flight.sim.lean_model`: the same flights; the stock model where its files are not
-    as expected). ``info``, where given, gets ``"jsbsim_model"``: what was loaded ("<model>",
-    "<model> (lean)" or "<model> (own)").
+    systems; otherwise the aircraft that ships with JSBSim; either without ``lean``'s parts where
+    given (:mod:`tepinn_flight.sim.lean_model`: the same flights; the model as it is where its files
+    are not as expected). ``info``, where given, gets ``"jsbsim_model"``: what was loaded ("<model>",
+    "<model> (lean)", "<model> (own)" or "<model> (own) (lean)").
     """
     jsbsim = jsbsim_module()
     silence()
@@ -76,17 +76,17 @@ def open_fdm(model: str, dt_s: float, own_aircraft: bool = False,
         fdm.set_output_path(out_dir)  # P8: <output> files go here, never to the working folder
         fdm.set_dt(dt_s)  # P1: before load_model
         root = Path(jsbsim.get_default_root_dir())
-        aircraft_dir, variant = None, model
-        if own_aircraft:
-            aircraft_dir, variant = AIRCRAFT_DIR, f"{model} (own)"
-        elif lean is not None:
+        stock_dir = AIRCRAFT_DIR if own_aircraft else None
+        aircraft_dir, variant = stock_dir, f"{model} (own)" if own_aircraft else model
+        if lean is not None:
             from tepinn_flight.sim.lean_model import build_lean_aircraft
 
             try:  # a copy in this flight's own folder (a few ms), removed with it
-                aircraft_dir = build_lean_aircraft(model, root / "aircraft", lean, Path(out_dir) / "aircraft")
-                variant = f"{model} (lean)"
+                aircraft_dir = build_lean_aircraft(model, stock_dir or root / "aircraft", lean,
+                                                   Path(out_dir) / "aircraft")  # fmt: skip
+                variant = f"{variant} (lean)"
             except (ConfigError, OSError):
-                aircraft_dir = None  # this jsbsim's files differ (or the copy failed): the stock model
+                pass  # these files differ (or the copy failed): the model as it is
         if aircraft_dir is not None:
             ok = fdm.load_model_with_paths(
                 model, str(aircraft_dir), str(root / "engine"), str(root / "systems")
