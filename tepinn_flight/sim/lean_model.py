@@ -16,7 +16,8 @@ installed aircraft folder without it (into each flight's temporary folder, about
 leaving the aerodynamics, mass, propulsion and effectors untouched. One kind of part must stay: a
 component that draws noise from the generator the Dryden turbulence also uses (the c172x
 autopilot's attitude sensor: leaving it out shifts every later turbulence draw), hence
-``keep_only``; the F450's sensors have their own streams. The flights are bit-identical to the
+``keep_only``; the F450's sensors have their own streams. Our own agile quad leaves out its four
+ground contacts the same way (its model folder in ``flight_sims/aircraft`` is the one copied). The flights are bit-identical to the
 stock models' (tests with severe turbulence, and down to the stop height; the 76-flight held-out and
 120-flight training campaigns regenerated identical in session 21).
 """
