@@ -6,7 +6,7 @@ For each aircraft, measured in the same process, one core, at 400 Hz:
   condition, no Python I/O;
 * lean ``run()``: the same loop on the model ``fly()`` loads where it leaves out parts it never reads
   (:mod:`tepinn_flight.sim.lean_model`: the F450's own sensor models and disengaged SCAS, the c172x's
-  disengaged autopilot, their ground contacts; the flights are bit-identical) — so ``fly()`` against it is our loop's own overhead;
+  disengaged autopilot, the ground contacts of all three; the flights are bit-identical) — so ``fly()`` against it is our loop's own overhead;
 * dynamics: ``fly()`` (our controller in the loop, truth logging, post-processing);
 * full chain: ``simulate_record()`` (dynamics + sensor model + record building), if present.
 
@@ -172,7 +172,7 @@ def main(argv=None) -> int:
             lean_rows.append(f"{ac:11s} lean model's bare run() {lw:6.0f}x |{lc:6.0f}x ({lc / bc:.2f} of the stock "
                              f"model's): fly() is {dc / lc:.2f} of it (our loop's own overhead)")  # fmt: skip
     if lean_rows:
-        print("fly() loads a lean copy of these stock models (their own sensor models, disengaged SCAS or autopilot "
+        print("fly() loads a lean copy of these models (their own sensor models, disengaged SCAS or autopilot "
               "and ground contacts left out; flights bit-identical):")  # fmt: skip
         for row in lean_rows:
             print("  " + row)
