@@ -23,28 +23,30 @@ ARRAYS = ("t_s", "q_nb_wxyz", "gyr_true_rad_s", "acc_true_m_s2", "pos_ned_m", "v
 STOCK_ROOT = Path(jsbsim.get_default_root_dir()) / "aircraft"
 
 
+def same_flights(monkeypatch, module, params: str, aircraft: str, seconds: float, seed: int, turbulence: str):
+    """Fly ``aircraft`` with its lean model, then with ``module.params`` made full, and check that
+    every array and the maneuvers are equal → (lean flight, full flight)."""
+    lean = fly(aircraft, seconds, 400.0, seed=seed, turbulence=turbulence)
+    monkeypatch.setattr(module, params, dataclasses.replace(getattr(module, params), lean=None))
+    full = fly(aircraft, seconds, 400.0, seed=seed, turbulence=turbulence)
+    for name in ARRAYS:
+        assert np.array_equal(getattr(lean, name), getattr(full, name)), name
+    assert lean.maneuvers == full.maneuvers and len(lean.t_s) == round(seconds * 400)
+    return lean, full
+
+
 @pytest.mark.parametrize("seed, turbulence", [(3, "moderate"), (11, "severe")])
 def test_lean_f450_flies_the_stock_models_flights_bit_for_bit(monkeypatch, seed, turbulence):
-    lean = fly("F450", 6.0, 400.0, seed=seed, turbulence=turbulence)
-    monkeypatch.setattr(multirotor, "F450", dataclasses.replace(multirotor.F450, lean=None))
-    stock = fly("F450", 6.0, 400.0, seed=seed, turbulence=turbulence)
+    lean, stock = same_flights(monkeypatch, multirotor, "F450", "F450", 6.0, seed, turbulence)
     assert lean.meta["jsbsim_model"] == "F450 (lean)" and stock.meta["jsbsim_model"] == "F450"
-    assert len(lean.t_s) == 6 * 400
-    for name in ARRAYS:
-        assert np.array_equal(getattr(lean, name), getattr(stock, name)), name
-    assert lean.maneuvers == stock.maneuvers
     assert np.ptp(lean.gyr_true_rad_s[:, 0]) > 1.0  # a flight that moves, not a hover at rest
 
 
 def test_lean_agile_quad_flies_its_full_models_flights_bit_for_bit(monkeypatch):
     """Our own quad without its ground contacts: the same flights, and the same fall to the stop height."""
     spec = multirotor.AGILE_QUAD.lean
-    lean = fly("agile_quad", 8.0, 400.0, seed=5, turbulence="severe")
-    monkeypatch.setattr(multirotor, "AGILE_QUAD", dataclasses.replace(multirotor.AGILE_QUAD, lean=None))
-    full = fly("agile_quad", 8.0, 400.0, seed=5, turbulence="severe")
+    lean, full = same_flights(monkeypatch, multirotor, "AGILE_QUAD", "agile_quad", 8.0, 5, "severe")
     assert lean.meta["jsbsim_model"] == "agile_quad (own) (lean)" and full.meta["jsbsim_model"] == "agile_quad (own)"
-    for name in ARRAYS:
-        assert np.array_equal(getattr(lean, name), getattr(full, name)), name
     stop_m = multirotor.QuadVehicle(multirotor.AGILE_QUAD).min_agl_m
     runs = {}
     for s in (spec, None):
@@ -68,13 +70,9 @@ def test_lean_c172x_flies_the_stock_models_flights_bit_for_bit(monkeypatch):
     """Its autopilot's attitude sensor draws noise from the turbulence's generator: kept, the
     turbulence is the same; a flight through loops and pull-ups in severe turbulence."""
     spec = fixed_wing.C172X.lean
-    lean = fly("c172x", 25.0, 400.0, seed=7, turbulence="severe")
-    monkeypatch.setattr(fixed_wing, "C172X", dataclasses.replace(fixed_wing.C172X, lean=None))
-    stock = fly("c172x", 25.0, 400.0, seed=7, turbulence="severe")
+    lean, stock = same_flights(monkeypatch, fixed_wing, "C172X", "c172x", 25.0, 7, "severe")
     assert lean.meta["jsbsim_model"] == "c172x (lean)" and stock.meta["jsbsim_model"] == "c172x"
-    for name in ARRAYS:
-        assert np.array_equal(getattr(lean, name), getattr(stock, name)), name
-    assert lean.maneuvers == stock.maneuvers and len(lean.maneuvers) >= 3
+    assert len(lean.maneuvers) >= 3
     with open_fdm("c172x", 1 / 400, lean=spec) as fdm:
         pm = fdm.get_property_manager()
         assert fdm["gear/num-units"] == 0
