@@ -110,8 +110,8 @@ def test_unexpected_stock_files_fall_back_to_the_stock_model(tmp_path):
     wrong_path = dataclasses.replace(multirotor.F450.lean, external_commands=(("fcs/cmdXX_ext_nd", "fcs/cmdEscXX_nd"),))
     with pytest.raises(ConfigError, match="cmdXX_ext_nd"):
         build_lean_aircraft("F450", STOCK_ROOT, wrong_path, tmp_path / "b")
-    no_gear = dataclasses.replace(multirotor.F450.lean, empty_files=(("Gear.xml", "landing_gear"),))
-    with pytest.raises(ConfigError, match="Gear.xml with <landing_gear>"):
+    no_gear = dataclasses.replace(multirotor.F450.lean, empty=(('<ground_reactions file="Gear.xml"/>', "Legs.xml"),))
+    with pytest.raises(ConfigError, match="with Legs.xml once"):
         build_lean_aircraft("F450", STOCK_ROOT, no_gear, tmp_path / "d")
     with pytest.raises(ConfigError, match="no c172x.xml or"):
         build_lean_aircraft("c172x", STOCK_ROOT, LeanModel(fcs_file="NoFcs.xml"), tmp_path / "c")
@@ -149,7 +149,7 @@ def test_lean_f450_falls_like_the_stock_one_down_to_the_stop_height():
 
 def test_build_drops_whole_elements_and_keeps_the_rest(tmp_path):
     """On a toy aircraft folder: a self-closing element and one with a body go, line and all;
-    everything else is copied as it was; the emptied file keeps its root element."""
+    everything else is copied as it was; an emptied element stays, with no body and no file."""
     src = tmp_path / "stock" / "toy"
     src.mkdir(parents=True)
     main = ('<?xml version="1.0"?>\n<fdm_config name="toy">\n  <metrics file="M.xml"/>\n'
@@ -159,14 +159,13 @@ def test_build_drops_whole_elements_and_keeps_the_rest(tmp_path):
     (src / "G.xml").write_text("<?xml version='1.0'?>\n<ground_reactions>\n  <contact/>\n</ground_reactions>\n")
     (src / "M.xml").write_text("<metrics/>\n")
     spec = LeanModel(drop=('<system file="Noisy.xml"/>', '<system file="Autopilot">'),
-                     empty_files=(("G.xml", "ground_reactions"),))  # fmt: skip
+                     empty=(('<ground_reactions file="G.xml"/>', "G.xml"),))  # fmt: skip
     root = build_lean_aircraft("toy", tmp_path / "stock", spec, tmp_path / "lean")
     out = (root / "toy" / "toy.xml").read_text()
     assert out == ('<?xml version="1.0"?>\n<fdm_config name="toy">\n  <metrics file="M.xml"/>\n'
-                   '  <system file="Kept.xml"/>\n  <ground_reactions file="G.xml"/>\n</fdm_config>\n')
+                   '  <system file="Kept.xml"/>\n  <ground_reactions/>\n</fdm_config>\n')
     assert (root / "toy" / "M.xml").read_text() == "<metrics/>\n"
-    assert "<contact" not in (root / "toy" / "G.xml").read_text()
-    assert "<ground_reactions/>" in (root / "toy" / "G.xml").read_text()
+    assert (root / "toy" / "G.xml").read_text() == (src / "G.xml").read_text()  # copied, no longer read
     assert (src / "toy.xml").read_text() == main  # the stock folder untouched
     with pytest.raises(ConfigError, match="not closed"):
         build_lean_aircraft("toy", tmp_path / "stock", LeanModel(drop=('<ground_reactions file="G.xml"',)), tmp_path / "x")

@@ -115,11 +115,6 @@ def _centred_mean(x: np.ndarray, k: int) -> np.ndarray:
     return out
 
 
-def _c_rows(x) -> np.ndarray:
-    """``x`` as float64 rows, C-ordered and writable (the compiled kernels' one signature)."""
-    return np.require(x, np.float64, ["C", "W"])
-
-
 def motion_acc_ne(t_s: np.ndarray, vel_ne_m_s: np.ndarray, cfg: GnssAidConfig) -> np.ndarray:
     """(N, 2) horizontal motion acceleration (north, east) from the GNSS velocity on the IMU samples:
     the velocity's difference over ``smooth_s``, read ``latency_s`` later; NaN where either end has no fix."""
@@ -151,7 +146,8 @@ def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig):
     k = max(1, int(round(cfg.smooth_s / dt)))
     a_ne = motion_acc_ne(t_s, vel_ne_m_s, cfg)
     covered = np.all(np.isfinite(a_ne), axis=1)
-    f_ne = _centred_mean(rotate_rows(_c_rows(q_nb_wxyz), _c_rows(acc_b))[:, :2], k)  # specific force, filter's earth frame
+    rows = (np.require(x, np.float64, "CW") for x in (q_nb_wxyz, acc_b))  # the kernels' one signature
+    f_ne = _centred_mean(rotate_rows(*rows)[:, :2], k)  # specific force in the filter's earth frame
     zf = f_ne[:, 0] + 1j * f_ne[:, 1]
     za = a_ne[:, 0] + 1j * a_ne[:, 1]
     use = covered & np.isfinite(zf)
@@ -177,7 +173,7 @@ def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig):
     a_n[trusted, 0] = za_t.real
     a_n[trusted, 1] = za_t.imag
     q_conj = q_nb_wxyz * np.array([1.0, -1.0, -1.0, -1.0])
-    return rotate_rows(_c_rows(q_conj), a_n), trusted, covered  # zero where not trusted
+    return rotate_rows(np.require(q_conj, np.float64, "CW"), a_n), trusted, covered  # zero where not trusted
 
 
 def summarize(trusted: np.ndarray, covered: np.ndarray, a_b: np.ndarray, vel_ne_m_s: np.ndarray | None,

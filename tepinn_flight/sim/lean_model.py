@@ -12,7 +12,8 @@ flight stops 60 m up. Work whose result is thrown away or is the identity, yet a
 ``run()``.
 
 :class:`LeanModel` names what to leave out; :func:`build_lean_aircraft` writes a copy of the
-installed aircraft folder without it (into each flight's temporary folder, about a millisecond),
+installed aircraft folder without it (into each flight's temporary folder, about a millisecond; the
+ground contacts of all three vehicles emptied in their main file),
 leaving the aerodynamics, mass, propulsion and effectors untouched. One kind of part must stay: a
 component that draws noise from the generator the Dryden turbulence also uses (the c172x
 autopilot's attitude sensor: leaving it out shifts every later turbulence draw), hence
@@ -39,8 +40,9 @@ class LeanModel:
     #: elements of the model's main file to remove, each named by its opening tag as written there:
     #: ``'<system file="SensorImu.xml"/>'``, or ``'<system file="Autopilot">'`` with its body
     drop: tuple[str, ...] = ()
-    #: elements of the main file to keep empty, each (opening tag, a text its body holds):
-    #: ``("<ground_reactions>", "<contact")`` -> ``<ground_reactions/>`` (not an output's switch)
+    #: elements of the main file to keep empty, each (opening tag, a text the element holds):
+    #: ``("<ground_reactions>", "<contact")`` -> ``<ground_reactions/>`` (not an output's switch), or
+    #: ``('<ground_reactions file="Gear.xml"/>', "Gear.xml")`` (the file then not read)
     empty: tuple[tuple[str, str], ...] = ()
     #: properties the rest of the model reads from what was dropped, declared at 0.0 (what the
     #: dropped, disengaged part gives them in our flights) where the first dropped element stood
@@ -52,8 +54,6 @@ class LeanModel:
     #: (external command, ESC input) it then wires (None: the flight control as it is)
     fcs_file: str | None = None
     external_commands: tuple[tuple[str, str], ...] = ()
-    #: (file, its root element) to leave empty: ground contacts of a vehicle that never touches down
-    empty_files: tuple[tuple[str, str], ...] = ()
 
 
 def external_fcs_xml(commands: tuple[tuple[str, str], ...], declare: tuple[str, ...] = ()) -> str:
@@ -157,9 +157,6 @@ def build_lean_aircraft(model: str, stock_root: Path, lean: LeanModel, dest_root
         for cmd, esc in lean.external_commands:  # the stock path this replaces: cmd summed into esc
             if cmd not in fcs_stock or f"<output>{esc}</output>" not in fcs_stock:
                 raise ConfigError(f"JSBSim's {model} flight control has no {cmd} -> {esc} path")
-    for name, root in lean.empty_files:
-        if not re.search(r"<" + re.escape(root) + r"[\s>]", _read(src / name)):
-            raise ConfigError(f"JSBSim's {model} has no {name} with <{root}>")
     dest = Path(dest_root) / model
     shutil.copytree(src, dest)
     (dest / main.name).write_text(text)
@@ -167,6 +164,4 @@ def build_lean_aircraft(model: str, stock_root: Path, lean: LeanModel, dest_root
         (dest / lean.fcs_file).write_text(external_fcs_xml(lean.external_commands, _FCS_DECLARED))
     for name, content in reduced.items():
         (dest / name).write_text(content)
-    for name, root in lean.empty_files:
-        (dest / name).write_text(f'<?xml version="1.0"?>\n<!-- emptied by tepinn_flight.sim.lean_model -->\n<{root}/>\n')
     return Path(dest_root)

@@ -99,7 +99,7 @@ F450 = QuadParams(
         drop=tuple(f'<system file="Sensor{x}.xml"/>' for x in ("Imu", "Baro", "Gps")),
         fcs_file="FlightControl.xml",
         external_commands=tuple((f"fcs/cmd{m}_ext_nd", f"fcs/cmdEsc{m}_nd") for m in ("FR", "AL", "FL", "AR")),
-        empty_files=(("Gear.xml", "ground_reactions"),),
+        empty=(('<ground_reactions file="Gear.xml"/>', "Gear.xml"),),
     ),
 )
 
@@ -288,7 +288,7 @@ class QuadVehicle:
         self.model = params.model
         self.own_aircraft = params.own_aircraft
         self.lean = params.lean
-        self.min_agl_m = 2.0  # the flight stops here (the lean F450 has no ground contacts: keep it >= 0.5 m)
+        self.min_agl_m = 2.0  # the flight stops here (the lean models have no ground contacts: keep it >= 0.5 m)
         self.ctl: QuadController | None = None
 
     @property
