@@ -101,6 +101,46 @@ def test_no_correction_where_the_vehicle_hardly_accelerates_or_flies_fast():
     assert covered.mean() > 0.95 and not trusted.any()
 
 
+def test_clipped_samples_give_no_heading_evidence_and_a_clipped_accelerometer_no_correction():
+    # a disturbance the receiver does not show: 20 m/s² along body x for 1 s (an accelerometer past its
+    # range, or a tumble whose clipped gyro leaves the attitude wrong): with 3 m/s² of real motion,
+    # enough to turn the heading offset read over the 30 s around it (at 40 m/s² the unguarded aid
+    # loses its coherence there and corrects nothing)
+    rec, q_nb = accelerating_flight(90.0)
+    t, vel = rec.t_s, rec.gnss_vel_ne_m_s
+    hit = (t >= 45.0) & (t < 46.0)
+    acc = rec.acc_m_s2.copy()
+    acc[hit, 0] += 20.0
+    h = GnssAidConfig().smooth_s
+    a_n = np.c_[A_MS2 * (np.cos(W1 * (t - h / 2)) - np.cos(W1 * (t + h / 2))) / (W1 * h),
+                A_MS2 * (np.cos(W2 * (t - h / 2)) - np.cos(W2 * (t + h / 2))) / (W2 * h), np.zeros_like(t)]  # fmt: skip
+    expected = Rotation.from_quat(q_nb[:, [1, 2, 3, 0]]).inv().apply(a_n)
+    away = (np.abs(t - 45.5) > 2.0) & (np.abs(t - 45.5) < 15.0)  # beyond the averages, within the heading window
+
+    def err_away(a_b, trusted):
+        m = away & trusted
+        assert m.sum() > 0.8 * away.sum()
+        return float(np.sqrt(np.mean(np.sum((a_b[m] - expected[m]) ** 2, axis=1))))
+
+    off = dataclasses.replace(GnssAidConfig(), clip_guard=False)
+    unguarded = err_away(*motion_acc_body(t, q_nb, acc, vel, off, hit, hit)[:2])
+    # the gyro clipped there: the heading's evidence leaves the burst out, the correction stays
+    a_b, trusted, _ = motion_acc_body(t, q_nb, acc, vel, GnssAidConfig(), hit, None)
+    guarded = err_away(a_b, trusted)
+    assert guarded < 0.05 and unguarded > 0.2, (guarded, unguarded)  # m/s² of a 3 m/s² acceleration
+    assert trusted[hit].all()
+    # the accelerometer clipped: no correction within the averages' span of it either
+    a_b2, trusted2, _ = motion_acc_body(t, q_nb, acc, vel, GnssAidConfig(), hit, hit)
+    span = np.abs(t - 45.5) <= 0.5 + h / 2 + 0.1
+    assert not trusted2[span].any() and not a_b2[span].any()
+    np.testing.assert_array_equal(a_b2[~span & trusted2], a_b[~span & trusted2])
+    # nothing flagged: the unguarded result, bit for bit
+    a0, tr0, _ = motion_acc_body(t, q_nb, acc, vel, off)
+    a1, tr1, _ = motion_acc_body(t, q_nb, acc, vel, GnssAidConfig(), np.zeros(len(t), bool), None)
+    np.testing.assert_array_equal(a0, a1)
+    np.testing.assert_array_equal(tr0, tr1)
+
+
 def test_the_anchored_estimate_with_the_receiver_gets_much_closer_to_the_truth():
     from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
     from tepinn_flight.model.checkpoint import default_model_path, load_model

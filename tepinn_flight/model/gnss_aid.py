@@ -64,6 +64,11 @@ class GnssAidConfig:
     max_speed_m_s: float = 20.0
     margin_s: float = 1.0
     passes: int = 2  # attitude → correction → attitude, this many corrections
+    # clipped samples within the averages (``motion_acc_body``'s ``clipped``, ``acc_clipped``): no heading
+    # evidence where any sensor clipped (a clipped accelerometer's average is not the specific force's, a
+    # clipped gyro's attitude not the body's: an impact or a tumble would turn ψ over the heading window
+    # around it), no correction where the accelerometer clipped (its reading is not the one to correct)
+    clip_guard: bool = True
 
     def __post_init__(self):
         finite_nonneg("margin_s", self.margin_s)
@@ -136,9 +141,11 @@ def motion_acc_ne(t_s: np.ndarray, vel_ne_m_s: np.ndarray, cfg: GnssAidConfig) -
     return out
 
 
-def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig):
+def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig, clipped=None, acc_clipped=None):
     """The motion acceleration in body axes (N, 3) to take out of the accelerometer, for one segment
-    estimated as ``q_nb_wxyz`` (any heading origin), and the per-sample mask where it is applied."""
+    estimated as ``q_nb_wxyz`` (any heading origin), and the per-sample mask where it is applied.
+    ``clipped`` / ``acc_clipped``: the samples where any sensor / the accelerometer read its range
+    (:attr:`GnssAidConfig.clip_guard`; None: none did)."""
     n = len(t_s)
     if n < 3:
         return np.zeros((n, 3)), np.zeros(n, bool), np.zeros(n, bool)
@@ -150,7 +157,14 @@ def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig):
     f_ne = _centred_mean(rotate_rows(*rows)[:, :2], k)  # specific force in the filter's earth frame
     zf = f_ne[:, 0] + 1j * f_ne[:, 1]
     za = a_ne[:, 0] + 1j * a_ne[:, 1]
-    use = covered & np.isfinite(zf)
+    usable = covered & np.isfinite(zf)  # where a correction can be made
+    use = usable  # where the heading's evidence is read
+    if cfg.clip_guard:
+        m_clip = k + 2 * int(round(cfg.latency_s / dt))  # the averages' span, the fixes' latency on each side
+        if clipped is not None and np.any(clipped):
+            use = use & ~(_centred_mean(np.asarray(clipped, float), m_clip) > 0)
+        if acc_clipped is not None and np.any(acc_clipped):
+            usable = usable & ~(_centred_mean(np.asarray(acc_clipped, float), m_clip) > 0)
     w = max(1, int(round(cfg.heading_window_s / dt)))
     c = _centred_mean(np.where(use, zf * np.conj(za), 0), w)
     pf = _centred_mean(np.where(use, np.abs(zf) ** 2, 0.0), w)
@@ -159,7 +173,7 @@ def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig):
     with np.errstate(invalid="ignore", divide="ignore"):
         coh = np.abs(c) / np.sqrt(pf * pa)
         rms_a = np.sqrt(pa / np.maximum(frac, 1e-12))
-    trusted = use & (frac > 0.5) & (coh >= cfg.min_coherence) & (rms_a >= cfg.min_accel_m_s2)
+    trusted = usable & (frac > 0.5) & (coh >= cfg.min_coherence) & (rms_a >= cfg.min_accel_m_s2)
     rot = np.exp(1j * np.angle(c))
     za_e = rot * za  # the GNSS acceleration in the filter's earth frame
     speed = np.hypot(vel_ne_m_s[:, 0], vel_ne_m_s[:, 1])
