@@ -307,6 +307,22 @@ def test_same_seed_identical_other_seed_different():
     np.testing.assert_array_equal(q1.acc_true_m_s2, q2.acc_true_m_s2)
 
 
+def test_a_jsbsim_outside_site_packages_still_finds_its_aircraft(monkeypatch):
+    """``pip install --target`` or a PYTHONPATH folder: jsbsim's own ``get_default_root_dir`` looks in
+    site-packages only and raises; the flight reads the data beside the package, the same flight."""
+    import jsbsim
+
+    ref = fly("c172x", 2.0, RATE, seed=3)
+
+    def nowhere():
+        raise OSError("Can't find the default root directory")
+
+    monkeypatch.setattr(jsbsim, "get_default_root_dir", nowhere)
+    got = fly("c172x", 2.0, RATE, seed=3)
+    np.testing.assert_array_equal(got.q_nb_wxyz, ref.q_nb_wxyz)
+    np.testing.assert_array_equal(got.acc_true_m_s2, ref.acc_true_m_s2)
+
+
 def test_low_output_rate_is_the_same_flight_subsampled():
     """At 100 Hz JSBSim still steps at 400 Hz: the samples are every 4th sample of the 400 Hz flight."""
     hi = fly("agile_quad", 4.0, 400.0, seed=9, vibration=False)

@@ -16,11 +16,11 @@ jsbsim = pytest.importorskip("jsbsim")
 from tepinn_flight.errors import ConfigError  # noqa: E402
 from tepinn_flight.sim import fixed_wing, multirotor  # noqa: E402
 from tepinn_flight.sim.flight import fly  # noqa: E402
-from tepinn_flight.sim.jsbsim_env import FT_TO_M, getter, open_fdm, setter  # noqa: E402
+from tepinn_flight.sim.jsbsim_env import FT_TO_M, getter, jsbsim_root, open_fdm, setter  # noqa: E402
 from tepinn_flight.sim.lean_model import LeanModel, build_lean_aircraft  # noqa: E402
 
 ARRAYS = ("t_s", "q_nb_wxyz", "gyr_true_rad_s", "acc_true_m_s2", "pos_ned_m", "vel_ned_m_s")
-STOCK_ROOT = Path(jsbsim.get_default_root_dir()) / "aircraft"
+STOCK_ROOT = jsbsim_root() / "aircraft"
 
 
 def same_flights(monkeypatch, module, params: str, aircraft: str, seconds: float, seed: int, turbulence: str):

@@ -41,6 +41,21 @@ def jsbsim_module():
     return jsbsim
 
 
+def jsbsim_root() -> Path:
+    """The folder of JSBSim's own aircraft, engines and systems: the package's folder where it holds
+    them (the wheels ship them there). ``jsbsim.get_default_root_dir()`` looks only in the
+    interpreter's site-packages, so a jsbsim installed elsewhere (``pip install --target``, a
+    ``PYTHONPATH`` folder) could not find them; it is the fallback."""
+    jsbsim = jsbsim_module()
+    here = Path(jsbsim.__file__).resolve().parent
+    if (here / "aircraft").is_dir() and (here / "engine").is_dir():
+        return here
+    try:
+        return Path(jsbsim.get_default_root_dir())
+    except OSError as exc:
+        raise ConfigError(f"JSBSim's aircraft data were not found beside the jsbsim package ({here}): {exc}") from exc
+
+
 def jsbsim_version() -> str:
     return str(jsbsim_module().__version__)
 
@@ -71,11 +86,11 @@ def open_fdm(model: str, dt_s: float, own_aircraft: bool = False,
     silence()
     out_dir = tempfile.mkdtemp(prefix="tepinn-jsbsim-")
     try:
-        fdm = jsbsim.FGFDMExec(None)
+        root = jsbsim_root()
+        fdm = jsbsim.FGFDMExec(str(root))
         fdm.set_debug_level(0)
         fdm.set_output_path(out_dir)  # P8: <output> files go here, never to the working folder
         fdm.set_dt(dt_s)  # P1: before load_model
-        root = Path(jsbsim.get_default_root_dir())
         stock_dir = AIRCRAFT_DIR if own_aircraft else None
         aircraft_dir, variant = stock_dir, f"{model} (own)" if own_aircraft else model
         if lean is not None:
