@@ -404,7 +404,7 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
     if vel is None:
         return summarize(none, none, np.zeros((n, 3)), None, cfg), None, out
     seg = rec.segment
-    clipped, acc_clipped = rec.clipped, rec.clipped & ~rec.gyr_clipped  # any sensor; the accelerometer (both: the gyro)
+    gyr_clipped = rec.gyr_clipped
     at = np.asarray(idx, np.int64)
     fast = np.hypot(vel[at, 0], vel[at, 1]) >= fast_m_s  # the windows' ends (NaN: no fix, not fast)
     found = (none, none, np.zeros((n, 3)))  # the masks and correction of the last pass that applied
@@ -412,8 +412,7 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
     for p in range(cfg.passes):
         a_b, trusted, covered = np.zeros((n, 3)), none.copy(), none.copy()
         for sl in segment_slices(seg):
-            a_b[sl], trusted[sl], covered[sl] = motion_acc_body(t[sl], q_nb[sl], acc[sl], vel[sl], cfg, clipped[sl],
-                                                                 acc_clipped[sl])  # fmt: skip
+            a_b[sl], trusted[sl], covered[sl] = motion_acc_body(t[sl], q_nb[sl], acc[sl], vel[sl], cfg, gyr_clipped[sl])
         if not trusted.any():
             if aided is None:  # nothing applies: say why from this pass's masks
                 found = (trusted, covered, a_b)
