@@ -19,8 +19,8 @@ accelerometer showed: its "TE-PINN behind VQF after a tumble within the range" (
 inconsistency. With one motion for both sensors (session 22, seeds 101–103) TE-PINN is ahead after a
 tumble within the range (0.33–0.98° against VQF's 0.86–3.73°: the GNSS aid); what the crash did to the
 seconds before it — the tumble's clipped samples turned the aid's heading offset over its 30-s window,
-seed 102 1.06° → 2.21° before the crash — is gone since the aid leaves clipped samples out of its
-evidence (``GnssAidConfig.clip_guard``). After a tumble past the range TE-PINN is behind VQF on 2 of 3
+seed 102 1.06° → 2.21° before the crash — is gone since the aid leaves samples whose gyro clipped out
+of its evidence (``GnssAidConfig.clip_guard``). After a tumble past the range TE-PINN is behind VQF on 2 of 3
 flights (55.96 vs 51.60°, 45.65 vs 30.43° at 400 Hz): the saturation gate pulls toward the network's
 tilt in the first 2 s of the rest, when its windows still hold the tumble (90–100° off, VQF 49°);
 σ (15°) says so. Reported, not changed.
