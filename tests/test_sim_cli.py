@@ -172,3 +172,21 @@ def test_campaign_parallel_resumable_deterministic(tmp_path, capsys):
     cfile.write_text(CAMPAIGN.replace("seed = 5", "seed = 6"))
     assert sim("--campaign", cfile, "-o", out2, "-q") == 2
     assert "holds a different campaign" in capsys.readouterr().err
+
+
+def test_flights_failing_for_one_cause_say_it_once(tmp_path, capsys, monkeypatch):
+    # e.g. JSBSim's aircraft data missing: every flight fails the same way — one line for the cause,
+    # not one per flight, and the error names it with its count
+    import tepinn_flight.sim.simulate as simulate
+
+    def broken(*a, **k):
+        raise OSError("Can't find the default root directory")
+
+    monkeypatch.setattr(simulate, "simulate_record", broken)
+    cfile = tmp_path / "tiny.toml"
+    cfile.write_text(CAMPAIGN)
+    assert sim("--campaign", cfile, "-o", tmp_path / "out", "--workers", 1, "-q") == 1
+    err = capsys.readouterr().err
+    assert err.count("Can't find the default root directory") == 2, err  # the first flight's line, the summary
+    assert "4 flight(s) failed: OSError: Can't find the default root directory (4 flights)" in err
+    assert not list((tmp_path / "out").glob("*.parquet"))

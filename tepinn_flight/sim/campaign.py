@@ -203,6 +203,14 @@ class CampaignResult:
     wall_s: float = 0.0
     flight_s: float = 0.0  # sum of per-flight times (CPU-side work)
 
+    def failure_causes(self) -> list[tuple[str, int]]:
+        """Each distinct error of the failed flights with how many failed with it, most frequent first
+        (a missing JSBSim installation fails every flight the same way: one line, not 120)."""
+        n: dict[str, int] = {}
+        for _, err in self.failed:
+            n[err] = n.get(err, 0) + 1
+        return sorted(n.items(), key=lambda kv: -kv[1])
+
 
 def _fly_one(spec: dict, out_dir: str) -> tuple[int, str | None, float, str]:
     """Worker: simulate one flight and write its record atomically. Never raises."""
@@ -348,8 +356,9 @@ def run_campaign(
         if err is None:
             res.computed += 1
         else:
+            if all(e != err for _, e in res.failed):  # each cause once, with the first flight it stopped
+                (bar.write if bar else log)(f"flight {by_index[index].file}: {err}")
             res.failed.append((by_index[index].file, err))
-            (bar.write if bar else log)(f"flight {by_index[index].file}: {err}")
         if bar:
             bar.update(1)
 
