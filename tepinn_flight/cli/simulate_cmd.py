@@ -122,8 +122,7 @@ def _campaign(args) -> int:
         print(f"campaign {args.campaign}: {res.total} flights, {res.computed} computed, {res.skipped} already done, "
               f"{len(res.failed)} failed in {res.wall_s:.1f} s (flight time sum {res.flight_s:.1f} s) -> {args.output}")
     if res.failed:
-        causes = "; ".join(f"{err} ({k} flight{'s' if k > 1 else ''})" for err, k in res.failure_causes())
-        sys.stderr.write(f"tepinn-flight simulate: error: {len(res.failed)} flight(s) failed: {causes}; "
+        sys.stderr.write(f"tepinn-flight simulate: error: {len(res.failed)} flight(s) failed: {res.failure_causes()}; "
                          "re-run the same command to retry them\n")
         return 1
     return 0

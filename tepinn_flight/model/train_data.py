@@ -50,8 +50,7 @@ def load_records(cfg: TrainConfig, extra_dirs=(), base: Path = Path("."), run_di
         data_dir = (run_dir or Path(".")) / "data"
         res = run_campaign(camp, data_dir, workers=cfg.data.campaign_workers or None, progress=progress)
         if res.failed:
-            causes = "; ".join(f"{err} ({k} flight{'s' if k > 1 else ''})" for err, k in res.failure_causes())
-            raise TepinnError(f"{len(res.failed)} simulated flight(s) failed: {causes}")
+            raise TepinnError(f"{len(res.failed)} simulated flight(s) failed: {res.failure_causes()}")
         extra.append(str(data_dir.resolve()))
     paths = resolve_records(list(cfg.data.records) + extra, base)
     for pat in cfg.data.optional_records:

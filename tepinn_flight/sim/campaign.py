@@ -203,13 +203,13 @@ class CampaignResult:
     wall_s: float = 0.0
     flight_s: float = 0.0  # sum of per-flight times (CPU-side work)
 
-    def failure_causes(self) -> list[tuple[str, int]]:
-        """Each distinct error of the failed flights with how many failed with it, most frequent first
-        (a missing JSBSim installation fails every flight the same way: one line, not 120)."""
+    def failure_causes(self) -> str:
+        """Each distinct error of the failed flights with how many failed with it, most frequent first,
+        in one line (a missing JSBSim installation fails every flight the same way: one cause, not 120)."""
         n: dict[str, int] = {}
         for _, err in self.failed:
             n[err] = n.get(err, 0) + 1
-        return sorted(n.items(), key=lambda kv: -kv[1])
+        return "; ".join(f"{err} ({k} flight{'s' if k > 1 else ''})" for err, k in sorted(n.items(), key=lambda kv: -kv[1]))
 
 
 def _fly_one(spec: dict, out_dir: str) -> tuple[int, str | None, float, str]:
