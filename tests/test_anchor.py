@@ -113,7 +113,9 @@ def test_gates_use_the_network_only_with_evidence():
     tilted = np.array([math.cos(math.radians(10)), math.sin(math.radians(10)), 0.0, 0.0])
 
     def tilt_after(vel, clipped=None, gain=0.5, clip_min_s=0.1):
-        f = AnchoredVQF(AnchorConfig(pull_gain=gain, centripetal=False, clip_min_s=clip_min_s), 0.01)
+        # (rest_relevel_s off: these clip marks sit on a still gyro, which the re-levelling at rest would
+        # take for a rest after a saturation; a gyro at its range is not still: the tests below)
+        f = AnchoredVQF(AnchorConfig(pull_gain=gain, centripetal=False, clip_min_s=clip_min_s, rest_relevel_s=0.0), 0.01)
         f.update(t, gyr, acc, clipped=clipped)
         f.correct(WindowOutput(tilted, 0.01, np.zeros(3), np.asarray(vel, float), np.zeros(3)))
         q = f.update(t[-1:] + 0.01, gyr[:1], acc[:1])[0][0]
@@ -412,3 +414,124 @@ def test_the_gate_per_sample_is_what_writing_each_window_to_the_end_would_give(s
     for s, v in zip(starts, values):
         ref[s:] = v
     np.testing.assert_array_equal(_piecewise(starts, values, n), ref)
+
+
+def _tumble_then_rest(rate_hz=100.0, rest_s=3.0, free_fall_rest=False):
+    """Level at rest 2 s, a 0.3-s tumble about y at 15 rad/s read clipped at 10 rad/s (the gyro past its
+    range: 1.5 rad of the 4.5 missed) in free fall, then a rest at the true attitude (the
+    accelerometer reads −g in body axes; or nothing, a free fall, with ``free_fall_rest``) →
+    (t, gyr, acc, clipped, true tilt at rest in degrees)."""
+    dt = 1.0 / rate_hz
+    n0, n1, n2 = int(2.0 * rate_hz), int(0.3 * rate_hz), int(rest_s * rate_hz)
+    t = np.arange(n0 + n1 + n2) * dt
+    gyr = np.zeros((len(t), 3))
+    gyr[n0 : n0 + n1, 1] = 10.0  # the clipped reading
+    clipped = np.zeros(len(t), bool)
+    clipped[n0 : n0 + n1] = True
+    acc = np.tile([0.0, 0.0, -9.81], (len(t), 1))
+    acc[n0 : n0 + n1] = 0.0
+    theta = 15.0 * 0.3  # the true pitch turned through
+    g_body = Rotation.from_rotvec([0.0, theta, 0.0]).inv().apply([0.0, 0.0, 9.81])  # gravity in body axes
+    acc[n0 + n1 :] = 0.0 if free_fall_rest else -g_body
+    tilt_true = math.degrees(math.acos(max(-1.0, min(1.0, g_body[2] / 9.81))))
+    return t, gyr, acc, clipped, tilt_true
+
+
+def _tilt_deg(q):
+    return math.degrees(2 * math.acos(min(1.0, math.sqrt(q[0] ** 2 + q[3] ** 2))))
+
+
+@pytest.mark.parametrize("relevel_s", [0.5, 0.0])
+def test_at_rest_after_a_saturation_the_tilt_is_the_accelerometers(relevel_s):
+    """After a tumble past the gyro's range, once the rest has lasted rest_relevel_s the tilt is the
+    accelerometer's (to 0.05°), the saturation gate shut and its σ term cleared, and it stays so (VQF's
+    low-pass starts again rather than remembering the tumble); a network window then still holding the
+    tumble (a level tilt, 4.5 rad away, and 40 m/s: the flight-speed gate) pulls nothing while the rest
+    lasts; the first moving sample ends it. Off (0), that window pulls by pull_gain and VQF's missed
+    1.5 rad stays for seconds."""
+    t, gyr, acc, clipped, tilt_true = _tumble_then_rest()
+    cfg = AnchorConfig(centripetal=False, rest_relevel_s=relevel_s)
+    f = AnchoredVQF(cfg, 0.01)
+    wrong = WindowOutput(np.array([1.0, 0.0, 0.0, 0.0]), 0.01, np.zeros(3), np.array([40.0, 0, 0]), np.zeros(3))
+    i_rest = 230
+    q0 = f.update(t[:i_rest], gyr[:i_rest], acc[:i_rest], clipped=clipped[:i_rest])[0]
+    assert abs(_tilt_deg(q0[-1]) - tilt_true) > 30  # VQF after the clipped tumble
+    for k in range(i_rest, len(t), 10):  # windows every 0.1 s through the rest
+        q = f.update(t[k : k + 10], gyr[k : k + 10], acc[k : k + 10], clipped=clipped[k : k + 10])[0]
+        f.correct(wrong)
+        if t[k] >= t[i_rest] + 0.6 and relevel_s:
+            assert f.gate == 0.0 and f.e_clip == 0.0
+            assert _tilt_deg(q[-1]) == pytest.approx(tilt_true, abs=0.05)
+    if relevel_s:
+        assert f.relevels == 1 and f.at_rest
+        assert _tilt_deg(q[-1]) == pytest.approx(tilt_true, abs=0.05)
+        f.update(t[-1:] + 0.01, np.array([[0.0, 0.0, 0.5]]), acc[-1:])  # it turns: the rest is over
+        assert not f.at_rest
+        f.correct(wrong)
+        assert f.gate == 1.0  # the flight-speed gate as anywhere
+    else:
+        assert f.relevels == 0 and f.gate == 1.0
+        assert abs(_tilt_deg(q[-1]) - tilt_true) > 20
+
+
+def test_a_free_fall_is_no_rest():
+    """A still run whose accelerometer reads less than half of g (a free fall) shows no gravity: the
+    saturation gate stays on and no tilt is set from it."""
+    t, gyr, acc, clipped, _ = _tumble_then_rest(free_fall_rest=True, rest_s=1.5)
+    f = AnchoredVQF(AnchorConfig(centripetal=False), 0.01)
+    f.update(t, gyr, acc, clipped=clipped)
+    f.correct(WindowOutput(np.array([1.0, 0.0, 0.0, 0.0]), 0.01, np.zeros(3), np.zeros(3), np.zeros(3)))
+    assert f.still[0] * 0.01 >= 1.0 and f.relevels == 0 and f.gate == 1.0
+
+
+def test_live_equals_offline_through_a_rest_after_a_saturation():
+    """The re-levelling at rest acts at the same window live and offline: a synthetic record with a
+    tumble past the gyro's range and a rest appended, streamed and estimated offline, to 1e-6."""
+    import pandas as pd
+
+    from tepinn_flight.record import FlightRecord
+
+    rec = synthetic_record(seed=2, duration_s=8.0, rate_hz=100.0)
+    t, gyr, acc, clipped, _ = _tumble_then_rest(rest_s=4.0)
+    t = t[200:] - t[200] + rec.t_s[-1] + 0.01  # the tumble and the rest after the record
+    extra = {"t_s": t, "segment": np.zeros(len(t), np.int64), "clipped": clipped[200:], "gyr_clipped": clipped[200:]}
+    for i, ax in enumerate("xyz"):
+        extra[f"gyr_{ax}_rad_s"], extra[f"acc_{ax}_m_s2"] = gyr[200:, i], acc[200:, i]
+    data = rec.data.copy()
+    data["gyr_clipped"] = False
+    tail = pd.DataFrame(extra)
+    for c in data.columns:
+        if c not in tail:
+            tail[c] = data[c].iloc[-1] if c.startswith("q_ref") or c in ("valid",) else np.nan
+    rec = FlightRecord(pd.concat([data, tail[list(data.columns)]], ignore_index=True), dict(rec.meta))
+    model, _, _ = load_model(default_model_path())
+    cfg = _shipped()
+    import tepinn_flight.model.anchor as A
+
+    made = []
+    orig = A.AnchoredVQF._relevel
+    try:
+        A.AnchoredVQF._relevel = lambda self: made.append(orig(self)) or made[-1]
+        off = estimate_anchored(model, rec, cfg)[Q].to_numpy()
+        n_off = made.count(0.0)
+        live = StreamingEstimator(model, cfg)
+        q_live = np.full((len(rec), 4), np.nan)
+        for i in range(len(rec)):
+            e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
+            if e.q_nb_wxyz is not None:
+                q_live[i] = e.q_nb_wxyz
+    finally:
+        A.AnchoredVQF._relevel = orig
+    assert n_off >= 1 and made.count(0.0) == 2 * n_off  # it acted, live as often as offline
+    have = np.all(np.isfinite(q_live), 1)
+    np.testing.assert_allclose(q_live[have], off[have], atol=1e-6)
+
+
+def test_checkpoints_written_before_the_re_levelling_run_without_it():
+    from tepinn_flight.model.checkpoint import anchor_config_from, read_checkpoint
+
+    old = {"bias_gate_fusion_deg_s": 3.0, "accel_scale_selfcal": True}  # a checkpoint of session 18
+    assert anchor_config_from({"anchor_config": old}).rest_relevel_s == 0.0
+    assert anchor_config_from({"anchor_config": {**old, "rest_relevel_s": 0.5}}).rest_relevel_s == 0.5
+    assert read_checkpoint(default_model_path())["anchor_config"]["rest_relevel_s"] == 0.5  # the shipped one stores it
+    assert AnchorConfig().learned_off.rest_relevel_s == 0.0  # plain VQF has none

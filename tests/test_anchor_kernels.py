@@ -14,7 +14,8 @@ from scipy.spatial.transform import Rotation
 
 from tepinn_flight.evaluation.peers import Q_NED_ENU, q_nb_from_earth_sensor
 from tepinn_flight.model.anchor import q_nb_from_vqf
-from tepinn_flight.model.anchor_kernels import horizontal_bias, sigma_step, turn_acc_state, vqf_inputs, vqf_outputs
+from tepinn_flight.model.anchor_kernels import (horizontal_bias, rest_rows, sigma_step, turn_acc_state, vqf_inputs,
+                                                vqf_outputs)  # fmt: skip
 from tepinn_flight.quat_scalar import rotmat_entries
 from tests.conftest import broad_trial
 
@@ -145,3 +146,47 @@ def test_turn_acc_state_turns_the_inclination_and_its_filter_states_together(ave
         np.testing.assert_allclose(st2[2:5], r @ st[2:5], atol=1e-13)
     else:  # two filter states per axis: x0 x1 y0 y1 z0 z1
         np.testing.assert_allclose(st2.reshape(3, 2), r @ st.reshape(3, 2), atol=1e-13)
+
+
+def _still_runs_slowly(gyr, acc, gyr_max, acc_dev):
+    """The still run after each sample, written out: its start index (None: no run) recomputed from
+    the definition — a sample continues the run when |ω| < gyr_max and it lies within acc_dev of the
+    mean of the run's samples before it; else a run starts at it if its gyro is still."""
+    start, out = None, []
+    for i in range(len(gyr)):
+        still_gyro = np.linalg.norm(gyr[i]) < gyr_max and np.all(np.isfinite(acc[i]))
+        if not still_gyro:
+            start = None
+        elif start is not None and np.linalg.norm(acc[i] - acc[start:i].mean(0)) < acc_dev:
+            pass
+        else:
+            start = i
+        out.append(start)
+    return out
+
+
+def test_the_still_run_against_its_definition_written_out():
+    """rest_rows keeps (length, sum of the accelerometer) of the still run: checked sample by sample
+    against the run recomputed from its definition on a record of rests, turns, jolts and a hole."""
+    rng = np.random.default_rng(23)
+    n = 400
+    gyr = rng.normal(0, 0.005, (n, 3))
+    acc = np.array([0.3, -0.2, -9.8]) + rng.normal(0, 0.05, (n, 3))
+    gyr[50:80, 1] = 2.0  # a turn
+    acc[150] += [0.0, 3.0, 0.0]  # a jolt: the run starts again at it
+    acc[200:260] += np.linspace(0, 1.5, 60)[:, None] * [1, 0, 0]  # a slow drift out of the run's mean
+    acc[300] = np.nan  # a hole
+    gyr_max, acc_dev = math.radians(2.0), 0.5
+    want = _still_runs_slowly(gyr, acc, gyr_max, acc_dev)
+    st = np.zeros(4)
+    for i in range(n):
+        rest_rows(st, gyr[i : i + 1].copy(), acc[i : i + 1].copy(), gyr_max**2, acc_dev**2)
+        if want[i] is None:
+            assert st[0] == 0.0, i
+        else:
+            assert st[0] == i - want[i] + 1, i
+            np.testing.assert_allclose(st[1:] / st[0], acc[want[i] : i + 1].mean(0), atol=1e-12)
+    assert {None} < set(want) and len(set(want)) > 4  # the record holds several runs and breaks
+    st2 = np.zeros(4)  # a block gives what sample after sample gives
+    rest_rows(st2, gyr, acc, gyr_max**2, acc_dev**2)
+    np.testing.assert_allclose(st2, st, rtol=1e-15)

@@ -19,7 +19,11 @@ and its rate ``â``. Each enters only where there is run-time evidence that VQF'
   rate is wrong, so VQF's tilt is pulled toward the network's window tilt (its physics inputs are
   clip-aware). An accelerometer at its range leaves the integrated rate right and does not open it;
   nor does a handful of clipped samples, whose missed rotation is smaller than the network's error
-  on real sensors.
+  on real sensors. **At rest** it shuts early: once the samples since the saturation hold a still run
+  of ``rest_relevel_s`` (VQF's rest thresholds on the raw samples; a mean of at least half of g), the
+  accelerometer *is* the tilt — VQF's tilt is set to it, its accelerometer low-pass starts again (it
+  still holds the tumble or an impact), E is cleared, and while that rest lasts no gate opens (after a
+  crash the windows hold the tumble for 3 s and may read a flight speed).
 - **gyro bias beyond VQF's clip** (VQF's bias estimate reaches ``bias_clip_deg_s``, an
   uncalibrated gyro; or the older fusion's horizontal bias stays beyond ``bias_gate_fusion_deg_s``
   for 2 s while VQF's own estimate reaches ``bias_gate_vqf_deg_s`` and the accelerometer's 10-s mean
@@ -69,12 +73,13 @@ from typing import Literal
 import numpy as np
 
 from ..config import check_choice, check_range
+from ..conventions import GRAVITY_M_S2
 from ..errors import ConfigError
 from ..quat_scalar import down_in_body
 from .anchor_kernels import FLIP as _FLIP
 from .anchor_kernels import Q_NED_ENU, Q_SENSOR_BODY  # noqa: F401  (VQF's frames; peers import them from here)
-from .anchor_kernels import (clip_sigma_rows, clip_sigma_step, horizontal_bias, q_nb_from_vqf_f, q_nb_rows, sigma_step,
-                             tilt_pull_f, turn_acc_state, vqf_inputs, vqf_outputs)  # fmt: skip
+from .anchor_kernels import (clip_sigma_rows, clip_sigma_step, horizontal_bias, q_nb_from_vqf_f, q_nb_rows, rest_rows,
+                             rest_step, sigma_step, tilt_pull_f, turn_acc_state, vqf_inputs, vqf_outputs)  # fmt: skip
 from .fusion import FusionConfig
 BIAS_EVIDENCE_S = 2.0  # the older fusion's bias must stay beyond its gate this long
 THRUST_TAU_S = 10.0  # the accelerometer's mean direction (bias_gate_thrust_deg) is low-passed over this
@@ -104,6 +109,15 @@ class AnchorConfig:
     clip_hold_s: float = 4.0  # gyro-saturation gate stays on this long after the last clipped sample
     # ... and opens only where the last clip_hold_s hold at least clip_min_s of clipped samples (0: one)
     clip_min_s: float = 0.1
+    # ... and shuts early at rest: while it is on, once the samples since its last clipped one hold a
+    # still run this long (|ω| below rest_gyr_deg_s, the accelerometer within rest_acc_m_s2 of the run's
+    # mean, that mean at least half of g: gravity alone), VQF's tilt is set to the accelerometer's
+    # and the saturation term E cleared — after a tumble past the gyro's range (a crash) the network's
+    # windows still hold the tumble for 3 s while the accelerometer at rest is the tilt (0: off,
+    # before session 23). VQF's own rest thresholds (restThGyr, restThAcc)
+    rest_relevel_s: float = 0.5
+    rest_gyr_deg_s: float = 2.0
+    rest_acc_m_s2: float = 0.5
     bias_gate_weight: float = 0.6  # pull weight while the uncalibrated-gyro gate is on (0: never)
     bias_deadzone_deg_s: float = 2.0  # the network's bias beyond this is removed from the gyro
     # ... and the gate also opens when the older fusion's bias estimate (pull target "fusion") exceeds
@@ -202,7 +216,7 @@ class AnchorConfig:
         check_range("busy_stride", self.busy_stride, 1, 10**6)
         check_range("speed_hi_m_s", self.speed_hi_m_s, self.speed_lo_m_s, None, lo_open=True)
         check_range("bias_gate_thrust_deg", self.bias_gate_thrust_deg, 0, 180)
-        for name in ("clip_min_s", "quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "bias_gate_vqf_deg_s", "sigma_floor_deg", "sigma_acc_gain",
+        for name in ("clip_min_s", "quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "rest_relevel_s", "rest_gyr_deg_s", "rest_acc_m_s2", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "bias_gate_vqf_deg_s", "sigma_floor_deg", "sigma_acc_gain",
                      "sigma_net_scale", "sigma_sampling_gain", "sigma_clip_gain"):  # fmt: skip
             check_range(name, getattr(self, name), 0, None)
 
@@ -236,7 +250,7 @@ class AnchorConfig:
         return dataclasses.replace(self, pull_gain=0.0, centripetal=False, bias_gate_weight=0.0,
                                    bias_deadzone_deg_s=1e9, sigma_net_scale=0.0, gyro_scale=(1.0, 1.0, 1.0),
                                    gyro_selfcal=False, gnss_aid=False, smoother=False,
-                                   accel_scale_selfcal=False)  # fmt: skip
+                                   accel_scale_selfcal=False, rest_relevel_s=0.0)  # fmt: skip
 
 
 @dataclass
@@ -315,6 +329,11 @@ class AnchoredVQF:
         self.t_acc_mean = 0.0
         self.tau_acc = c.tau_acc_s
         self.clip_times = deque()  # times of the saturated samples of the last clip_hold_s
+        self.still = np.zeros(4)  # the still run while the saturation gate may be on (rest_step)
+        self.at_rest = False  # re-levelled at rest and still since: no gate opens (rest_relevel_s)
+        self.rest_samples = 0  # samples since that re-levelling (the still run's length while it lasts)
+        self.rest_gyr2 = math.radians(c.rest_gyr_deg_s) ** 2
+        self.rest_acc2 = float(c.rest_acc_m_s2) ** 2
         self.t = 0.0
         self.gate = 0.0
         self.sigma_net = 0.0
@@ -328,6 +347,7 @@ class AnchoredVQF:
         self.clip_gain_dt = float(c.sigma_clip_gain) * self.ts
         self.last_imu = (np.zeros(3), np.zeros(3))  # the last finite gyro/accelerometer sample
         self.holes = 0  # non-finite samples bridged
+        self.relevels = 0  # tilts set from the accelerometer at rest after a saturation (rest_relevel_s)
         self.gscale = None if c.gyro_scale == (1.0, 1.0, 1.0) else c.gyro_scale  # gyro × this (calibration)
 
     # ------------------------------------------------------------------ samples
@@ -344,6 +364,12 @@ class AnchoredVQF:
         if clipped is not None:
             cl = np.flatnonzero(np.atleast_1d(clipped))
             self.clip_times.extend(t_s[cl].tolist())
+        if self.cfg.rest_relevel_s > 0:  # the still run, only while a saturation or a re-levelling is remembered
+            if self.clip_times or self.at_rest:
+                rest_rows(self.still, gyr_b, acc_b, self.rest_gyr2, self.rest_acc2)
+                self._rest_goes_on(n)
+            elif self.still[0]:
+                self.still[:] = 0.0
         g_s, a_s = np.empty((n, 3)), np.empty((n, 3))
         bad = vqf_inputs(gyr_b, acc_b, self.gyr_corr, self.vel, self.acc_v, self.centripetal, g_s, a_s)
         if bad:  # a hole: bridged with the last finite sample (counted)
@@ -392,6 +418,12 @@ class AnchoredVQF:
             g, a = [float(v) for v in self.last_imu[0]], [float(v) for v in self.last_imu[1]]  # the last finite sample
             self.holes += 1
         self.last_imu = (g, a)
+        if self.cfg.rest_relevel_s > 0:  # as update()
+            if self.clip_times or self.at_rest:
+                rest_step(self.still, g[0], g[1], g[2], a[0], a[1], a[2], self.rest_gyr2, self.rest_acc2)
+                self._rest_goes_on(1)
+            elif self.still[0]:
+                self.still[:] = 0.0
         gc, v, av = self.gyr_corr, self.vel, self.acc_v
         gx, gy, gz = g[0] - gc[0], g[1] - gc[1], g[2] - gc[2]
         ax, ay, az = a
@@ -436,6 +468,10 @@ class AnchoredVQF:
         while ct and self.t - ct[0] >= c.clip_hold_s:
             ct.popleft()
         g_clip = 1.0 if ct and len(ct) * self.ts >= c.clip_min_s else 0.0
+        if g_clip and c.rest_relevel_s > 0 and self.still[0] * self.ts >= c.rest_relevel_s:
+            g_clip = self._relevel()
+        if self.at_rest:  # still at rest since: whatever windows still holding the tumble say of speed
+            g_flight = 0.0
         # only the bias component perpendicular to gravity turns the tilt (the one along it turns the
         # heading, which no tilt measurement can check): that part is the evidence and the correction
         qw, qx, qy, qz = self.f.getQuat6D().tolist()
@@ -472,6 +508,35 @@ class AnchoredVQF:
         if k > 0:
             d = down_in_body(*_floats(w.q_nb_wxyz))  # the target's down in body axes; its up in S: (−d₀, d₁, d₂)
             self.pull(tilt_pull_f(qw, qx, qy, qz, -d[0], d[1], d[2], float(k)))
+
+    def _relevel(self) -> float:
+        """At rest after a saturation: VQF's tilt set to the still run's mean specific force (gravity
+        alone) and the saturation gate shut (its remembered samples and E cleared) → the gate, 0.
+        A mean under half of g (a free fall, no gravity to read) leaves it on → 1."""
+        n, sx, sy, sz = self.still.tolist()
+        f = math.sqrt(sx * sx + sy * sy + sz * sz) / n
+        if f < 0.5 * GRAVITY_M_S2:
+            return 1.0
+        qw, qx, qy, qz = self.f.getQuat6D().tolist()
+        # the specific force at rest points up: the earth's down in body axes is −f, its up in S (f₀, −f₁, −f₂)
+        self.pull(tilt_pull_f(qw, qx, qy, qz, sx, -sy, -sz, 1.0))
+        # VQF's accelerometer low-pass still holds the tumble and the impact (a 16-g spike is degrees in a
+        # 3-s mean): it starts again, as at VQF's own start, averaging the samples from here on
+        st = self.f.state
+        st["accLpState"] = np.full(6, np.nan)
+        self.f.state = st
+        self.clip_times.clear()
+        self.still[:] = 0.0
+        self.e_clip = 0.0
+        self.relevels += 1
+        self.at_rest, self.rest_samples = True, 0
+        return 0.0
+
+    def _rest_goes_on(self, n: int) -> None:
+        """After ``n`` more samples: the rest a re-levelling found ends with its still run."""
+        if self.at_rest:
+            self.rest_samples += n
+            self.at_rest = self.still[0] == self.rest_samples
 
     def _thrust_cos(self) -> float:
         """Cosine of the angle between the body's −z axis and the accelerometer's mean, the last sample
