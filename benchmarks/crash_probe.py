@@ -20,10 +20,12 @@ inconsistency. With one motion for both sensors (session 22, seeds 101–103) TE
 tumble within the range (0.33–0.98° against VQF's 0.86–3.73°: the GNSS aid); what the crash did to the
 seconds before it — the tumble's clipped samples turned the aid's heading offset over its 30-s window,
 seed 102 1.06° → 2.21° before the crash — is gone since the aid leaves samples whose gyro clipped out
-of its evidence (``GnssAidConfig.clip_guard``). After a tumble past the range TE-PINN is behind VQF on 2 of 3
-flights (55.96 vs 51.60°, 45.65 vs 30.43° at 400 Hz): the saturation gate pulls toward the network's
-tilt in the first 2 s of the rest, when its windows still hold the tumble (90–100° off, VQF 49°);
-σ (15°) says so. Reported, not changed.
+of its evidence (``GnssAidConfig.clip_guard``). After a tumble past the range TE-PINN was behind VQF on 2 of 3
+flights (55.96 vs 51.60°, 45.65 vs 30.43° at 400 Hz): the saturation gate pulled toward the network's
+tilt through the rest while its windows still held the tumble. Since session 23 the gate shuts 0.5 s into
+the rest with the tilt set to the accelerometer's (``AnchorConfig.rest_relevel_s``): at rest from 1 s after
+the impact 0.42–7.63° against VQF's 20–33°; over the whole crash still behind on 2 of 3 (43.52 vs 30.43°,
+37.26 vs 30.01°: the tumble itself, where the gate pulls toward windows holding a free fall).
 
     python benchmarks/crash_probe.py [--seeds 101 102 103] [--rate 2400 --turn 540] [RECORD ...]
 """
