@@ -463,14 +463,14 @@ def test_at_rest_after_a_saturation_the_tilt_is_the_accelerometers(relevel_s):
             assert f.gate == 0.0 and f.e_clip == 0.0
             assert _tilt_deg(q[-1]) == pytest.approx(tilt_true, abs=0.05)
     if relevel_s:
-        assert f.relevels == 1 and f.at_rest
+        assert len(f.relevel_t) == 1 and f.at_rest
         assert _tilt_deg(q[-1]) == pytest.approx(tilt_true, abs=0.05)
         f.update(t[-1:] + 0.01, np.array([[0.0, 0.0, 0.5]]), acc[-1:])  # it turns: the rest is over
         assert not f.at_rest
         f.correct(wrong)
         assert f.gate == 1.0  # the flight-speed gate as anywhere
     else:
-        assert f.relevels == 0 and f.gate == 1.0
+        assert not f.relevel_t and f.gate == 1.0
         assert abs(_tilt_deg(q[-1]) - tilt_true) > 20
 
 
@@ -481,12 +481,11 @@ def test_a_free_fall_is_no_rest():
     f = AnchoredVQF(AnchorConfig(centripetal=False), 0.01)
     f.update(t, gyr, acc, clipped=clipped)
     f.correct(WindowOutput(np.array([1.0, 0.0, 0.0, 0.0]), 0.01, np.zeros(3), np.zeros(3), np.zeros(3)))
-    assert f.still[0] * 0.01 >= 1.0 and f.relevels == 0 and f.gate == 1.0
+    assert f.still[0] * 0.01 >= 1.0 and not f.relevel_t and f.gate == 1.0
 
 
-def test_live_equals_offline_through_a_rest_after_a_saturation():
-    """The re-levelling at rest acts at the same window live and offline: a synthetic record with a
-    tumble past the gyro's range and a rest appended, streamed and estimated offline, to 1e-6."""
+def _crash_record():
+    """A synthetic record (8 s) with :func:`_tumble_then_rest`'s tumble and a 4-s rest appended."""
     import pandas as pd
 
     from tepinn_flight.record import FlightRecord
@@ -503,7 +502,13 @@ def test_live_equals_offline_through_a_rest_after_a_saturation():
     for c in data.columns:
         if c not in tail:
             tail[c] = data[c].iloc[-1] if c.startswith("q_ref") or c in ("valid",) else np.nan
-    rec = FlightRecord(pd.concat([data, tail[list(data.columns)]], ignore_index=True), dict(rec.meta))
+    return FlightRecord(pd.concat([data, tail[list(data.columns)]], ignore_index=True), dict(rec.meta))
+
+
+def test_live_equals_offline_through_a_rest_after_a_saturation():
+    """The re-levelling at rest acts at the same window live and offline: a synthetic record with a
+    tumble past the gyro's range and a rest appended, streamed and estimated offline, to 1e-6."""
+    rec = _crash_record()
     model, _, _ = load_model(default_model_path())
     cfg = _shipped()
     import tepinn_flight.model.anchor as A
@@ -535,3 +540,22 @@ def test_checkpoints_written_before_the_re_levelling_run_without_it():
     assert anchor_config_from({"anchor_config": {**old, "rest_relevel_s": 0.5}}).rest_relevel_s == 0.5
     assert read_checkpoint(default_model_path())["anchor_config"]["rest_relevel_s"] == 0.5  # the shipped one stores it
     assert AnchorConfig().learned_off.rest_relevel_s == 0.0  # plain VQF has none
+
+
+def test_estimate_says_where_it_re_levelled(tmp_path, capsys):
+    """`estimate` reports the re-levelling in its one line per record and in the output's metadata."""
+    import pyarrow.parquet as pq
+
+    from tepinn_flight.cli.main import main
+    from tepinn_flight.record import write_record
+
+    rec = _crash_record()
+    write_record(rec, tmp_path / "r.parquet")
+    assert main(["estimate", str(tmp_path / "r.parquet"), "-o", str(tmp_path / "e.parquet")]) == 0
+    out = capsys.readouterr().out
+    t_rest = rec.t_s[rec.data["gyr_clipped"].to_numpy(bool)][-1] + 0.5  # the last clipped sample, then 0.5 s
+    assert "gyro saturation then rest: tilt set from the accelerometer 1× (t = " in out
+    t_said = float(out.split("(t = ")[1].split(" s;")[0])
+    assert t_rest <= t_said < t_rest + 0.2  # at the first window after half a second of rest
+    meta = pq.read_schema(tmp_path / "e.parquet").metadata
+    assert b"rest_relevel" in meta and meta[b"rest_relevel"].decode().endswith("; applied")

@@ -96,7 +96,7 @@ def _run(args) -> int:
     from ..errors import TepinnError
     from ..model.anchor import with_busy_stride
     from ..model.checkpoint import default_model_path
-    from ..model.estimate import OFFLINE_STEPS, estimate_record
+    from ..model.estimate import REPORTED_STEPS, estimate_record
     from ..model.runtime import default_onnx_path, load_runner, resolve_runtime
     from ..ingest import load_record
     from ..ingest.sniff import sniff
@@ -157,7 +157,7 @@ def _run(args) -> int:
             continue
         table = pa.Table.from_pandas(df, preserve_index=False)
         # what the record's own gyro calibration and GNSS velocity gave (offline)
-        found = {k: df.attrs[k] for k in OFFLINE_STEPS if df.attrs.get(k)}
+        found = {k: df.attrs[k] for k in REPORTED_STEPS if df.attrs.get(k)}
         table = table.replace_schema_metadata({b"source_record": str(src.name).encode(), b"model": str(ckpt_path.name).encode(),
                                                **{k.encode(): v.encode() for k, v in found.items()}})  # fmt: skip
         atomic_write(dst, lambda tmp: pq.write_table(table, tmp))

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ConfigError, TepinnError
-from ..model.estimate import OFFLINE_STEPS
+from ..model.estimate import REPORTED_STEPS
 from ..record import GYR_BIAS_COLS, FlightRecord, estimation_ok, segment_slices
 from ..record_gaps import bridge_gaps
 from . import metrics as M
@@ -177,7 +177,7 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
         res["estimation_ok"] = estimation_ok(m)
         res["imu_rate_hz"] = m.get("imu_rate_hz")
         res["reference_source"] = m.get("reference_source", "none")
-        for step in OFFLINE_STEPS:  # what the record's own gyro calibration and GNSS velocity gave each anchored TE-PINN
+        for step in REPORTED_STEPS:  # what the record's own gyro calibration, GNSS velocity and rests gave each anchored TE-PINN
             found = {name: df.attrs[step] for name, (df, _) in rr.items() if df.attrs.get(step)}
             if found:
                 res[step] = found

@@ -347,7 +347,7 @@ class AnchoredVQF:
         self.clip_gain_dt = float(c.sigma_clip_gain) * self.ts
         self.last_imu = (np.zeros(3), np.zeros(3))  # the last finite gyro/accelerometer sample
         self.holes = 0  # non-finite samples bridged
-        self.relevels = 0  # tilts set from the accelerometer at rest after a saturation (rest_relevel_s)
+        self.relevel_t: list[float] = []  # when the tilt was set from the accelerometer at rest (rest_relevel_s)
         self.gscale = None if c.gyro_scale == (1.0, 1.0, 1.0) else c.gyro_scale  # gyro × this (calibration)
 
     # ------------------------------------------------------------------ samples
@@ -528,7 +528,7 @@ class AnchoredVQF:
         self.clip_times.clear()
         self.still[:] = 0.0
         self.e_clip = 0.0
-        self.relevels += 1
+        self.relevel_t.append(self.t)
         self.at_rest, self.rest_samples = True, 0
         return 0.0
 

@@ -36,6 +36,9 @@ EST_BIAS_COLS = ["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z
 #: What the anchored estimate reads from the whole record (offline only): each one line in the
 #: result's ``attrs`` under this key, ending with "; applied" where it changed the estimate
 OFFLINE_STEPS = ("accel_scale_selfcal", "gyro_selfcal", "gnss_aid", "smoother")
+#: what an anchored estimate reports in its ``attrs`` (one line each; ``estimate`` prints and stores them,
+#: ``evaluate`` keeps them per record): the offline steps and the re-levelling at rest after a saturation
+REPORTED_STEPS = (*OFFLINE_STEPS, "rest_relevel")
 
 
 def network_on_windows(model: TEPINN, tok, ends: np.ndarray, gyr_offset: np.ndarray | None = None,
@@ -311,13 +314,13 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     t, gyr, acc, mag = rec.t_s, *(np.ascontiguousarray(x) for x in (rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut))
     cols = (t, gyr, acc, mag, rec.gyr_clipped)  # read from the frame once (each property access copies); the
     # saturation gate opens on the gyro's clipping alone
-    q_out, s_out, b_out, gate = _anchored_pass(anchor, rec.segment, cols, idx, out, use_mag)
+    q_out, s_out, b_out, gate, relevel_t = _anchored_pass(anchor, rec.segment, cols, idx, out, use_mag)
     aid = None
     if anchor.gnss_aid:
         aid, acc_aided, out_aided = gnss_aided_acc(rec, q_out, anchor, idx, out, cols, use_mag)
         if acc_aided is not None:
             cols = (t, gyr, acc_aided, mag, cols[4])
-            q_out, s_out, b_out, gate = _anchored_pass(anchor, rec.segment, cols, idx, out_aided, use_mag)
+            q_out, s_out, b_out, gate, relevel_t = _anchored_pass(anchor, rec.segment, cols, idx, out_aided, use_mag)
     done = None
     if anchor.smoother:
         q_out, s_out, done = smooth(t, q_out, s_out, gate, rec.segment, smoother or SmootherConfig(),
@@ -326,7 +329,16 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     for key, found in (("accel_scale_selfcal", acal), ("gyro_selfcal", cal), ("gnss_aid", aid), ("smoother", done)):
         if found is not None:
             df.attrs[key] = found.describe()
+    if relevel_t:
+        df.attrs["rest_relevel"] = describe_relevels(relevel_t)
     return df
+
+
+def describe_relevels(times_s: list[float]) -> str:
+    """One line for a user: where the tilt was set from the accelerometer at rest after a saturation."""
+    shown = ", ".join(f"{t:.1f}" for t in times_s[:5]) + (", ..." if len(times_s) > 5 else "")
+    return (f"gyro saturation then rest: tilt set from the accelerometer {len(times_s)}× (t = {shown} s; "
+            "rest_relevel_s); applied")
 
 
 def offline_vqf(anchor: AnchorConfig, t_s, gyr_b, acc_b) -> np.ndarray:
@@ -345,8 +357,9 @@ def offline_vqf(anchor: AnchorConfig, t_s, gyr_b, acc_b) -> np.ndarray:
 
 def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
     """One run of the anchored filter over every segment with the network's windows ``(idx, out)``
-    applied at their last samples → (q_nb, sigma, bias, gate) per sample; the gate (the largest of
-    the filter's gates, 0 where the estimate is VQF's) is each window's from the sample after it."""
+    applied at their last samples → (q_nb, sigma, bias, gate) per sample and the times the tilt was
+    re-levelled at rest (:attr:`.anchor.AnchoredVQF.relevel_t`); the gate (the largest of the filter's
+    gates, 0 where the estimate is VQF's) is each window's from the sample after it."""
     t = cols[0]
     q_pull = out.get("q_target", out["q"])
     b_fus = out.get("bias_target")
@@ -357,6 +370,7 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
     s_out = np.full(n, np.nan)
     b_out = np.full((n, 3), np.nan)
     gate = np.zeros(n)
+    relevel_t = []
     for sl in segment_slices(seg):
         a, b = sl.start, sl.stop
         dt = np.diff(t[a : min(b, a + TS_STEPS + 1)])  # as the live estimator: its first steps
@@ -376,7 +390,8 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
             _put(flt, cols, cur, b, q_out, s_out, b_out, use_mag)
         if starts:  # filled once at the end (per window up to the segment's end was quadratic in its length)
             gate[a:b] = _piecewise(np.asarray(starts) - a, np.asarray(gates, np.float64), b - a)
-    return q_out, s_out, b_out, gate
+        relevel_t += flt.relevel_t
+    return q_out, s_out, b_out, gate, relevel_t
 
 
 def _piecewise(starts: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
