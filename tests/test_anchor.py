@@ -416,21 +416,21 @@ def test_the_gate_per_sample_is_what_writing_each_window_to_the_end_would_give(s
     np.testing.assert_array_equal(_piecewise(starts, values, n), ref)
 
 
-def _tumble_then_rest(rate_hz=100.0, rest_s=3.0, free_fall_rest=False):
-    """Level at rest 2 s, a 0.3-s tumble about y at 15 rad/s read clipped at 10 rad/s (the gyro past its
-    range: 1.5 rad of the 4.5 missed) in free fall, then a rest at the true attitude (the
-    accelerometer reads −g in body axes; or nothing, a free fall, with ``free_fall_rest``) →
-    (t, gyr, acc, clipped, true tilt at rest in degrees)."""
+def _tumble_then_rest(rate_hz=100.0, rest_s=3.0, free_fall_rest=False, reading=6.9):
+    """Level at rest 2 s, a 0.2-s tumble about y at 15 rad/s read clipped at ``reading`` rad/s (the gyro
+    past its range: a ±400 °/s one by default, 1.6 rad of the 3.0 missed) in free fall, then a rest at
+    the true attitude (the accelerometer reads −g in body axes; or nothing, a free fall, with
+    ``free_fall_rest``) → (t, gyr, acc, clipped, true tilt at rest in degrees)."""
     dt = 1.0 / rate_hz
-    n0, n1, n2 = int(2.0 * rate_hz), int(0.3 * rate_hz), int(rest_s * rate_hz)
+    n0, n1, n2 = int(2.0 * rate_hz), int(0.2 * rate_hz), int(rest_s * rate_hz)
     t = np.arange(n0 + n1 + n2) * dt
     gyr = np.zeros((len(t), 3))
-    gyr[n0 : n0 + n1, 1] = 10.0  # the clipped reading
+    gyr[n0 : n0 + n1, 1] = reading  # the clipped reading
     clipped = np.zeros(len(t), bool)
     clipped[n0 : n0 + n1] = True
     acc = np.tile([0.0, 0.0, -9.81], (len(t), 1))
     acc[n0 : n0 + n1] = 0.0
-    theta = 15.0 * 0.3  # the true pitch turned through
+    theta = 15.0 * 0.2  # the true pitch turned through
     g_body = Rotation.from_rotvec([0.0, theta, 0.0]).inv().apply([0.0, 0.0, 9.81])  # gravity in body axes
     acc[n0 + n1 :] = 0.0 if free_fall_rest else -g_body
     tilt_true = math.degrees(math.acos(max(-1.0, min(1.0, g_body[2] / 9.81))))
@@ -446,9 +446,9 @@ def test_at_rest_after_a_saturation_the_tilt_is_the_accelerometers(relevel_s):
     """After a tumble past the gyro's range, once the rest has lasted rest_relevel_s the tilt is the
     accelerometer's (to 0.05°), the saturation gate shut and its σ term cleared, and it stays so (VQF's
     low-pass starts again rather than remembering the tumble); a network window then still holding the
-    tumble (a level tilt, 4.5 rad away, and 40 m/s: the flight-speed gate) pulls nothing while the rest
+    tumble (a level tilt, 172° from the truth, and 40 m/s: the flight-speed gate) pulls nothing while the rest
     lasts; the first moving sample ends it. Off (0), that window pulls by pull_gain and VQF's missed
-    1.5 rad stays for seconds."""
+    1.6 rad stays for seconds."""
     t, gyr, acc, clipped, tilt_true = _tumble_then_rest()
     cfg = AnchorConfig(centripetal=False, rest_relevel_s=relevel_s)
     f = AnchoredVQF(cfg, 0.01)
@@ -559,3 +559,36 @@ def test_estimate_says_where_it_re_levelled(tmp_path, capsys):
     assert t_rest <= t_said < t_rest + 0.2  # at the first window after half a second of rest
     meta = pq.read_schema(tmp_path / "e.parquet").metadata
     assert b"rest_relevel" in meta and meta[b"rest_relevel"].decode().endswith("; applied")
+
+
+@pytest.mark.parametrize("reading_deg_s", [395.0, 1990.0])
+def test_the_saturation_pull_only_at_the_gyro_ranges_the_network_learned(reading_deg_s):
+    """A clipped stretch read at 395 °/s (the ±400 °/s range of the training's tactical gyro) opens the
+    saturation pull; one read at 1990 °/s (an autopilot's ±2000 °/s past its range, beyond
+    clip_gate_max_deg_s) leaves it shut for clip_hold_s — VQF integrates, the accelerometer brings the tilt
+    back — and σ's saturation term E then decays at VQF's accelerometer time constant, not
+    sigma_clip_tau_s (both from the same E at the window). Checkpoints before the option (0) pull at any
+    range."""
+    cfg = AnchorConfig(centripetal=False, rest_relevel_s=0.0)
+    r = math.radians(reading_deg_s)
+    n = 300
+    t = np.arange(n) * 0.01
+    gyr, acc = np.zeros((n, 3)), np.tile([0.0, 0.0, -9.81], (n, 1))
+    clipped = np.zeros(n, bool)
+    gyr[100:115, 1], clipped[100:115] = r, True  # 0.15 s clipped
+    acc[100:115] = 0.0
+    tilted = WindowOutput(np.array([math.cos(0.2), math.sin(0.2), 0.0, 0.0]), 0.01, np.zeros(3), np.zeros(3), np.zeros(3))
+    f = AnchoredVQF(cfg, 0.01)
+    f.update(t[:120], gyr[:120], acc[:120], clipped=clipped[:120])
+    f.correct(tilted)
+    e0 = f.e_clip
+    assert e0 > 0.1
+    f.update(t[120:220], gyr[120:220], acc[120:220])  # 1 s after the window
+    tau = cfg.sigma_clip_tau_s if reading_deg_s < cfg.clip_gate_max_deg_s else cfg.tau_acc_s
+    assert f.e_clip == pytest.approx(e0 * math.exp(-1.0 / tau), rel=1e-9)
+    f.correct(tilted)
+    assert f.gate == (1.0 if reading_deg_s < cfg.clip_gate_max_deg_s else 0.0)
+    old = AnchoredVQF(dataclasses.replace(cfg, clip_gate_max_deg_s=0.0), 0.01)
+    old.update(t[:120], gyr[:120], acc[:120], clipped=clipped[:120])
+    old.correct(tilted)
+    assert old.gate == 1.0

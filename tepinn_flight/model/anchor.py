@@ -116,6 +116,14 @@ class AnchorConfig:
     # windows still hold the tumble for 3 s while the accelerometer at rest is the tilt (0: off,
     # before session 23). VQF's own rest thresholds (restThGyr, restThAcc)
     rest_relevel_s: float = 0.5
+    # ... and pulls only for gyros whose range the network learned to declip: a clipped sample reading
+    # more than this on an axis (the ±2000 °/s of autopilot gyros, past their range) keeps the pull shut
+    # for clip_hold_s — the network saw saturation only at ±400 °/s (the training's tactical gyro; this
+    # is 1.25× that), and its declipping, learned there, turned a roll just past ±2000 °/s into a
+    # tilt 140° off (benchmarks/flip_probe.py). VQF then integrates the reading and the accelerometer
+    # brings the tilt back; σ's saturation term, the re-levelling at rest and the other gates act as
+    # anywhere (0: any range, before session 23)
+    clip_gate_max_deg_s: float = 500.0
     rest_gyr_deg_s: float = 2.0
     rest_acc_m_s2: float = 0.5
     bias_gate_weight: float = 0.6  # pull weight while the uncalibrated-gyro gate is on (0: never)
@@ -216,7 +224,7 @@ class AnchorConfig:
         check_range("busy_stride", self.busy_stride, 1, 10**6)
         check_range("speed_hi_m_s", self.speed_hi_m_s, self.speed_lo_m_s, None, lo_open=True)
         check_range("bias_gate_thrust_deg", self.bias_gate_thrust_deg, 0, 180)
-        for name in ("clip_min_s", "quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "rest_relevel_s", "rest_gyr_deg_s", "rest_acc_m_s2", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "bias_gate_vqf_deg_s", "sigma_floor_deg", "sigma_acc_gain",
+        for name in ("clip_min_s", "quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "rest_relevel_s", "clip_gate_max_deg_s", "rest_gyr_deg_s", "rest_acc_m_s2", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "bias_gate_vqf_deg_s", "sigma_floor_deg", "sigma_acc_gain",
                      "sigma_net_scale", "sigma_sampling_gain", "sigma_clip_gain"):  # fmt: skip
             check_range(name, getattr(self, name), 0, None)
 
@@ -329,6 +337,9 @@ class AnchoredVQF:
         self.t_acc_mean = 0.0
         self.tau_acc = c.tau_acc_s
         self.clip_times = deque()  # times of the saturated samples of the last clip_hold_s
+        self.clip_gate_max = math.radians(c.clip_gate_max_deg_s) if c.clip_gate_max_deg_s > 0 else math.inf
+        self.t_clip_high = -math.inf  # the last saturated sample reading beyond clip_gate_max_deg_s
+        self.t_clip_last = -math.inf  # the last saturated sample
         self.still = np.zeros(4)  # the still run while the saturation gate may be on (rest_step)
         self.at_rest = False  # re-levelled at rest and still since: no gate opens (rest_relevel_s)
         self.rest_samples = 0  # samples since that re-levelling (the still run's length while it lasts)
@@ -364,6 +375,12 @@ class AnchoredVQF:
         if clipped is not None:
             cl = np.flatnonzero(np.atleast_1d(clipped))
             self.clip_times.extend(t_s[cl].tolist())
+            if cl.size:
+                self.t_clip_last = float(t_s[cl[-1]])
+            if cl.size and self.clip_gate_max < math.inf:
+                high = cl[np.max(np.abs(gyr_b[cl]), axis=1) > self.clip_gate_max]
+                if high.size:
+                    self.t_clip_high = float(t_s[high[-1]])
         if self.cfg.rest_relevel_s > 0:  # the still run, only while a saturation or a re-levelling is remembered
             if self.clip_times or self.at_rest:
                 rest_rows(self.still, gyr_b, acc_b, self.rest_gyr2, self.rest_acc2)
@@ -407,13 +424,16 @@ class AnchoredVQF:
         """:meth:`update` of one sample in plain floats (the live path: numpy's per-call overhead
         on one row cost 10× the arithmetic) → (q_nb, q_nb_9d or None, sigma, bias_b) as tuples and
         a float; the numbers of a one-row :meth:`update` (tested)."""
-        if clipped:
-            self.clip_times.append(float(t_s))
         g = [float(v) for v in gyr_b]
         a = [float(v) for v in acc_b]
         if self.gscale is not None:  # as update()
             sx, sy, sz = self.gscale
             g = [g[0] * sx, g[1] * sy, g[2] * sz]
+        if clipped:
+            self.clip_times.append(float(t_s))
+            self.t_clip_last = float(t_s)
+            if max(abs(g[0]), abs(g[1]), abs(g[2])) > self.clip_gate_max:  # as update()
+                self.t_clip_high = float(t_s)
         if not math.isfinite(g[0] + g[1] + g[2] + a[0] + a[1] + a[2]):  # a hole (a NaN or inf in the sum):
             g, a = [float(v) for v in self.last_imu[0]], [float(v) for v in self.last_imu[1]]  # the last finite sample
             self.holes += 1
@@ -472,6 +492,12 @@ class AnchoredVQF:
             g_clip = self._relevel()
         if self.at_rest:  # still at rest since: whatever windows still holding the tumble say of speed
             g_flight = 0.0
+        if g_clip and self.t - self.t_clip_high < c.clip_hold_s:  # a range the network did not learn to declip
+            g_clip = 0.0
+        # σ's saturation term E decays as what brings the tilt back: the network's pull (sigma_clip_tau_s,
+        # fitted where it acts) or, after a range it did not learn, VQF's accelerometer (its time constant)
+        tau_e = self.tau_acc if -math.inf < self.t_clip_last <= self.t_clip_high else c.sigma_clip_tau_s
+        self.clip_decay = math.exp(-self.ts / tau_e)
         # only the bias component perpendicular to gravity turns the tilt (the one along it turns the
         # heading, which no tilt measurement can check): that part is the evidence and the correction
         qw, qx, qy, qz = self.f.getQuat6D().tolist()
