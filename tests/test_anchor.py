@@ -484,14 +484,14 @@ def test_a_free_fall_is_no_rest():
     assert f.still[0] * 0.01 >= 1.0 and not f.relevel_t and f.gate == 1.0
 
 
-def _crash_record():
+def _crash_record(reading=6.9):
     """A synthetic record (8 s) with :func:`_tumble_then_rest`'s tumble and a 4-s rest appended."""
     import pandas as pd
 
     from tepinn_flight.record import FlightRecord
 
     rec = synthetic_record(seed=2, duration_s=8.0, rate_hz=100.0)
-    t, gyr, acc, clipped, _ = _tumble_then_rest(rest_s=4.0)
+    t, gyr, acc, clipped, _ = _tumble_then_rest(rest_s=4.0, reading=reading)
     t = t[200:] - t[200] + rec.t_s[-1] + 0.01  # the tumble and the rest after the record
     extra = {"t_s": t, "segment": np.zeros(len(t), np.int64), "clipped": clipped[200:], "gyr_clipped": clipped[200:]}
     for i, ax in enumerate("xyz"):
@@ -505,10 +505,12 @@ def _crash_record():
     return FlightRecord(pd.concat([data, tail[list(data.columns)]], ignore_index=True), dict(rec.meta))
 
 
-def test_live_equals_offline_through_a_rest_after_a_saturation():
+@pytest.mark.parametrize("reading", [6.9, 34.5])
+def test_live_equals_offline_through_a_rest_after_a_saturation(reading):
     """The re-levelling at rest acts at the same window live and offline: a synthetic record with a
-    tumble past the gyro's range and a rest appended, streamed and estimated offline, to 1e-6."""
-    rec = _crash_record()
+    tumble past the gyro's range (±400 °/s, the saturation pull on; ±2000 °/s, off and σ's saturation
+    term decaying at VQF's pace) and a rest appended, streamed and estimated offline, to 1e-6 (σ too)."""
+    rec = _crash_record(reading)
     model, _, _ = load_model(default_model_path())
     cfg = _shipped()
     import tepinn_flight.model.anchor as A
@@ -517,19 +519,22 @@ def test_live_equals_offline_through_a_rest_after_a_saturation():
     orig = A.AnchoredVQF._relevel
     try:
         A.AnchoredVQF._relevel = lambda self: made.append(orig(self)) or made[-1]
-        off = estimate_anchored(model, rec, cfg)[Q].to_numpy()
+        df = estimate_anchored(model, rec, cfg)
+        off, s_off = df[Q].to_numpy(), df["sigma_rad"].to_numpy()
         n_off = made.count(0.0)
         live = StreamingEstimator(model, cfg)
-        q_live = np.full((len(rec), 4), np.nan)
+        q_live, s_live = np.full((len(rec), 4), np.nan), np.full(len(rec), np.nan)
         for i in range(len(rec)):
             e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
             if e.q_nb_wxyz is not None:
-                q_live[i] = e.q_nb_wxyz
+                q_live[i], s_live[i] = e.q_nb_wxyz, e.sigma_rad
     finally:
         A.AnchoredVQF._relevel = orig
     assert n_off >= 1 and made.count(0.0) == 2 * n_off  # it acted, live as often as offline
     have = np.all(np.isfinite(q_live), 1)
     np.testing.assert_allclose(q_live[have], off[have], atol=1e-6)
+    np.testing.assert_allclose(s_live[have], s_off[have], rtol=1e-6)
+    assert s_off[have].max() > math.radians(10)  # the saturation term acted
 
 
 def test_checkpoints_written_before_the_re_levelling_run_without_it():
