@@ -597,3 +597,21 @@ def test_the_saturation_pull_only_at_the_gyro_ranges_the_network_learned(reading
     old.update(t[:120], gyr[:120], acc[:120], clipped=clipped[:120])
     old.correct(tilted)
     assert old.gate == 1.0
+
+
+def test_a_hole_breaks_the_still_run_one_sample_at_a_time_as_in_a_block():
+    """The still run sees each sample as it came, live (update_one) as offline (update on blocks): a
+    non-finite sample in the rest starts it again in both, and both re-level at the same sample."""
+    t, gyr, acc, clipped, _ = _tumble_then_rest(rest_s=2.0)
+    acc[260] = np.nan  # 0.4 s into the rest
+    block, one = AnchoredVQF(AnchorConfig(centripetal=False), 0.01), AnchoredVQF(AnchorConfig(centripetal=False), 0.01)
+    window = WindowOutput(np.array([1.0, 0.0, 0.0, 0.0]), 0.01, np.zeros(3), np.zeros(3), np.zeros(3))
+    for k in range(0, len(t), 10):
+        block.update(t[k : k + 10], gyr[k : k + 10], acc[k : k + 10], clipped=clipped[k : k + 10])
+        for i in range(k, min(k + 10, len(t))):
+            one.update_one(t[i], gyr[i], acc[i], None, bool(clipped[i]))
+        np.testing.assert_array_equal(one.still, block.still)
+        block.correct(window)
+        one.correct(window)
+    assert block.relevel_t == one.relevel_t and len(block.relevel_t) == 1
+    assert block.relevel_t[0] >= t[261] + 0.5 - 1e-9  # the hole started the run again

@@ -19,7 +19,9 @@ and its rate ``â``. Each enters only where there is run-time evidence that VQF'
   rate is wrong, so VQF's tilt is pulled toward the network's window tilt (its physics inputs are
   clip-aware). An accelerometer at its range leaves the integrated rate right and does not open it;
   nor does a handful of clipped samples, whose missed rotation is smaller than the network's error
-  on real sensors. **At rest** it shuts early: once the samples since the saturation hold a still run
+  on real sensors. Only at the gyro ranges the network learned to declip (``clip_gate_max_deg_s``: a
+  clipped reading beyond it — an autopilot's ±2000 °/s — keeps the pull shut; VQF's accelerometer brings
+  the tilt back and E decays at its pace). **At rest** it shuts early: once the samples since the saturation hold a still run
   of ``rest_relevel_s`` (VQF's rest thresholds on the raw samples; a mean of at least half of g), the
   accelerometer *is* the tilt — VQF's tilt is set to it, its accelerometer low-pass starts again (it
   still holds the tumble or an impact), E is cleared, and while that rest lasts no gate opens (after a
@@ -116,6 +118,8 @@ class AnchorConfig:
     # windows still hold the tumble for 3 s while the accelerometer at rest is the tilt (0: off,
     # before session 23). VQF's own rest thresholds (restThGyr, restThAcc)
     rest_relevel_s: float = 0.5
+    rest_gyr_deg_s: float = 2.0
+    rest_acc_m_s2: float = 0.5
     # ... and pulls only for gyros whose range the network learned to declip: a clipped sample reading
     # more than this on an axis (the ±2000 °/s of autopilot gyros, past their range) keeps the pull shut
     # for clip_hold_s — the network saw saturation only at ±400 °/s (the training's tactical gyro; this
@@ -124,8 +128,6 @@ class AnchorConfig:
     # brings the tilt back; σ's saturation term, the re-levelling at rest and the other gates act as
     # anywhere (0: any range, before session 23)
     clip_gate_max_deg_s: float = 500.0
-    rest_gyr_deg_s: float = 2.0
-    rest_acc_m_s2: float = 0.5
     bias_gate_weight: float = 0.6  # pull weight while the uncalibrated-gyro gate is on (0: never)
     bias_deadzone_deg_s: float = 2.0  # the network's bias beyond this is removed from the gyro
     # ... and the gate also opens when the older fusion's bias estimate (pull target "fusion") exceeds
@@ -434,16 +436,16 @@ class AnchoredVQF:
             self.t_clip_last = float(t_s)
             if max(abs(g[0]), abs(g[1]), abs(g[2])) > self.clip_gate_max:  # as update()
                 self.t_clip_high = float(t_s)
-        if not math.isfinite(g[0] + g[1] + g[2] + a[0] + a[1] + a[2]):  # a hole (a NaN or inf in the sum):
-            g, a = [float(v) for v in self.last_imu[0]], [float(v) for v in self.last_imu[1]]  # the last finite sample
-            self.holes += 1
-        self.last_imu = (g, a)
-        if self.cfg.rest_relevel_s > 0:  # as update()
+        if self.cfg.rest_relevel_s > 0:  # as update(): on the sample as it came (a hole is no rest)
             if self.clip_times or self.at_rest:
                 rest_step(self.still, g[0], g[1], g[2], a[0], a[1], a[2], self.rest_gyr2, self.rest_acc2)
                 self._rest_goes_on(1)
             elif self.still[0]:
                 self.still[:] = 0.0
+        if not math.isfinite(g[0] + g[1] + g[2] + a[0] + a[1] + a[2]):  # a hole (a NaN or inf in the sum):
+            g, a = [float(v) for v in self.last_imu[0]], [float(v) for v in self.last_imu[1]]  # the last finite sample
+            self.holes += 1
+        self.last_imu = (g, a)
         gc, v, av = self.gyr_corr, self.vel, self.acc_v
         gx, gy, gz = g[0] - gc[0], g[1] - gc[1], g[2] - gc[2]
         ax, ay, az = a
