@@ -379,8 +379,7 @@ class AnchoredVQF:
             self.clip_times.extend(t_s[cl].tolist())
             if cl.size:
                 self.t_clip_last = float(t_s[cl[-1]])
-            if cl.size and self.clip_gate_max < math.inf:
-                high = cl[np.max(np.abs(gyr_b[cl]), axis=1) > self.clip_gate_max]
+                high = cl[np.max(np.abs(gyr_b[cl]), axis=1) > self.clip_gate_max]  # (inf: none)
                 if high.size:
                     self.t_clip_high = float(t_s[high[-1]])
         if self.cfg.rest_relevel_s > 0:  # the still run, only while a saturation or a re-levelling is remembered

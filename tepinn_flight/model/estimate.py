@@ -419,7 +419,7 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
     if vel is None:
         return summarize(none, none, np.zeros((n, 3)), None, cfg), None, out
     seg = rec.segment
-    gyr_clipped = rec.gyr_clipped
+    gyr_clipped = cols[4]  # the gyro's clipping, as the passes read it
     at = np.asarray(idx, np.int64)
     fast = np.hypot(vel[at, 0], vel[at, 1]) >= fast_m_s  # the windows' ends (NaN: no fix, not fast)
     found = (none, none, np.zeros((n, 3)))  # the masks and correction of the last pass that applied
