@@ -43,9 +43,6 @@ def main() -> int:
 
     from tepinn_flight.evaluation.estimators import FilterEstimator, TepinnEstimator
     from tepinn_flight.evaluation.filters import Ekf
-    from tepinn_flight.evaluation.harness import scoring_mask
-    from tepinn_flight.record_gaps import bridge_gaps
-    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad, tilt_error_vector_rad, uncertainty_metrics
     from tepinn_flight.evaluation.names import display_name
     from tepinn_flight.evaluation.peers import VqfEstimator
     from tepinn_flight.ingest import ingest_log
@@ -86,25 +83,7 @@ def main() -> int:
     rows = []
     t0 = time.perf_counter()
     for kind, grp, name, rec, held in files:
-        m = scoring_mask(rec, 5.0)
-        r = {"kind": kind, "group": grp, "name": name, "held": held}
-        br = bridge_gaps(rec)  # short logging dropouts bridged for every estimator, as `evaluate` does
-        for e in ests:
-            df = br.original(e.estimate(br.record))
-            q = df[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
-            mm = m & np.all(np.isfinite(q), 1)
-            qe = error_quat_earth(q[mm], rec.q_ref_wxyz[mm])
-            r[e.name] = float(np.degrees(np.sqrt(np.mean(inclination_error_rad(qe) ** 2)))) if mm.any() else np.nan
-            if e.name == "tepinn" and str(df.attrs.get("gyro_selfcal", "")).endswith("; applied"):
-                r["selfcal"] = df.attrs["gyro_selfcal"]
-            if e.name == "tepinn" and str(df.attrs.get("gnss_aid", "")).endswith("; applied"):
-                r["gnss"] = df.attrs["gnss_aid"]
-            if e.name.startswith("tepinn") and "sigma_rad" in df:  # σ on every kind (the issue's target: real)
-                u = uncertainty_metrics(tilt_error_vector_rad(qe), df["sigma_rad"].to_numpy()[mm])
-                r[f"nees:{e.name}"], r[f"in3:{e.name}"] = u["nees"], u["coverage_3sigma"]
-            if e.name == "tepinn-smooth" and str(df.attrs.get("smoother", "")).endswith("; applied"):
-                r["smooth"] = df.attrs["smoother"]
-        rows.append(r)
+        rows.append({"kind": kind, "group": grp, "name": name, "held": held, **score_file(ests, rec)})
     print(f"\n{len(files)} files, {time.perf_counter() - t0:.0f} s; inclination RMSE (deg), 5 s warm-up\n")
     head = f"{'kind':<10} {'group':<26} {'file':<44} {'split':<9}" + "".join(f"{display_name(n):>9}" for n in names)
     print(head + f"{'TP/VQF':>8}  per-file check")
@@ -143,6 +122,36 @@ def main() -> int:
                     print(f"{'':<10} σ of {display_name(n)}: mean NEES {np.mean(nees):.2f} (target 1.5–2.5), within 3σ "
                           f"{100 * np.mean([r[f'in3:{n}'] for r in sel if f'in3:{n}' in r]):.1f} % (target ≥ 97 %), per file averaged")
     return 0
+
+
+def score_file(ests, rec) -> dict:
+    """Each estimator of ``ests`` on ``rec`` → {name: inclination RMSE (deg), 5 s warm-up, the same samples
+    for all}, and for TE-PINN estimators ``nees:NAME`` / ``in3:NAME`` (σ of the 2-D tilt error: mean NEES,
+    share within 3σ) and what its whole-record steps did (``selfcal``, ``gnss``, ``smooth``). Short
+    logging dropouts are bridged for every estimator, as ``evaluate`` does."""
+    from tepinn_flight.evaluation.harness import scoring_mask
+    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad, tilt_error_vector_rad, uncertainty_metrics
+    from tepinn_flight.record_gaps import bridge_gaps
+
+    m = scoring_mask(rec, 5.0)
+    r = {}
+    br = bridge_gaps(rec)
+    for e in ests:
+        df = br.original(e.estimate(br.record))
+        q = df[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+        mm = m & np.all(np.isfinite(q), 1)
+        qe = error_quat_earth(q[mm], rec.q_ref_wxyz[mm])
+        r[e.name] = float(np.degrees(np.sqrt(np.mean(inclination_error_rad(qe) ** 2)))) if mm.any() else np.nan
+        if e.name == "tepinn" and str(df.attrs.get("gyro_selfcal", "")).endswith("; applied"):
+            r["selfcal"] = df.attrs["gyro_selfcal"]
+        if e.name == "tepinn" and str(df.attrs.get("gnss_aid", "")).endswith("; applied"):
+            r["gnss"] = df.attrs["gnss_aid"]
+        if e.name.startswith("tepinn") and "sigma_rad" in df:  # σ on every kind (the issue's target: real)
+            u = uncertainty_metrics(tilt_error_vector_rad(qe), df["sigma_rad"].to_numpy()[mm])
+            r[f"nees:{e.name}"], r[f"in3:{e.name}"] = u["nees"], u["coverage_3sigma"]
+        if e.name == "tepinn-smooth" and str(df.attrs.get("smoother", "")).endswith("; applied"):
+            r["smooth"] = df.attrs["smoother"]
+    return r
 
 
 if __name__ == "__main__":
