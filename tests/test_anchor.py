@@ -564,6 +564,8 @@ def test_estimate_says_where_it_re_levelled(tmp_path, capsys):
     assert t_rest <= t_said < t_rest + 0.2  # at the first window after half a second of rest
     meta = pq.read_schema(tmp_path / "e.parquet").metadata
     assert b"rest_relevel" in meta and meta[b"rest_relevel"].decode().endswith("; applied")
+    gates = meta[b"network_gates"].decode()  # the saturation pull acted, no other gate
+    assert "gyro saturation" in gates and "flight speed" not in gates and gates.endswith("; applied") and gates in out
 
 
 @pytest.mark.parametrize("reading_deg_s", [395.0, 1990.0])
@@ -615,3 +617,89 @@ def test_a_hole_breaks_the_still_run_one_sample_at_a_time_as_in_a_block():
         one.correct(window)
     assert block.relevel_t == one.relevel_t and len(block.relevel_t) == 1
     assert block.relevel_t[0] >= t[261] + 0.5 - 1e-9  # the hole started the run again
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_open_time_per_gate_is_what_a_sample_by_sample_count_gives(seed):
+    """Each gate's open seconds and first opening (the `network_gates` line): the reference walks the
+    samples, each taking the gates of the last window started at or before it (a later window at the
+    same sample wins) and adding its time to the next sample (the last one's: the median step)."""
+    from tepinn_flight.model.estimate import _add_open_time
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 300))
+    t = 3.0 + np.cumsum(rng.uniform(0.001, 0.05, n))
+    starts = np.sort(rng.integers(0, n + 1, size=int(rng.integers(1, 50))))
+    is_open = rng.random((len(starts), 3)) < 0.4
+    open_s, first_t = np.zeros(3), np.full(3, np.inf)
+    _add_open_time(t, starts, is_open, open_s, first_t)
+    step = np.r_[np.diff(t), np.median(np.diff(t))]
+    ref_s, ref_t = np.zeros(3), np.full(3, np.inf)
+    for i in range(n):
+        k = np.flatnonzero(starts <= i)
+        if k.size:
+            for g in range(3):
+                if is_open[k[-1], g]:
+                    ref_s[g] += step[i]
+                    ref_t[g] = min(ref_t[g], t[i])
+    np.testing.assert_allclose(open_s, ref_s, rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(first_t, ref_t)
+
+
+def test_the_estimate_says_which_network_gate_acted_and_where():
+    """`attrs["network_gates"]`: on a record whose gyro clips for 0.3 s, the saturation gate alone, first
+    open at the first window after 0.1 s of clipping (clip_min_s) and for at most the clipped stretch
+    plus clip_hold_s; with every learned correction off, shut throughout (the estimate is VQF's)."""
+    model, cfg, _ = load_model(default_model_path())
+    cfg = dataclasses.replace(cfg, gnss_aid=False, rest_relevel_s=0.0)
+    rec = _with_clipped(synthetic_record(seed=3, duration_s=30.0, rate_hz=100.0), 12.0, 12.3)
+    line = estimate_anchored(model, rec, cfg).attrs["network_gates"]
+    assert line.endswith("; applied") and "flight speed" not in line and "uncalibrated gyro" not in line
+    secs = float(line.split("gyro saturation ")[1].split(" s from")[0])
+    t0 = float(line.split("from t = ")[1].split(" s")[0])
+    assert 12.1 <= t0 <= 12.1 + 0.05  # a window every token (25 Hz) after 0.1 s of clipped samples
+    assert 0.0 < secs <= 0.2 + cfg.clip_hold_s + 0.05
+    off = estimate_anchored(model, rec, cfg.learned_off).attrs["network_gates"]
+    assert off == "network gates: shut throughout (the attitude is VQF's); not applied"
+
+
+def test_with_every_learned_correction_off_a_flight_speed_window_leaves_it_vqf():
+    """The flight-speed gate also lengthens VQF's accelerometer time constant (tau_acc_flight_s): with
+    every learned correction off, windows reading 40 m/s leave the estimate VQF's bit for bit, and no
+    gate is reported as having acted."""
+    rec = synthetic_record(seed=5, duration_s=20.0, rate_hz=100.0)
+    t, gyr, acc = rec.t_s, rec.gyr_rad_s, rec.acc_m_s2
+    fast = WindowOutput(np.array([1.0, 0.0, 0.0, 0.0]), 0.01, np.zeros(3), np.array([40.0, 0.0, 0.0]), np.zeros(3))
+    f = AnchoredVQF(AnchorConfig().learned_off, float(np.median(np.diff(t[:52]))))
+    q = []
+    for a in range(0, len(t), 4):  # a window every 4 samples
+        q.append(f.update(t[a : a + 4], gyr[a : a + 4], acc[a : a + 4])[0])
+        f.correct(fast)
+        assert f.gate_parts == (0.0, 0.0, 0.0) and f.gate == 1.0  # the gate reads the speed, nothing acts on it
+    np.testing.assert_array_equal(np.concatenate(q), _vqf_reference(rec))
+    on = AnchoredVQF(dataclasses.replace(AnchorConfig(), pull_gain=0.0, centripetal=False), f.ts)
+    on.update(t[:4], gyr[:4], acc[:4])
+    on.correct(fast)
+    assert on.gate_parts[0] == 1.0 and on.tau_acc == AnchorConfig().tau_acc_flight_s  # the time constant acts
+
+
+@pytest.mark.slow
+def test_evaluate_keeps_per_record_where_the_network_gates_acted_and_sums_them_up_in_one_note(tmp_path):
+    import json
+
+    from tepinn_flight.cli.main import main
+    from tepinn_flight.record import write_record
+
+    plain = synthetic_record(seed=3, duration_s=30.0, rate_hz=100.0)
+    write_record(plain, tmp_path / "plain.parquet")
+    write_record(_with_clipped(plain, 12.0, 12.3), tmp_path / "clipped.parquet")
+    out = tmp_path / "rep"
+    assert main(["evaluate", str(tmp_path / "plain.parquet"), str(tmp_path / "clipped.parquet"), "-o", str(out), "--no-peers", "-q"]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    by_name = {r["name"]: r for r in m["records"]}
+    clipped = next(r for n, r in by_name.items() if "clipped" in n)["network_gates"]["tepinn"]
+    shut = next(r for n, r in by_name.items() if "plain" in n)["network_gates"]["tepinn"]
+    assert "gyro saturation" in clipped and clipped.endswith("; applied") and shut.endswith("; not applied")
+    acted = [n for n in m["notes"] if "network gates acted" in n]
+    assert len(acted) == 1 and "on 1 of 2 record(s)" in acted[0] and "clipped" in acted[0] and "plain" not in acted[0]
+    assert acted[0] in (out / "report.md").read_text()

@@ -181,10 +181,20 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
             found = {name: df.attrs[step] for name, (df, _) in rr.items() if df.attrs.get(step)}
             if found:
                 res[step] = found
-                notes.extend(f"{names[i]}: {display_name(name)}: {line}" for name, line in found.items() if line.endswith("; applied"))
+                if step != "network_gates":  # one line per record would crowd the notes: summed up below
+                    notes.extend(f"{names[i]}: {display_name(name)}: {line}" for name, line in found.items()
+                                 if line.endswith("; applied"))  # fmt: skip
         rec_results.append(res)
         if keep_series:
             series.append(ser)
+    gated = {}  # estimator -> the records where its network gates acted
+    for r in rec_results:
+        for name, line in r.get("network_gates", {}).items():
+            if line.endswith("; applied"):
+                gated.setdefault(name, []).append(f"{r['name']} ({line.split('(', 1)[1].split(')')[0]})")
+    for name, recs in gated.items():
+        notes.append(f"{display_name(name)}: network gates acted on {len(recs)} of {len(rec_results)} record(s), elsewhere "
+                     f"the attitude is VQF's: {'; '.join(recs[:5])}{'; ...' if len(recs) > 5 else ''}")  # fmt: skip
     headline = [r for r in rec_results if r["estimation_ok"]]
     slow = [r["name"] for r in rec_results if not r["estimation_ok"]]
     if slow and headline:

@@ -257,7 +257,7 @@ class AnchorConfig:
         """The same filter with every learned correction switched off: plain VQF."""
         import dataclasses
 
-        return dataclasses.replace(self, pull_gain=0.0, centripetal=False, bias_gate_weight=0.0,
+        return dataclasses.replace(self, pull_gain=0.0, centripetal=False, tau_acc_flight_s=0.0, bias_gate_weight=0.0,
                                    bias_deadzone_deg_s=1e9, sigma_net_scale=0.0, gyro_scale=(1.0, 1.0, 1.0),
                                    gyro_selfcal=False, gnss_aid=False, smoother=False,
                                    accel_scale_selfcal=False, rest_relevel_s=0.0)  # fmt: skip
@@ -349,6 +349,7 @@ class AnchoredVQF:
         self.rest_acc2 = float(c.rest_acc_m_s2) ** 2
         self.t = 0.0
         self.gate = 0.0
+        self.gate_parts = (0.0, 0.0, 0.0)  # the last window's flight-speed, saturation and bias gates
         self.sigma_net = 0.0
         self.e_acc = 0.0  # low-passed accelerometer-vs-gravity angle (rad)
         self.sigma_alpha = min(1.0, self.ts / c.sigma_acc_tau_s)  # its low-pass gain per sample
@@ -516,6 +517,10 @@ class AnchoredVQF:
                 self.bias_latched |= over and self.t - self.t_bias_over >= BIAS_EVIDENCE_S
         g_bias = c.bias_gate_weight if self.bias_latched else 0.0
         self.gate = max(g_flight, g_clip, g_bias)
+        # what each gate did to the attitude (reported per record): none where nothing it drives is on
+        pulls = c.pull_gain > 0
+        self.gate_parts = (g_flight if pulls or c.centripetal or c.tau_acc_flight_s > 0 else 0.0, g_clip if pulls else 0.0,
+                           g_bias)  # fmt: skip
         if c.tau_acc_flight_s > 0:
             tau = c.tau_acc_flight_s if g_flight > 0.5 else c.tau_acc_s
             if tau != self.tau_acc:

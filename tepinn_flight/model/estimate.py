@@ -37,8 +37,11 @@ EST_BIAS_COLS = ["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z
 #: result's ``attrs`` under this key, ending with "; applied" where it changed the estimate
 OFFLINE_STEPS = ("accel_scale_selfcal", "gyro_selfcal", "gnss_aid", "smoother")
 #: what an anchored estimate reports in its ``attrs`` (one line each; ``estimate`` prints and stores them,
-#: ``evaluate`` keeps them per record): the offline steps and the re-levelling at rest after a saturation
-REPORTED_STEPS = (*OFFLINE_STEPS, "rest_relevel")
+#: ``evaluate`` keeps them per record): the offline steps, the re-levelling at rest after a saturation and
+#: where the network's gates acted (elsewhere the estimate is VQF's on the inputs the steps gave it)
+REPORTED_STEPS = (*OFFLINE_STEPS, "rest_relevel", "network_gates")
+#: the anchored filter's gates, in :attr:`.anchor.AnchoredVQF.gate_parts`' order, as a user reads them
+GATE_NAMES = ("flight speed", "gyro saturation", "uncalibrated gyro")
 
 
 def network_on_windows(model: TEPINN, tok, ends: np.ndarray, gyr_offset: np.ndarray | None = None,
@@ -314,13 +317,14 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     t, gyr, acc, mag = rec.t_s, *(np.ascontiguousarray(x) for x in (rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut))
     cols = (t, gyr, acc, mag, rec.gyr_clipped)  # read from the frame once (each property access copies); the
     # saturation gate opens on the gyro's clipping alone
-    q_out, s_out, b_out, gate, relevel_t = _anchored_pass(anchor, rec.segment, cols, idx, out, use_mag)
+    q_out, s_out, b_out, gate, relevel_t, gates_open = _anchored_pass(anchor, rec.segment, cols, idx, out, use_mag)
     aid = None
     if anchor.gnss_aid:
         aid, acc_aided, out_aided = gnss_aided_acc(rec, q_out, anchor, idx, out, cols, use_mag)
         if acc_aided is not None:
             cols = (t, gyr, acc_aided, mag, cols[4])
-            q_out, s_out, b_out, gate, relevel_t = _anchored_pass(anchor, rec.segment, cols, idx, out_aided, use_mag)
+            q_out, s_out, b_out, gate, relevel_t, gates_open = _anchored_pass(anchor, rec.segment, cols, idx, out_aided,
+                                                                              use_mag)  # fmt: skip
     done = None
     if anchor.smoother:
         q_out, s_out, done = smooth(t, q_out, s_out, gate, rec.segment, smoother or SmootherConfig(),
@@ -331,7 +335,29 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
             df.attrs[key] = found.describe()
     if relevel_t:
         df.attrs["rest_relevel"] = describe_relevels(relevel_t)
+    steps = np.zeros(len(t))
+    for sl in segment_slices(rec.segment):
+        steps[sl] = _sample_steps(t[sl])
+    df.attrs["network_gates"] = describe_gates(gates_open, float(steps[gate > 0].sum()), float(steps.sum()))
     return df
+
+
+def describe_gates(gates_open: dict, open_s: float, span_s: float) -> str:
+    """One line for a user: how long each of the network's gates was open (``{name: (seconds, first
+    time)}``, :func:`_anchored_pass`), any of them ``open_s`` of the record's ``span_s`` seconds; where
+    none was, the estimate is VQF's (on the inputs the offline steps gave it)."""
+    acted = {k: v for k, v in gates_open.items() if v[0] > 0}
+    if not acted:
+        return "network gates: shut throughout (the attitude is VQF's); not applied"
+    parts = ", ".join(f"{k} {s:.1f} s from t = {t0:.1f} s" for k, (s, t0) in acted.items())
+    share = f"{100 * open_s / span_s:.1f} % of the record" if span_s > 0 else "the record"
+    return f"network gates open on {share} ({parts}); applied"
+
+
+def _sample_steps(t: np.ndarray) -> np.ndarray:
+    """(n,) each sample's time until the next one of its segment ``t`` (the last one's: the median step)."""
+    dt = np.diff(t)
+    return np.r_[dt, np.median(dt) if dt.size else 0.0]
 
 
 def describe_relevels(times_s: list[float]) -> str:
@@ -358,8 +384,9 @@ def offline_vqf(anchor: AnchorConfig, t_s, gyr_b, acc_b) -> np.ndarray:
 def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
     """One run of the anchored filter over every segment with the network's windows ``(idx, out)``
     applied at their last samples → (q_nb, sigma, bias, gate) per sample and the times the tilt was
-    re-levelled at rest (:attr:`.anchor.AnchoredVQF.relevel_t`); the gate (the largest of the filter's
-    gates, 0 where the estimate is VQF's) is each window's from the sample after it."""
+    re-levelled at rest (:attr:`.anchor.AnchoredVQF.relevel_t`) and, per gate (:data:`GATE_NAMES`), the
+    seconds it was open and when it first opened (``{name: (s, t)}``); the gate (the largest of the
+    filter's gates, 0 where the estimate is VQF's) is each window's from the sample after it."""
     t = cols[0]
     q_pull = out.get("q_target", out["q"])
     b_fus = out.get("bias_target")
@@ -371,12 +398,13 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
     b_out = np.full((n, 3), np.nan)
     gate = np.zeros(n)
     relevel_t = []
+    open_s, first_t = np.zeros(len(GATE_NAMES)), np.full(len(GATE_NAMES), np.inf)
     for sl in segment_slices(seg):
         a, b = sl.start, sl.stop
         dt = np.diff(t[a : min(b, a + TS_STEPS + 1)])  # as the live estimator: its first steps
         flt = AnchoredVQF(anchor, float(np.median(dt)) if dt.size else 0.01, use_mag)
         cur = a
-        starts, gates = [], []  # each window's gate holds from the sample after it to the next one's
+        starts, gates, parts = [], [], []  # each window's gate holds from the sample after it to the next one's
         for j in np.flatnonzero((idx >= a) & (idx < b)):
             i = int(idx[j]) + 1
             if i > cur:
@@ -386,12 +414,31 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
                                      None if b_fus is None else b_fus[j], bool(aided[j]), bool(fast[j])))  # fmt: skip
             starts.append(i)
             gates.append(flt.gate)
+            parts.append(flt.gate_parts)
         if cur < b:
             _put(flt, cols, cur, b, q_out, s_out, b_out, use_mag)
         if starts:  # filled once at the end (per window up to the segment's end was quadratic in its length)
             gate[a:b] = _piecewise(np.asarray(starts) - a, np.asarray(gates, np.float64), b - a)
+            _add_open_time(t[a:b], np.asarray(starts) - a, np.asarray(parts, np.float64) > 0, open_s, first_t)
         relevel_t += flt.relevel_t
-    return q_out, s_out, b_out, gate, relevel_t
+    gates_open = {name: (float(s), float(t0)) for name, s, t0 in zip(GATE_NAMES, open_s, first_t)}
+    return q_out, s_out, b_out, gate, relevel_t, gates_open
+
+
+def _add_open_time(t: np.ndarray, starts: np.ndarray, is_open: np.ndarray, open_s: np.ndarray, first_t: np.ndarray) -> None:
+    """Add to ``open_s`` (per gate) the time the windows of one segment held each gate open — window k's
+    gates hold from its sample ``starts[k]`` to the next window's (the segment's end after the last; the
+    samples' own spacing, the last sample's taken as the median) — and lower ``first_t`` to when each opened."""
+    n = len(t)
+    cum = np.r_[0.0, np.cumsum(_sample_steps(t))]
+    s0 = np.minimum(starts, n)
+    s1 = np.r_[s0[1:], n]
+    held = cum[s1] - cum[s0]  # (W,) seconds each window's gates hold
+    open_s += held @ is_open
+    for g in range(is_open.shape[1]):
+        k = np.flatnonzero(is_open[:, g] & (s1 > s0))  # a window whose successor starts at the same sample never held
+        if k.size:
+            first_t[g] = min(first_t[g], float(t[s0[k[0]]]))
 
 
 def _piecewise(starts: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
