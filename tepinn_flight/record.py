@@ -58,6 +58,8 @@ OPTIONAL_COLUMNS = ["valid", "gyr_clipped", *GYR_BIAS_COLS, *ACC_BIAS_COLS, *GNS
 _DTYPES = {"t_s": "float64", "segment": "int32", "clipped": "bool", "valid": "bool", "gyr_clipped": "bool"}
 
 SOURCE_KINDS = ("tlog", "dataflash", "ulog", "broad", "jsbsim", "synthetic")
+#: the kinds whose reference is a simulator's truth; the others are real recordings
+SIMULATED_KINDS = ("jsbsim", "synthetic")
 
 #: Below this IMU rate windowed estimation is not meaningful; records are still written.
 MIN_ESTIMATION_RATE_HZ = 20.0

@@ -703,3 +703,14 @@ def test_evaluate_keeps_per_record_where_the_network_gates_acted_and_sums_them_u
     acted = [n for n in m["notes"] if "network gates acted" in n]
     assert len(acted) == 1 and "on 1 of 2 record(s)" in acted[0] and "clipped" in acted[0] and "plain" not in acted[0]
     assert acted[0] in (out / "report.md").read_text()
+
+
+def test_the_gates_over_several_records_name_those_where_one_acted():
+    from tepinn_flight.model.estimate import describe_gates, gates_acted
+
+    shut = describe_gates({"flight speed": (0.0, np.inf)}, 0.0, 60.0)
+    acted = describe_gates({"flight speed": (0.5, 105.5), "gyro saturation": (0.0, np.inf)}, 0.5, 250.0)
+    assert acted == "network gates open on 0.2 % of the record (flight speed 0.5 s from t = 105.5 s); applied"
+    assert gates_acted({"a": shut, "b": shut}) == "network gates shut on all 2 record(s) (the attitude is VQF's)"
+    assert gates_acted({"a": shut, "b": acted}) == ("network gates acted on 1 of 2 record(s), elsewhere the attitude is "
+                                                    "VQF's: b (flight speed 0.5 s from t = 105.5 s)")  # fmt: skip

@@ -70,6 +70,13 @@ def test_finetuning_on_a_vehicles_logs_improves_a_held_out_log_of_it(tmp_path):
     assert np.mean(in3) == pytest.approx(summary["train_sigma_within_3sigma"], abs=0.005)
     for k in ("val_sigma_nees_before", "val_sigma_nees_after", "val_sigma_within_3sigma_before", "val_sigma_within_3sigma_after"):
         assert np.isfinite(summary[k]), k
+    # where the fine-tuned network's gates act on the validation file: what `estimate` with it says there
+    from tepinn_flight.model.estimate import gates_acted
+
+    (vf,) = summary["val_files"]
+    line = estimate_record(m1, read_record(vf), e1).attrs["network_gates"]
+    assert list(summary["val_network_gates"].values()) == [line]
+    assert summary["val_network_gates_summary"] == gates_acted(summary["val_network_gates"])
     # and `estimate --model RUN/model.pt` works on it
     out = tmp_path / "est.parquet"
     assert main(["estimate", str(held), "--model", str(run / "model.pt"), "-o", str(out), "-q"]) == 0

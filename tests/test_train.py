@@ -664,3 +664,27 @@ def test_heldout_split_files_are_never_training_data(tmp_path, capsys):
         cfg = tomllib.loads((REPO / "train" / recipe).read_text())
         held = tomllib.loads((REPO / "train" / cfg["data"]["heldout_split"]).read_text())["heldout"]
         assert held["real_logs"]
+
+
+@pytest.mark.slow
+def test_training_says_where_the_network_gates_act_on_its_real_validation_files(tmp_path):
+    """A network out of its domain can open a gate on real motion (session 24): at the end of training the
+    estimator is run on the real validation files (not the simulated ones) and says where its gates acted —
+    what `estimate` with the written model says of the same file."""
+    from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.model.estimate import estimate_anchored, gates_acted
+    from tepinn_flight.model.train import train
+    from tepinn_flight.model.train_config import load_train_config
+
+    repo = Path(__file__).resolve().parents[1]
+    tlog = repo / "logs" / "sample_f450_flips.tlog"
+    cfg = load_train_config(TINY, ["optim.epochs=1", "optim.steps_per_epoch=3", "data.synthetic_flights=2",
+                                   "data.val_fraction=0.5", f'data.optional_records=["{tlog}"]'])  # fmt: skip
+    said = []
+    res = train(cfg, tmp_path / "run", progress=False, log=said.append)
+    val = json.loads((tmp_path / "run" / "config.json").read_text())
+    lines = res.get("real_val_network_gates")
+    assert lines is not None and list(lines) == ["sample_f450_flips.tlog"], (lines, val)
+    model, anchor, _ = load_model(tmp_path / "run" / "model.pt")
+    assert lines["sample_f450_flips.tlog"] == estimate_anchored(model, ingest_log(tlog), anchor).attrs["network_gates"]
+    assert said[-1] == f"on the real validation files: {gates_acted(lines)}"

@@ -70,7 +70,7 @@ def run(args) -> int:
               f"{'on' if s['sigma_sampling_gain'] else 'off'}: "
               f"validation NEES {s['val_sigma_nees_before']:.2f} -> {s['val_sigma_nees_after']:.2f}, within 3σ "
               f"{100 * s['val_sigma_within_3sigma_before']:.1f} -> {100 * s['val_sigma_within_3sigma_after']:.1f} %); "
-              f"model: {out / 'model.pt'}")  # fmt: skip
+              f"on the validation files {s['val_network_gates_summary']}; model: {out / 'model.pt'}")  # fmt: skip
         return 0
     cfg = load_train_config(args.config, args.set)
     if args.init:

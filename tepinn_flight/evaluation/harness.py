@@ -33,14 +33,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ConfigError, TepinnError
-from ..model.estimate import REPORTED_STEPS
-from ..record import GYR_BIAS_COLS, FlightRecord, estimation_ok, segment_slices
+from ..model.estimate import REPORTED_STEPS, gates_acted
+from ..record import GYR_BIAS_COLS, SIMULATED_KINDS, FlightRecord, estimation_ok, segment_slices
 from ..record_gaps import bridge_gaps
 from . import metrics as M
 from .estimators import EST_BIAS_COLS, EST_Q_COLS
 from .names import display_name
-
-SIMULATED_KINDS = ("jsbsim", "synthetic")
 
 
 @dataclass(frozen=True)
@@ -187,14 +185,10 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
         rec_results.append(res)
         if keep_series:
             series.append(ser)
-    gated = {}  # estimator -> the records where its network gates acted
-    for r in rec_results:
-        for name, line in r.get("network_gates", {}).items():
-            if line.endswith("; applied"):
-                gated.setdefault(name, []).append(f"{r['name']} ({line.split('(', 1)[1].split(')')[0]})")
-    for name, recs in gated.items():
-        notes.append(f"{display_name(name)}: network gates acted on {len(recs)} of {len(rec_results)} record(s), elsewhere "
-                     f"the attitude is VQF's: {'; '.join(recs[:5])}{'; ...' if len(recs) > 5 else ''}")  # fmt: skip
+    for name in dict.fromkeys(n for r in rec_results for n in r.get("network_gates", {})):  # each anchored TE-PINN
+        lines = {r["name"]: r.get("network_gates", {}).get(name, "") for r in rec_results}
+        if any(v.endswith("; applied") for v in lines.values()):
+            notes.append(f"{display_name(name)}: {gates_acted(lines)}")
     headline = [r for r in rec_results if r["estimation_ok"]]
     slow = [r["name"] for r in rec_results if not r["estimation_ok"]]
     if slow and headline:

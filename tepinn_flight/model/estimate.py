@@ -354,6 +354,15 @@ def describe_gates(gates_open: dict, open_s: float, span_s: float) -> str:
     return f"network gates open on {share} ({parts}); applied"
 
 
+def gates_acted(lines: dict) -> str:
+    """One line over several records (``{record name: its network_gates line}``): where the gates acted."""
+    acted = [f"{k} ({v.split('(', 1)[1].rsplit(')', 1)[0]})" for k, v in lines.items() if v.endswith("; applied")]
+    if not acted:
+        return f"network gates shut on all {len(lines)} record(s) (the attitude is VQF's)"
+    return (f"network gates acted on {len(acted)} of {len(lines)} record(s), elsewhere the attitude is VQF's: "
+            f"{'; '.join(acted[:5])}{'; ...' if len(acted) > 5 else ''}")
+
+
 def _sample_steps(t: np.ndarray) -> np.ndarray:
     """(n,) each sample's time until the next one of its segment ``t`` (the last one's: the median step)."""
     dt = np.diff(t)

@@ -167,6 +167,7 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     from .checkpoint import default_model_path, fusion_config_from, load_model, save_checkpoint
     from .anchor import AnchorConfig
     from .train import train
+    from .estimate import gates_acted
     from .train_data import split_by_flight
 
     init_path = default_model_path() if init == "default" else Path(init)
@@ -189,7 +190,7 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
         raise ConfigError("none of the --data logs can be learned from (each needs an IMU of >= 20 Hz and a reference attitude)")
     cfg = dataclasses.replace(finetune_config(model0.config, paths, minutes, seed), init=str(init_path))
     out = Path(out_dir)
-    result = train(cfg, out, progress=progress)
+    result = train(cfg, out, progress=progress, report_gates=False)  # reported below, after the tuning
     tr, va = split_by_flight(len(recs), cfg.data.val_fraction, seed)
     val = [recs[i] for i in va] or [recs[i] for i in tr]
     model1, _, ck = load_model(out / "model.pt")
@@ -199,7 +200,10 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
                     **{k: v for k, v in ck.items() if k not in ("format", "version", "model_config", "fusion_config",
                                                                  "anchor_config", "state_dict", "conventions")})  # fmt: skip
     before = [inclination_rmse_deg(r, _est(model0, est0, r)) for r in val]
-    after = [inclination_rmse_deg(r, _est(model1, anchor, r)) for r in val]
+    ests = [_est(model1, anchor, r) for r in val]
+    after = [inclination_rmse_deg(r, e) for r, e in zip(val, ests)]
+    # where the fine-tuned network's gates act on the validation files (a network out of its domain can open one)
+    gates = {str(r.meta.get("source_file", i)): e.attrs.get("network_gates", "") for i, (r, e) in enumerate(zip(val, ests))}
     (nees0, in3_0), (nees1, in3_1) = sigma_scores(model0, est0, val), sigma_scores(model1, anchor, val)
     summary = {
         "init": str(init_path), "files": paths, "train_files": [paths[i] for i in tr], "val_files": [paths[i] for i in va],
@@ -211,6 +215,7 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
         "train_sigma_nees": sfit.nees, "train_sigma_within_3sigma": sfit.coverage_3sigma,
         "val_sigma_nees_before": nees0, "val_sigma_nees_after": nees1,
         "val_sigma_within_3sigma_before": in3_0, "val_sigma_within_3sigma_after": in3_1,
+        "val_network_gates": gates, "val_network_gates_summary": gates_acted(gates),
         "validation_note": "" if va else "one file only: the figures are on the file it was tuned on",
         **{k: v for k, v in result.items() if isinstance(v, (int, float, str))},
     }  # fmt: skip

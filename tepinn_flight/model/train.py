@@ -201,7 +201,8 @@ def resolve_device(name: str = "cpu") -> torch.device:
 
 
 def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bool = False,
-          config_base: Path = Path("."), progress: bool = True, log=print, device: str = "cpu") -> dict:  # fmt: skip
+          config_base: Path = Path("."), progress: bool = True, log=print, device: str = "cpu",
+          report_gates: bool = True) -> dict:  # fmt: skip
     """Train and write ``out_dir/{last.pt,best.pt,model.pt,metrics.jsonl,config.json}``.
 
     ``device``: ``cpu`` (bitwise deterministic for a seed), ``cuda`` or ``auto``. Under DDP on
@@ -209,7 +210,9 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
 
     Refuses a folder that already holds a run (``last.pt``) unless ``resume``. Returns the best
     validation tilt RMSE, the number of epochs done and why the run stopped (``stop_reason``:
-    ``epochs``, ``early_stop`` or ``time_limit``) plus the fusion calibration metrics.
+    ``epochs``, ``early_stop`` or ``time_limit``) plus the fusion calibration metrics and, with
+    ``report_gates`` and real validation files, where the trained estimator's network gates act on
+    them (``real_val_network_gates``; a network out of its domain can open one, session 24).
     """
     rank, world = dist_info()
     dev = resolve_device(device)
@@ -225,7 +228,7 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
         torch.distributed.init_process_group("cpu:gloo,cuda:nccl" if dev.type == "cuda" else "gloo")
     created = not out.exists()
     try:
-        return _train(cfg, out, data_dirs, resume, config_base, progress, log, rank, world, dev)
+        return _train(cfg, out, data_dirs, resume, config_base, progress, log, rank, world, dev, report_gates)
     except TepinnError:
         # bad input found before the first checkpoint: leave no half-made run folder behind (one
         # this invocation created and that holds nothing but its config and empty metrics)
@@ -289,7 +292,7 @@ def _on(batch: dict, dev: torch.device) -> dict:
 
 
 def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Path, progress: bool, log,
-           rank: int, world: int, dev: torch.device = torch.device("cpu")) -> dict:  # fmt: skip
+           rank: int, world: int, dev: torch.device = torch.device("cpu"), report_gates: bool = True) -> dict:  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
@@ -490,6 +493,17 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
         result.update(fus_metrics)
         fused = f", fused {fus_metrics['fusion_val_tilt_rmse_mean_deg']:.3f}° (mean over validation flights)" if fus_metrics else ""
         log(f"best validation tilt RMSE {best_val:.3f}° (window){fused}; model: {out / 'model.pt'}")
+        from ..record import SIMULATED_KINDS
+
+        real_val = [r for r in val_recs if r.meta.get("source_kind") not in SIMULATED_KINDS]
+        if report_gates and real_val and anchor is not None:
+            from .estimate import estimate_anchored, gates_acted
+
+            m1, a1, _ = load_model(out / "model.pt")
+            lines = {str(r.meta.get("source_file", i)): estimate_anchored(m1, r, a1).attrs.get("network_gates", "")
+                     for i, r in enumerate(real_val)}  # fmt: skip
+            result["real_val_network_gates"] = lines
+            log(f"on the real validation files: {gates_acted(lines)}")
     if world > 1:
         torch.distributed.barrier()
     return result
