@@ -660,7 +660,7 @@ def test_the_estimate_says_which_network_gate_acted_and_where():
     assert 12.1 <= t0 <= 12.1 + 0.05  # a window every token (25 Hz) after 0.1 s of clipped samples
     assert 0.0 < secs <= 0.2 + cfg.clip_hold_s + 0.05
     off = estimate_anchored(model, rec, cfg.learned_off).attrs["network_gates"]
-    assert off == "network gates: shut throughout (the attitude is VQF's); not applied"
+    assert off == "network gates: shut throughout (the network corrected nothing); not applied"
 
 
 def test_with_every_learned_correction_off_a_flight_speed_window_leaves_it_vqf():
@@ -711,6 +711,6 @@ def test_the_gates_over_several_records_name_those_where_one_acted():
     shut = describe_gates({"flight speed": (0.0, np.inf)}, 0.0, 60.0)
     acted = describe_gates({"flight speed": (0.5, 105.5), "gyro saturation": (0.0, np.inf)}, 0.5, 250.0)
     assert acted == "network gates open on 0.2 % of the record (flight speed 0.5 s from t = 105.5 s); applied"
-    assert gates_acted({"a": shut, "b": shut}) == "network gates shut on all 2 record(s) (the attitude is VQF's)"
-    assert gates_acted({"a": shut, "b": acted}) == ("network gates acted on 1 of 2 record(s), elsewhere the attitude is "
-                                                    "VQF's: b (flight speed 0.5 s from t = 105.5 s)")  # fmt: skip
+    assert gates_acted({"a": shut, "b": shut}) == "network gates shut on all 2 record(s) (the network corrected nothing)"
+    assert gates_acted({"a": shut, "b": acted}) == ("network gates acted on 1 of 2 record(s), elsewhere the network corrected "
+                                                    "nothing: b (flight speed 0.5 s from t = 105.5 s)")  # fmt: skip

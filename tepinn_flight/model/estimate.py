@@ -348,7 +348,7 @@ def describe_gates(gates_open: dict, open_s: float, span_s: float) -> str:
     none was, the estimate is VQF's (on the inputs the offline steps gave it)."""
     acted = {k: v for k, v in gates_open.items() if v[0] > 0}
     if not acted:
-        return "network gates: shut throughout (the attitude is VQF's); not applied"
+        return "network gates: shut throughout (the network corrected nothing); not applied"
     parts = ", ".join(f"{k} {s:.1f} s from t = {t0:.1f} s" for k, (s, t0) in acted.items())
     share = f"{100 * open_s / span_s:.1f} % of the record" if span_s > 0 else "the record"
     return f"network gates open on {share} ({parts}); applied"
@@ -358,8 +358,8 @@ def gates_acted(lines: dict) -> str:
     """One line over several records (``{record name: its network_gates line}``): where the gates acted."""
     acted = [f"{k} ({v.split('(', 1)[1].rsplit(')', 1)[0]})" for k, v in lines.items() if v.endswith("; applied")]
     if not acted:
-        return f"network gates shut on all {len(lines)} record(s) (the attitude is VQF's)"
-    return (f"network gates acted on {len(acted)} of {len(lines)} record(s), elsewhere the attitude is VQF's: "
+        return f"network gates shut on all {len(lines)} record(s) (the network corrected nothing)"
+    return (f"network gates acted on {len(acted)} of {len(lines)} record(s), elsewhere the network corrected nothing: "
             f"{'; '.join(acted[:5])}{'; ...' if len(acted) > 5 else ''}")
 
 
