@@ -156,7 +156,7 @@ def _run(args) -> int:
             sys.stderr.write(f"tepinn-flight estimate: error: {exc if exc.path else f'{src}: {exc}'}\n")
             continue
         table = pa.Table.from_pandas(df, preserve_index=False)
-        # what the record's own gyro calibration and GNSS velocity gave (offline)
+        # what the record's own calibration, GNSS velocity and rests gave, and where the network's gates acted
         found = {k: df.attrs[k] for k in REPORTED_STEPS if df.attrs.get(k)}
         table = table.replace_schema_metadata({b"source_record": str(src.name).encode(), b"model": str(ckpt_path.name).encode(),
                                                **{k.encode(): v.encode() for k, v in found.items()}})  # fmt: skip

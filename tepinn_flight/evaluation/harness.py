@@ -175,7 +175,7 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
         res["estimation_ok"] = estimation_ok(m)
         res["imu_rate_hz"] = m.get("imu_rate_hz")
         res["reference_source"] = m.get("reference_source", "none")
-        for step in REPORTED_STEPS:  # what the record's own gyro calibration, GNSS velocity and rests gave each anchored TE-PINN
+        for step in REPORTED_STEPS:  # each anchored TE-PINN's REPORTED_STEPS lines
             found = {name: df.attrs[step] for name, (df, _) in rr.items() if df.attrs.get(step)}
             if found:
                 res[step] = found
