@@ -11,9 +11,11 @@ TE-PINN's gyro self-calibration applied (with what it read), the mean per kind,
 ratios to VQF side by side, the per-file check of the issue (TE-PINN ≤ max(1.5× VQF, VQF + 0.5°)),
 and TE-PINN's σ calibration by kind (mean NEES, share within 3σ, per file averaged; the target is
 set for the real files — the simulated line shows σ in sustained manoeuvres).
-`--smooth` adds TE-PINN with the opt-in offline tilt smoothing (`estimate --smooth`) as its own column.
+TE-PINN is the model as it ships: offline, its tilt smoothed where no gate acts (session 25).
+`--no-smooth` adds it without the smoothing (`estimate --no-smooth`, the live bridge's tilt) as its own
+column; `--smooth` adds the smoothing to a `--model` written before session 25 (which does not smooth).
 
-    python benchmarks/real_vs_peers.py [--shared ../shared] [--sim-every 4] [--model CKPT] [--lstm CKPT] [--smooth]
+    python benchmarks/real_vs_peers.py [--shared ../shared] [--sim-every 4] [--model CKPT] [--lstm CKPT] [--no-smooth] [--smooth]
 """
 
 from __future__ import annotations
@@ -36,7 +38,10 @@ def main() -> int:
     ap.add_argument("--sim-every", type=int, default=4, help="every N-th held-out flight (0: none)")
     ap.add_argument("--model", default=None, help="TE-PINN checkpoint (default: shipped)")
     ap.add_argument("--lstm", default=None, help="LSTM baseline checkpoint (default: shipped)")
-    ap.add_argument("--smooth", action="store_true", help="add TE-PINN with the offline tilt smoothing (estimate --smooth)")
+    ap.add_argument("--smooth", action="store_true",
+                    help="add TE-PINN with the offline tilt smoothing, for a --model that does not smooth (written before session 25)")
+    ap.add_argument("--no-smooth", action="store_true",
+                    help="add TE-PINN without the offline tilt smoothing (estimate --no-smooth: the live bridge's tilt)")
     args = ap.parse_args()
 
     import torch
@@ -77,29 +82,32 @@ def main() -> int:
 
     ests = [TepinnEstimator.from_checkpoint(args.model or default_model_path(), "tepinn"), VqfEstimator(),
             TepinnEstimator.from_checkpoint(args.lstm or default_lstm_path(), "lstm"), FilterEstimator(Ekf(), name="ekf")]  # fmt: skip
-    if args.smooth:
+    if args.smooth and not getattr(ests[0].fusion, "smoother", True):
         ests.insert(1, ests[0].smoothed())
+    if args.no_smooth and ests[0].unsmoothed() is not None:
+        ests.insert(1, ests[0].unsmoothed())
     names = [e.name for e in ests]
     rows = []
     t0 = time.perf_counter()
     for kind, grp, name, rec, held in files:
         rows.append({"kind": kind, "group": grp, "name": name, "held": held, **score_file(ests, rec)})
     print(f"\n{len(files)} files, {time.perf_counter() - t0:.0f} s; inclination RMSE (deg), 5 s warm-up\n")
-    head = f"{'kind':<10} {'group':<26} {'file':<44} {'split':<9}" + "".join(f"{display_name(n):>9}" for n in names)
+    label = {n: {"tepinn-nosmooth": "TP no-smooth", "tepinn-smooth": "TP smoothed"}.get(n, display_name(n)) for n in names}
+    width = {n: max(9, len(label[n]) + 1) for n in names}
+    head = f"{'kind':<10} {'group':<26} {'file':<44} {'split':<9}" + "".join(f"{label[n]:>{width[n]}}" for n in names)
     print(head + f"{'TP/VQF':>8}  per-file check")
     for r in rows:
         ok = r["tepinn"] <= max(1.5 * r["vqf"], r["vqf"] + 0.5)
         print(f"{r['kind']:<10} {r['group'][:26]:<26} {r['name'][:44]:<44} {'held-out' if r['held'] else 'seen':<9}"
-              + "".join(f"{r[n]:>9.2f}" for n in names) + f"{r['tepinn'] / r['vqf']:>8.2f}  {'ok' if ok else 'FAIL'}")
+              + "".join(f"{r[n]:>{width[n]}.2f}" for n in names) + f"{r['tepinn'] / r['vqf']:>8.2f}  {'ok' if ok else 'FAIL'}")
     applied = [r for r in rows if "selfcal" in r]
     print(f"\nTE-PINN's gyro self-calibration applied on {len(applied)} of {len(rows)} files"
           + "".join(f"\n  {r['name'][:44]}: {r['selfcal']}" for r in applied))
     aided = [r for r in rows if "gnss" in r]
     print(f"TE-PINN's GNSS-aided tilt applied on {len(aided)} of {len(rows)} files"
           + "".join(f"\n  {r['name'][:44]}: {r['gnss']}" for r in aided))
-    if args.smooth:
-        sm = [r for r in rows if "smooth" in r]
-        print(f"TE-PINN --smooth: offline tilt smoothing applied on {len(sm)} of {len(rows)} files")
+    sm = [r for r in rows if "smooth" in r]
+    print(f"TE-PINN's offline tilt smoothing applied on {len(sm)} of {len(rows)} files")
     print()
     for kind in ("drone log", "BROAD", "simulated"):
         for held in (True, False):
@@ -112,10 +120,10 @@ def main() -> int:
                 f" {display_name(n)} {means[n]:.2f}" for n in names)
             print(line + f" | TE-PINN/VQF {means['tepinn'] / means['vqf']:.3f}, /LSTM {means['tepinn'] / means['lstm']:.3f}"
                          f", /EKF {means['tepinn'] / means['ekf']:.3f}; files failing the per-file check: {fails}")  # fmt: skip
-            if "tepinn-smooth" in names:
-                print(f"{'':<10} TE-PINN --smooth/VQF {means['tepinn-smooth'] / means['vqf']:.3f}, /LSTM "
-                      f"{means['tepinn-smooth'] / means['lstm']:.3f}; files failing the per-file check: "
-                      f"{sum(r['tepinn-smooth'] > max(1.5 * r['vqf'], r['vqf'] + 0.5) for r in sel)}")
+            for other in (n for n in names if n in ("tepinn-smooth", "tepinn-nosmooth")):
+                print(f"{'':<10} {display_name(other)}/VQF {means[other] / means['vqf']:.3f}, /LSTM "
+                      f"{means[other] / means['lstm']:.3f}; files failing the per-file check: "
+                      f"{sum(r[other] > max(1.5 * r['vqf'], r['vqf'] + 0.5) for r in sel)}")
             for n in [n for n in names if n.startswith("tepinn")]:
                 nees = [r[f"nees:{n}"] for r in sel if np.isfinite(r.get(f"nees:{n}", np.nan))]
                 if nees:
@@ -149,7 +157,7 @@ def score_file(ests, rec) -> dict:
         if e.name.startswith("tepinn") and "sigma_rad" in df:  # σ on every kind (the issue's target: real)
             u = uncertainty_metrics(tilt_error_vector_rad(qe), df["sigma_rad"].to_numpy()[mm])
             r[f"nees:{e.name}"], r[f"in3:{e.name}"] = u["nees"], u["coverage_3sigma"]
-        if e.name == "tepinn-smooth" and str(df.attrs.get("smoother", "")).endswith("; applied"):
+        if e.name in ("tepinn", "tepinn-smooth") and str(df.attrs.get("smoother", "")).endswith("; applied"):
             r["smooth"] = df.attrs["smoother"]
     return r
 

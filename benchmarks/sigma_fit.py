@@ -36,6 +36,7 @@ autopilot's estimate) — each such run is a look at the held-out files: say so 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import tomllib
 from pathlib import Path
@@ -96,6 +97,9 @@ def main() -> int:
         print(f"need at least 6 seen BROAD trials in {shared / 'broad'}")
         return 2
     model, anchor, _ = load_model(default_model_path())
+    # σ₀, c and g are the causal σ's (the live bridge's): fitted on the estimate without the offline
+    # smoothing, which scales σ by its own factor where it applies (part 5)
+    anchor = dataclasses.replace(anchor, smoother=False)
     recs = [load_record(p) for p in seen]
     files = sigma_samples(model, anchor, recs)
     ship = (anchor.sigma_floor_deg, anchor.sigma_acc_gain, anchor.sigma_sampling_gain)

@@ -1,7 +1,9 @@
 """Pins the shipped model's estimates on a real shared log, so refactors that must not change
-behaviour are checked to 1e-9: the causal estimator (the GNSS aid off: what the bridge runs; values
-computed with the shipped checkpoint at commit f66fd0c, unchanged since) and the shipped offline one
-(the GNSS aid on: erle flies with a 5 Hz GPS; values from session 14's shipped checkpoint)."""
+behaviour are checked to 1e-9: the causal estimator (the GNSS aid and the offline smoothing off: what
+the bridge runs; values computed with the shipped checkpoint at commit f66fd0c, unchanged since), the
+offline one with the GNSS aid (erle flies with a 5 Hz GPS; values from session 14's shipped checkpoint)
+and the shipped offline one, its tilt also smoothed (session 25: this file's own values; the smoothed
+tilt itself is tested against the vqf package's offlineVQF in test_smoother.py)."""
 
 from __future__ import annotations
 
@@ -35,8 +37,22 @@ PINNED_AIDED = {
 }
 
 
-@pytest.mark.parametrize("aided", [False, True], ids=["causal", "gnss-aided"])
-def test_shipped_model_estimates_are_pinned(aided):
+# the same rows as the shipped offline estimate gives them: GNSS-aided and smoothed (session 25); σ × 0.75
+# where smoothed (SmootherConfig.sigma_scale)
+PINNED_SMOOTHED = {
+    0: ([0.7070316075965329, 0.010337340434467773, -0.009110850951913935, 0.7070476912112339], 0.005890486225480863),
+    1266: ([0.6776119414401922, 0.01971373460294154, -0.009063979390396696, 0.7350994965059281], 0.0060057203614484345),
+    2533: ([0.6812392376618123, -0.00664625706516321, -0.016637921205582294, 0.7318415866257763], 0.005938445342028318),
+    3800: ([0.6583377952544439, -0.003690802591068811, -0.016967680496161694, 0.7525223073998085], 0.005979096209884088),
+    5066: ([0.8840228610782505, 0.0077861293944931345, -0.026701229792263213, 0.4666154751052064], 0.005953777047838511),
+    6332: ([0.15866777861264023, 0.03793932680210415, -0.03517530777004628, 0.9859755784172426], 0.00601290628763985),
+    7599: ([0.01021035549635949, -0.9106099742385568, 0.41140829115186284, 0.037794727534364726], 0.006527115203155541),
+}
+
+
+@pytest.mark.parametrize("aided,smoothed", [(False, False), (True, False), (True, True)],
+                         ids=["causal", "gnss-aided", "shipped-offline"])  # fmt: skip
+def test_shipped_model_estimates_are_pinned(aided, smoothed):
     import dataclasses
 
     from tepinn_flight.ingest import ingest_log
@@ -48,14 +64,14 @@ def test_shipped_model_estimates_are_pinned(aided):
         pytest.skip(f"shipped model not available ({default_model_path()})")
     rec = ingest_log(path)
     model, estimator, _ = load_model(default_model_path())
-    assert estimator.gnss_aid  # shipped
+    assert estimator.gnss_aid and estimator.smoother  # shipped
     # σ as it was when these were pinned (session 17 added the sampling term and set c to 0; σ is an
     # output only, so the attitudes pin the same either way, and the σ pins check the σ code too)
-    est = estimate_record(model, rec, dataclasses.replace(estimator, gnss_aid=aided, sigma_acc_gain=0.025,
+    est = estimate_record(model, rec, dataclasses.replace(estimator, gnss_aid=aided, smoother=smoothed, sigma_acc_gain=0.025,
                                                           sigma_sampling_gain=0.0))  # fmt: skip
     assert len(est) == 7600
     q = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
     s = est["sigma_rad"].to_numpy()
-    for row, (q_pin, s_pin) in (PINNED_AIDED if aided else PINNED).items():
+    for row, (q_pin, s_pin) in (PINNED_SMOOTHED if smoothed else PINNED_AIDED if aided else PINNED).items():
         np.testing.assert_allclose(q[row], q_pin, rtol=0, atol=1e-9, err_msg=f"q at row {row}")
         np.testing.assert_allclose(s[row], s_pin, rtol=0, atol=1e-9, err_msg=f"sigma at row {row}")

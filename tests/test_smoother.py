@@ -1,6 +1,7 @@
 """Offline tilt smoothing (model/smoother.py): the tilt turn against scipy, the stretches and ramps
 against naive references, the smoothed tilt against the vqf package's own offlineVQF on a real BROAD
-trial (and nearer its optical truth), gated samples untouched, the CLI's opt-in."""
+trial (and nearer its optical truth), gated samples untouched, the CLI's default (on offline since
+session 25; `--no-smooth` gives the causal tilt; `--smooth` for checkpoints written before)."""
 
 from __future__ import annotations
 
@@ -157,9 +158,9 @@ def test_on_a_motion_acceleration_the_smoothed_tilt_is_nearer_the_truth():
         m = rec.t_s >= 10.0
         return np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(df[EST_Q_COLS].to_numpy()[m], q_true[m])) ** 2)))
 
-    causal = estimate_anchored(model, rec, anchor)
-    smoothed = estimate_anchored(model, rec, dataclasses.replace(anchor, smoother=True))
-    assert "smoother" not in causal.attrs and not anchor.smoother  # opt-in: the shipped model does not smooth
+    causal = estimate_anchored(model, rec, dataclasses.replace(anchor, smoother=False))
+    smoothed = estimate_anchored(model, rec, anchor)
+    assert "smoother" not in causal.attrs and anchor.smoother  # the shipped model smooths offline (session 25)
     assert smoothed.attrs["smoother"].endswith("100 % of the samples in 1 stretch(es); applied")
     assert rmse_deg(smoothed) < 0.6 * rmse_deg(causal), (rmse_deg(smoothed), rmse_deg(causal))  # 1.06° → 0.40°
     # the heading is the causal estimate's
@@ -181,8 +182,8 @@ def test_on_a_real_trial_the_tilt_is_the_vqf_packages_offline_filter_and_nearer_
 
     rec = load_record(broad_trial("broad_01_*.hdf5"))
     model, anchor, _ = load_model(default_model_path())
-    causal = estimate_anchored(model, rec, anchor)
-    smoothed = estimate_anchored(model, rec, dataclasses.replace(anchor, smoother=True))
+    causal = estimate_anchored(model, rec, dataclasses.replace(anchor, smoother=False))
+    smoothed = estimate_anchored(model, rec, anchor)
     assert smoothed.attrs["smoother"].startswith("offline tilt smoothing") and "100 %" in smoothed.attrs["smoother"]
     flip = np.array([1.0, -1.0, -1.0])  # body FRD → VQF's z-up sensor frame (180° about x)
     ts = float(np.median(np.diff(rec.t_s[:52])))
@@ -199,22 +200,40 @@ def test_on_a_real_trial_the_tilt_is_the_vqf_packages_offline_filter_and_nearer_
     assert rmse_deg(smoothed) < 0.8 * rmse_deg(causal), (rmse_deg(smoothed), rmse_deg(causal))  # 0.60° → 0.37°
 
 
-def test_estimate_smooth_is_opt_in_says_what_it_did_and_refuses_the_older_fusion(tmp_path, capsys):
+def test_estimate_smooths_by_default_says_what_it_did_and_no_smooth_gives_the_causal_tilt(tmp_path, capsys):
+    import pandas as pd
     import pyarrow.parquet as pq
+    import torch
 
     from tepinn_flight.cli.main import main
-    from tepinn_flight.model.checkpoint import default_lstm_path
+    from tepinn_flight.model.checkpoint import default_lstm_path, default_model_path, load_model
+    from tepinn_flight.model.estimate import EST_Q_COLS, estimate_anchored
     from tepinn_flight.record import write_record
 
     rec, _ = gentle_record(40.0)
     write_record(rec, tmp_path / "fly.parquet")
-    assert main(["estimate", str(tmp_path / "fly.parquet"), "-o", str(tmp_path / "plain.parquet")]) == 0
-    assert "smoothing" not in capsys.readouterr().out
-    assert main(["estimate", str(tmp_path / "fly.parquet"), "-o", str(tmp_path / "smooth.parquet"), "--smooth"]) == 0
+    assert main(["estimate", str(tmp_path / "fly.parquet"), "-o", str(tmp_path / "smooth.parquet")]) == 0
     out = capsys.readouterr().out
     line = pq.read_schema(tmp_path / "smooth.parquet").metadata[b"smoother"].decode()
     assert line.startswith("offline tilt smoothing") and line.endswith("; applied") and line in out
+    assert main(["estimate", str(tmp_path / "fly.parquet"), "-o", str(tmp_path / "plain.parquet"), "--no-smooth"]) == 0
+    assert "smoothing" not in capsys.readouterr().out
     assert b"smoother" not in (pq.read_schema(tmp_path / "plain.parquet").metadata or {})
+    # --no-smooth is the estimator without it (PyTorch here; estimate ran the shipped ONNX export: 1e-5)
+    model, anchor, _ = load_model(default_model_path())
+    want = estimate_anchored(model, rec, dataclasses.replace(anchor, smoother=False))[EST_Q_COLS].to_numpy()
+    got = pd.read_parquet(tmp_path / "plain.parquet")[EST_Q_COLS].to_numpy()
+    np.testing.assert_allclose(got, want, atol=1e-4)
+    # a checkpoint written before session 25 does not smooth; --smooth turns it on there
+    ck = torch.load(default_model_path(), weights_only=True)
+    del ck["anchor_config"]["smoother"]  # as written before session 15: the key did not exist
+    torch.save(ck, tmp_path / "old.pt")
+    assert main(["estimate", str(tmp_path / "fly.parquet"), "-o", str(tmp_path / "old.parquet"), "--model", str(tmp_path / "old.pt")]) == 0
+    assert b"smoother" not in (pq.read_schema(tmp_path / "old.parquet").metadata or {})
+    assert main(["estimate", str(tmp_path / "fly.parquet"), "-o", str(tmp_path / "old_s.parquet"), "--model",
+                 str(tmp_path / "old.pt"), "--smooth"]) == 0  # fmt: skip
+    assert pq.read_schema(tmp_path / "old_s.parquet").metadata[b"smoother"].decode() == line
+    capsys.readouterr()
     assert main(["estimate", str(tmp_path / "fly.parquet"), "-o", str(tmp_path / "x.parquet"), "--smooth",
                  "--model", str(default_lstm_path())]) == 2  # fmt: skip
     err = capsys.readouterr().err.strip().splitlines()
@@ -229,14 +248,18 @@ def test_an_estimator_with_an_offline_step_is_not_called_causal():
     shipped = TepinnEstimator.from_checkpoint(default_model_path(), "tepinn")
     assert not shipped.causal  # the scale reads, the gyro self-calibration and the GNSS aid read the whole record
     live = TepinnEstimator(shipped.model, dataclasses.replace(shipped.fusion, gyro_selfcal=False, gnss_aid=False,
-                                                              accel_scale_selfcal=False))  # fmt: skip
+                                                              accel_scale_selfcal=False, smoother=False))  # fmt: skip
     assert live.causal
     assert not TepinnEstimator(shipped.model, dataclasses.replace(live.fusion, accel_scale_selfcal=True)).causal
-    sm = shipped.smoothed()
-    assert sm.name == "tepinn-smooth" and sm.fusion.smoother and not sm.causal
+    assert shipped.fusion.smoother  # the offline smoothing reads the record both ways
+    assert not TepinnEstimator(shipped.model, dataclasses.replace(live.fusion, smoother=True)).causal
+    plain = shipped.unsmoothed()
+    assert plain.name == "tepinn-nosmooth" and not plain.fusion.smoother and plain.unsmoothed() is None
+    sm = plain.smoothed()
+    assert sm.name == "tepinn-nosmooth-smooth" and sm.fusion.smoother and not sm.causal
 
 
-def test_evaluate_smooth_scores_the_smoothed_model_beside_the_shipped_one(tmp_path, capsys):
+def test_evaluate_no_smooth_scores_the_causal_tilt_beside_the_shipped_one(tmp_path, capsys):
     import json
 
     from tepinn_flight.cli.main import main
@@ -247,13 +270,17 @@ def test_evaluate_smooth_scores_the_smoothed_model_beside_the_shipped_one(tmp_pa
     rec, q_true = gentle_record(40.0)
     write_record(rec, tmp_path / "gentle.parquet")
     out = tmp_path / "rep"
-    assert main(["evaluate", str(tmp_path / "gentle.parquet"), "-o", str(out), "--no-peers", "--smooth", "-q"]) == 0, capsys.readouterr().err
+    assert main(["evaluate", str(tmp_path / "gentle.parquet"), "-o", str(out), "--no-peers", "--no-smooth", "-q"]) == 0, capsys.readouterr().err
     ds = json.loads((out / "metrics.json").read_text())["dataset"]
-    assert ds["tepinn-smooth"]["inclination_rmse_deg"] < 0.7 * ds["tepinn"]["inclination_rmse_deg"]
-    # the harness's score is the smoothed estimate's, computed here without it (evaluate's 5 s warm-up)
+    assert ds["tepinn"]["inclination_rmse_deg"] < 0.7 * ds["tepinn-nosmooth"]["inclination_rmse_deg"]
+    # the harness's scores are the two estimates', computed here without it (evaluate's 5 s warm-up)
     model, anchor, _ = load_model(default_model_path())
-    q = estimate_anchored(model, rec, dataclasses.replace(anchor, smoother=True))[EST_Q_COLS].to_numpy()
     m = rec.t_s >= 5.0
-    want = np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], q_true[m])) ** 2)))
-    assert ds["tepinn-smooth"]["inclination_rmse_deg"] == pytest.approx(want, abs=2e-3)
-    assert "TE-PINN, smoothed offline" in (out / "report.md").read_text()
+    for name, cfg in (("tepinn", anchor), ("tepinn-nosmooth", dataclasses.replace(anchor, smoother=False))):
+        q = estimate_anchored(model, rec, cfg)[EST_Q_COLS].to_numpy()
+        want = np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], q_true[m])) ** 2)))
+        assert ds[name]["inclination_rmse_deg"] == pytest.approx(want, abs=2e-3)
+    assert "TE-PINN, not smoothed" in (out / "report.md").read_text()
+    # --smooth adds nothing to a model that already smooths, and says so
+    assert main(["evaluate", str(tmp_path / "gentle.parquet"), "-o", str(tmp_path / "rep2"), "--no-peers", "--smooth", "-q"]) == 0
+    assert "tepinn-smooth" not in json.loads((tmp_path / "rep2" / "metrics.json").read_text())["dataset"]

@@ -54,11 +54,14 @@ def add_arguments(p) -> None:
                    help="do not take the motion acceleration the record's GNSS velocity shows out of the accelerometer "
                         "(the estimate the live bridge gives; by default it is, where the record has a receiver's "
                         "velocity and it agrees with the accelerometer: README, the shipped estimator)")
-    p.add_argument("--smooth", action="store_true",
-                   help="offline tilt smoothing: on every stretch of 30 s or more where no gate of the network acts, the "
-                        "tilt of VQF run forward and backward on the same inputs (heading kept). Nearer the true attitude "
-                        "(BROAD's optical truth, simulations), farther from the autopilot's own causal estimate on our "
-                        "held-out drone logs, so not the default (README, the shipped estimator)")
+    smooth = p.add_mutually_exclusive_group()
+    smooth.add_argument("--no-smooth", action="store_true",
+                        help="do not smooth the tilt offline (the causal estimate the live bridge gives; by default every "
+                             "stretch of 30 s or more where no gate of the network acts takes the tilt of VQF run forward "
+                             "and backward on the same inputs, heading kept: nearer the true attitude, farther from an "
+                             "autopilot's own causal estimate: README, the shipped estimator)")
+    smooth.add_argument("--smooth", action="store_true",
+                        help="smooth the tilt offline with a checkpoint that does not (one written before session 25)")
     p.add_argument("--tlog", default=None, metavar="FILE|DIR",
                    help="also write a tlog (file for one record, folder for several): the source tlog's messages (or, for "
                         "other sources, the record's IMU and reference attitude) plus the estimate from component 191, "
@@ -124,6 +127,8 @@ def _run(args) -> int:
         if not hasattr(fusion, "smoother"):
             raise TepinnError(f"--smooth: {ckpt_path.name} runs the older network-centred fusion, which has no offline smoothing")
         fusion = dataclasses.replace(fusion, smoother=True)
+    if args.no_smooth and getattr(fusion, "smoother", False):
+        fusion = dataclasses.replace(fusion, smoother=False)
     if args.yaw and hasattr(fusion, "yaw"):  # the network-centred fusion only (the anchored one has VQF's heading)
         fusion = dataclasses.replace(fusion, yaw=args.yaw)
     paths = [Path(p) for p in args.records]

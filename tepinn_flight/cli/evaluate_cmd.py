@@ -37,8 +37,12 @@ def add_arguments(p) -> None:
     p.add_argument("--busy-stride", type=busy_stride, default=0, metavar="N",
                    help="add each TE-PINN model once more, running every N-th window where the network stays busy "
                         "(estimate --busy-stride N: the speed knob), to see what it costs on these records")
+    p.add_argument("--no-smooth", action="store_true",
+                   help="add TE-PINN without the offline tilt smoothing (estimate --no-smooth: the tilt the live bridge "
+                        "gives) beside the model as it ships")
     p.add_argument("--smooth", action="store_true",
-                   help="add TE-PINN with the offline tilt smoothing (estimate --smooth) beside the model as it ships")
+                   help="add TE-PINN with the offline tilt smoothing beside a model that does not smooth (a checkpoint "
+                        "written before session 25)")
     p.add_argument("--with-mag", action="store_true", help="add 9-D variants (magnetometer) of TE-PINN, the filters and the peers: scored without the heading alignment")
     p.add_argument("--no-peers", action="store_true", help="skip the published peers (VQF, RIANN, Fusion)")
     p.add_argument("--config", metavar="TOML", help="filter parameters: [madgwick], [complementary], [ekf] tables, peers = [...]")
@@ -113,11 +117,17 @@ def _run(args) -> int:
             if not strided:
                 notes.append(f"--busy-stride {args.busy_stride}: no model here runs the anchored estimator; nothing added")
             estimators += strided
-        if args.smooth:  # the opt-in offline smoothing beside the model as it ships (6-D)
-            smooth = [es for e in base if hasattr(e, "smoothed") and not e.uses_mag and (es := e.smoothed()) is not None]
+        if args.smooth:  # the offline smoothing beside a model that does not smooth (6-D)
+            smooth = [es for e in base if hasattr(e, "smoothed") and not e.uses_mag and not getattr(e.fusion, "smoother", True)
+                      and (es := e.smoothed()) is not None]  # fmt: skip
             if not smooth:
-                notes.append("--smooth: no model here runs the anchored estimator; nothing added")
+                notes.append("--smooth: no model here runs the anchored estimator without the smoothing; nothing added")
             estimators += smooth
+        if args.no_smooth:  # the causal tilt beside the model as it ships (6-D)
+            plain = [es for e in base if hasattr(e, "unsmoothed") and not e.uses_mag and (es := e.unsmoothed()) is not None]
+            if not plain:
+                notes.append("--no-smooth: no model here smooths offline; nothing added")
+            estimators += plain
     else:
         notes.append("TE-PINN not evaluated (--no-model)")
     estimators += baseline_estimators(cfg, with_mag=args.with_mag)

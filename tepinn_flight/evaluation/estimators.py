@@ -122,7 +122,8 @@ class TepinnEstimator:
         return TepinnEstimator(self.model, with_busy_stride(self.fusion, n), f"{self.name}-stride{n}", self.checkpoint)
 
     def smoothed(self) -> TepinnEstimator | None:
-        """The same model with the offline tilt smoothing on (``name-smooth``:
+        """The same model with the offline tilt smoothing on (``name-smooth``: for a checkpoint that does
+        not smooth, one written before session 25;
         :mod:`~tepinn_flight.model.smoother`), or None for a checkpoint that runs the older
         network-centred fusion."""
         import dataclasses
@@ -132,6 +133,16 @@ class TepinnEstimator:
         if not isinstance(self.fusion, AnchorConfig):
             return None
         return TepinnEstimator(self.model, dataclasses.replace(self.fusion, smoother=True), self.name + "-smooth", self.checkpoint)
+
+    def unsmoothed(self) -> TepinnEstimator | None:
+        """The same model without the offline tilt smoothing (``name-nosmooth``: ``estimate --no-smooth``,
+        the tilt the live bridge gives where no other offline step applies), or None where it does not
+        smooth (the older fusion, a checkpoint written before session 25)."""
+        import dataclasses
+
+        if not getattr(self.fusion, "smoother", False):
+            return None
+        return TepinnEstimator(self.model, dataclasses.replace(self.fusion, smoother=False), self.name + "-nosmooth", self.checkpoint)
 
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike, name: str | None = None) -> TepinnEstimator:

@@ -51,6 +51,8 @@ def display_name(name: str) -> str:
         return _BASE[name]
     if name.endswith("-smooth") and name[: -len("-smooth")] in _BASE:  # evaluate --smooth
         return f"{_BASE[name[: -len('-smooth')]]}, smoothed offline"
+    if name.endswith("-nosmooth") and name[: -len("-nosmooth")] in _BASE:  # evaluate --no-smooth
+        return f"{_BASE[name[: -len('-nosmooth')]]}, not smoothed"
     m = re.fullmatch(r"(.+)-stride([0-9]+)", name)  # evaluate --busy-stride N
     if m and m.group(1) in _BASE:
         return f"{_BASE[m.group(1)]}, busy stride {m.group(2)}"

@@ -11,7 +11,10 @@ same files and kept only where it gains 2 % (session 10: on the BROAD trials, on
 1.005 took VQF from 0.683° to 0.550°). Last, σ (``sigma_floor_deg`` σ₀, ``sigma_acc_gain`` c, and
 whether the sampling term counts, ``sigma_sampling_gain`` g: 0 or 1) is fitted on the same files against their reference (:func:`fit_anchor_sigma`): how far the estimate
 strays from the vehicle's own autopilot is the vehicle's too — the shipped σ was fitted on BROAD's
-optical truth. ``RUN_DIR/model.pt`` then works with
+optical truth. Then whether the offline tilt smoothing (:mod:`.smoother`, on in the shipped model since
+session 25: nearer a true attitude) stays on: only where it lowers the training files' mean RMSE against
+their reference — an autopilot's own estimate is causal, and a vehicle fine-tuned to agree with its
+autopilot usually agrees better without it (:func:`tune_smoothing`). ``RUN_DIR/model.pt`` then works with
 ``estimate --model``; ``RUN_DIR/finetune.json`` holds the before/after figures on the validation
 files.
 """
@@ -120,6 +123,23 @@ def tune_anchor(model, anchor, records: list[FlightRecord], grid=TAU_ACC_GRID_S,
     return cur, table, scales
 
 
+def tune_smoothing(model, anchor, records: list[FlightRecord], warmup_s: float = 5.0):
+    """``anchor`` with the offline smoothing on if that lowers the mean per-file inclination RMSE of
+    ``records`` against their reference (ties: off, the estimate the live bridge gives), and
+    {"on": mean RMSE °, "off": mean RMSE °}."""
+    from .estimate import anchored_windows, estimate_anchored
+    from .fusion import FusionConfig
+
+    fusion = anchor.fusion_config or FusionConfig()
+    table = {}
+    wins = [anchored_windows(model, r, fusion=fusion, anchor=anchor) for r in records]  # the smoothing leaves them
+    for key, on in (("on", True), ("off", False)):
+        cand = dataclasses.replace(anchor, smoother=on)
+        table[key] = float(np.mean([inclination_rmse_deg(r, estimate_anchored(model, r, cand, windows=w), warmup_s)
+                                    for r, w in zip(records, wins)]))  # fmt: skip
+    return dataclasses.replace(anchor, smoother=table["on"] < table["off"]), table
+
+
 def sigma_samples(model, anchor, records: list[FlightRecord], warmup_s: float = 5.0):
     """Per file, what σ is fitted and scored on: the estimator ``anchor``'s own scored samples
     (:func:`~tepinn_flight.evaluation.sigma_calibration.estimator_error_samples`)."""
@@ -194,8 +214,13 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     tr, va = split_by_flight(len(recs), cfg.data.val_fraction, seed)
     val = [recs[i] for i in va] or [recs[i] for i in tr]
     model1, _, ck = load_model(out / "model.pt")
-    anchor, table, scales = tune_anchor(model1, est0, [recs[i] for i in tr])
+    # the filter's settings and σ₀, c, g are tuned on the causal estimate (the live bridge's; the offline
+    # smoothing scales σ by its own factor where it applies), as the shipped ones were
+    causal0 = dataclasses.replace(est0, smoother=False)
+    anchor, table, scales = tune_anchor(model1, causal0, [recs[i] for i in tr])
     anchor, sfit = fit_anchor_sigma(model1, anchor, [recs[i] for i in tr])
+    nees_causal = sigma_scores(model0, causal0, val), sigma_scores(model1, anchor, val)
+    anchor, smooth_table = tune_smoothing(model1, anchor, [recs[i] for i in tr])
     save_checkpoint(out / "model.pt", model1, fusion_config_from(ck.get("fusion_config")), anchor,
                     **{k: v for k, v in ck.items() if k not in ("format", "version", "model_config", "fusion_config",
                                                                  "anchor_config", "state_dict", "conventions")})  # fmt: skip
@@ -204,17 +229,19 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     after = [inclination_rmse_deg(r, e) for r, e in zip(val, ests)]
     # where the fine-tuned network's gates act on the validation files (a network out of its domain can open one)
     gates = {str(r.meta.get("source_file", i)): e.attrs.get("network_gates", "") for i, (r, e) in enumerate(zip(val, ests))}
-    (nees0, in3_0), (nees1, in3_1) = sigma_scores(model0, est0, val), sigma_scores(model1, anchor, val)
+    (nees0, in3_0), (nees1, in3_1) = nees_causal
     summary = {
         "init": str(init_path), "files": paths, "train_files": [paths[i] for i in tr], "val_files": [paths[i] for i in va],
         "tau_acc_grid_deg": {f"{k:g}": v for k, v in table.items()}, "tau_acc_s": anchor.tau_acc_s,
         "gyro_scale_grid_deg": scales, "gyro_scale": list(anchor.gyro_scale),
+        "smoother_grid_deg": smooth_table, "smoother": anchor.smoother,
         "val_inclination_rmse_deg_before": float(np.mean(before)), "val_inclination_rmse_deg_after": float(np.mean(after)),
         "sigma_floor_deg": anchor.sigma_floor_deg, "sigma_acc_gain": anchor.sigma_acc_gain,
         "sigma_sampling_gain": anchor.sigma_sampling_gain,
         "train_sigma_nees": sfit.nees, "train_sigma_within_3sigma": sfit.coverage_3sigma,
         "val_sigma_nees_before": nees0, "val_sigma_nees_after": nees1,
         "val_sigma_within_3sigma_before": in3_0, "val_sigma_within_3sigma_after": in3_1,
+        "sigma_note": "sigma fitted and scored on the causal estimate (estimate --no-smooth)",
         "val_network_gates": gates, "val_network_gates_summary": gates_acted(gates),
         "validation_note": "" if va else "one file only: the figures are on the file it was tuned on",
         **{k: v for k, v in result.items() if isinstance(v, (int, float, str))},
