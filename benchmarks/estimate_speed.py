@@ -23,8 +23,11 @@ busy, e.g. a fixed wing or a saturating multirotor, it runs on most windows): th
 and the anchored filter between and at them (``estimate_anchored`` given those windows: VQF,
 ``AnchoredVQF.update`` on each window's samples and ``correct``), each per window.
 
+Since session 25 the shipped estimate smooths its tilt offline where no gate acts (VQF run backward
+too); ``--no-smooth`` also times it without that, in the same run.
+
 Usage: python benchmarks/estimate_speed.py [--record PATH] [--tile-s 3600 | --tile-s 0 --seconds 120] [--stream-seconds 120]
-       [--runtime onnx] [--split] [--busy-stride N]
+       [--runtime onnx] [--split] [--busy-stride N] [--no-smooth]
 """
 
 from __future__ import annotations
@@ -142,6 +145,8 @@ def main() -> int:
     ap.add_argument("--model", default=None, help="checkpoint (default: shipped; onnx: its export beside it, if in sync)")
     ap.add_argument("--busy-stride", type=int, default=0, metavar="N",
                     help="run every N-th window of busy blocks (estimate --busy-stride; default: the model's)")
+    ap.add_argument("--no-smooth", action="store_true",
+                    help="offline: also time the estimate without the offline tilt smoothing (estimate --no-smooth)")
     ap.add_argument("--split", action="store_true",
                     help="offline: also time the windows (network) and the anchored filter between them apart")
     args = ap.parse_args()
@@ -181,6 +186,11 @@ def main() -> int:
         r.set_threads(2)
         s, s_cpu = offline(r, settings, off_rec)
         print(f"  TE-PINN ({name:5s})    {s:12.0f} {s_cpu:12.0f} {s / rate:12.0f} {v_off / s:9.1f}")
+        if args.no_smooth and getattr(settings, "smoother", False):
+            import dataclasses
+
+            s, s_cpu = offline(r, dataclasses.replace(settings, smoother=False), off_rec)
+            print(f"  ... --no-smooth      {s:12.0f} {s_cpu:12.0f} {s / rate:12.0f} {v_off / s:9.1f}")
     if args.split:
         from tepinn_flight.model.anchor import AnchorConfig
 
