@@ -21,7 +21,7 @@ nearest 2 among the grid points with at least `--coverage` of the samples within
    ArduCopter logs (48 and 26 Hz): the shipped σ beside the σ before session 17 (σ₀ 0.45°, c 0.025,
    g 0) (session 17: 1.03 / 1.77 against 3.03 / 9.15, 99.1 / 97.9 % against 90.7 / 72.6 % within 3σ).
 
-5. `--smooth`: the opt-in offline tilt smoothing's σ factor k (`SmootherConfig.sigma_scale`: σ where
+5. `--smooth`: the offline tilt smoothing's σ factor k (`SmootherConfig.sigma_scale`: σ where
    smoothed is the causal σ × (1 − w·(1 − k)), w the smoothed tilt's weight) on a grid, at the trials'
    own rate and at each of `--rates`, by the same rule (session 18: with the sampling-term σ the factor
    of session 15, 0.65, gave NEES 2.35 and 95.6 % within 3σ at 286 Hz; 0.75: 1.76, 98.1 %; at 26 Hz

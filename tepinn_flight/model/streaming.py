@@ -14,7 +14,7 @@ The network runs through a :class:`~.runtime.NetworkRunner`: a :class:`~.network
 Three offline steps have no live counterpart, all reading the whole record around the pass: the gyro
 self-calibration (``AnchorConfig.gyro_selfcal``, :mod:`.gyro_selfcal`), the GNSS-aided tilt
 (``AnchorConfig.gnss_aid``, :mod:`.gnss_aid`: centred averages, a heading fitted over 30 s, a second
-pass) and the opt-in tilt smoothing (``AnchorConfig.smoother``, :mod:`.smoother`: VQF backward too).
+pass) and the tilt smoothing (``AnchorConfig.smoother``, on in the shipped model since session 25, :mod:`.smoother`: VQF backward too).
 Live, the gyro is scaled by ``AnchorConfig.gyro_scale`` only, the accelerometer is taken as it is and
 nothing is smoothed, so where an offline step applies the two differ.
 """
