@@ -30,7 +30,7 @@ def _quarters(tmp_path):
 
 
 @pytest.mark.slow
-def test_finetuning_on_a_vehicles_logs_improves_a_held_out_log_of_it(tmp_path):
+def test_finetuning_on_a_vehicles_logs_improves_a_held_out_log_of_it(tmp_path, capsys):
     from tepinn_flight.model.anchor import AnchorConfig
     from tepinn_flight.model.checkpoint import default_model_path, load_model
     from tepinn_flight.model.estimate import estimate_record
@@ -49,6 +49,8 @@ def test_finetuning_on_a_vehicles_logs_improves_a_held_out_log_of_it(tmp_path):
     # the offline smoothing kept only where it lowers the training files' error against their reference
     table = summary["smoother_grid_deg"]
     assert e1.smoother == summary["smoother"] == (table["on"] < table["off"])
+    said = capsys.readouterr().out
+    assert f"offline tilt smoothing {'kept' if e1.smoother else 'off'}: training files {table['on']:.3f}°" in said
     before = inclination_rmse_deg(rec, estimate_record(m0, rec, e0))
     after = inclination_rmse_deg(rec, estimate_record(m1, rec, e1))
     assert after < 0.9 * before, (before, after)

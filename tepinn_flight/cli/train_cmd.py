@@ -69,7 +69,9 @@ def run(args) -> int:
               f"{', '.join(f'{v:g}' for v in s['gyro_scale'])}; σ₀ {s['sigma_floor_deg']:g}°, c {s['sigma_acc_gain']:g}, sampling term "
               f"{'on' if s['sigma_sampling_gain'] else 'off'}: "
               f"validation NEES {s['val_sigma_nees_before']:.2f} -> {s['val_sigma_nees_after']:.2f}, within 3σ "
-              f"{100 * s['val_sigma_within_3sigma_before']:.1f} -> {100 * s['val_sigma_within_3sigma_after']:.1f} %); "
+              f"{100 * s['val_sigma_within_3sigma_before']:.1f} -> {100 * s['val_sigma_within_3sigma_after']:.1f} % causal; "
+              f"offline tilt smoothing {'kept' if s['smoother'] else 'off'}: training files "
+              f"{s['smoother_grid_deg']['on']:.3f}° with it, {s['smoother_grid_deg']['off']:.3f}° without); "
               f"on the validation files {s['val_network_gates_summary']}; model: {out / 'model.pt'}")  # fmt: skip
         return 0
     cfg = load_train_config(args.config, args.set)
