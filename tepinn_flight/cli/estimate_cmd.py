@@ -7,12 +7,14 @@ from .helptext import add_examples
 
 HELP = "estimate attitude over flight records with TE-PINN (the shipped model by default)"
 DESCRIPTION = (
-    "Runs causally over whole records: the network on its windows (batched; once a second where no gate "
-    "can open), then the VQF filter it corrects where the evidence says so (flight speed, gyro saturation, "
-    "an uncalibrated gyro) — its gyro's per-axis scale read from the record's rests where they show one "
-    "(offline only) —, and writes "
-    "one row per input row: t_s, q_est_w..z (body->NED), sigma_rad, gyr_bias_est_*_rad_s. Short logging "
-    "dropouts (<= 100 ms) are propagated through, longer gaps restart the estimator. A raw log is ingested on the fly."
+    "Runs over whole records: the network on its windows (batched; once a second where no gate can open), then "
+    "the VQF filter it corrects where the evidence says so (flight speed, gyro saturation, an uncalibrated gyro); "
+    "offline only, where the record shows them, the accelerometer's and the gyro's scale and the motion "
+    "acceleration a GNSS receiver measured are taken out first, and where no gate acts for 30 s or more the tilt "
+    "is VQF's run forward and backward (--no-smooth: the causal tilt the live bridge gives). Writes one row per "
+    "input row: t_s, q_est_w..z (body->NED), sigma_rad, gyr_bias_est_*_rad_s, and says per record what each "
+    "step did. Short logging dropouts (<= 100 ms) are propagated through, longer gaps restart the estimator. A "
+    "raw log is ingested on the fly."
 )
 
 
