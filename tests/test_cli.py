@@ -215,6 +215,37 @@ def test_estimate_warns_once_when_the_imu_is_too_slow(tmp_path, capsys):
             assert "slow.parquet" in lines[0] and "10.0 Hz" in lines[0] and "too slow" in lines[0]
 
 
+@pytest.mark.slow
+def test_estimate_workers_give_the_one_process_estimates_and_go_on_past_a_bad_record(tmp_path, capsys):
+    """``--workers 2``: the same outputs as one process (to 1e-6: a worker runs the network on one thread),
+    the records' lines in their order, and a bad record one error line (exit 2) while the others are written."""
+    import numpy as np
+    import pandas as pd
+
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    names = []
+    for seed in (1, 2, 3):
+        write_record(synthetic_record(seed=seed, duration_s=40.0, rate_hz=100.0), tmp_path / f"syn{seed}.parquet")
+        names.append(f"syn{seed}.parquet")
+    (tmp_path / "bad.parquet").write_bytes(b"not a record at all")
+    recs = [str(tmp_path / n) for n in ("syn1.parquet", "bad.parquet", "syn2.parquet", "syn3.parquet")]
+    assert main(["estimate", *recs[:1], *recs[2:], "-o", str(tmp_path / "one")]) == 0
+    capsys.readouterr()
+    assert main(["estimate", *recs, "-o", str(tmp_path / "two"), "--workers", "2"]) == 2
+    cap = capsys.readouterr()
+    errors = [ln for ln in cap.err.splitlines() if "error" in ln]
+    assert len(errors) == 1 and "bad.parquet" in errors[0], cap.err
+    said = [ln.split(" -> ")[0] for ln in cap.out.splitlines() if " -> " in ln]
+    assert said == [recs[0], recs[2], recs[3]]  # in the order given
+    assert not (tmp_path / "two" / "bad.parquet").exists()
+    for n in names:
+        a, b = pd.read_parquet(tmp_path / "one" / n), pd.read_parquet(tmp_path / "two" / n)
+        assert list(a.columns) == list(b.columns) and len(a) == len(b) == 4000
+        np.testing.assert_allclose(b.to_numpy(), a.to_numpy(), rtol=0, atol=1e-6)
+
+
 def test_info_accepts_a_folder_like_evaluate(tmp_path, capsys):
     import json
 
@@ -275,7 +306,7 @@ def test_info_real_record_and_log(erle, capsys):
 @pytest.mark.slow
 def test_estimate_real_record_equals_the_pinned_estimates(erle, tmp_path):
     """The shipped model through the verb: the pinned attitudes of tests/test_pinned_estimates.py (the
-    estimator without the GNSS aid is causal, so the cut record gives the full log's estimates), and
+    estimator without the GNSS aid and the smoothing is causal, so the cut record gives the full log's estimates), and
     σ in closed form where no gate acts (session 17's σ: σ₀² + (|ω|·Δt)²/12, c = 0; the pins hold the
     σ before it)."""
     import math
@@ -288,7 +319,7 @@ def test_estimate_real_record_equals_the_pinned_estimates(erle, tmp_path):
     from tests.test_pinned_estimates import PINNED
 
     out = tmp_path / "est.parquet"
-    assert main(["estimate", str(erle["crop"]), "-o", str(out), "-q", "--no-gnss-aid"]) == 0
+    assert main(["estimate", str(erle["crop"]), "-o", str(out), "-q", "--no-gnss-aid", "--no-smooth"]) == 0
     est = pd.read_parquet(out)
     assert len(est) == N_CROP
     rec = read_record(erle["crop"])

@@ -26,3 +26,6 @@ threads = int_at_least(0, " (0: torch's choice)")
 
 #: ``--busy-stride``: every N-th window of a busy block (>= 1; left out: the model's own setting)
 busy_stride = int_at_least(1)
+
+#: ``--workers``: processes estimating records side by side (>= 1)
+workers = int_at_least(1)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from .argtypes import busy_stride, threads
+import dataclasses
+
+from .argtypes import busy_stride, threads, workers
 from .helptext import add_examples
 
 HELP = "estimate attitude over flight records with TE-PINN (the shipped model by default)"
@@ -40,6 +42,9 @@ def add_arguments(p) -> None:
                         "north (no declination applied); auto: 9d where the record has a magnetometer "
                         "(default: the model's, 6d for the shipped one)")
     p.add_argument("--threads", type=threads, default=0, metavar="N", help="CPU threads of the runtime (default: its own choice)")
+    p.add_argument("--workers", type=workers, default=1, metavar="N",
+                   help="estimate N records at a time in N processes, each running the network on one thread (many logs "
+                        "on a multi-core machine: README, Speed); default 1")
     p.add_argument("--busy-stride", type=busy_stride, default=0, metavar="N",
                    help="where the network stays busy (fixed wing: flight-speed evidence), run every N-th window "
                         "after a segment's first 10 s (windows holding a saturated sample always run): about N "
@@ -90,22 +95,14 @@ def run(args) -> int:
 
 
 def _run(args) -> int:
-    import numpy as np
-    import dataclasses
     import sys
     from pathlib import Path
-
-    import pyarrow as pa
-    import pyarrow.parquet as pq
 
     from ..errors import TepinnError
     from ..model.anchor import with_busy_stride
     from ..model.checkpoint import default_model_path
-    from ..model.estimate import REPORTED_STEPS, estimate_record
     from ..model.runtime import default_onnx_path, load_runner, resolve_runtime
-    from ..ingest import load_record
-    from ..ingest.sniff import sniff
-    from ..record import atomic_write, check_output
+    from ..record import check_output
     from .paths import output_paths
 
     ckpt_path = Path(args.model) if args.model else default_model_path()
@@ -138,46 +135,113 @@ def _run(args) -> int:
     tlogs = _tlog_paths(args, paths)
     for dst in [*outs, *tlogs]:  # before any work: an output that cannot be written is a one-line error
         check_output(dst)
-    failures = 0
     from tqdm import tqdm
 
-    for src, dst in tqdm(list(zip(paths, outs)), unit="record", file=sys.stderr, disable=args.quiet or len(paths) < 2):
-        try:
-            rec = load_record(src)
-            if not args.quiet and sniff(src) != "parquet":
-                sys.stderr.write(f"tepinn-flight estimate: note: {src}: a log, ingested on the fly (`tepinn-flight ingest` "
-                                 "keeps the record)\n")  # fmt: skip
-            if not rec.meta.get("estimation_ok", True):
-                rate = rec.meta.get("imu_rate_hz")
-                sys.stderr.write(f"tepinn-flight estimate: warning: {src}: IMU "
-                                 f"{'rate unknown' if rate is None else f'at {rate:.1f} Hz'} is too slow for windowed "
-                                 "estimation (estimation_ok is false); estimating anyway, expect poor attitude\n")  # fmt: skip
-            holes = int(np.sum(~(np.all(np.isfinite(rec.gyr_rad_s), 1) & np.all(np.isfinite(rec.acc_m_s2), 1))))
-            if holes:
-                sys.stderr.write(f"tepinn-flight estimate: note: {src}: {holes} non-finite IMU sample(s) bridged with "
-                                 "the previous sample\n")  # fmt: skip
-            with np.errstate(invalid="ignore"):
-                df = estimate_record(model, rec, fusion)
-        except TepinnError as exc:
-            failures += 1
-            sys.stderr.write(f"tepinn-flight estimate: error: {exc if exc.path else f'{src}: {exc}'}\n")
-            continue
-        table = pa.Table.from_pandas(df, preserve_index=False)
-        # what the record's own calibration, GNSS velocity and rests gave, and where the network's gates acted
-        found = {k: df.attrs[k] for k in REPORTED_STEPS if df.attrs.get(k)}
-        table = table.replace_schema_metadata({b"source_record": str(src.name).encode(), b"model": str(ckpt_path.name).encode(),
-                                               **{k.encode(): v.encode() for k, v in found.items()}})  # fmt: skip
-        atomic_write(dst, lambda tmp: pq.write_table(table, tmp))
-        if not args.quiet:
-            ok = df["q_est_w"].notna().mean()
-            print(f"{src} -> {dst}: {len(df)} rows, {100 * ok:.1f}% estimated" + "".join(f"; {v}" for v in found.values()))
-        if tlogs:
-            try:
-                _write_tlog(args, src, rec, df, tlogs[paths.index(src)])
-            except TepinnError as exc:
-                failures += 1
-                sys.stderr.write(f"tepinn-flight estimate: error: {src}: {exc}\n")
+    opts = _Options(args.quiet, args.tlog_messages, args.tlog_rate, args.source_log, ckpt_path.name)
+    jobs = [(src, dst, tlogs[i] if tlogs else None) for i, (src, dst) in enumerate(zip(paths, outs))]
+    workers = min(args.workers, len(jobs))
+    if workers > 1:  # one record per worker process at a time, each with its own runtime on one thread
+        results = _in_workers(jobs, opts, ckpt_path, args.runtime, fusion, workers)
+    else:
+        results = (_estimate_one(model, fusion, opts, *job) for job in jobs)
+    failures = 0
+    for out_lines, err_lines, failed in tqdm(results, total=len(jobs), unit="record", file=sys.stderr,
+                                             disable=args.quiet or len(jobs) < 2):  # fmt: skip
+        for line in err_lines:
+            sys.stderr.write(line + "\n")
+        for line in out_lines:
+            print(line)
+        failures += failed
     return 2 if failures else 0
+
+
+@dataclasses.dataclass(frozen=True)
+class _Options:
+    """What a record's estimate needs of the command line (picklable, for the worker processes)."""
+
+    quiet: bool
+    tlog_messages: str
+    tlog_rate: float
+    source_log: str | None
+    model_name: str
+
+
+def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[list[str], list[str], int]:
+    """One record estimated and written (atomically) → (stdout lines, stderr lines, 1 if it failed)."""
+    import numpy as np
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from ..errors import TepinnError
+    from ..ingest import load_record
+    from ..ingest.sniff import sniff
+    from ..model.estimate import REPORTED_STEPS, estimate_record
+    from ..record import atomic_write
+
+    out, err = [], []
+    try:
+        rec = load_record(src)
+        if not opts.quiet and sniff(src) != "parquet":
+            err.append(f"tepinn-flight estimate: note: {src}: a log, ingested on the fly (`tepinn-flight ingest` "
+                       "keeps the record)")  # fmt: skip
+        if not rec.meta.get("estimation_ok", True):
+            rate = rec.meta.get("imu_rate_hz")
+            err.append(f"tepinn-flight estimate: warning: {src}: IMU "
+                       f"{'rate unknown' if rate is None else f'at {rate:.1f} Hz'} is too slow for windowed "
+                       "estimation (estimation_ok is false); estimating anyway, expect poor attitude")  # fmt: skip
+        holes = int(np.sum(~(np.all(np.isfinite(rec.gyr_rad_s), 1) & np.all(np.isfinite(rec.acc_m_s2), 1))))
+        if holes:
+            err.append(f"tepinn-flight estimate: note: {src}: {holes} non-finite IMU sample(s) bridged with "
+                       "the previous sample")  # fmt: skip
+        with np.errstate(invalid="ignore"):
+            df = estimate_record(model, rec, fusion)
+    except TepinnError as exc:
+        err.append(f"tepinn-flight estimate: error: {exc if exc.path else f'{src}: {exc}'}")
+        return out, err, 1
+    table = pa.Table.from_pandas(df, preserve_index=False)
+    # what the record's own calibration, GNSS velocity and rests gave, and where the network's gates acted
+    found = {k: df.attrs[k] for k in REPORTED_STEPS if df.attrs.get(k)}
+    table = table.replace_schema_metadata({b"source_record": str(src.name).encode(), b"model": str(opts.model_name).encode(),
+                                           **{k.encode(): v.encode() for k, v in found.items()}})  # fmt: skip
+    atomic_write(dst, lambda tmp: pq.write_table(table, tmp))
+    if not opts.quiet:
+        ok = df["q_est_w"].notna().mean()
+        out.append(f"{src} -> {dst}: {len(df)} rows, {100 * ok:.1f}% estimated" + "".join(f"; {v}" for v in found.values()))
+    if tlog_dst is not None:
+        try:
+            o, e = _write_tlog(opts, src, rec, df, tlog_dst)
+            out += o
+            err += e
+        except TepinnError as exc:
+            err.append(f"tepinn-flight estimate: error: {src}: {exc}")
+            return out, err, 1
+    return out, err, 0
+
+
+_WORKER = {}  # in a worker process: the runner and settings its initializer loaded
+
+
+def _init_worker(ckpt_path, runtime, fusion) -> None:
+    from ..model.runtime import load_runner
+
+    _WORKER["model"] = load_runner(ckpt_path, runtime, 1)[0]
+    _WORKER["fusion"] = fusion
+
+
+def _worker_one(job):
+    opts, src, dst, tlog_dst = job
+    return _estimate_one(_WORKER["model"], _WORKER["fusion"], opts, src, dst, tlog_dst)
+
+
+def _in_workers(jobs, opts, ckpt_path, runtime, fusion, workers):
+    """The records' results in order, estimated by ``workers`` processes (``forkserver`` where there is one)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    methods = multiprocessing.get_all_start_methods()
+    ctx = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
+    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(ckpt_path, runtime, fusion)) as ex:
+        yield from ex.map(_worker_one, [(opts, *job) for job in jobs])
 
 
 def _tlog_paths(args, paths) -> list:
@@ -205,22 +269,24 @@ def _tlog_paths(args, paths) -> list:
     return [p.with_suffix(".tlog") if len(paths) > 1 else p for p in output_paths(paths, args.tlog)]
 
 
-def _write_tlog(args, src, rec, df, dst) -> None:
-    import sys
+def _write_tlog(opts, src, rec, df, dst) -> tuple[list[str], list[str]]:
+    """The estimate's tlog → (stdout lines, stderr lines)."""
     from pathlib import Path
 
     from ..estimate_tlog import parse_messages, write_estimate_tlog
 
-    source = Path(args.source_log) if args.source_log else None
+    out, err = [], []
+    source = Path(opts.source_log) if opts.source_log else None
     if source is None and rec.meta.get("source_kind") == "tlog":
         cand = Path(src).parent / str(rec.meta.get("source_file", ""))
         if cand.suffix.lower() == ".tlog" and cand.is_file():
             source = cand
         else:
-            sys.stderr.write(f"tepinn-flight estimate: warning: {src}: source tlog {cand.name} not found next to the "
-                             "record (pass --source-log); the tlog gets the record's IMU and reference instead\n")  # fmt: skip
-    counts = write_estimate_tlog(dst, rec, df, source=source, messages=parse_messages(args.tlog_messages),
-                                 rate_hz=args.tlog_rate)  # fmt: skip
-    if not args.quiet:
+            err.append(f"tepinn-flight estimate: warning: {src}: source tlog {cand.name} not found next to the "
+                       "record (pass --source-log); the tlog gets the record's IMU and reference instead")  # fmt: skip
+    counts = write_estimate_tlog(dst, rec, df, source=source, messages=parse_messages(opts.tlog_messages),
+                                 rate_hz=opts.tlog_rate)  # fmt: skip
+    if not opts.quiet:
         what = ", ".join(f"{n} {k}" for k, n in sorted(counts.items()))
-        print(f"{src} -> {dst}: {source.name if source else 'record IMU + reference'} + component 191: {what}")
+        out.append(f"{src} -> {dst}: {source.name if source else 'record IMU + reference'} + component 191: {what}")
+    return out, err
