@@ -138,6 +138,48 @@ def test_gated_samples_and_short_stretches_keep_the_causal_estimate():
     assert short.describe().endswith("none (no segment of 22 s); not applied") and not short.applied
 
 
+def test_before_a_stretchs_last_clipped_gyro_sample_no_backward_pass_has_crossed_a_clip():
+    # 100 s at 100 Hz, no gate; the gyro clips at 30-30.5 s and 60-60.5 s. The stand-in offline filter tilts each
+    # run it is given by its own first and last samples' times, so the tilt says which run a sample came from
+    n = 10000
+    t = np.arange(n) * 0.01
+    seg = np.zeros(n, np.int32)
+    gate = np.zeros(n)
+    clipped = np.zeros(n, bool)
+    clipped[3000:3050] = clipped[6000:6050] = True
+    q = _q(Rotation.from_euler("ZYX", np.c_[0.1 * t, np.zeros(n), np.zeros(n)]))
+    sigma = np.full(n, 0.01)
+    seen = []
+
+    def tilt_of(a, b):
+        return 1e-4 * (1.0 + t[a] + (t[b - 1] - t[a]) / 10.0)
+
+    def offline(sl):
+        seen.append((sl.start, sl.stop))
+        pitch = np.full(sl.stop - sl.start, tilt_of(sl.start, sl.stop))
+        return _q(Rotation.from_euler("ZYX", np.c_[np.zeros_like(pitch), pitch, np.zeros_like(pitch)]))
+
+    cfg = SmootherConfig(min_stretch_s=20.0, ramp_s=5.0, sigma_scale=0.5)
+    out, sig, done = smooth(t, q, sigma, gate, seg, cfg, offline, gyr_clipped=clipped)
+    # the whole stretch, then the stretches cut at the clips: 0-30 s, 30.5-60 s, 60.5-100 s
+    assert seen == [(0, n), (0, 3000), (3050, 6000), (6050, n)]
+    incl = inclination_error_rad(error_quat_earth(out, q))
+    np.testing.assert_allclose(incl[:2500], tilt_of(0, 3000), rtol=0, atol=1e-9)  # before the first clip: the first cut run
+    np.testing.assert_allclose(incl[3550:5500], tilt_of(3050, 6000), rtol=0, atol=1e-9)  # between the clips: the second
+    np.testing.assert_allclose(incl[3000:3050], 0.0, atol=1e-12)  # the clip itself: in no cut run, causal
+    assert incl[2750] == pytest.approx((t[2999] - t[2750]) / 5.0 * tilt_of(0, 3000), rel=1e-3)  # ramping out toward the clip
+    # after the last clip: the whole stretch's run (its backward pass starts after every clip)
+    np.testing.assert_allclose(incl[6050:], tilt_of(0, n), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(sig[6050:], 0.005, rtol=1e-12)
+    # not smoothed: both clips' samples (before the last one) and the cut runs' zero-weight ends (3)
+    assert done.applied and done.n_smoothed == n - 100 - 3
+    # without clipping, the whole stretch as before; the cut runs never made
+    seen.clear()
+    out2, _, _ = smooth(t, q, sigma, gate, seg, cfg, offline)
+    assert seen == [(0, n)]
+    np.testing.assert_allclose(inclination_error_rad(error_quat_earth(out2, q)), tilt_of(0, n), rtol=0, atol=1e-9)
+
+
 def test_the_settings_are_checked():
     from tepinn_flight.errors import ConfigError
 

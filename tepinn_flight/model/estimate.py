@@ -328,7 +328,7 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     done = None
     if anchor.smoother:
         q_out, s_out, done = smooth(t, q_out, s_out, gate, rec.segment, smoother or SmootherConfig(),
-                             lambda sl: offline_vqf(anchor, t[sl], gyr[sl], cols[2][sl]))  # fmt: skip
+                                    lambda sl: offline_vqf(anchor, t[sl], gyr[sl], cols[2][sl]), cols[4])  # fmt: skip
     df = _frame(t, q_out, s_out, b_out)
     for key, found in (("accel_scale_selfcal", acal), ("gyro_selfcal", cal), ("gnss_aid", aid), ("smoother", done)):
         if found is not None:

@@ -119,15 +119,43 @@ def blend_tilt(q_nb: np.ndarray, q_smooth_nb: np.ndarray, w: np.ndarray) -> np.n
     return with_down(q_nb, v)
 
 
-def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline) -> tuple[np.ndarray, np.ndarray, Smoothing]:
+def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
+           gyr_clipped=None) -> tuple[np.ndarray, np.ndarray, Smoothing]:  # fmt: skip
     """The causal estimate ``q_nb`` (σ ``sigma_rad``) with its tilt smoothed on every ungated stretch
     of every segment → (q_nb, σ, what was done). ``offline(slice)`` gives the smoothed attitude
-    (body→NED) of the samples of one stretch, run on those samples alone."""
+    (body→NED) of the samples of one stretch, run on those samples alone.
+
+    ``gyr_clipped`` (per sample, the gyro at its range; None: none was): a saturated gyro's turn is what
+    VQF cannot take, and a backward pass that crossed one carries it into the samples before — a tumble
+    past an autopilot's ±2000 °/s, where the saturation gate stays shut by design, left 12–19° in the 5 s
+    before it (session 25). So within a stretch, the samples up to its last clipped one take the tilt of
+    stretches that also end at every clipped sample (no backward pass crossed a clip before them), the
+    samples after it the whole stretch's (whose backward pass starts after the clip, and whose forward
+    one has relevelled by then). A stretch without a clipped sample is smoothed as a whole."""
     t_s = np.asarray(t_s, np.float64)
     gate = np.asarray(gate, np.float64)
+    out, sig, done, n_str = _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg, offline)
+    clipped = np.zeros(len(t_s), bool) if gyr_clipped is None else np.asarray(gyr_clipped, bool)
+    if np.any(clipped & done):  # a clip inside a smoothed stretch: before its last clip, the cut stretches' tilt
+        cut = np.maximum(gate, clipped.astype(np.float64))
+        out_c, sig_c, done_c, _ = _smoothed(t_s, q_nb, sigma_rad, cut, seg, cfg, offline)
+        for s in segment_slices(seg):
+            for st in ungated_stretches(t_s[s], gate[s], cfg.min_stretch_s):
+                a, b = s.start + st.start, s.start + st.stop
+                hits = np.flatnonzero(clipped[a:b])
+                if hits.size:
+                    last = a + int(hits[-1]) + 1
+                    out[a:last], sig[a:last], done[a:last] = out_c[a:last], sig_c[a:last], done_c[a:last]
+    return out, sig, Smoothing(len(t_s), int(done.sum()), n_str, int(np.sum(gate > 0)), cfg.min_stretch_s)
+
+
+def _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline):
+    """``q_nb`` and σ with every stretch where ``gate`` ≤ 0 smoothed on its own → (q_nb, σ, the samples
+    smoothed, the number of stretches)."""
     out = np.array(q_nb, np.float64, copy=True)
     sig = np.array(sigma_rad, np.float64, copy=True)
-    n_smoothed = n_stretches = 0
+    done = np.zeros(len(t_s), bool)
+    n_stretches = 0
     for s in segment_slices(seg):
         for st in ungated_stretches(t_s[s], gate[s], cfg.min_stretch_s):
             a, b = s.start + st.start, s.start + st.stop
@@ -139,6 +167,6 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline) -> tup
             rows = np.flatnonzero(ok) + a
             out[rows] = blend_tilt(out[rows], q_s[ok], w[ok])
             sig[rows] *= 1.0 - w[ok] * (1.0 - cfg.sigma_scale)
-            n_smoothed += int(ok.sum())
+            done[rows] = True
             n_stretches += 1
-    return out, sig, Smoothing(len(t_s), n_smoothed, n_stretches, int(np.sum(gate > 0)), cfg.min_stretch_s)
+    return out, sig, done, n_stretches
