@@ -25,7 +25,10 @@ flights (55.96 vs 51.60°, 45.65 vs 30.43° at 400 Hz): the saturation gate pull
 tilt through the rest while its windows still held the tumble. Since session 23 the gate shuts 0.5 s into
 the rest with the tilt set to the accelerometer's (``AnchorConfig.rest_relevel_s``): at rest from 1 s after
 the impact 0.42–7.63° against VQF's 20–33°; over the whole crash still behind on 2 of 3 (43.52 vs 30.43°,
-37.26 vs 30.01°: the tumble itself, where the gate pulls toward windows holding a free fall).
+37.26 vs 30.01°: the tumble itself, where the gate pulls toward windows holding a free fall). Session 25's offline
+smoothing (the default): over the crash and the 6 s after 6.99° against VQF's 21.02°, worse on none; a first version
+ran VQF backward through the clipped tumble and spoiled the 5 s before it (before the crash 3.96–6.29° against VQF's
+3.12–6.44°): the smoothing's runs now end before a clipped sample there (0.59–1.77°).
 
     python benchmarks/crash_probe.py [--seeds 101 102 103] [--rate 2400 --turn 540] [RECORD ...]
 """
