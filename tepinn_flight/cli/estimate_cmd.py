@@ -139,9 +139,9 @@ def _run(args) -> int:
 
     opts = _Options(args.quiet, args.tlog_messages, args.tlog_rate, args.source_log, ckpt_path.name)
     jobs = [(src, dst, tlogs[i] if tlogs else None) for i, (src, dst) in enumerate(zip(paths, outs))]
-    workers = min(args.workers, len(jobs))
-    if workers > 1:  # one record per worker process at a time, each with its own runtime on one thread
-        results = _in_workers(jobs, opts, ckpt_path, args.runtime, fusion, workers)
+    n_workers = min(args.workers, len(jobs))
+    if n_workers > 1:  # one record per worker process at a time, each with its own runtime on one thread
+        results = _in_workers(jobs, opts, ckpt_path, args.runtime, fusion, n_workers)
     else:
         results = (_estimate_one(model, fusion, opts, *job) for job in jobs)
     failures = 0
