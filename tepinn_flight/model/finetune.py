@@ -87,17 +87,26 @@ def usable(rec: FlightRecord) -> bool:
     return estimation_ok(rec.meta) and float(np.mean(np.all(np.isfinite(rec.q_ref_wxyz), axis=1))) > 0.5
 
 
-def tune_anchor(model, anchor, records: list[FlightRecord], grid=TAU_ACC_GRID_S, warmup_s: float = 5.0,
-                scale_grid=GYRO_SCALE_GRID):
-    """The VQF accelerometer time constant, then the gyro's scale on each body axis in turn, with the
-    lowest mean per-file inclination RMSE on ``records``; the scales are kept only where together they
-    gain ``GYRO_SCALE_MIN_GAIN``. Returns (anchor, {tau: mean RMSE °}, {"1,1,1.005": mean RMSE °, ...})."""
-    from .estimate import anchored_windows, estimate_anchored
+def record_windows(model, anchor, records: list[FlightRecord]) -> list:
+    """The network's windows of each record as the estimator ``anchor`` makes them (the older fusion
+    alongside as the pulls' target): what the tunings below hand every candidate — none of the settings
+    they try (time constant, gyro scale, σ, smoothing) changes them."""
+    from .estimate import anchored_windows
     from .fusion import FusionConfig
 
-    # the windows as the estimator it writes makes them: the older fusion alongside as the pulls' target
     fusion = anchor.fusion_config or FusionConfig()
-    wins = [anchored_windows(model, r, fusion=fusion, anchor=anchor) for r in records]  # neither changes them
+    return [anchored_windows(model, r, fusion=fusion, anchor=anchor) for r in records]
+
+
+def tune_anchor(model, anchor, records: list[FlightRecord], grid=TAU_ACC_GRID_S, warmup_s: float = 5.0,
+                scale_grid=GYRO_SCALE_GRID, windows=None):
+    """The VQF accelerometer time constant, then the gyro's scale on each body axis in turn, with the
+    lowest mean per-file inclination RMSE on ``records``; the scales are kept only where together they
+    gain ``GYRO_SCALE_MIN_GAIN``. ``windows``: :func:`record_windows`' result when at hand. Returns
+    (anchor, {tau: mean RMSE °}, {"1,1,1.005": mean RMSE °, ...})."""
+    from .estimate import estimate_anchored
+
+    wins = windows if windows is not None else record_windows(model, anchor, records)
 
     def score(cand) -> float:
         return float(np.mean([inclination_rmse_deg(r, estimate_anchored(model, r, cand, windows=w), warmup_s)
@@ -123,16 +132,14 @@ def tune_anchor(model, anchor, records: list[FlightRecord], grid=TAU_ACC_GRID_S,
     return cur, table, scales
 
 
-def tune_smoothing(model, anchor, records: list[FlightRecord], warmup_s: float = 5.0):
+def tune_smoothing(model, anchor, records: list[FlightRecord], warmup_s: float = 5.0, windows=None):
     """``anchor`` with the offline smoothing on if that lowers the mean per-file inclination RMSE of
     ``records`` against their reference (ties: off, the estimate the live bridge gives), and
-    {"on": mean RMSE °, "off": mean RMSE °}."""
-    from .estimate import anchored_windows, estimate_anchored
-    from .fusion import FusionConfig
+    {"on": mean RMSE °, "off": mean RMSE °}. ``windows``: :func:`record_windows`' result when at hand."""
+    from .estimate import estimate_anchored
 
-    fusion = anchor.fusion_config or FusionConfig()
     table = {}
-    wins = [anchored_windows(model, r, fusion=fusion, anchor=anchor) for r in records]  # the smoothing leaves them
+    wins = windows if windows is not None else record_windows(model, anchor, records)
     for key, on in (("on", True), ("off", False)):
         cand = dataclasses.replace(anchor, smoother=on)
         table[key] = float(np.mean([inclination_rmse_deg(r, estimate_anchored(model, r, cand, windows=w), warmup_s)
@@ -217,10 +224,12 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     # the filter's settings and σ₀, c, g are tuned on the causal estimate (the live bridge's; the offline
     # smoothing scales σ by its own factor where it applies), as the shipped ones were
     causal0 = dataclasses.replace(est0, smoother=False)
-    anchor, table, scales = tune_anchor(model1, causal0, [recs[i] for i in tr])
-    anchor, sfit = fit_anchor_sigma(model1, anchor, [recs[i] for i in tr])
+    train_recs = [recs[i] for i in tr]
+    wins = record_windows(model1, causal0, train_recs)  # once: no setting tuned below changes them
+    anchor, table, scales = tune_anchor(model1, causal0, train_recs, windows=wins)
+    anchor, sfit = fit_anchor_sigma(model1, anchor, train_recs)
     nees_causal = sigma_scores(model0, causal0, val), sigma_scores(model1, anchor, val)
-    anchor, smooth_table = tune_smoothing(model1, anchor, [recs[i] for i in tr])
+    anchor, smooth_table = tune_smoothing(model1, anchor, train_recs, windows=wins)
     save_checkpoint(out / "model.pt", model1, fusion_config_from(ck.get("fusion_config")), anchor,
                     **{k: v for k, v in ck.items() if k not in ("format", "version", "model_config", "fusion_config",
                                                                  "anchor_config", "state_dict", "conventions")})  # fmt: skip

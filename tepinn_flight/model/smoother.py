@@ -136,16 +136,23 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
     gate = np.asarray(gate, np.float64)
     out, sig, done, n_str = _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg, offline)
     clipped = np.zeros(len(t_s), bool) if gyr_clipped is None else np.asarray(gyr_clipped, bool)
-    if np.any(clipped & done):  # a clip inside a smoothed stretch: before its last clip, the cut stretches' tilt
-        cut = np.maximum(gate, clipped.astype(np.float64))
-        out_c, sig_c, done_c, _ = _smoothed(t_s, q_nb, sigma_rad, cut, seg, cfg, offline)
-        for s in segment_slices(seg):
-            for st in ungated_stretches(t_s[s], gate[s], cfg.min_stretch_s):
-                a, b = s.start + st.start, s.start + st.stop
-                hits = np.flatnonzero(clipped[a:b])
-                if hits.size:
-                    last = a + int(hits[-1]) + 1
-                    out[a:last], sig[a:last], done[a:last] = out_c[a:last], sig_c[a:last], done_c[a:last]
+    if not np.any(clipped & done):
+        return out, sig, Smoothing(len(t_s), int(done.sum()), n_str, int(np.sum(gate > 0)), cfg.min_stretch_s)
+    # a clip inside a smoothed stretch: up to its last clip, runs that also end at clipped samples, made only
+    # inside such stretches (every other sample counts as gated: their edges are gates or segment ends anyway)
+    cut = np.maximum(gate, clipped.astype(np.float64))
+    upto = []  # (start, end after the last clip) of each stretch holding a clip
+    for s in segment_slices(seg):
+        for st in ungated_stretches(t_s[s], gate[s], cfg.min_stretch_s):
+            a, b = s.start + st.start, s.start + st.stop
+            hits = np.flatnonzero(clipped[a:b])
+            if hits.size:
+                upto.append((a, a + int(hits[-1]) + 1))
+    keep = np.zeros(len(t_s), bool)
+    for a, last in upto:
+        keep[a:last] = True
+    out_c, sig_c, done_c, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(keep, cut, 1.0), seg, cfg, offline)
+    out[keep], sig[keep], done[keep] = out_c[keep], sig_c[keep], done_c[keep]
     return out, sig, Smoothing(len(t_s), int(done.sum()), n_str, int(np.sum(gate > 0)), cfg.min_stretch_s)
 
 
