@@ -180,6 +180,77 @@ def test_before_a_stretchs_last_clipped_gyro_sample_no_backward_pass_has_crossed
     np.testing.assert_allclose(inclination_error_rad(error_quat_earth(out2, q)), tilt_of(0, n), rtol=0, atol=1e-9)
 
 
+def test_from_a_relevelling_after_the_last_clip_no_forward_pass_has_crossed_it():
+    # 100 s at 100 Hz, no gate; the gyro clips at 30-30.5 s and the causal estimator re-levels at rest from
+    # 31 s (sample 3100) on. The stand-in offline filter tilts each run by its first and last samples' times
+    n = 10000
+    t = np.arange(n) * 0.01
+    seg, gate, sigma = np.zeros(n, np.int32), np.zeros(n), np.full(n, 0.01)
+    clipped = np.zeros(n, bool)
+    clipped[3000:3050] = True
+    q = _q(Rotation.from_euler("ZYX", np.c_[0.1 * t, np.zeros(n), np.zeros(n)]))
+    seen = []
+
+    def tilt_of(a, b):
+        return 1e-4 * (1.0 + t[a] + (t[b - 1] - t[a]) / 10.0)
+
+    def offline(sl):
+        seen.append((sl.start, sl.stop))
+        pitch = np.full(sl.stop - sl.start, tilt_of(sl.start, sl.stop))
+        return _q(Rotation.from_euler("ZYX", np.c_[np.zeros_like(pitch), pitch, np.zeros_like(pitch)]))
+
+    cfg = SmootherConfig(min_stretch_s=20.0, ramp_s=5.0, sigma_scale=0.5)
+    out, sig, done = smooth(t, q, sigma, gate, seg, cfg, offline, gyr_clipped=clipped, relevel=[3100])
+    # the whole stretch, the cut run before the clip, the run from the re-levelling to the end
+    assert seen == [(0, n), (0, 3000), (3100, n)]
+    incl = inclination_error_rad(error_quat_earth(out, q))
+    np.testing.assert_allclose(incl[:2500], tilt_of(0, 3000), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(incl[3050:3100], tilt_of(0, n), rtol=0, atol=1e-9)  # clip to re-levelling: the whole one
+    assert incl[3100] == pytest.approx(0.0, abs=1e-12)  # the re-levelled sample: the causal tilt, the ramp's start
+    assert incl[3350] == pytest.approx(2.5 / 5.0 * tilt_of(3100, n), rel=1e-3)  # ramping in from it
+    np.testing.assert_allclose(incl[3600:], tilt_of(3100, n), rtol=0, atol=1e-9)  # then the run of its own
+    np.testing.assert_allclose(sig[3600:], 0.005, rtol=1e-12)
+    # a re-levelling too near the end for a run of its own (< 20 s): the causal tilt and σ from it on
+    seen.clear()
+    out, sig, _ = smooth(t, q, sigma, gate, seg, cfg, offline, gyr_clipped=clipped, relevel=[8500])
+    assert seen == [(0, n), (0, 3000)]
+    incl = inclination_error_rad(error_quat_earth(out, q))
+    np.testing.assert_allclose(incl[3050:8500], tilt_of(0, n), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(incl[8500:], 0.0, atol=1e-12)
+    np.testing.assert_array_equal(sig[8500:], sigma[8500:])
+    # a re-levelling before the last clip ends the cut runs there too
+    seen.clear()
+    clipped2 = clipped.copy()
+    clipped2[6000:6050] = True
+    smooth(t, q, sigma, gate, seg, cfg, offline, gyr_clipped=clipped2, relevel=[3100])
+    assert seen == [(0, n), (0, 3000), (3101, 6000)]  # not (3050, 6000): the re-levelled sample is a cut (3050-3100: too short)
+
+
+def test_after_a_crash_past_the_gyro_range_the_shipped_estimate_keeps_the_relevelled_tilt():
+    # a simulated F450 flight ending in a 540° tumble at 2400 °/s (past ±2000 °/s), an impact and 6 s upside down
+    # (benchmarks/crash_probe.py): at rest from the re-levelling on, the smoothed estimate is the causal one,
+    # within 1° of the truth, where a forward pass across the tumble had left 17° (session 26)
+    import importlib.util
+    from pathlib import Path
+
+    from tepinn_flight.evaluation.estimators import TepinnEstimator
+    from tepinn_flight.model.checkpoint import default_model_path
+    from tepinn_flight.sim.simulate import simulate_record
+
+    spec = importlib.util.spec_from_file_location("crash_probe", Path(__file__).parents[1] / "benchmarks" / "crash_probe.py")
+    probe = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(probe)
+    rec, t0 = probe.with_crash(simulate_record("F450", 40.0, 200.0, 101, "consumer"), 2400.0, 540.0)
+    tp = TepinnEstimator.from_checkpoint(default_model_path(), "tepinn")
+    cols = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
+    sm, ca = tp.estimate(rec), tp.unsmoothed().estimate(rec)
+    assert sm.attrs["rest_relevel"].endswith("applied")
+    rest = rec.t_s > t0 + 2.0
+    e_sm = np.degrees(inclination_error_rad(error_quat_earth(sm[cols].to_numpy(), rec.q_ref_wxyz)))[rest]
+    assert e_sm.max() < 1.0
+    np.testing.assert_allclose(sm[cols].to_numpy()[rest], ca[cols].to_numpy()[rest], atol=1e-12)
+
+
 def test_the_settings_are_checked():
     from tepinn_flight.errors import ConfigError
 

@@ -317,18 +317,20 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     t, gyr, acc, mag = rec.t_s, *(np.ascontiguousarray(x) for x in (rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut))
     cols = (t, gyr, acc, mag, rec.gyr_clipped)  # read from the frame once (each property access copies); the
     # saturation gate opens on the gyro's clipping alone
-    q_out, s_out, b_out, gate, relevel_t, gates_open = _anchored_pass(anchor, rec.segment, cols, idx, out, use_mag)
+    q_out, s_out, b_out, gate, relevel_t, relevel_i, gates_open = _anchored_pass(anchor, rec.segment, cols, idx, out,
+                                                                                  use_mag)  # fmt: skip
     aid = None
     if anchor.gnss_aid:
         aid, acc_aided, out_aided = gnss_aided_acc(rec, q_out, anchor, idx, out, cols, use_mag)
         if acc_aided is not None:
             cols = (t, gyr, acc_aided, mag, cols[4])
-            q_out, s_out, b_out, gate, relevel_t, gates_open = _anchored_pass(anchor, rec.segment, cols, idx, out_aided,
-                                                                              use_mag)  # fmt: skip
+            q_out, s_out, b_out, gate, relevel_t, relevel_i, gates_open = _anchored_pass(anchor, rec.segment, cols, idx,
+                                                                                         out_aided, use_mag)  # fmt: skip
     done = None
     if anchor.smoother:
         q_out, s_out, done = smooth(t, q_out, s_out, gate, rec.segment, smoother or SmootherConfig(),
-                                    lambda sl: offline_vqf(anchor, t[sl], gyr[sl], cols[2][sl]), cols[4])  # fmt: skip
+                                    lambda sl: offline_vqf(anchor, t[sl], gyr[sl], cols[2][sl]), cols[4],
+                                    relevel_i)  # fmt: skip
     df = _frame(t, q_out, s_out, b_out)
     for key, found in (("accel_scale_selfcal", acal), ("gyro_selfcal", cal), ("gnss_aid", aid), ("smoother", done)):
         if found is not None:
@@ -393,7 +395,8 @@ def offline_vqf(anchor: AnchorConfig, t_s, gyr_b, acc_b) -> np.ndarray:
 def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
     """One run of the anchored filter over every segment with the network's windows ``(idx, out)``
     applied at their last samples → (q_nb, sigma, bias, gate) per sample and the times the tilt was
-    re-levelled at rest (:attr:`.anchor.AnchoredVQF.relevel_t`) and, per gate (:data:`GATE_NAMES`), the
+    re-levelled at rest (:attr:`.anchor.AnchoredVQF.relevel_t`), the first sample estimated after each of those
+    re-levellings and, per gate (:data:`GATE_NAMES`), the
     seconds it was open and when it first opened (``{name: (s, t)}``); the gate (the largest of the
     filter's gates, 0 where the estimate is VQF's) is each window's from the sample after it."""
     t = cols[0]
@@ -406,12 +409,13 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
     s_out = np.full(n, np.nan)
     b_out = np.full((n, 3), np.nan)
     gate = np.zeros(n)
-    relevel_t = []
+    relevel_t, relevel_i = [], []
     open_s, first_t = np.zeros(len(GATE_NAMES)), np.full(len(GATE_NAMES), np.inf)
     for sl in segment_slices(seg):
         a, b = sl.start, sl.stop
         dt = np.diff(t[a : min(b, a + TS_STEPS + 1)])  # as the live estimator: its first steps
         flt = AnchoredVQF(anchor, float(np.median(dt)) if dt.size else 0.01, use_mag)
+        n_before = len(relevel_i)
         cur = a
         starts, gates, parts = [], [], []  # each window's gate holds from the sample after it to the next one's
         for j in np.flatnonzero((idx >= a) & (idx < b)):
@@ -421,6 +425,8 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
                 cur = i
             flt.correct(WindowOutput(q_pull[j], float(out["sigma"][j]), out["bias"][j], out["vel"][j], out["acc_v"][j],
                                      None if b_fus is None else b_fus[j], bool(aided[j]), bool(fast[j])))  # fmt: skip
+            if len(flt.relevel_t) > len(relevel_i) - n_before:  # this window re-levelled the tilt from sample i on
+                relevel_i.append(i)
             starts.append(i)
             gates.append(flt.gate)
             parts.append(flt.gate_parts)
@@ -431,7 +437,7 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
             _add_open_time(t[a:b], np.asarray(starts) - a, np.asarray(parts, np.float64) > 0, open_s, first_t)
         relevel_t += flt.relevel_t
     gates_open = {name: (float(s), float(t0)) for name, s, t0 in zip(GATE_NAMES, open_s, first_t)}
-    return q_out, s_out, b_out, gate, relevel_t, gates_open
+    return q_out, s_out, b_out, gate, relevel_t, relevel_i, gates_open
 
 
 def _add_open_time(t: np.ndarray, starts: np.ndarray, is_open: np.ndarray, open_s: np.ndarray, first_t: np.ndarray) -> None:

@@ -120,7 +120,7 @@ def blend_tilt(q_nb: np.ndarray, q_smooth_nb: np.ndarray, w: np.ndarray) -> np.n
 
 
 def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
-           gyr_clipped=None) -> tuple[np.ndarray, np.ndarray, Smoothing]:  # fmt: skip
+           gyr_clipped=None, relevel=None) -> tuple[np.ndarray, np.ndarray, Smoothing]:  # fmt: skip
     """The causal estimate ``q_nb`` (σ ``sigma_rad``) with its tilt smoothed on every ungated stretch
     of every segment → (q_nb, σ, what was done). ``offline(slice)`` gives the smoothed attitude
     (body→NED) of the samples of one stretch, run on those samples alone.
@@ -130,30 +130,53 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
     past an autopilot's ±2000 °/s, where the saturation gate stays shut by design, left 12–19° in the 5 s
     before it (session 25). So within a stretch, the samples up to its last clipped one take the tilt of
     stretches that also end at every clipped sample (no backward pass crossed a clip before them), the
-    samples after it the whole stretch's (whose backward pass starts after the clip, and whose forward
-    one has relevelled by then). A stretch without a clipped sample is smoothed as a whole."""
+    samples after it the whole stretch's (whose backward pass starts after the clip).
+
+    ``relevel`` (indices: the first sample the causal estimator gave after each re-levelling at rest,
+    :attr:`.anchor.AnchorConfig.rest_relevel_s`; None: none): there the causal tilt was set from the
+    accelerometer of a still vehicle, and a forward pass that crossed it still holds the tumble before
+    (after a crash, 17° decaying over 3 s against the causal 0.02°, σ at its floor: session 26). So the
+    cut runs above also end at re-levellings, and the samples from a re-levelling after a stretch's last
+    clip to its end take a run starting there (its weight ramping in from the causal tilt), or the
+    causal tilt where that run is shorter than ``min_stretch_s``. A stretch without a clipped or
+    re-levelled sample is smoothed as a whole."""
     t_s = np.asarray(t_s, np.float64)
     gate = np.asarray(gate, np.float64)
+    n = len(t_s)
     out, sig, done, n_str = _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg, offline)
-    clipped = np.zeros(len(t_s), bool) if gyr_clipped is None else np.asarray(gyr_clipped, bool)
-    if not np.any(clipped & done):
-        return out, sig, Smoothing(len(t_s), int(done.sum()), n_str, int(np.sum(gate > 0)), cfg.min_stretch_s)
-    # a clip inside a smoothed stretch: up to its last clip, runs that also end at clipped samples, made only
-    # inside such stretches (every other sample counts as gated: their edges are gates or segment ends anyway)
-    cut = np.maximum(gate, clipped.astype(np.float64))
+    clipped = np.zeros(n, bool) if gyr_clipped is None else np.asarray(gyr_clipped, bool)
+    rl = np.zeros(n, bool)
+    if relevel is not None and len(relevel):
+        rl[np.asarray(relevel, np.int64)] = True
+    if not np.any((clipped | rl) & done):
+        return out, sig, Smoothing(n, int(done.sum()), n_str, int(np.sum(gate > 0)), cfg.min_stretch_s)
     upto = []  # (start, end after the last clip) of each stretch holding a clip
+    after = []  # (a re-levelling after a stretch's last clip, the stretch's end)
     for s in segment_slices(seg):
         for st in ungated_stretches(t_s[s], gate[s], cfg.min_stretch_s):
             a, b = s.start + st.start, s.start + st.stop
             hits = np.flatnonzero(clipped[a:b])
+            last = a + int(hits[-1]) + 1 if hits.size else a + 1
             if hits.size:
-                upto.append((a, a + int(hits[-1]) + 1))
-    keep = np.zeros(len(t_s), bool)
-    for a, last in upto:
-        keep[a:last] = True
-    out_c, sig_c, done_c, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(keep, cut, 1.0), seg, cfg, offline)
-    out[keep], sig[keep], done[keep] = out_c[keep], sig_c[keep], done_c[keep]
-    return out, sig, Smoothing(len(t_s), int(done.sum()), n_str, int(np.sum(gate > 0)), cfg.min_stretch_s)
+                upto.append((a, last))
+            lev = np.flatnonzero(rl[last:b])
+            if lev.size:
+                after.append((last + int(lev[0]), b))
+    if upto:  # up to the last clip: runs that also end at clipped and re-levelled samples, made only inside such
+        # stretches (every other sample counts as gated: their edges are gates or segment ends anyway)
+        cut = np.maximum(gate, (clipped | rl).astype(np.float64))
+        keep = np.zeros(n, bool)
+        for a, last in upto:
+            keep[a:last] = True
+        out_c, sig_c, done_c, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(keep, cut, 1.0), seg, cfg, offline)
+        out[keep], sig[keep], done[keep] = out_c[keep], sig_c[keep], done_c[keep]
+    if after:  # from a re-levelling on: a run of its own (the causal tilt where it is too short)
+        own = np.zeros(n, bool)
+        for r, b in after:
+            own[r:b] = True
+        out_r, sig_r, done_r, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(own, gate, 1.0), seg, cfg, offline)
+        out[own], sig[own], done[own] = out_r[own], sig_r[own], done_r[own]
+    return out, sig, Smoothing(n, int(done.sum()), n_str, int(np.sum(gate > 0)), cfg.min_stretch_s)
 
 
 def _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline):
