@@ -58,6 +58,7 @@ def test_shipped_model_estimates_are_pinned(aided, smoothed):
     from tepinn_flight.ingest import ingest_log
     from tepinn_flight.model.checkpoint import default_model_path, load_model
     from tepinn_flight.model.estimate import estimate_record
+    from tepinn_flight.model.smoother import SmootherConfig
 
     path = real_log(LOG)
     if not default_model_path().exists():
@@ -67,8 +68,10 @@ def test_shipped_model_estimates_are_pinned(aided, smoothed):
     assert estimator.gnss_aid and estimator.smoother  # shipped
     # σ as it was when these were pinned (session 17 added the sampling term and set c to 0; σ is an
     # output only, so the attitudes pin the same either way, and the σ pins check the σ code too)
+    # (and without the smoothing's disagreement floor, session 26: tested in test_smoother.py)
     est = estimate_record(model, rec, dataclasses.replace(estimator, gnss_aid=aided, smoother=smoothed, sigma_acc_gain=0.025,
-                                                          sigma_sampling_gain=0.0))  # fmt: skip
+                                                          sigma_sampling_gain=0.0),
+                          smoother=SmootherConfig(sigma_disagreement_gain=0.0))  # fmt: skip
     assert len(est) == 7600
     q = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
     s = est["sigma_rad"].to_numpy()

@@ -118,7 +118,7 @@ def test_gated_samples_and_short_stretches_keep_the_causal_estimate():
         seen.append(sl)
         return target[sl]
 
-    cfg = SmootherConfig(min_stretch_s=22.0, ramp_s=5.0, sigma_scale=0.5)
+    cfg = SmootherConfig(min_stretch_s=22.0, ramp_s=5.0, sigma_scale=0.5, sigma_disagreement_gain=0.0)
     out, sig, done = smooth(t, q, sigma, gate, seg, cfg, offline)
     assert seen == [slice(1500, 4000)]  # 0-10 s too short, segment 1 too short; never across a segment
     keep = np.r_[0:1500, 4000:6000]
@@ -249,6 +249,58 @@ def test_after_a_crash_past_the_gyro_range_the_shipped_estimate_keeps_the_releve
     e_sm = np.degrees(inclination_error_rad(error_quat_earth(sm[cols].to_numpy(), rec.q_ref_wxyz)))[rest]
     assert e_sm.max() < 1.0
     np.testing.assert_allclose(sm[cols].to_numpy()[rest], ca[cols].to_numpy()[rest], atol=1e-12)
+
+
+def test_the_disagreement_rms_against_a_naive_loop():
+    # the centred RMS over W s of the tilt angle between two attitude series, within each segment, against a
+    # sample-by-sample loop on scipy's rotations (uneven sampling, two segments, a NaN attitude)
+    from tepinn_flight.model.smoother import disagreement_sigma
+
+    rng = np.random.default_rng(3)
+    n = 900
+    t = np.cumsum(rng.uniform(0.005, 0.02, n))
+    seg = np.r_[np.zeros(500, np.int32), np.ones(n - 500, np.int32)]
+    ra = Rotation.from_euler("ZYX", rng.normal(0, 0.3, (n, 3)))
+    rb = ra * Rotation.from_rotvec(rng.normal(0, 0.02, (n, 3)))
+    qa, qb = _q(ra), _q(rb)
+    qb[100] = np.nan
+    got = disagreement_sigma(t, qa, qb, seg, 1.0)
+    da = _down_in_body(qa)
+    db = _down_in_body(np.where(np.isnan(qb), qa, qb))
+    ang = np.arccos(np.clip(np.sum(da * db, 1), -1.0, 1.0))
+    ang[100] = np.nan
+    want = np.empty(n)
+    for i in range(n):
+        j = (seg == seg[i]) & (np.abs(t - t[i]) <= 0.5) & np.isfinite(ang)
+        want[i] = np.sqrt(np.mean(ang[j] ** 2))
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-7)
+    np.testing.assert_allclose(disagreement_sigma(t, qa, qb, seg, 0.0)[:100], ang[:100], rtol=1e-6, atol=1e-7)
+
+
+def test_where_the_smoothed_tilt_departs_from_the_causal_one_sigma_is_at_least_k_times_the_departure():
+    # the stand-in offline filter tilts a stretch by 0.02 rad: with weight 1 the smoothed tilt is 0.02 rad from the
+    # causal one, so σ = max(0.75 σ, k·0.02); gain 0 gives the σ of session 25 (0.75 σ)
+    n = 6000
+    t = np.arange(n) * 0.01
+    seg, gate = np.zeros(n, np.int32), np.zeros(n)
+    gate[:1000] = 1.0  # a gate acts for the first 10 s: the stretch ramps in from 10 s to 15 s
+    q = _q(Rotation.from_euler("ZYX", np.c_[0.1 * t, np.zeros(n), np.zeros(n)]))
+
+    def offline(sl):
+        m = sl.stop - sl.start
+        return _q(Rotation.from_euler("ZYX", np.c_[0.1 * t[sl], np.full(m, 0.02), np.zeros(m)]))
+
+    for sig0, k in ((0.01, 0.5), (0.01, 0.0), (0.001, 0.5)):
+        sigma = np.full(n, sig0)
+        cfg = SmootherConfig(min_stretch_s=20.0, ramp_s=5.0, sigma_disagreement_gain=k)
+        _, sig, done = smooth(t, q, sigma, gate, seg, cfg, offline)
+        assert done.applied
+        np.testing.assert_allclose(sig[2000:5000], max(0.75 * sig0, k * 0.02), rtol=1e-6)
+        np.testing.assert_array_equal(sig[:990], sigma[:990])  # gated and away from the stretch: untouched
+    # half-way up the ramp the smoothed tilt is half-way too (0.01 rad from the causal one, rising 0.004 rad/s):
+    # σ = k times the RMS of that line over the centred second's 101 samples
+    tau = np.arange(-50, 51) * 0.01
+    assert sig[1250] == pytest.approx(0.5 * np.sqrt(np.mean((0.01 + 0.004 * tau) ** 2)), rel=1e-4)
 
 
 def test_the_settings_are_checked():

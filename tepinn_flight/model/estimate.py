@@ -97,7 +97,7 @@ def window_estimates(model: TEPINN, rec: FlightRecord, batch_size: int = 256):
 
 
 def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | AnchorConfig | None = None,
-                    batch_size: int = 256, windows=None) -> pd.DataFrame:  # fmt: skip
+                    batch_size: int = 256, windows=None, smoother: SmootherConfig | None = None) -> pd.DataFrame:  # fmt: skip
     """One output row per record row: ``t_s``, ``q_est_*`` (body→NED), ``sigma_rad``,
     ``gyr_bias_est_*``. An :class:`AnchorConfig` runs :func:`estimate_anchored`; with a
     :class:`FusionConfig`, NaN until the first window of a segment is full. ``windows`` takes the
@@ -112,13 +112,14 @@ def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | Anc
 
     Short logging dropouts are bridged (:func:`~tepinn_flight.record_gaps.bridge_gaps`: the
     estimator propagates through them instead of restarting); the rows returned are the record's
-    own. Precomputed ``windows`` must come from a record without such gaps."""
+    own. Precomputed ``windows`` must come from a record without such gaps. ``smoother``: the offline
+    smoothing's settings where an :class:`AnchorConfig` smooths (default: the shipped ones)."""
     if windows is None:
         br = bridge_gaps(rec)
         if br.filled:
-            return br.original(estimate_record(model, br.record, fusion, batch_size))
+            return br.original(estimate_record(model, br.record, fusion, batch_size, smoother=smoother))
     if isinstance(fusion, AnchorConfig):
-        return estimate_anchored(model, rec, fusion, batch_size)
+        return estimate_anchored(model, rec, fusion, batch_size, smoother=smoother)
     fusion = fusion or FusionConfig()
     feedback = fusion.bias_feedback_windows
     if feedback > 0:

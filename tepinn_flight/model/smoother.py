@@ -21,7 +21,9 @@ better tilt. So:
   (VQF's, or 9-D's magnetometer heading);
 - σ (``sigma_rad``) of a smoothed sample is the causal σ times ``1 − w·(1 − sigma_scale)``, w the
   smoothed tilt's weight: ``sigma_scale`` fitted as σ₀ and c were, on the BROAD trials the network
-  saw (mean NEES nearest 2 with ≥ 97.5 % within 3σ, per file averaged).
+  saw (mean NEES nearest 2 with ≥ 97.5 % within 3σ, per file averaged), and at least
+  ``sigma_disagreement_gain`` times the centred RMS, over ``sigma_disagreement_window_s``, of the
+  tilt angle between the causal and the smoothed estimate (:func:`disagreement_sigma`).
 
 With every gate shut on a whole segment of ≥ ``min_stretch_s``, its tilt is ``offlineVQF``'s
 (tested against the package). Offline only: the live bridge cannot see the future.
@@ -49,11 +51,20 @@ class SmootherConfig:
     # Session 18, refitted for the σ with the sampling term: NEES 1.76, 98.1 % within 3σ at 286 Hz, 1.03,
     # 98.8 % at 26 Hz (0.65, session 15's factor on the σ before, gave 2.35 and 95.6 % at 286 Hz)
     sigma_scale: float = 0.75
+    # k and W: σ of a smoothed sample is at least k times the centred RMS over W s of the tilt angle between
+    # the causal and the smoothed estimate (where the forward-only and the forward-backward filter disagree,
+    # the motion fooled the forward one, and the smoothed tilt is not exact either); 0: off (before session
+    # 26). Fitted by rule 14 on the seen BROAD trials and every 4th training flight (their per-file NEES
+    # 1.76 / 5.36 -> 1.73 / 1.96 where smoothed, 98.1 / 87.2 -> 98.2 / 97.0 % within 3σ; docs/design-log.md)
+    sigma_disagreement_gain: float = 0.5
+    sigma_disagreement_window_s: float = 1.0
 
     def __post_init__(self):
         check_range("min_stretch_s", self.min_stretch_s, 0, None)
         check_range("ramp_s", self.ramp_s, 0, None)
         check_range("sigma_scale", self.sigma_scale, 0, 1, lo_open=True)
+        check_range("sigma_disagreement_gain", self.sigma_disagreement_gain, 0, None)
+        check_range("sigma_disagreement_window_s", self.sigma_disagreement_window_s, 0, None)
 
 
 @dataclass(frozen=True)
@@ -140,6 +151,37 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
     clip to its end take a run starting there (its weight ramping in from the causal tilt), or the
     causal tilt where that run is shorter than ``min_stretch_s``. A stretch without a clipped or
     re-levelled sample is smoothed as a whole."""
+    out, sig, info = _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg, offline, gyr_clipped, relevel)
+    if cfg.sigma_disagreement_gain > 0 and info.applied:
+        floor = cfg.sigma_disagreement_gain * disagreement_sigma(t_s, q_nb, out, seg, cfg.sigma_disagreement_window_s)
+        sig = np.where(np.isfinite(floor), np.maximum(sig, floor), sig)
+    return out, sig, info
+
+
+def disagreement_sigma(t_s, q_a, q_b, seg, window_s: float) -> np.ndarray:
+    """(n,) the centred RMS over ``window_s`` (within each segment; 0: none) of the angle between the tilts of
+    ``q_a`` and ``q_b`` (body→NED), rad."""
+    a, b = gravity_body(np.asarray(q_a, np.float64)), gravity_body(np.asarray(q_b, np.float64))
+    d2 = np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.sum(a * b, 1)) ** 2
+    if window_s <= 0:
+        return np.sqrt(d2)
+    t_s = np.asarray(t_s, np.float64)
+    out = np.full(len(t_s), np.nan)
+    for s in segment_slices(seg):
+        t, v = t_s[s], d2[s]
+        good = np.isfinite(v)
+        c = np.r_[0.0, np.cumsum(np.where(good, v, 0.0))]
+        k = np.r_[0, np.cumsum(good)]
+        lo = np.searchsorted(t, t - 0.5 * window_s, "left")
+        hi = np.searchsorted(t, t + 0.5 * window_s, "right")
+        cnt = k[hi] - k[lo]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[s] = np.sqrt((c[hi] - c[lo]) / cnt)
+    return out
+
+
+def _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, gyr_clipped, relevel):
+    """:func:`smooth` without the disagreement's σ floor."""
     t_s = np.asarray(t_s, np.float64)
     gate = np.asarray(gate, np.float64)
     n = len(t_s)
