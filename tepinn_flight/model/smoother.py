@@ -11,7 +11,8 @@ better tilt. So:
 
 - the record is cut into **ungated stretches**: the samples where the anchored pass's gate (the
   largest of its flight-speed, saturation and uncalibrated-gyro gates, :class:`.anchor.AnchoredVQF`)
-  is zero, in runs of at least ``min_stretch_s`` (shorter ones keep the causal estimate);
+  is zero, in runs of at least ``min_stretch_s`` where a gate acts next to them, of at least
+  ``min_free_stretch_s`` where none does (a whole short segment; shorter ones keep the causal estimate);
 - each stretch is smoothed **on its own** (``offlineVQF`` sees none of the gated samples, whose
   rates or accelerations VQF would take wrongly);
 - from a gate's edge the smoothed tilt's weight ramps 0 → 1 over ``ramp_s`` (at a segment's own
@@ -25,7 +26,7 @@ better tilt. So:
   ``sigma_disagreement_gain`` times the centred RMS, over ``sigma_disagreement_window_s``, of the
   tilt angle between the causal and the smoothed estimate (:func:`disagreement_sigma`).
 
-With every gate shut on a whole segment of ≥ ``min_stretch_s``, its tilt is ``offlineVQF``'s
+With every gate shut on a whole segment of ≥ ``min_free_stretch_s``, its tilt is ``offlineVQF``'s
 (tested against the package). Offline only: the live bridge cannot see the future.
 """
 
@@ -44,7 +45,11 @@ from ..record import segment_slices
 class SmootherConfig:
     """Offline tilt smoothing (:mod:`.smoother`). Defaults are the shipped model's."""
 
-    min_stretch_s: float = 30.0  # ungated stretches shorter than this keep the causal estimate
+    min_stretch_s: float = 30.0  # ungated stretches next to a gate shorter than this keep the causal estimate
+    # ... and stretches next to no gate (bounded by the segment's ends, clipped samples or re-levellings: a whole
+    # short log, the flight before a flip) shorter than this (session 26, rule 15; 30 s for both before: set
+    # in session 15 against the short gaps between a fixed wing's gates, where VQF's tilt is what is wrong)
+    min_free_stretch_s: float = 5.0
     ramp_s: float = 5.0  # from a gate's edge, the smoothed tilt's weight goes 0 → 1 over this
     # σ of a smoothed sample: the causal σ times this (weight 1); fitted on the 17 seen BROAD trials
     # (mean NEES nearest 2 with ≥ 97.5 % within 3σ; `benchmarks/sigma_fit.py --smooth --rates 11`).
@@ -61,6 +66,7 @@ class SmootherConfig:
 
     def __post_init__(self):
         check_range("min_stretch_s", self.min_stretch_s, 0, None)
+        check_range("min_free_stretch_s", self.min_free_stretch_s, 0, None)
         check_range("ramp_s", self.ramp_s, 0, None)
         check_range("sigma_scale", self.sigma_scale, 0, 1, lo_open=True)
         check_range("sigma_disagreement_gain", self.sigma_disagreement_gain, 0, None)
@@ -75,7 +81,8 @@ class Smoothing:
     n_smoothed: int  # samples with a smoothed-tilt weight > 0
     n_stretches: int
     n_gated: int  # samples where a gate acts
-    min_stretch_s: float  # the setting it ran with (to say why nothing was smoothed)
+    min_stretch_s: float  # the settings it ran with (to say why nothing was smoothed)
+    min_free_s: float = 0.0
 
     @property
     def applied(self) -> bool:
@@ -87,7 +94,7 @@ class Smoothing:
         head = "offline tilt smoothing (VQF forward and backward where no gate acts)"
         if not self.applied:
             why = (f"no stretch of {self.min_stretch_s:g} s without a gate" if self.n_gated
-                   else f"no segment of {self.min_stretch_s:g} s")  # fmt: skip
+                   else f"no segment of {self.min_free_s:g} s")  # fmt: skip
             return f"{head}: none ({why}); not applied"
         return (f"{head}: {pct:.0f} % of the samples in {self.n_stretches} stretch(es)"
                 f"{f'; gates act on {gated:.0f} %' if self.n_gated else ''}; applied")  # fmt: skip
@@ -149,7 +156,7 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
     (after a crash, 17° decaying over 3 s against the causal 0.02°, σ at its floor: session 26). So the
     cut runs above also end at re-levellings, and the samples from a re-levelling after a stretch's last
     clip to its end take a run starting there (its weight ramping in from the causal tilt), or the
-    causal tilt where that run is shorter than ``min_stretch_s``. A stretch without a clipped or
+    causal tilt where that run is too short (:func:`smoothed_stretches`). A stretch without a clipped or
     re-levelled sample is smoothed as a whole."""
     out, sig, info = _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg, offline, gyr_clipped, relevel)
     if cfg.sigma_disagreement_gain > 0 and info.applied:
@@ -191,12 +198,12 @@ def _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, 
     if relevel is not None and len(relevel):
         rl[np.asarray(relevel, np.int64)] = True
     if not np.any((clipped | rl) & done):
-        return out, sig, Smoothing(n, int(done.sum()), n_str, int(np.sum(gate > 0)), cfg.min_stretch_s)
+        return out, sig, Smoothing(n, int(done.sum()), n_str, int(np.sum(gate > 0)), cfg.min_stretch_s, cfg.min_free_stretch_s)
     upto = []  # (start, end after the last clip) of each stretch holding a clip
     after = []  # (a re-levelling after a stretch's last clip, the stretch's end)
     for s in segment_slices(seg):
-        for st in ungated_stretches(t_s[s], gate[s], cfg.min_stretch_s):
-            a, b = s.start + st.start, s.start + st.stop
+        for st in smoothed_stretches(t_s, gate, gate, s, cfg):
+            a, b = st.start, st.stop
             hits = np.flatnonzero(clipped[a:b])
             last = a + int(hits[-1]) + 1 if hits.size else a + 1
             if hits.size:
@@ -210,27 +217,43 @@ def _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, 
         keep = np.zeros(n, bool)
         for a, last in upto:
             keep[a:last] = True
-        out_c, sig_c, done_c, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(keep, cut, 1.0), seg, cfg, offline)
+        out_c, sig_c, done_c, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(keep, cut, 1.0), seg, cfg, offline, gate)
         out[keep], sig[keep], done[keep] = out_c[keep], sig_c[keep], done_c[keep]
     if after:  # from a re-levelling on: a run of its own (the causal tilt where it is too short)
         own = np.zeros(n, bool)
         for r, b in after:
             own[r:b] = True
-        out_r, sig_r, done_r, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(own, gate, 1.0), seg, cfg, offline)
+        out_r, sig_r, done_r, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(own, gate, 1.0), seg, cfg, offline, gate)
         out[own], sig[own], done[own] = out_r[own], sig_r[own], done_r[own]
-    return out, sig, Smoothing(n, int(done.sum()), n_str, int(np.sum(gate > 0)), cfg.min_stretch_s)
+    return out, sig, Smoothing(n, int(done.sum()), n_str, int(np.sum(gate > 0)), cfg.min_stretch_s, cfg.min_free_stretch_s)
 
 
-def _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline):
+def smoothed_stretches(t_s, gate, real_gate, sl: slice, cfg: SmootherConfig) -> list[slice]:
+    """The stretches of segment ``sl`` where ``gate`` ≤ 0 that are smoothed (record indices): those next to a
+    sample where ``real_gate`` acts lasting ≥ ``min_stretch_s``, the others ≥ ``min_free_stretch_s``
+    (``gate`` may also mark clipped or re-levelled samples, which are no gate)."""
+    a0, b0 = sl.start, sl.stop
+    out = []
+    for st in ungated_stretches(t_s[sl], gate[sl], min(cfg.min_stretch_s, cfg.min_free_stretch_s)):
+        a, b = a0 + st.start, a0 + st.stop
+        near_gate = (a > a0 and real_gate[a - 1] > 0) or (b < b0 and real_gate[b] > 0)
+        if t_s[b - 1] - t_s[a] >= (cfg.min_stretch_s if near_gate else cfg.min_free_stretch_s):
+            out.append(slice(a, b))
+    return out
+
+
+def _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, real_gate=None):
     """``q_nb`` and σ with every stretch where ``gate`` ≤ 0 smoothed on its own → (q_nb, σ, the samples
-    smoothed, the number of stretches)."""
+    smoothed, the number of stretches). ``real_gate``: where a gate acts (default ``gate``), for
+    :func:`smoothed_stretches`."""
+    real_gate = gate if real_gate is None else real_gate
     out = np.array(q_nb, np.float64, copy=True)
     sig = np.array(sigma_rad, np.float64, copy=True)
     done = np.zeros(len(t_s), bool)
     n_stretches = 0
     for s in segment_slices(seg):
-        for st in ungated_stretches(t_s[s], gate[s], cfg.min_stretch_s):
-            a, b = s.start + st.start, s.start + st.stop
+        for st in smoothed_stretches(t_s, gate, real_gate, s, cfg):
+            a, b = st.start, st.stop
             w = ramp_weight(t_s[a:b], a > s.start, b < s.stop, cfg.ramp_s)
             q_s = offline(slice(a, b))
             ok = (w > 0) & np.all(np.isfinite(q_s), 1) & np.all(np.isfinite(out[a:b]), 1)
