@@ -145,6 +145,22 @@ def test_gated_samples_and_short_stretches_keep_the_causal_estimate():
     np.testing.assert_allclose(inclination_error_rad(error_quat_earth(out[4000:], q[4000:])), 0.05, atol=1e-9)  # no ramp
 
 
+def _run_marking_stand_in(t: np.ndarray):
+    """A stand-in offline filter that pitches each run it is given by its own first and last samples' times,
+    so the tilt says which run a sample came from → (tilt_of(a, b), offline(slice), the runs it saw)."""
+    seen = []
+
+    def tilt_of(a, b):
+        return 1e-4 * (1.0 + t[a] + (t[b - 1] - t[a]) / 10.0)
+
+    def offline(sl):
+        seen.append((sl.start, sl.stop))
+        pitch = np.full(sl.stop - sl.start, tilt_of(sl.start, sl.stop))
+        return _q(Rotation.from_euler("ZYX", np.c_[np.zeros_like(pitch), pitch, np.zeros_like(pitch)]))
+
+    return tilt_of, offline, seen
+
+
 def test_before_a_stretchs_last_clipped_gyro_sample_no_backward_pass_has_crossed_a_clip():
     # 100 s at 100 Hz, no gate; the gyro clips at 30-30.5 s and 60-60.5 s. The stand-in offline filter tilts each
     # run it is given by its own first and last samples' times, so the tilt says which run a sample came from
@@ -156,15 +172,7 @@ def test_before_a_stretchs_last_clipped_gyro_sample_no_backward_pass_has_crossed
     clipped[3000:3050] = clipped[6000:6050] = True
     q = _q(Rotation.from_euler("ZYX", np.c_[0.1 * t, np.zeros(n), np.zeros(n)]))
     sigma = np.full(n, 0.01)
-    seen = []
-
-    def tilt_of(a, b):
-        return 1e-4 * (1.0 + t[a] + (t[b - 1] - t[a]) / 10.0)
-
-    def offline(sl):
-        seen.append((sl.start, sl.stop))
-        pitch = np.full(sl.stop - sl.start, tilt_of(sl.start, sl.stop))
-        return _q(Rotation.from_euler("ZYX", np.c_[np.zeros_like(pitch), pitch, np.zeros_like(pitch)]))
+    tilt_of, offline, seen = _run_marking_stand_in(t)
 
     cfg = SmootherConfig(min_stretch_s=20.0, ramp_s=5.0, sigma_scale=0.5)
     out, sig, done = smooth(t, q, sigma, gate, seg, cfg, offline, gyr_clipped=clipped)
@@ -196,15 +204,7 @@ def test_from_a_relevelling_after_the_last_clip_no_forward_pass_has_crossed_it()
     clipped = np.zeros(n, bool)
     clipped[3000:3050] = True
     q = _q(Rotation.from_euler("ZYX", np.c_[0.1 * t, np.zeros(n), np.zeros(n)]))
-    seen = []
-
-    def tilt_of(a, b):
-        return 1e-4 * (1.0 + t[a] + (t[b - 1] - t[a]) / 10.0)
-
-    def offline(sl):
-        seen.append((sl.start, sl.stop))
-        pitch = np.full(sl.stop - sl.start, tilt_of(sl.start, sl.stop))
-        return _q(Rotation.from_euler("ZYX", np.c_[np.zeros_like(pitch), pitch, np.zeros_like(pitch)]))
+    tilt_of, offline, seen = _run_marking_stand_in(t)
 
     cfg = SmootherConfig(min_stretch_s=20.0, min_free_stretch_s=20.0, ramp_s=5.0, sigma_scale=0.5)
     out, sig, done = smooth(t, q, sigma, gate, seg, cfg, offline, gyr_clipped=clipped, relevel=[3100])
