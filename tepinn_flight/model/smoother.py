@@ -198,7 +198,7 @@ def _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, 
     if relevel is not None and len(relevel):
         rl[np.asarray(relevel, np.int64)] = True
     if not np.any((clipped | rl) & done):
-        return out, sig, Smoothing(n, int(done.sum()), n_str, int(np.sum(gate > 0)), cfg.min_stretch_s, cfg.min_free_stretch_s)
+        return out, sig, _summary(done, n_str, gate, cfg)
     upto = []  # (start, end after the last clip) of each stretch holding a clip
     after = []  # (a re-levelling after a stretch's last clip, the stretch's end)
     for s in segment_slices(seg):
@@ -225,7 +225,12 @@ def _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, 
             own[r:b] = True
         out_r, sig_r, done_r, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(own, gate, 1.0), seg, cfg, offline, gate)
         out[own], sig[own], done[own] = out_r[own], sig_r[own], done_r[own]
-    return out, sig, Smoothing(n, int(done.sum()), n_str, int(np.sum(gate > 0)), cfg.min_stretch_s, cfg.min_free_stretch_s)
+    return out, sig, _summary(done, n_str, gate, cfg)
+
+
+def _summary(done: np.ndarray, n_stretches: int, gate: np.ndarray, cfg: SmootherConfig) -> Smoothing:
+    return Smoothing(len(done), int(done.sum()), n_stretches, int(np.sum(gate > 0)), cfg.min_stretch_s,
+                     cfg.min_free_stretch_s)  # fmt: skip
 
 
 def smoothed_stretches(t_s, gate, real_gate, sl: slice, cfg: SmootherConfig) -> list[slice]:
