@@ -28,7 +28,9 @@ the impact 0.42–7.63° against VQF's 20–33°; over the whole crash still beh
 37.26 vs 30.01°: the tumble itself, where the gate pulls toward windows holding a free fall). Session 25's offline
 smoothing (the default): over the crash and the 6 s after 6.99° against VQF's 21.02°, worse on none; a first version
 ran VQF backward through the clipped tumble and spoiled the 5 s before it (before the crash 3.96–6.29° against VQF's
-3.12–6.44°): the smoothing's runs now end before a clipped sample there (0.59–1.77°).
+3.12–6.44°): the smoothing's runs now end before a clipped sample there (0.59–1.77°). Session 26: after the
+re-levelling at rest the smoothed tilt had kept 17° of the tumble for 3 s (the whole stretch's forward pass crossed
+the reset; σ at its floor, whole-file NEES 30–36): the runs now never cross a re-levelling either (rule 13).
 
     python benchmarks/crash_probe.py [--seeds 101 102 103] [--rate 2400 --turn 540] [RECORD ...]
 """
