@@ -142,6 +142,47 @@ def test_gates_use_the_network_only_with_evidence():
     assert f.gate == 0.0
 
 
+def test_in_a_gap_after_a_gate_sigma_holds_the_networks_disagreement_for_sigma_gap_hold_s():
+    """Level at rest (no pull: pull_gain 0, so VQF stays level): a window at flight speed opens the gate, the
+    next one at hand-held speed shuts it; the network's target is tilted 10° (its down against the level
+    filter's, by scipy). In the gap σ² grows by (k·10°)² over the same filter with k = 0, until the gate has
+    been shut for sigma_gap_hold_s; a filter whose gate never acted has no gap term."""
+    from scipy.spatial.transform import Rotation
+
+    n = 100
+    t = np.arange(n) * 0.01
+    gyr, acc = np.zeros((n, 3)), np.tile([0.0, 0.0, -9.81], (n, 1))
+    target = np.array([math.cos(math.radians(5)), math.sin(math.radians(5)), 0.0, 0.0])  # 10° of roll
+    down_t = Rotation.from_quat(target[[1, 2, 3, 0]]).inv().apply([0.0, 0.0, 1.0])
+    d_deg = math.degrees(math.acos(float(np.clip(down_t @ [0.0, 0.0, 1.0], -1, 1))))
+    assert d_deg == pytest.approx(10.0, abs=1e-9)
+
+    def sigmas(k, windows, hold_s=30.0):
+        f = AnchoredVQF(AnchorConfig(pull_gain=0.0, centripetal=False, sigma_gap_gain=k, sigma_gap_hold_s=hold_s), 0.01)
+        out = []
+        t0 = 0.0
+        for vel, wait_s in windows:
+            sig = f.update(t + t0, gyr, acc)[2]
+            t0 += 1.0 + wait_s
+            if wait_s:
+                f.update(np.arange(int(wait_s * 100)) * 0.01 + t0 - wait_s, gyr[:1].repeat(int(wait_s * 100), 0),
+                         acc[:1].repeat(int(wait_s * 100), 0))  # fmt: skip
+            f.correct(WindowOutput(target, 0.01, np.zeros(3), np.array([vel, 0.0, 0.0]), np.zeros(3)))
+            out.append((f.gate, float(f.update(t[:1] + t0, gyr[:1], acc[:1])[2][0])))
+            t0 += 0.01
+        return out
+
+    plan = [(60.0, 0.0), (3.0, 0.0), (3.0, 20.0), (3.0, 15.0)]  # gate on; shut 1 s later; 21 s; 37 s after it acted
+    new, old = sigmas(1.5, plan), sigmas(0.0, plan)
+    assert [g for g, _ in new] == [1.0, 0.0, 0.0, 0.0]
+    assert new[0][1] == pytest.approx(old[0][1], rel=1e-12)  # while the gate acts: the network's σ, as before
+    for i in (1, 2):  # in the gap: σ² + (k·D)²
+        assert new[i][1] ** 2 - old[i][1] ** 2 == pytest.approx(math.radians(1.5 * d_deg) ** 2, rel=1e-6)
+    assert new[3][1] == pytest.approx(old[3][1], rel=1e-12)  # 37 s after the gate acted: no gap term
+    never = sigmas(1.5, [(3.0, 0.0), (3.0, 0.0)])
+    assert [s for _, s in never] == pytest.approx([s for _, s in sigmas(0.0, [(3.0, 0.0), (3.0, 0.0)])], rel=1e-12)
+
+
 def test_a_non_finite_sample_is_a_hole_not_the_end_of_the_estimate():
     rec = synthetic_record(seed=1, duration_s=12.0, rate_hz=100.0)
     model, _, _ = load_model(default_model_path())
@@ -547,6 +588,10 @@ def test_checkpoints_written_before_the_re_levelling_run_without_it():
     assert anchor_config_from({"anchor_config": {**old, "rest_relevel_s": 0.5}}).rest_relevel_s == 0.5
     assert read_checkpoint(default_model_path())["anchor_config"]["rest_relevel_s"] == 0.5  # the shipped one stores it
     assert AnchorConfig().learned_off.rest_relevel_s == 0.0  # plain VQF has none
+    # σ's gap term (session 26) likewise: off in older checkpoints and in plain VQF, stored in the shipped one
+    assert anchor_config_from({"anchor_config": old}).sigma_gap_gain == 0.0
+    assert read_checkpoint(default_model_path())["anchor_config"]["sigma_gap_gain"] == 1.0
+    assert AnchorConfig().learned_off.sigma_gap_gain == 0.0
 
 
 def test_estimate_says_where_it_re_levelled(tmp_path, capsys):

@@ -166,6 +166,14 @@ class AnchorConfig:
     # clips: σ there is unchanged (docs/design-log.md, session 20)
     sigma_clip_gain: float = 0.3
     sigma_clip_tau_s: float = 1.75
+    # k and T of the gap term: at a window where no gate acts but one acted within the last T s (a fixed wing's
+    # short gaps between its flight-speed gate's spells, in vertical manoeuvres; a tactical multirotor between
+    # saturation spells), σ² += (k·D)² until the next window, D the tilt angle between the network's pull target
+    # and VQF's — what the gate just stopped using is the witness of VQF's error there. No gate ever acts on a
+    # real file we have: σ there is unchanged. Session 26, rule 14b's fit on every 4th training flight (k = 1,
+    # T = min_stretch_s a priori; c172x flights' NEES 9–101 → 0.5–2.2); 0: off (checkpoints before it)
+    sigma_gap_gain: float = 1.0
+    sigma_gap_hold_s: float = 30.0
     # quiet blocks (speed): the windows matter only where a gate may open. A block of the older
     # fusion's bias feedback (its bias_feedback_windows tokens) whose first window shows |v̂| below
     # quiet_speed_m_s and a fusion gyro bias below quiet_bias_deg_s on every axis runs only that window
@@ -229,7 +237,7 @@ class AnchorConfig:
         check_range("speed_hi_m_s", self.speed_hi_m_s, self.speed_lo_m_s, None, lo_open=True)
         check_range("bias_gate_thrust_deg", self.bias_gate_thrust_deg, 0, 180)
         for name in ("clip_min_s", "quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "rest_relevel_s", "clip_gate_max_deg_s", "rest_gyr_deg_s", "rest_acc_m_s2", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "bias_gate_vqf_deg_s", "sigma_floor_deg", "sigma_acc_gain",
-                     "sigma_net_scale", "sigma_sampling_gain", "sigma_clip_gain"):  # fmt: skip
+                     "sigma_net_scale", "sigma_sampling_gain", "sigma_clip_gain", "sigma_gap_gain", "sigma_gap_hold_s"):  # fmt: skip
             check_range(name, getattr(self, name), 0, None)
 
     def quiet_in(self, fusion: FusionConfig) -> int:
@@ -262,7 +270,7 @@ class AnchorConfig:
         return dataclasses.replace(self, pull_gain=0.0, centripetal=False, tau_acc_flight_s=0.0, bias_gate_weight=0.0,
                                    bias_deadzone_deg_s=1e9, sigma_net_scale=0.0, gyro_scale=(1.0, 1.0, 1.0),
                                    gyro_selfcal=False, gnss_aid=False, smoother=False,
-                                   accel_scale_selfcal=False, rest_relevel_s=0.0)  # fmt: skip
+                                   accel_scale_selfcal=False, rest_relevel_s=0.0, sigma_gap_gain=0.0)  # fmt: skip
 
 
 @dataclass
@@ -353,6 +361,8 @@ class AnchoredVQF:
         self.gate = 0.0
         self.gate_parts = (0.0, 0.0, 0.0)  # the last window's flight-speed, saturation and bias gates
         self.sigma_net = 0.0
+        self.var_gap = 0.0  # σ²'s gap term (sigma_gap_gain), set at each window
+        self.t_gated = -math.inf  # the last window where a gate acted
         self.e_acc = 0.0  # low-passed accelerometer-vs-gravity angle (rad)
         self.sigma_alpha = min(1.0, self.ts / c.sigma_acc_tau_s)  # its low-pass gain per sample
         self.sigma_var0 = math.radians(c.sigma_floor_deg) ** 2
@@ -476,8 +486,8 @@ class AnchoredVQF:
         return q6, q9, sig, bias
 
     def _var_net(self) -> float:
-        """The network's share of σ² (zero while every gate is shut)."""
-        return float(self.gate * (self.cfg.sigma_net_scale * self.sigma_net) ** 2)
+        """The network's share of σ²: while a gate acts, its σ; in a gap after one, the gap term."""
+        return float(self.gate * (self.cfg.sigma_net_scale * self.sigma_net) ** 2) + self.var_gap
 
     # ------------------------------------------------------------------ network windows
 
@@ -519,6 +529,16 @@ class AnchoredVQF:
                 self.bias_latched |= over and self.t - self.t_bias_over >= BIAS_EVIDENCE_S
         g_bias = c.bias_gate_weight if self.bias_latched else 0.0
         self.gate = max(g_flight, g_clip, g_bias)
+        self.var_gap = 0.0
+        if self.gate > 0:
+            self.t_gated = self.t
+        elif c.sigma_gap_gain > 0 and self.t - self.t_gated <= c.sigma_gap_hold_s:
+            # the angle between the target's up in S (−d₀, d₁, d₂) and VQF's (the third row of its rotation)
+            d = down_in_body(*_floats(w.q_nb_wxyz))
+            ux, uy, uz = 2.0 * (qx * qz - qw * qy), 2.0 * (qy * qz + qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy)
+            cx, cy, cz = uy * d[2] - uz * d[1], uz * -d[0] - ux * d[2], ux * d[1] - uy * -d[0]
+            ang = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), -ux * d[0] + uy * d[1] + uz * d[2])
+            self.var_gap = (c.sigma_gap_gain * ang) ** 2
         # what each gate did to the attitude (reported per record): none where nothing it drives is on
         pulls = c.pull_gain > 0
         self.gate_parts = (g_flight if pulls or c.centripetal or c.tau_acc_flight_s > 0 else 0.0, g_clip if pulls else 0.0,
