@@ -56,7 +56,9 @@ w·(s·σ_net)² + E²`` with e a 1-s average of the angle between the accelerom
 makes large in fast motion), w the gate, σ_net the network's σ, and E the tilt a saturated gyro may
 have lost (each sample with the gyro clipped adds k·|ω|·Δt, |ω| its clipped reading; E decays with
 time constant τ after; at most π/2: ``sigma_clip_gain``, ``sigma_clip_tau_s``, fitted on simulated
-flights that clip);
+flights that clip); and, where no gate acts but one did within ``sigma_gap_hold_s``, (k·D)² with D the
+tilt angle between the network's pull target and VQF (``sigma_gap_gain``: the witness the gate just
+stopped using, session 26);
 σ₀ and c fitted on real files with a trusted reference (and g chosen there, by the fine-tuning).
 
 Frames: VQF works in a z-up sensor frame ``S`` (body FRD turned 180° about x) and a z-up earth
@@ -170,7 +172,7 @@ class AnchorConfig:
     # short gaps between its flight-speed gate's spells, in vertical manoeuvres; a tactical multirotor between
     # saturation spells), σ² += (k·D)² until the next window, D the tilt angle between the network's pull target
     # and VQF's — what the gate just stopped using is the witness of VQF's error there. No gate ever acts on a
-    # real file we have: σ there is unchanged. Session 26, rule 14b's fit on every 4th training flight (k = 1,
+    # real file we have: σ there is unchanged. Session 26, rule 16's fit on every 4th training flight (k = 1,
     # T = min_stretch_s a priori; c172x flights' NEES 9–101 → 0.5–2.2); 0: off (checkpoints before it)
     sigma_gap_gain: float = 1.0
     sigma_gap_hold_s: float = 30.0
