@@ -19,7 +19,7 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 #: the anchored VQF's kernels (model/anchor_kernels.py)
 ANCHOR_KERNELS = ("q_nb_from_vqf_f", "q_nb_rows", "sigma_step", "clip_sigma_step", "clip_sigma_rows", "vqf_inputs",
                   "vqf_outputs", "horizontal_bias",
-                  "tilt_pull_f", "turn_acc_state")
+                  "tilt_pull_f", "up_in_earth_f", "turn_acc_state")
 
 _CALLS = textwrap.dedent("""
     import numpy as np

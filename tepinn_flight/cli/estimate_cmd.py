@@ -12,8 +12,9 @@ DESCRIPTION = (
     "Runs over whole records: the network on its windows (batched; once a second where no gate can open), then "
     "the VQF filter it corrects where the evidence says so (flight speed, gyro saturation, an uncalibrated gyro); "
     "offline only, where the record shows them, the accelerometer's and the gyro's scale and the motion "
-    "acceleration a GNSS receiver measured are taken out first, and where no gate acts for 30 s or more the tilt "
-    "is VQF's run forward and backward (--no-smooth: the causal tilt the live bridge gives). Writes one row per "
+    "acceleration a GNSS receiver measured are taken out first, and where no gate acts for 30 s or more (5 s where "
+    "none acts next to it: a short log) the tilt is VQF's run forward and backward (--no-smooth: the causal tilt the "
+    "live bridge gives). Writes one row per "
     "input row: t_s, q_est_w..z (body->NED), sigma_rad, gyr_bias_est_*_rad_s, and says per record what each "
     "step did. Short logging dropouts (<= 100 ms) are propagated through, longer gaps restart the estimator. A "
     "raw log is ingested on the fly."
@@ -64,9 +65,9 @@ def add_arguments(p) -> None:
     smooth = p.add_mutually_exclusive_group()
     smooth.add_argument("--no-smooth", action="store_true",
                         help="do not smooth the tilt offline (the causal estimate the live bridge gives; by default every "
-                             "stretch of 30 s or more where no gate of the network acts takes the tilt of VQF run forward "
-                             "and backward on the same inputs, heading kept: nearer the true attitude, farther from an "
-                             "autopilot's own causal estimate: README, the shipped estimator)")
+                             "stretch of 30 s or more where no gate of the network acts (5 s where none acts next to it) takes "
+                             "the tilt of VQF run forward and backward on the same inputs, heading kept: nearer the true "
+                             "attitude, farther from an autopilot's own causal estimate: README, the shipped estimator)")
     smooth.add_argument("--smooth", action="store_true",
                         help="smooth the tilt offline with a checkpoint that does not (one written before session 25)")
     p.add_argument("--tlog", default=None, metavar="FILE|DIR",

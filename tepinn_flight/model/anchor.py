@@ -83,7 +83,8 @@ from ..quat_scalar import down_in_body
 from .anchor_kernels import FLIP as _FLIP
 from .anchor_kernels import Q_NED_ENU, Q_SENSOR_BODY  # noqa: F401  (VQF's frames; peers import them from here)
 from .anchor_kernels import (clip_sigma_rows, clip_sigma_step, horizontal_bias, q_nb_from_vqf_f, q_nb_rows, rest_rows,
-                             rest_step, sigma_step, tilt_pull_f, turn_acc_state, vqf_inputs, vqf_outputs)  # fmt: skip
+                             rest_step, sigma_step, tilt_pull_f, turn_acc_state, up_in_earth_f, vqf_inputs,
+                             vqf_outputs)  # fmt: skip
 from .fusion import FusionConfig
 BIAS_EVIDENCE_S = 2.0  # the older fusion's bias must stay beyond its gate this long
 THRUST_TAU_S = 10.0  # the accelerometer's mean direction (bias_gate_thrust_deg) is low-passed over this
@@ -535,12 +536,9 @@ class AnchoredVQF:
         if self.gate > 0:
             self.t_gated = self.t
         elif c.sigma_gap_gain > 0 and self.t - self.t_gated <= c.sigma_gap_hold_s:
-            # the angle between the target's up in S (−d₀, d₁, d₂) and VQF's (the third row of its rotation)
-            d = down_in_body(*_floats(w.q_nb_wxyz))
-            ux, uy, uz = 2.0 * (qx * qz - qw * qy), 2.0 * (qy * qz + qw * qx), 1.0 - 2.0 * (qx * qx + qy * qy)
-            cx, cy, cz = uy * d[2] - uz * d[1], uz * -d[0] - ux * d[2], ux * d[1] - uy * -d[0]
-            ang = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), -ux * d[0] + uy * d[1] + uz * d[2])
-            self.var_gap = (c.sigma_gap_gain * ang) ** 2
+            d = down_in_body(*_floats(w.q_nb_wxyz))  # the target's up in S: (−d₀, d₁, d₂), as for the pull below
+            ex, ey, ez = up_in_earth_f(qw, qx, qy, qz, -d[0], d[1], d[2])
+            self.var_gap = (c.sigma_gap_gain * math.atan2(math.hypot(ex, ey), ez)) ** 2
         # what each gate did to the attitude (reported per record): none where nothing it drives is on
         pulls = c.pull_gain > 0
         self.gate_parts = (g_flight if pulls or c.centripetal or c.tau_acc_flight_s > 0 else 0.0, g_clip if pulls else 0.0,

@@ -154,16 +154,21 @@ def horizontal_bias(qw, qx, qy, qz, bx, by, bz):
 
 
 @njit(cache=True)
+def up_in_earth_f(qw, qx, qy, qz, ux, uy, uz):
+    """A target's up direction ``u`` in sensor axes (normalised here) in the filter's earth frame
+    (``q``: sensor → earth): its angle to ``e_z`` is the tilt between the two."""
+    n = math.sqrt(ux * ux + uy * uy + uz * uz)
+    ux, uy, uz = ux / n, uy / n, uz / n
+    r = rotmat_entries(qw, qx, qy, qz)
+    return (r[0] * ux + r[1] * uy + r[2] * uz, r[3] * ux + r[4] * uy + r[5] * uz, r[6] * ux + r[7] * uy + r[8] * uz)
+
+
+@njit(cache=True)
 def tilt_pull_f(qw, qx, qy, qz, ux, uy, uz, fraction):
     """Earth-frame rotation (a quaternion) that turns the filter attitude ``q`` (sensor → earth) by
     ``fraction`` of the tilt between it and a target whose up direction in sensor axes is ``u``;
     about a horizontal axis (``u_earth × e_z``), so the heading is untouched."""
-    n = math.sqrt(ux * ux + uy * uy + uz * uz)
-    ux, uy, uz = ux / n, uy / n, uz / n
-    r = rotmat_entries(qw, qx, qy, qz)
-    ex = r[0] * ux + r[1] * uy + r[2] * uz  # the target's up in the filter's earth frame
-    ey = r[3] * ux + r[4] * uy + r[5] * uz
-    ez = r[6] * ux + r[7] * uy + r[8] * uz
+    ex, ey, ez = up_in_earth_f(qw, qx, qy, qz, ux, uy, uz)  # the target's up in the filter's earth frame
     m = math.sqrt(ey * ey + ex * ex)  # |(ey, −ex, 0)|
     ang = math.atan2(m, ez) * fraction
     if m < 1e-12 or ang == 0.0:
