@@ -3,7 +3,8 @@ upgrade, or with an empty cache), so a user does not take the pause for a hang; 
 loops load from numba's cache (the ``numba:compile`` event fires only on a cache miss).
 
 The loops are the older fusion (``model/fusion.py``, run alongside the shipped estimator), the
-shipped estimator's kernels between network windows (``model/anchor_kernels.py``), the baseline
+shipped estimator's kernels between network windows (``model/anchor_kernels.py``), the live
+accelerometer-scale reading (``model/accel_scale_kernels.py``), the baseline
 filters (``evaluation/filters/``) and the tlog frame sync (``ingest/mavlink_sync.py``);
 ``benchmarks/jit_compile.py`` measures their compile and cache-load times.
 """

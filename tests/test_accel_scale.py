@@ -147,10 +147,54 @@ def test_the_live_reading_restarts_its_windows_at_a_time_jump():
     for i, (ti, g, a) in enumerate(zip(t, gyr, acc)):
         tr.update(float(ti), g, a)
         if tr.decided is None:
-            assert len(tr._avg) <= 101 and len(tr._norms) <= 401  # the trailing windows stay their length
+            n_avg, n_norms = tr.window_lengths()
+            assert n_avg <= 101 and n_norms <= 401  # the trailing windows stay their length
     # the 4 s before the jump were quiet but too short; after it, 2.5 s to fill the windows, then 5 s
     assert tr.decided is not None and tr.decided.applied and tr.decided.read == pytest.approx(0.8, abs=0.005)
 
+
+
+def _awkward_stream(seed: int):
+    """A live stream that exercises every branch of the reading: quiet and turning phases at 0.8 g,
+    a 2 kHz stretch (the trailing windows outgrow their first buffers), a dropout over 1 s, the
+    clock jumping back (a reboot) and samples at uneven steps."""
+    rng = np.random.default_rng(seed)
+    parts, t0 = [], 0.0
+    for seconds, rate_hz, turn in ((3.0, 200.0, 0.0), (2.0, 200.0, 0.4), (4.0, 2000.0, 0.0), (1.0, 100.0, 0.0),
+                                   (6.0, 400.0, 0.0), (3.0, 250.0, 0.0), (8.0, 300.0, 0.0)):  # fmt: skip
+        t, gyr, acc = _imu(seconds, rate_hz, 0.8, turn, seed=int(rng.integers(1 << 30)))
+        t = t + t0 + rng.uniform(0.0, 0.2 / rate_hz, len(t))
+        parts.append((t, gyr, acc))
+        t0 = t[-1] + (1.5 if len(parts) == 3 else 1.0 / rate_hz)  # a 1.5-s dropout after the 2 kHz stretch
+    t, gyr, acc = (np.concatenate(x) for x in zip(*parts))
+    t = np.where(np.arange(len(t)) > len(t) // 2, t - 500.0, t)  # the clock jumps back halfway
+    return t, gyr, acc
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_compiled_live_reading_equals_the_python_one_bit_for_bit(seed):
+    """The tracker's compiled step (``accel_scale_kernels``) against the former Python tracker, kept as
+    ``tests/accel_scale_reference.py``: the same accelerometer out at every sample, the same windows,
+    the same decision (read, quiet time) — through buffer growth, a dropout and a clock jump back."""
+    from tepinn_flight.model.accel_scale import AccelScaleTracker
+    from tests.accel_scale_reference import AccelScaleTrackerReference
+
+    t, gyr, acc = _awkward_stream(seed)
+    fast, ref = AccelScaleTracker(), AccelScaleTrackerReference()
+    for i, (ti, g, a) in enumerate(zip(t, gyr, acc)):
+        out_f, out_r = fast.update(float(ti), g, a), ref.update(float(ti), g, a)
+        assert tuple(map(float, out_f)) == tuple(map(float, out_r)), i
+        if ref.decided is None:
+            assert fast.window_lengths() == (len(ref._avg), len(ref._norms)), i
+    assert ref.decided is not None and ref.decided.applied  # the stream did reach a decision
+    assert fast.decided == ref.decided
+    # a vehicle that never holds still: no decision, the accelerometer passed as it is throughout
+    t, gyr, acc = _imu(20.0, 400.0, 0.8, rate_rad_s=0.5, seed=seed)
+    fast, ref = AccelScaleTracker(), AccelScaleTrackerReference()
+    out = np.array([fast.update(float(ti), g, a) for ti, g, a in zip(t, gyr, acc)])
+    [ref.update(float(ti), g, a) for ti, g, a in zip(t, gyr, acc)]
+    assert fast.decided is None and ref.decided is None and fast.window_lengths() == (len(ref._avg), len(ref._norms))
+    np.testing.assert_array_equal(out, acc)
 
 @pytest.mark.slow
 def test_the_live_estimator_on_a_real_trial_read_as_a_board_at_1_25_g():

@@ -832,3 +832,19 @@ def test_worker_warm_up_leaves_a_fresh_estimator():
         outs.append(np.array([(*(e.q_nb_wxyz if e.q_nb_wxyz is not None else (np.nan,) * 4), e.sigma_rad) for e in es], float))
     np.testing.assert_array_equal(outs[0], outs[1])  # the attitude and σ (the warm-up's saturated samples left nothing)
     assert np.isfinite(outs[0][-1]).all()
+    # nor did its still, level samples at 1 g count toward the accelerometer's scale, which the estimator keeps
+    # across segments (a board at 0.8 g, level and still for 10 s: read at the same sample, the same value)
+    n = 2000
+    rng = np.random.default_rng(3)
+    t = np.arange(n) / 200.0
+    gyr = rng.normal(0.0, 0.01, (n, 3))
+    acc = rng.normal(0.0, 0.5, (n, 3)) + [0.0, 0.0, -0.8 * 9.80665]
+    read = []
+    for warm in (False, True):
+        est = StreamingEstimator(runner, settings)
+        if warm:
+            warm_up(est)
+        i_read = next(i for i, (ti, g, a) in enumerate(zip(t, gyr, acc))
+                      if est.push(ti, g, a, None) and est.acc_scale.decided is not None)  # fmt: skip
+        read.append((i_read, est.acc_scale.decided))
+    assert read[0] == read[1] and read[0][1].applied and abs(read[0][1].read - 0.8) < 0.005

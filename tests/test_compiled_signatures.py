@@ -1,7 +1,7 @@
 """Each compiled loop is compiled for one signature, whatever its callers pass: the offline and the
 live fusion share ``_step``'s, and a record's read-only Fortran-ordered columns, C arrays, 6-D and
 9-D calls give each filter one; so do the anchored VQF's kernels, offline and live, from record
-columns, lists, tuples and configs holding ints. (Every extra signature is another full compile on first use —
+columns, lists, tuples and configs holding ints, and the live accelerometer-scale reading's step. (Every extra signature is another full compile on first use —
 seconds each; ``benchmarks/jit_compile.py``.) Run in a fresh process, so the dispatchers hold only
 what these calls compiled."""
 
@@ -104,7 +104,14 @@ _CALLS = textwrap.dedent("""
     ga.motion_acc_body(t, np.tile([1.0, 0, 0, 0], (n, 1)).tolist(), acc.tolist(), vel, ga.GnssAidConfig())
     ga._centred_mean(np.exp(1j * t), 7)
     ga._centred_mean(np.float32(t), np.int32(5))
-    for name, d in (("fusion._run", fusion._run), ("fusion._step", fusion._step), ("wf._features", wf._features),
+    from tepinn_flight.model import accel_scale_kernels as ask
+    from tepinn_flight.model.accel_scale import AccelScaleTracker
+
+    tr = AccelScaleTracker()  # the live accelerometer-scale reading: ints, tuples, read-only rows, float32, lists
+    tr.update(0, (0, 0, 0), (0, 0, -10))
+    tr.update(np.float64(0.01), rec.gyr_rad_s[0], rec.acc_m_s2[0])
+    tr.update(0.02, [0.0, 0.0, 0.0], np.array([0, 0, -9.81], np.float32))
+    for name, d in (("ask.track_step", ask.track_step), ("fusion._run", fusion._run), ("fusion._step", fusion._step), ("wf._features", wf._features),
                     ("gs.attitude_at", gs.attitude_at), ("gk.window_sums", gk.window_sums),
                     ("gk.rotate_rows", gk.rotate_rows),
                     ("complementary._run", complementary._run), ("madgwick._run", madgwick._run),
@@ -120,6 +127,6 @@ def test_every_loop_is_compiled_for_one_signature(tmp_path):
     p = subprocess.run([sys.executable, "-c", _CALLS], capture_output=True, text=True, env=env, cwd=REPO, timeout=600)
     assert p.returncode == 0, p.stderr
     counts = dict(line.split() for line in p.stdout.splitlines())
-    assert counts == {k: "1" for k in ("fusion._run", "fusion._step", "wf._features", "gs.attitude_at", "complementary._run", "madgwick._run",
+    assert counts == {k: "1" for k in ("ask.track_step", "fusion._run", "fusion._step", "wf._features", "gs.attitude_at", "complementary._run", "madgwick._run",
                                        "ekf._loop", "gk.window_sums", "gk.rotate_rows")
                       + tuple(f"ak.{k}" for k in ANCHOR_KERNELS)}, p.stdout  # fmt: skip

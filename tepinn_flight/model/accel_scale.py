@@ -26,13 +26,14 @@ steady samples, applied from then on).
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..config import check_range
 from ..conventions import GRAVITY_M_S2
+from .accel_scale_kernels import (AVG_HEAD, AVG_LEN, DECIDE, FULL, NORM_HEAD, NORM_LEN, QUIET_LEN, QUIET_S, new_state,
+                                  track_step)
 from .gyro_selfcal import _boxcar
 
 
@@ -114,20 +115,23 @@ class AccelScaleTracker:
     ones, and the scale decided once, from the first ``min_quiet_s`` of quiet, steady samples (a vehicle
     on the ground before it takes off gives them in seconds); from then on :meth:`update` divides by it
     where it is ``tolerance`` or more off 1. Before that decision — and on a vehicle that never holds
-    still — the accelerometer passes as it is. Stops tracking once decided (no cost per sample then)."""
+    still — the accelerometer passes as it is. Stops tracking once decided (no cost per sample then).
+    The per-sample step is compiled (:mod:`.accel_scale_kernels`, session 27: 9 µs a sample in Python)."""
 
     def __init__(self, cfg: AccelScaleConfig | None = None):
-        self.cfg = cfg or AccelScaleConfig()
+        self.cfg = c = cfg or AccelScaleConfig()
         self.scale = 1.0
         self.decided: AccelScale | None = None
-        self._avg = deque()  # (t, |ω|, ax, ay, az) of the last avg_s
-        self._sums = [0.0, 0.0, 0.0, 0.0]
-        self._norms = deque()  # (t, |ā|) of the last steady_s
-        self._n1 = self._n2 = 0.0
-        self._quiet: list[float] = []
-        self._t_first = None
-        self._t_prev = None
-        self._quiet_s = 0.0
+        self._cfg = np.array([c.avg_s, c.steady_s, c.quiet_rate_rad_s, c.steady_m_s2, c.min_quiet_s, MAX_STEP_S])
+        self._state, self._idx = new_state()
+        # ring buffers of the two trailing windows and the quiet norms, grown when full (FULL)
+        self._avg, self._norms, self._quiet = np.zeros((256, 5)), np.zeros((1024, 2)), np.zeros(1024)
+
+    def window_lengths(self) -> tuple[int, int]:
+        """How many samples the trailing ``avg_s`` and ``steady_s`` windows hold (0, 0 once decided)."""
+        if self.decided is not None:
+            return 0, 0
+        return int(self._idx[AVG_LEN]), int(self._idx[NORM_LEN])
 
     def update(self, t: float, gyr, acc) -> tuple[float, float, float]:
         """One finite sample (body axes, SI) → the accelerometer to use (divided by the scale once it is
@@ -136,53 +140,29 @@ class AccelScaleTracker:
         if self.decided is not None:
             s = self.scale
             return (ax / s, ay / s, az / s) if s != 1.0 else (ax, ay, az)
-        c = self.cfg
-        dt = 0.0 if self._t_prev is None else t - self._t_prev
-        if self._t_first is None or not 0.0 < dt <= MAX_STEP_S:  # the start, a time jump or a dropout:
-            self._t_first, dt = t, 0.0  # the trailing windows start again (the quiet samples so far are kept)
-            self._avg.clear()
-            self._norms.clear()
-            self._sums = [0.0, 0.0, 0.0, 0.0]
-            self._n1 = self._n2 = 0.0
-        self._t_prev = t
-        w = math.sqrt(gyr[0] * gyr[0] + gyr[1] * gyr[1] + gyr[2] * gyr[2])
-        avg = self._avg
-        avg.append((t, w, ax, ay, az))
-        sums = self._sums
-        sums[0] += w
-        sums[1] += ax
-        sums[2] += ay
-        sums[3] += az
-        while t - avg[0][0] >= c.avg_s:
-            _, w0, x0, y0, z0 = avg.popleft()
-            sums[0] -= w0
-            sums[1] -= x0
-            sums[2] -= y0
-            sums[3] -= z0
-        n = len(avg)
-        norm = math.sqrt(sums[1] * sums[1] + sums[2] * sums[2] + sums[3] * sums[3]) / n
-        norms = self._norms
-        norms.append((t, norm))
-        self._n1 += norm
-        self._n2 += norm * norm
-        while t - norms[0][0] >= c.steady_s:
-            _, v = norms.popleft()
-            self._n1 -= v
-            self._n2 -= v * v
-        if t - self._t_first < c.avg_s + c.steady_s:  # the trailing windows are not full yet
-            return ax, ay, az
-        m = len(norms)
-        mean = self._n1 / m
-        spread = math.sqrt(max(self._n2 / m - mean * mean, 0.0))
-        if sums[0] / n < c.quiet_rate_rad_s and spread < c.steady_m_s2:
-            self._quiet.append(norm)
-            self._quiet_s += dt
-            if self._quiet_s >= c.min_quiet_s:
-                s = float(np.median(self._quiet)) / GRAVITY_M_S2
-                applied = abs(s - 1.0) >= c.tolerance and s > 0
-                self.decided = AccelScale(s if applied else 1.0, applied, s, self._quiet_s)
-                self.scale = self.decided.scale
-                self._avg = self._norms = None
-                self._quiet = []
-                return self.update(t, gyr, acc)
+        args = (float(t), float(gyr[0]), float(gyr[1]), float(gyr[2]), float(ax), float(ay), float(az))
+        r = track_step(self._state, self._idx, self._avg, self._norms, self._quiet, self._cfg, *args)
+        while r == FULL:
+            self._grow()
+            r = track_step(self._state, self._idx, self._avg, self._norms, self._quiet, self._cfg, *args)
+        if r == DECIDE:
+            c = self.cfg
+            quiet_s = float(self._state[QUIET_S])
+            s = float(np.median(self._quiet[: self._idx[QUIET_LEN]])) / GRAVITY_M_S2
+            applied = abs(s - 1.0) >= c.tolerance and s > 0
+            self.decided = AccelScale(s if applied else 1.0, applied, s, quiet_s)
+            self.scale = self.decided.scale
+            self._avg = self._norms = self._quiet = None
+            return self.update(t, gyr, acc)
         return ax, ay, az
+
+    def _grow(self) -> None:
+        """Double whichever buffer is full, the rings unrolled oldest first."""
+        i = self._idx
+        for name, head, length in (("_avg", AVG_HEAD, AVG_LEN), ("_norms", NORM_HEAD, NORM_LEN)):
+            buf = getattr(self, name)
+            if i[length] >= buf.shape[0]:
+                setattr(self, name, np.concatenate([np.roll(buf, -int(i[head]), axis=0), np.zeros_like(buf)]))
+                i[head] = 0
+        if i[QUIET_LEN] >= self._quiet.shape[0]:
+            self._quiet = np.concatenate([self._quiet, np.zeros_like(self._quiet)])

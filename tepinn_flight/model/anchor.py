@@ -378,6 +378,7 @@ class AnchoredVQF:
         self.holes = 0  # non-finite samples bridged
         self.relevel_t: list[float] = []  # when the tilt was set from the accelerometer at rest (rest_relevel_s)
         self.gscale = None if c.gyro_scale == (1.0, 1.0, 1.0) else c.gyro_scale  # gyro × this (calibration)
+        self._g1, self._a1 = np.empty(3), np.empty(3)  # update_one's sample in VQF's frame
 
     # ------------------------------------------------------------------ samples
 
@@ -472,8 +473,11 @@ class AnchoredVQF:
         if self.use_mag:
             m = [0.0, 0.0, 0.0] if mag is None else [float(x) if math.isfinite(float(x)) else 0.0 for x in mag]
             self.f.update(np.array([gx, -gy, -gz]), np.array(a_s), np.array([m[0], -m[1], -m[2]]))
-        else:
-            self.f.update(np.array([gx, -gy, -gz]), np.array(a_s))
+        else:  # (into arrays made once: two new arrays a sample cost more than VQF's update)
+            g1, a1 = self._g1, self._a1
+            g1[0], g1[1], g1[2] = gx, -gy, -gz
+            a1[0], a1[1], a1[2] = a_s
+            self.f.update(g1, a1)
         qw, qx, qy, qz = self.f.getQuat6D().tolist()
         q6 = q_nb_from_vqf_f(qw, qx, qy, qz)
         q9 = q_nb_from_vqf_f(*self.f.getQuat9D().tolist()) if self.use_mag else None

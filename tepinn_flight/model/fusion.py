@@ -560,10 +560,11 @@ class AttitudeFusion:
             self._q_m[:] = q_m
             self._b_m[:] = b_m
             ok = _step(self.s, self.p, float(t), self._w, bool(clipped), True, self._q_m, float(sigma), self._b_m, out)
-        bias = (float(out[5]), float(out[6]), float(out[7]))
+        o = out.tolist()  # (one conversion: this runs on every live sample)
+        bias = (o[5], o[6], o[7])
         if not ok:
             return None, float("nan"), bias
-        return (float(out[0]), float(out[1]), float(out[2]), float(out[3])), float(out[4]), bias
+        return (o[0], o[1], o[2], o[3]), o[4], bias
 
 
 def feedback_bias(config: FusionConfig, bias) -> tuple[float, float, float]:

@@ -121,8 +121,12 @@ class StreamingEstimator:
             self.runner.set_threads(threads)
         self.reset()
 
-    def reset(self) -> None:
-        """Forget everything (a new segment: reboot, time jump, dropout)."""
+    def reset(self, sensor: bool = False) -> None:
+        """Forget the segment (a new one: reboot, time jump, dropout); with ``sensor``, also what was
+        read of the sensor itself (the accelerometer's scale, otherwise kept across segments): a
+        different IMU, or samples that were not the vehicle's (the bridge's warm-up)."""
+        if sensor and self.acc_scale is not None:
+            self.acc_scale = AccelScaleTracker(self.acc_scale.cfg)
         self.fusion = AttitudeFusion(self.fusion_cfg)
         self.old_q = None  # the older fusion's estimate at the previous sample (the pulls' target)
         self.old_bias = None  # ... and its gyro-bias estimate
@@ -172,7 +176,7 @@ class StreamingEstimator:
             self.holes += 1
         mag_row = _NAN3 if mag_ut is None else tuple(float(v) for v in mag_ut)
         if self.t_prev is not None and self.period is not None and self.last_raw is not None \
-                and is_bridgeable(t - self.t_prev, self.period):  # fmt: skip
+                and t - self.t_prev > GAP_PERIODS * self.period and is_bridgeable(t - self.t_prev, self.period):  # fmt: skip
             self._bridge(t, (*gyr_rad_s, *acc_m_s2, *mag_row))
         self.last_raw = (*gyr_rad_s, *acc_m_s2, *mag_row)
         if self.acc_scale is not None:  # divided by the accelerometer's scale once read (where ≥ 10 % off)

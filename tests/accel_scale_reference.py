@@ -1,0 +1,93 @@
+"""The slow, obviously-correct reference of the live accelerometer-scale reading: the plain-Python
+tracker (two deques) that :mod:`tepinn_flight.model.accel_scale_kernels` compiled, kept verbatim
+(renamed ``AccelScaleTrackerReference``). The compiled tracker must equal it bit for bit
+(``tests/test_accel_scale.py``)."""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+from tepinn_flight.conventions import GRAVITY_M_S2
+from tepinn_flight.model.accel_scale import MAX_STEP_S, AccelScale, AccelScaleConfig
+
+
+class AccelScaleTrackerReference:
+    """The same reading made causally, for the live estimator: trailing averages instead of centred
+    ones, and the scale decided once, from the first ``min_quiet_s`` of quiet, steady samples (a vehicle
+    on the ground before it takes off gives them in seconds); from then on :meth:`update` divides by it
+    where it is ``tolerance`` or more off 1. Before that decision — and on a vehicle that never holds
+    still — the accelerometer passes as it is. Stops tracking once decided (no cost per sample then)."""
+
+    def __init__(self, cfg: AccelScaleConfig | None = None):
+        self.cfg = cfg or AccelScaleConfig()
+        self.scale = 1.0
+        self.decided: AccelScale | None = None
+        self._avg = deque()  # (t, |ω|, ax, ay, az) of the last avg_s
+        self._sums = [0.0, 0.0, 0.0, 0.0]
+        self._norms = deque()  # (t, |ā|) of the last steady_s
+        self._n1 = self._n2 = 0.0
+        self._quiet: list[float] = []
+        self._t_first = None
+        self._t_prev = None
+        self._quiet_s = 0.0
+
+    def update(self, t: float, gyr, acc) -> tuple[float, float, float]:
+        """One finite sample (body axes, SI) → the accelerometer to use (divided by the scale once it is
+        decided and applies)."""
+        ax, ay, az = acc
+        if self.decided is not None:
+            s = self.scale
+            return (ax / s, ay / s, az / s) if s != 1.0 else (ax, ay, az)
+        c = self.cfg
+        dt = 0.0 if self._t_prev is None else t - self._t_prev
+        if self._t_first is None or not 0.0 < dt <= MAX_STEP_S:  # the start, a time jump or a dropout:
+            self._t_first, dt = t, 0.0  # the trailing windows start again (the quiet samples so far are kept)
+            self._avg.clear()
+            self._norms.clear()
+            self._sums = [0.0, 0.0, 0.0, 0.0]
+            self._n1 = self._n2 = 0.0
+        self._t_prev = t
+        w = math.sqrt(gyr[0] * gyr[0] + gyr[1] * gyr[1] + gyr[2] * gyr[2])
+        avg = self._avg
+        avg.append((t, w, ax, ay, az))
+        sums = self._sums
+        sums[0] += w
+        sums[1] += ax
+        sums[2] += ay
+        sums[3] += az
+        while t - avg[0][0] >= c.avg_s:
+            _, w0, x0, y0, z0 = avg.popleft()
+            sums[0] -= w0
+            sums[1] -= x0
+            sums[2] -= y0
+            sums[3] -= z0
+        n = len(avg)
+        norm = math.sqrt(sums[1] * sums[1] + sums[2] * sums[2] + sums[3] * sums[3]) / n
+        norms = self._norms
+        norms.append((t, norm))
+        self._n1 += norm
+        self._n2 += norm * norm
+        while t - norms[0][0] >= c.steady_s:
+            _, v = norms.popleft()
+            self._n1 -= v
+            self._n2 -= v * v
+        if t - self._t_first < c.avg_s + c.steady_s:  # the trailing windows are not full yet
+            return ax, ay, az
+        m = len(norms)
+        mean = self._n1 / m
+        spread = math.sqrt(max(self._n2 / m - mean * mean, 0.0))
+        if sums[0] / n < c.quiet_rate_rad_s and spread < c.steady_m_s2:
+            self._quiet.append(norm)
+            self._quiet_s += dt
+            if self._quiet_s >= c.min_quiet_s:
+                s = float(np.median(self._quiet)) / GRAVITY_M_S2
+                applied = abs(s - 1.0) >= c.tolerance and s > 0
+                self.decided = AccelScale(s if applied else 1.0, applied, s, self._quiet_s)
+                self.scale = self.decided.scale
+                self._avg = self._norms = None
+                self._quiet = []
+                return self.update(t, gyr, acc)
+        return ax, ay, az
