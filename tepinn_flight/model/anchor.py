@@ -555,9 +555,10 @@ class AnchoredVQF:
         self.sigma_net = float(w.sigma_rad)
         if c.centripetal:  # not where GNSS-aided: the receiver's acceleration is already out of the accelerometer
             g_cen = 0.0 if w.gnss_aided else g_flight
-            self.vel = np.array([g_cen * vx, g_cen * vy, g_cen * vz])
-            self.acc_v = np.array([g_cen * v for v in _floats(w.acc_m_s2)])
-            self.turn_on = bool(self.vel.any() or self.acc_v.any())
+            v3 = [g_cen * vx, g_cen * vy, g_cen * vz]
+            a3 = [g_cen * v for v in _floats(w.acc_m_s2)]
+            self.vel, self.acc_v = np.array(v3), np.array(a3)
+            self.turn_on = any(x != 0.0 for x in v3 + a3)  # (numpy's any on 3 floats cost more, per window)
         if self.bias_latched:  # the older fusion's bias where it runs (bias states), else the network's
             nb = _norm3(b_h)
             dz = math.radians(c.bias_deadzone_deg_s)
