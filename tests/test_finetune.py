@@ -101,6 +101,27 @@ def test_finetuning_needs_data_and_says_so_in_one_line(tmp_path, capsys):
     assert "no logs" in capsys.readouterr().err
 
 
+def test_finetuning_does_not_learn_from_a_reference_that_is_not_the_imus_attitude(tmp_path, capsys):
+    """A log whose reference drifts away from what its gyro says (an estimator that diverged) is skipped with a
+    note saying why; with nothing else to learn from, one line and exit 2 — before any training."""
+    from tepinn_flight.quat import quat_from_rotvec, quat_mul
+    from tepinn_flight.record import QREF_COLS, FlightRecord, write_record
+    from tests.test_gyro_selfcal import turns_with_rests
+
+    rec, q = turns_with_rests(seed=6)
+    drift = np.radians(25.0) * np.maximum(rec.t_s - rec.t_s[len(rec) // 2], 0.0)
+    data = rec.data.copy()
+    data[QREF_COLS] = quat_mul(q, quat_from_rotvec(np.outer(drift, [1.0, 0.0, 0.0])))
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    write_record(FlightRecord(data, dict(rec.meta)), logs / "diverged.parquet")
+    assert main(["train", "--init", "default", "--data", str(logs), "-o", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert "diverged.parquet: skipped (reference attitude: turns unlike the gyro" in err and "not learned from" in err
+    assert "none of the --data logs can be learned from" in err and "Traceback" not in err
+    assert not (tmp_path / "r" / "model.pt").exists()
+
+
 @pytest.mark.slow
 def test_the_gyro_calibration_fitted_on_some_trials_helps_another_of_the_same_imu():
     # BROAD's trials share one IMU whose gyro reads its z axis about 0.5 % low (session 10): fitted

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 from .argtypes import threads
 from .helptext import add_examples
 
@@ -73,6 +75,10 @@ def run(args) -> int:
               f"offline tilt smoothing {'kept' if s['smoother'] else 'off'}: training files "
               f"{s['smoother_grid_deg']['on']:.3f}° with it, {s['smoother_grid_deg']['off']:.3f}° without); "
               f"on the validation files {s['val_network_gates_summary']}; model: {out / 'model.pt'}")  # fmt: skip
+        if s["val_worse_than_init"]:
+            print(f"warning: the fine-tuned model is worse than {args.init} on the validation files "
+                  f"({s['val_inclination_rmse_deg_before']:.3f}° -> {s['val_inclination_rmse_deg_after']:.3f}°): keep using "
+                  f"{args.init}, or add logs of this vehicle (finetune.json: the figures per setting)", file=sys.stderr)  # fmt: skip
         return 0
     cfg = load_train_config(args.config, args.set)
     if args.init:

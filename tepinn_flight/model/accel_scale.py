@@ -72,36 +72,49 @@ class AccelScale:
         return f"accelerometer scale: {self.read:.3f} g at {self.quiet_s:.0f} s of quiet, steady samples; {what}"
 
 
-def read_accel_scale(t_s, gyr, acc, cfg: AccelScaleConfig | None = None) -> AccelScale:
-    """The accelerometer's scale of a record (rows: body axes, SI; non-finite rows left out), applied
-    only on evidence (module docstring)."""
+def quiet_samples(t_s, gyr, acc, cfg: AccelScaleConfig | None = None):
+    """The samples where the vehicle is neither turning nor shaking (module docstring: the rate's norm,
+    averaged over ``avg_s``, below ``quiet_rate_rad_s``; the averaged accelerometer's norm steady over
+    ``steady_s``) → (quiet mask (n,), the averaged accelerometer (n, 3), the sample step in s), or None
+    where the record is too short to tell. There the accelerometer shows gravity alone."""
     cfg = cfg or AccelScaleConfig()
     t_s = np.asarray(t_s, np.float64)
     n = len(t_s)
     step = float(np.median(np.diff(t_s))) if n > 1 else 0.0
     if n < 3 or not (math.isfinite(step) and step > 0):
-        return AccelScale(1.0, False, None, 0.0)
+        return None
     gyr = np.asarray(gyr, np.float64)
     acc = np.asarray(acc, np.float64)
     ok = np.all(np.isfinite(gyr), axis=1) & np.all(np.isfinite(acc), axis=1)
     k = max(1, int(round(cfg.avg_s / step)))
     if ok.sum() < 2 * k:
-        return AccelScale(1.0, False, None, 0.0)
+        return None
     g_norm = np.sqrt(np.einsum("ij,ij->i", np.where(ok[:, None], gyr, 0.0), np.where(ok[:, None], gyr, 0.0)))
     rate = _boxcar(g_norm[:, None], k)[:, 0]
     acc_lp = _boxcar(np.where(ok[:, None], acc, 0.0), k)
     whole = _boxcar(ok[:, None].astype(np.float64), k)[:, 0] > 1.0 - 1e-9  # the average saw no hole
     a_norm = np.linalg.norm(acc_lp, axis=1)
     m = max(1, int(round(cfg.steady_s / step)))  # the norm steady over steady_s: not accelerating
-    if n < m:  # shorter than one steadiness window: no reading
-        return AccelScale(1.0, False, None, 0.0)
+    if n < m:  # shorter than one steadiness window
+        return None
     mean = _boxcar(a_norm[:, None], m)[:, 0]
     spread = np.sqrt(np.maximum(_boxcar((a_norm**2)[:, None], m)[:, 0] - mean**2, 0.0))
     quiet = whole & (rate < cfg.quiet_rate_rad_s) & (spread < cfg.steady_m_s2)
+    return quiet, acc_lp, step
+
+
+def read_accel_scale(t_s, gyr, acc, cfg: AccelScaleConfig | None = None) -> AccelScale:
+    """The accelerometer's scale of a record (rows: body axes, SI; non-finite rows left out), applied
+    only on evidence (module docstring)."""
+    cfg = cfg or AccelScaleConfig()
+    found = quiet_samples(t_s, gyr, acc, cfg)
+    if found is None:
+        return AccelScale(1.0, False, None, 0.0)
+    quiet, acc_lp, step = found
     quiet_s = float(quiet.sum()) * step
     if quiet_s < cfg.min_quiet_s:
         return AccelScale(1.0, False, None, quiet_s)
-    s = float(np.median(a_norm[quiet])) / GRAVITY_M_S2
+    s = float(np.median(np.linalg.norm(acc_lp[quiet], axis=1))) / GRAVITY_M_S2
     applied = abs(s - 1.0) >= cfg.tolerance and s > 0
     return AccelScale(s if applied else 1.0, applied, s, quiet_s)
 

@@ -3,7 +3,9 @@
 The built-in recipe (:func:`finetune_config`) starts from the checkpoint's weights (``--init
 default``: the shipped model) and trains on the user's logs — any format ``ingest`` reads, the
 autopilot's own estimate as the label — for a few minutes on the CPU, validation held out by whole
-file. Then the anchored estimator's VQF accelerometer time constant is chosen on the training files
+file — only logs whose reference is the IMU's attitude (:mod:`.reference_trust`: it turns as the gyro
+turns and agrees with the accelerometer's gravity where the vehicle is quiet; session 27). Then the
+anchored estimator's VQF accelerometer time constant is chosen on the training files
 (mean per-file inclination RMSE against the reference): the autopilot's estimator has its own
 trade-off between gyro and accelerometer, and the one that fits the vehicle's logs is a property of
 the vehicle (vibration, typical accelerations). So is its gyro's scale per axis, fitted next on the
@@ -195,26 +197,33 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     from .anchor import AnchorConfig
     from .train import train
     from .estimate import gates_acted
+    from .reference_trust import check_reference
     from .train_data import split_by_flight
 
     init_path = default_model_path() if init == "default" else Path(init)
     model0, est0, ck0 = load_model(init_path)
     if not isinstance(est0, AnchorConfig):
         raise ConfigError(f"--init {init}: fine-tuning needs a filter-anchored checkpoint (anchor_config)")
-    paths, recs = [], []
+    paths, recs, ref_checks = [], [], {}
     for p in collect_logs(items):
         try:
             r = load_record(p)
         except TepinnError as exc:
             print(f"note: {p}: skipped ({exc.reason})", file=sys.stderr)
             continue
-        if usable(r):
-            paths.append(str(p.resolve()))
-            recs.append(r)
-        else:
+        if not usable(r):
             print(f"note: {p}: skipped (IMU too slow or no reference attitude to learn from)", file=sys.stderr)
+            continue
+        chk = check_reference(r)  # a reference that is not the IMU's attitude would teach everything wrong
+        ref_checks[str(p.resolve())] = chk.describe()
+        if not chk.trusted:
+            print(f"note: {p}: skipped ({chk.describe()})", file=sys.stderr)
+            continue
+        paths.append(str(p.resolve()))
+        recs.append(r)
     if not recs:
-        raise ConfigError("none of the --data logs can be learned from (each needs an IMU of >= 20 Hz and a reference attitude)")
+        raise ConfigError("none of the --data logs can be learned from (each needs an IMU of >= 20 Hz and a reference "
+                          "attitude that turns as its gyro does and agrees with its accelerometer's gravity)")  # fmt: skip
     cfg = dataclasses.replace(finetune_config(model0.config, paths, minutes, seed), init=str(init_path))
     out = Path(out_dir)
     result = train(cfg, out, progress=progress, report_gates=False)  # reported below, after the tuning
@@ -245,6 +254,7 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
         "gyro_scale_grid_deg": scales, "gyro_scale": list(anchor.gyro_scale),
         "smoother_grid_deg": smooth_table, "smoother": anchor.smoother,
         "val_inclination_rmse_deg_before": float(np.mean(before)), "val_inclination_rmse_deg_after": float(np.mean(after)),
+        "val_worse_than_init": bool(np.mean(after) > np.mean(before)), "reference_checks": ref_checks,
         "sigma_floor_deg": anchor.sigma_floor_deg, "sigma_acc_gain": anchor.sigma_acc_gain,
         "sigma_sampling_gain": anchor.sigma_sampling_gain,
         "train_sigma_nees": sfit.nees, "train_sigma_within_3sigma": sfit.coverage_3sigma,

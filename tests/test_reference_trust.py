@@ -1,0 +1,89 @@
+"""Whether a log's reference attitude can be learned from (model/reference_trust.py): it must turn as the
+gyro turns and agree with the accelerometer's gravity where the vehicle is quiet."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tepinn_flight.model.reference_trust import (ReferenceTrustConfig, check_reference, gravity_disagreement_deg,
+                                                 turn_disagreement_deg_s)  # fmt: skip
+from tepinn_flight.quat import quat_from_rotvec, quat_mul
+from tepinn_flight.record import GYR_COLS, QREF_COLS, FlightRecord
+from tests.conftest import real_log
+from tests.test_gyro_selfcal import turns_with_rests
+
+
+def _with(rec: FlightRecord, ref=None, gyr=None) -> FlightRecord:
+    """``rec`` with another reference attitude or gyro."""
+    data = rec.data.copy()
+    if ref is not None:
+        data[QREF_COLS] = ref
+    if gyr is not None:
+        data[GYR_COLS] = gyr
+    return FlightRecord(data, dict(rec.meta))
+
+
+def test_a_true_reference_is_learned_from():
+    rec, _ = turns_with_rests(seed=1)  # hand-held-like turns of 120–300° between rests: the reference is the truth
+    chk = check_reference(rec)
+    assert chk.trusted and chk.turn_share == 0.0 and chk.gravity_deg < 0.5 and chk.quiet_s > 10
+
+
+def test_a_reference_that_drifts_away_from_the_gyro_is_not():
+    """Over the record's last 30 %, the reference turns 20 °/s about the body's y axis on its own (an estimator
+    that diverged): the gyro check reads that rate back on those seconds, a share beyond the 20 % it allows.
+    (A drift over most of a log would pass for a gyro bias — the check takes the median turn difference out —
+    and is left to the gravity check.)"""
+    rec, q = turns_with_rests(seed=2)
+    t = rec.t_s
+    t0 = t[int(0.7 * len(t))]
+    drift = np.where(t > t0, t - t0, 0.0) * np.radians(20.0)
+    bad = _with(rec, ref=quat_mul(q, quat_from_rotvec(np.outer(drift, [0.0, 1.0, 0.0]))))
+    chk = check_reference(bad)
+    assert not chk.trusted and 0.25 < chk.turn_share < 0.35
+    assert "not learned from" in chk.describe()
+    turn = turn_disagreement_deg_s(bad)
+    assert np.median(turn[-8:]) == pytest.approx(20.0, abs=1.0) and np.median(turn[:20]) < 1.0  # the drift, read back
+
+
+def test_a_reference_in_another_frame_is_not():
+    """The reference of a board mounted 30° off about x (the same turns, a fixed rotation apart): the gravity check
+    sees the tilt at the rests (30° where gravity is across x, less where it is along it)."""
+    rec, q = turns_with_rests(seed=3)
+    q_off = quat_mul(q, quat_from_rotvec(np.radians([30.0, 0.0, 0.0])))
+    chk = check_reference(_with(rec, ref=q_off))
+    assert not chk.trusted and 15.0 < chk.gravity_deg <= 30.0
+    # ... and a reference of the right frame, turned about the vertical only (another heading), is fine
+    q_yaw = quat_mul(quat_from_rotvec(np.radians([0.0, 0.0, 40.0])), q)
+    assert check_reference(_with(rec, ref=q_yaw)).trusted
+
+
+def test_an_uncalibrated_gyro_does_not_make_a_true_reference_untrusted():
+    """A gyro reading 15 °/s off on two axes (an uncalibrated consumer part's turn-on bias): the constant bias is
+    read from the intervals and taken out before the turns are compared."""
+    rec, _ = turns_with_rests(seed=4)
+    gyr = rec.gyr_rad_s + np.radians([15.0, -15.0, 0.0])
+    raw = turn_disagreement_deg_s(_with(rec, gyr=gyr), interval_s=1.0)
+    assert np.median(raw) < 1.0 and check_reference(_with(rec, gyr=gyr)).trusted
+
+
+def test_too_little_to_judge_keeps_the_log():
+    rec, _ = turns_with_rests(seed=5, n_turns=1)
+    cfg = ReferenceTrustConfig(min_intervals=10_000, min_quiet_s=10_000.0)
+    chk = check_reference(rec, cfg)
+    assert chk.trusted and chk.turn_share is None and chk.gravity_deg is None
+    angles, quiet_s = gravity_disagreement_deg(rec)
+    assert quiet_s > 0 and len(angles) > 0
+
+
+def test_real_logs_a_diverged_reference_and_a_good_one():
+    """The shared ArduPilot log whose attitude pitches to 100° in 5 s while its gyro turns a few degrees a second
+    (fine-tuning on it took a validation error from 0.43° to 0.79°), and the ArduCopter log the fine-tuning test
+    learns from."""
+    from tepinn_flight.ingest import ingest_log
+
+    bad = check_reference(ingest_log(real_log("aplogan_nan.log")))
+    good = check_reference(ingest_log(real_log("erle_pxf_copter_15-12-2014_16.BIN")))
+    assert not bad.trusted and bad.turn_share > 0.2
+    assert good.trusted and good.turn_share < 0.05 and good.gravity_deg < 2.0
