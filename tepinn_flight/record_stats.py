@@ -10,7 +10,8 @@ from .record_gaps import MAX_BRIDGED_GAP_S, is_bridgeable, record_period_s
 
 
 def summarize(rec: FlightRecord) -> dict:
-    """Duration, rates, segments and gaps, max angular rate, clipping and reference coverage."""
+    """Duration, rates, segments and gaps, max angular rate, clipping, reference coverage and whether the
+    reference turns as the gyro does and agrees with the accelerometer's gravity (:mod:`.model.reference_trust`)."""
     t = rec.t_s
     seg = rec.segment
     m = rec.meta
@@ -65,4 +66,10 @@ def summarize(rec: FlightRecord) -> dict:
                        "max_speed_m_s": float(np.hypot(vel[ok, 0], vel[ok, 1]).max()) if ok.any() else 0.0}  # fmt: skip
     if "valid" in rec.data:
         out["valid_fraction"] = float(rec.valid.mean())
+    if out["reference_coverage"] > 0:  # is the reference the IMU's attitude (an autopilot estimator that diverged?)
+        from .model.reference_trust import check_reference
+
+        chk = check_reference(rec)
+        out["reference_check"] = {"trusted": chk.trusted, "turn_share": chk.turn_share, "intervals": chk.intervals,
+                                  "gravity_deg": chk.gravity_deg, "quiet_s": chk.quiet_s, "line": chk.describe()}  # fmt: skip
     return out

@@ -117,7 +117,7 @@ def test_finetuning_does_not_learn_from_a_reference_that_is_not_the_imus_attitud
     write_record(FlightRecord(data, dict(rec.meta)), logs / "diverged.parquet")
     assert main(["train", "--init", "default", "--data", str(logs), "-o", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err
-    assert "diverged.parquet: skipped (reference attitude: turns unlike the gyro" in err and "not learned from" in err
+    assert "diverged.parquet: skipped (reference attitude: turns unlike the gyro" in err and "not trusted" in err
     assert "none of the --data logs can be learned from" in err and "Traceback" not in err
     assert not (tmp_path / "r" / "model.pt").exists()
 

@@ -42,7 +42,7 @@ def test_a_reference_that_drifts_away_from_the_gyro_is_not():
     bad = _with(rec, ref=quat_mul(q, quat_from_rotvec(np.outer(drift, [0.0, 1.0, 0.0]))))
     chk = check_reference(bad)
     assert not chk.trusted and 0.25 < chk.turn_share < 0.35
-    assert "not learned from" in chk.describe()
+    assert "not trusted" in chk.describe()
     turn = turn_disagreement_deg_s(bad)
     assert np.median(turn[-8:]) == pytest.approx(20.0, abs=1.0) and np.median(turn[:20]) < 1.0  # the drift, read back
 
@@ -87,3 +87,19 @@ def test_real_logs_a_diverged_reference_and_a_good_one():
     good = check_reference(ingest_log(real_log("erle_pxf_copter_15-12-2014_16.BIN")))
     assert not bad.trusted and bad.turn_share > 0.2
     assert good.trusted and good.turn_share < 0.05 and good.gravity_deg < 2.0
+
+
+def test_info_says_whether_a_logs_reference_is_the_imus_attitude(capsys):
+    """`info` on a raw log: a line for the reference check, and the figures in --json."""
+    import json
+
+    from tepinn_flight.cli.main import main
+
+    bad, good = real_log("aplogan_nan.log"), real_log("erle_pxf_copter_15-12-2014_16.BIN")
+    assert main(["info", str(bad)]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.strip().startswith("reference check"))
+    assert "turns unlike the gyro (by > 10 °/s) on 31 % of 13 1-s intervals" in line and line.rstrip().endswith(
+        "another frame)") and "not trusted" in line  # fmt: skip
+    assert main(["info", str(good), "--json"]) == 0
+    chk = json.loads(capsys.readouterr().out)[str(good)]["reference_check"]
+    assert chk["trusted"] and chk["turn_share"] < 0.05 and chk["intervals"] > 100 and chk["gravity_deg"] < 2.0

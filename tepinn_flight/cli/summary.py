@@ -32,6 +32,9 @@ def render_info(path, s: dict) -> str:
         + ("" if s.get("estimation_ok", True) else "  ** too slow for windowed estimation **"))
     add("reference", f"{s.get('reference_source')} at {_hz(s.get('reference_rate_hz'))}, "
         f"covers {100 * s.get('reference_coverage', 0):.1f}% of IMU samples")
+    chk = s.get("reference_check")
+    if chk:
+        add("reference check", chk["line"].removeprefix("reference attitude: "))
     gaps = s.get("gaps", [])
     nb = s.get("bridged_gaps", 0)
     add("segments", f"{s.get('segments')} ({len(gaps)} break(s)"

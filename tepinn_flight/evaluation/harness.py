@@ -34,6 +34,7 @@ import numpy as np
 
 from ..errors import ConfigError, TepinnError
 from ..model.estimate import REPORTED_STEPS, gates_acted
+from ..model.reference_trust import check_reference
 from ..record import GYR_BIAS_COLS, SIMULATED_KINDS, FlightRecord, estimation_ok, segment_slices
 from ..record_gaps import bridge_gaps
 from . import metrics as M
@@ -175,6 +176,10 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
         res["estimation_ok"] = estimation_ok(m)
         res["imu_rate_hz"] = m.get("imu_rate_hz")
         res["reference_source"] = m.get("reference_source", "none")
+        chk = check_reference(records[i])  # a reference that is not the IMU's attitude scores its own failure
+        res["reference_check"] = chk.describe()
+        if not chk.trusted:
+            notes.append(f"{names[i]}: {chk.describe()} — every estimator's error there measures the reference's failure")
         for step in REPORTED_STEPS:  # each anchored TE-PINN's REPORTED_STEPS lines
             found = {name: df.attrs[step] for name, (df, _) in rr.items() if df.attrs.get(step)}
             if found:

@@ -1,5 +1,7 @@
-"""Whether a log's reference attitude can be learned from: does it turn as the gyro turns, and does it
-agree with the accelerometer's gravity where the vehicle is quiet?
+"""Whether a log's reference attitude is the IMU's attitude: does it turn as the gyro turns, and does it
+agree with the accelerometer's gravity where the vehicle is quiet? The fine-tuning learns only from logs
+that pass; ``info`` and ``evaluate`` say where a reference fails (its errors then measure the reference's
+failure — an autopilot estimator that diverged is worth knowing about in its own right).
 
 Fine-tuning (:mod:`.finetune`) takes the autopilot's own estimate as the label, and fits the
 estimator's settings and σ to agree with it. A log whose reference is not the IMU's attitude — an
@@ -78,8 +80,8 @@ class ReferenceCheck:
                 f"{self.intervals} {c.interval_s:g}-s intervals")  # fmt: skip
         grav = ("gravity: too little quiet time to check" if self.gravity_deg is None else
                 f"{self.gravity_deg:.1f}° from the accelerometer's gravity (median over {self.quiet_s:.0f} s quiet)")  # fmt: skip
-        verdict = "learned from" if self.trusted else (
-            f"not learned from (over {100 * c.max_share:.0f} % or {c.max_gravity_deg:g}°: a failed estimator or another frame)")  # fmt: skip
+        verdict = "trusted" if self.trusted else (
+            f"not trusted (over {100 * c.max_share:.0f} % or {c.max_gravity_deg:g}°: an estimator that failed, or another frame)")  # fmt: skip
         return f"reference attitude: {gyro}; {grav}; {verdict}"
 
 
