@@ -49,8 +49,12 @@ def test_finetuning_on_a_vehicles_logs_improves_a_held_out_log_of_it(tmp_path, c
     # the offline smoothing kept only where it lowers the training files' error against their reference
     table = summary["smoother_grid_deg"]
     assert e1.smoother == summary["smoother"] == (table["on"] < table["off"])
-    said = capsys.readouterr().out
+    captured = capsys.readouterr()
+    said = captured.out
     assert f"offline tilt smoothing {'kept' if e1.smoother else 'off'}: training files {table['on']:.3f}°" in said
+    # one vehicle's logs, whose references pass the check: no warning of either kind
+    assert summary["vehicles"] == ["ardupilot multirotor"] and "different vehicles" not in captured.err
+    assert all(v.endswith("; trusted") for v in summary["reference_checks"].values())
     before = inclination_rmse_deg(rec, estimate_record(m0, rec, e0))
     after = inclination_rmse_deg(rec, estimate_record(m1, rec, e1))
     assert after < 0.9 * before, (before, after)
@@ -181,3 +185,25 @@ def test_the_sigma_fitted_on_some_trials_is_calibrated_on_the_others_of_the_same
     g0 = fit_sigma(fit_s, coverage=SIGMA_COVERAGE)  # g = 0 only
     _, in3_g0 = score(other_s, g0.sigma_floor_deg, g0.sigma_acc_gain)
     assert in3_1 > in3_g0 + 0.01, (in3_1, in3_g0)
+
+
+def test_the_vehicle_a_log_names_is_read_alike_from_every_format():
+    """Logs of one vehicle give one answer whatever the reader calls its kind (a DataFlash log says "copter", a
+    tlog "quadrotor"); a board named in the log tells two PX4 quads apart; a log that says nothing gives None."""
+    from tepinn_flight.model.finetune import vehicle_of
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    rec = synthetic_record(seed=1, duration_s=2.0, rate_hz=100.0)
+
+    def with_meta(**m):
+        return type(rec)(rec.data, {k: v for k, v in {**rec.meta, **m}.items() if v is not None})
+
+    bin_log = with_meta(autopilot="ardupilot", vehicle_type="copter")
+    tlog = with_meta(autopilot="ardupilot", vehicle_type="quadrotor")
+    assert vehicle_of(bin_log) == vehicle_of(tlog) == "ardupilot multirotor"
+    assert vehicle_of(with_meta(autopilot="ardupilot", vehicle_type="sub")) == vehicle_of(
+        with_meta(autopilot="ardupilot", vehicle_type="submarine"))  # fmt: skip
+    v4 = with_meta(autopilot="px4", vehicle_type="quadrotor", hardware="PX4FMU_V4PRO")
+    cube = with_meta(autopilot="px4", vehicle_type="quadrotor", hardware="CUBEPILOT_CUBEORANGE")
+    assert vehicle_of(v4) != vehicle_of(cube)
+    assert vehicle_of(with_meta(autopilot=None, vehicle_type=None)) is None

@@ -84,6 +84,23 @@ def collect_logs(items) -> list[Path]:
     return sorted(set(out))
 
 
+#: vehicle types as the readers name them → one name per kind (a DataFlash log says "copter", a tlog "quadrotor")
+_KIND = {"copter": "multirotor", "quadrotor": "multirotor", "hexarotor": "multirotor", "octorotor": "multirotor",
+         "tricopter": "multirotor", "coaxial": "multirotor", "sub": "submarine", "plane": "fixed wing",
+         "fixed_wing": "fixed wing"}  # fmt: skip
+
+
+def vehicle_of(rec: FlightRecord) -> str | None:
+    """What the log says of the vehicle it came from — autopilot, kind of vehicle, flight-controller board where the
+    log names one (ULog's ``ver_hw``) — or None where it says nothing. Logs of one vehicle give one answer."""
+    m = rec.meta
+    ap, kind, hw = m.get("autopilot"), m.get("vehicle_type"), m.get("hardware")
+    if not ap and not kind:
+        return None
+    kind = _KIND.get(str(kind).lower(), str(kind).lower()) if kind else None
+    return " ".join(str(x) for x in (ap, kind, hw) if x)
+
+
 def usable(rec: FlightRecord) -> bool:
     """A log the fine-tuning can learn from: fast enough IMU and a reference on most samples."""
     return estimation_ok(rec.meta) and float(np.mean(np.all(np.isfinite(rec.q_ref_wxyz), axis=1))) > 0.5
@@ -224,6 +241,11 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     if not recs:
         raise ConfigError("none of the --data logs can be learned from (each needs an IMU of >= 20 Hz and a reference "
                           "attitude that turns as its gyro does and agrees with its accelerometer's gravity)")  # fmt: skip
+    vehicles = sorted({v for v in map(vehicle_of, recs) if v})
+    if len(vehicles) > 1:  # a vehicle's gyro scale, time constant and σ, fitted on several: right for none of them
+        print(f"warning: the logs come from {len(vehicles)} different vehicles or boards ({'; '.join(vehicles)}): the "
+              "fine-tuning fits one vehicle's gyro calibration, accelerometer time constant and σ — give it one "
+              "vehicle's logs", file=sys.stderr)  # fmt: skip
     cfg = dataclasses.replace(finetune_config(model0.config, paths, minutes, seed), init=str(init_path))
     out = Path(out_dir)
     result = train(cfg, out, progress=progress, report_gates=False)  # reported below, after the tuning
@@ -255,6 +277,7 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
         "smoother_grid_deg": smooth_table, "smoother": anchor.smoother,
         "val_inclination_rmse_deg_before": float(np.mean(before)), "val_inclination_rmse_deg_after": float(np.mean(after)),
         "val_worse_than_init": bool(np.mean(after) > np.mean(before)), "reference_checks": ref_checks,
+        "vehicles": vehicles,
         "sigma_floor_deg": anchor.sigma_floor_deg, "sigma_acc_gain": anchor.sigma_acc_gain,
         "sigma_sampling_gain": anchor.sigma_sampling_gain,
         "train_sigma_nees": sfit.nees, "train_sigma_within_3sigma": sfit.coverage_3sigma,
