@@ -27,6 +27,7 @@ import importlib.util
 import json
 import math
 import os
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -179,7 +180,7 @@ class OnnxRunner(NetworkRunner):
             raise ConfigError(f"{self._label}: not a readable ONNX model ({_first_line(exc)})") from None
         self.threads = threads
         self.workers = max(1, n)
-        self._io = None  # run()'s I/O binding on this session, made on first use
+        self._io = threading.local()  # run()'s I/O binding on this session, per thread, made on first use
         if getattr(self, "_pool", None) is not None:  # re-opened with another thread count
             self._pool.shutdown(wait=False)
         self._pool = None
@@ -200,9 +201,9 @@ class OnnxRunner(NetworkRunner):
         parts = min(self.workers, b)
         if parts < 2:  # one run: through an I/O binding (the live path's batch of one: ~10 % of a window's run was
             # run()'s own conversion of the feed and the outputs; the same kernels, the same bits)
-            io = self._io
+            io = getattr(self._io, "binding", None)  # one per thread: a binding is not to be shared between runs
             if io is None:
-                io = self._io = self.session.io_binding()
+                io = self._io.binding = self.session.io_binding()
             for k, v in feed.items():
                 io.bind_cpu_input(k, v)
             for k in self.output_names:
