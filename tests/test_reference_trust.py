@@ -68,6 +68,16 @@ def test_an_uncalibrated_gyro_does_not_make_a_true_reference_untrusted():
     assert np.median(raw) < 1.0 and check_reference(_with(rec, gyr=gyr)).trusted
 
 
+def test_missing_reference_rows_are_left_out_not_judged():
+    """Rows without a reference — NaN, or zeros as a broken logger writes them — are left out of both checks."""
+    rec, q = turns_with_rests(seed=7)
+    holed = q.copy()
+    holed[::7] = np.nan
+    holed[3::7] = 0.0
+    chk = check_reference(_with(rec, ref=holed))
+    assert chk.trusted and chk.gravity_deg < 0.5 and np.isfinite(chk.gravity_deg) and chk.turn_share < 0.05
+
+
 def test_too_little_to_judge_keeps_the_log():
     rec, _ = turns_with_rests(seed=5, n_turns=1)
     cfg = ReferenceTrustConfig(min_intervals=10_000, min_quiet_s=10_000.0)

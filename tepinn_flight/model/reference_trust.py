@@ -106,7 +106,9 @@ def turn_disagreement_deg_s(rec: FlightRecord, interval_s: float = 1.0) -> np.nd
         q = q_ref[sl][edges]
         turn_ref = quat_mul(quat_conj(q[:-1]), q[1:])  # body-at-start axes, as the gyro's
         clip = np.r_[0, np.cumsum(rec.gyr_clipped[sl])]
-        ok = np.all(np.isfinite(turn_ref), axis=1) & (clip[edges[1:]] - clip[edges[:-1]] == 0)
+        with np.errstate(invalid="ignore"):
+            has = np.linalg.norm(q, axis=1) > 0.5  # a reference at the interval's ends (NaN or zeros: none)
+        ok = has[:-1] & has[1:] & (clip[edges[1:]] - clip[edges[:-1]] == 0)
         bias = np.zeros(3)
         for _ in range(2):  # the turns without a bias, then less the bias they show
             q_g = np.zeros((len(edges), 4))
@@ -128,7 +130,8 @@ def gravity_disagreement_deg(rec: FlightRecord) -> tuple[np.ndarray, float]:
         return np.zeros(0), 0.0
     quiet, acc_lp, step = found
     q = rec.q_ref_wxyz
-    m = quiet & np.all(np.isfinite(q), axis=1)
+    with np.errstate(invalid="ignore"):
+        m = quiet & (np.linalg.norm(q, axis=1) > 0.5)  # a finite reference (a zero quaternion is none)
     down_ref = gravity_body(q[m] / np.linalg.norm(q[m], axis=1, keepdims=True))
     down_acc = -acc_lp[m] / np.linalg.norm(acc_lp[m], axis=1, keepdims=True)  # specific force at rest points up
     cos = np.clip(np.einsum("ij,ij->i", down_ref, down_acc), -1.0, 1.0)
