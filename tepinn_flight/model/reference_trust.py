@@ -109,14 +109,15 @@ def turn_disagreement_deg_s(rec: FlightRecord, interval_s: float = 1.0) -> np.nd
         with np.errstate(invalid="ignore"):
             has = np.linalg.norm(q, axis=1) > 0.5  # a reference at the interval's ends (NaN or zeros: none)
         ok = has[:-1] & has[1:] & (clip[edges[1:]] - clip[edges[:-1]] == 0)
-        bias = np.zeros(3)
-        for _ in range(2):  # the turns without a bias, then less the bias they show
+        def gyro_turns(bias):
             q_g = np.zeros((len(edges), 4))
             attitude_at(gyr, dt, 1.0, 1.0, 1.0, *bias, edges.astype(np.int64), q_g, np.zeros((len(edges), 3, 3)))
-            turn_gyr = quat_mul(quat_conj(q_g[:-1]), q_g[1:])
-            if ok.any() and not bias.any():
-                diff = (quat_to_rotvec(turn_gyr[ok]) - quat_to_rotvec(turn_ref[ok])) / span[ok, None]
-                bias = np.median(diff, axis=0)
+            return quat_mul(quat_conj(q_g[:-1]), q_g[1:])
+
+        turn_gyr = gyro_turns((0.0, 0.0, 0.0))
+        if ok.any():  # less the constant bias the turns show
+            bias = np.median((quat_to_rotvec(turn_gyr[ok]) - quat_to_rotvec(turn_ref[ok])) / span[ok, None], axis=0)
+            turn_gyr = gyro_turns(tuple(float(v) for v in bias))
         ang = np.degrees(quat_angle(quat_mul(quat_conj(turn_gyr), turn_ref))) / span
         out.append(ang[ok])
     return np.concatenate(out) if out else np.zeros(0)
