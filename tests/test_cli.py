@@ -56,7 +56,7 @@ def test_missing_file_and_directory(tmp_path):
     code, _, err = run_cli("ingest", str(tmp_path / "nope.tlog"), "-o", str(tmp_path / "x.parquet"))
     assert code == 2 and "no such file" in err and len(err.strip().splitlines()) == 1
     code, _, err = run_cli("info", str(tmp_path))
-    assert code == 2 and "directory" in err
+    assert code == 2 and "holds no flight records or logs" in err
 
 
 def test_usage_error_is_one_line():

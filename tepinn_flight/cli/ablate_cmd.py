@@ -35,7 +35,7 @@ def run(args) -> int:
                                        train_variants, write_ablation)  # fmt: skip
     from ..model.train_config import load_train_config
     from ..record import read_record
-    from .paths import collect_records
+    from .paths import collect_records, read_records
 
     names = [v.strip() for v in args.variants.split(",") if v.strip()]
     check_variants(names)
@@ -45,8 +45,13 @@ def run(args) -> int:
     say = (lambda s: None) if args.quiet else (lambda s: sys.stderr.write(s + "\n"))
     ckpts = train_variants(base, names, out, data_dirs=args.data, config_base=Path(args.config).resolve().parent,
                            progress=not args.quiet, say=say)  # fmt: skip
-    paths = collect_records(args.eval) if args.eval else heldout_records(out, progress=not args.quiet)
-    records = [read_record(p) for p in paths]
+    if args.eval:
+        read_notes: list[str] = []
+        records = read_records(args.eval, collect_records(args.eval), read_notes)
+        for n in read_notes:
+            say(f"note: {n}")
+    else:
+        records = [read_record(p) for p in heldout_records(out, progress=not args.quiet)]
     rows, notes = evaluate_variants(ckpts, records, progress=not args.quiet)
     md = ablation_markdown(rows, args.config, len(records), notes)
     write_ablation(out, rows, md)

@@ -26,9 +26,11 @@ def add_arguments(p) -> None:
                  'tepinn-flight estimate flight.parquet -o flight_est.parquet',
                  'tepinn-flight estimate 00000042.BIN -o est.parquet --mode auto   # a log: ingested on the fly',
                  'tepinn-flight estimate flight.tlog -o est.parquet --tlog flight_est.tlog   # overlay on ATT in MAVExplorer',
-                 'tepinn-flight estimate records/*.parquet -o estimates/ --model runs/mine/model.pt')
+                 'tepinn-flight estimate records/*.parquet -o estimates/ --model runs/mine/model.pt',
+                 'tepinn-flight estimate APM/LOGS/ -o estimates/     # every log in a folder')
     p.add_argument("records", nargs="+", metavar="RECORD",
-                   help="flight records (.parquet) or logs (.tlog, .bin, .log, .ulg: ingested on the fly, as `ingest` would)")
+                   help="flight records (.parquet) or logs (.tlog, .bin, .log, .ulg: ingested on the fly, as `ingest` would); "
+                        "a folder stands for the records and logs in it")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output file (one record) or folder")
     p.add_argument("--model", default=None, metavar="CKPT",
                    help="checkpoint or .onnx export (`tepinn-flight export`; default: the shipped model)")
@@ -104,7 +106,7 @@ def _run(args) -> int:
     from ..model.checkpoint import default_model_path
     from ..model.runtime import default_onnx_path, load_runner, resolve_runtime
     from ..record import check_output
-    from .paths import output_paths
+    from .paths import collect_records, output_paths
 
     ckpt_path = Path(args.model) if args.model else default_model_path()
     if not args.model and resolve_runtime(ckpt_path, args.runtime) == "onnx" and default_onnx_path().is_file():
@@ -131,8 +133,8 @@ def _run(args) -> int:
         fusion = dataclasses.replace(fusion, smoother=False)
     if args.yaw and hasattr(fusion, "yaw"):  # the network-centred fusion only (the anchored one has VQF's heading)
         fusion = dataclasses.replace(fusion, yaw=args.yaw)
-    paths = [Path(p) for p in args.records]
-    outs = output_paths(paths, args.output)
+    paths = collect_records(args.records)
+    outs = output_paths(paths, args.output, folder=any(Path(i).is_dir() for i in args.records))
     tlogs = _tlog_paths(args, paths)
     for dst in [*outs, *tlogs]:  # before any work: an output that cannot be written is a one-line error
         check_output(dst)
@@ -267,7 +269,8 @@ def _tlog_paths(args, paths) -> list:
         raise ConfigError(f"--tlog-messages: {exc}") from None
     if not args.tlog_rate >= 0:
         raise ConfigError("--tlog-rate must be >= 0 (0: every sample)")
-    return [p.with_suffix(".tlog") if len(paths) > 1 else p for p in output_paths(paths, args.tlog)]
+    folder = any(Path(i).is_dir() for i in args.records)
+    return [p.with_suffix(".tlog") if len(paths) > 1 or folder else p for p in output_paths(paths, args.tlog, folder)]
 
 
 def _write_tlog(opts, src, rec, df, dst) -> tuple[list[str], list[str]]:

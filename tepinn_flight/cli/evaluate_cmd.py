@@ -22,7 +22,7 @@ def add_arguments(p) -> None:
                  'tepinn-flight evaluate records/ -o report/       # report/report.md, report/report.html',
                  'tepinn-flight evaluate flight.tlog 00000042.BIN -o report/ --with-mag',
                  'tepinn-flight evaluate sims/ -o report/ --noise-sweep')
-    p.add_argument("records", nargs="+", metavar="RECORD", help="flight records, logs or folders of records")
+    p.add_argument("records", nargs="+", metavar="RECORD", help="flight records, logs, or folders of them")
     p.add_argument("-o", "--output", "--report", dest="output", required=True, metavar="DIR",
                    help="output folder for report.md, report.html, figures, metrics.json (--report DIR: the same)")
     p.add_argument("--model", action="append", default=[], metavar="CKPT",
@@ -73,7 +73,7 @@ def _run(args) -> int:
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
     from ..ingest import load_record
     from ..record import check_output
-    from .paths import collect_records
+    from .paths import collect_records, read_records
 
     check_output(args.output, folder=True)  # before the (long) evaluation
     cfg = load_suite_config(args.config, args.set)
@@ -98,11 +98,7 @@ def _run(args) -> int:
         cfg = dataclasses.replace(cfg, ekf=best)
         notes.append(f"EKF tuned on {len(train)} training record(s): " + ", ".join(
             f"{k}={getattr(best, k):g}" for k in ("gyro_noise_rad_s_sqrt_hz", "acc_noise_m_s2", "bias_walk_rad_s_sqrt_s")))
-    records = []
-    for p in paths:
-        rec = load_record(p)
-        rec.meta.setdefault("name", p.stem)
-        records.append(rec)
+    records = read_records(args.records, paths, notes)
     if len({record_name(r) for r in records}) < len(records):
         notes.append("some records share a name; they are numbered #2, #3, ... in the tables")
     estimators = []

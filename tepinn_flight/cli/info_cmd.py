@@ -6,16 +6,16 @@ import json
 
 from .helptext import add_examples
 
-HELP = "describe raw logs or flight records, or every record in a folder (format, rates, reference, segments, clipping)"
+HELP = "describe raw logs or flight records, or every one in a folder (format, rates, reference, segments, clipping)"
 
 
 def add_arguments(p) -> None:
     add_examples(p,
                  'tepinn-flight info 00000042.BIN',
-                 'tepinn-flight info records/                     # every record in a folder',
+                 'tepinn-flight info APM/LOGS/                    # every log or record in a folder',
                  'tepinn-flight info flight.parquet --json')
     p.add_argument("files", nargs="+", metavar="FILE",
-                   help="raw log or flight record (.parquet); a folder stands for the records (*.parquet) in it")
+                   help="raw log or flight record (.parquet); a folder stands for the logs and records in it (told by content)")
     p.add_argument("--imu", type=int, default=None, metavar="N", help="IMU instance (raw logs)")
     p.add_argument("--reference", default=None, metavar="SOURCE", help="reference source (raw logs)")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
@@ -27,6 +27,7 @@ def run(args) -> int:
 
     from ..errors import TepinnError
     from ..ingest import load_record
+    from ..ingest.inputs import RECORD_OR_LOG_FORMATS, files_in
     from ..ingest.sniff import sniff
     from ..record_stats import summarize
     from .summary import render_info
@@ -37,10 +38,10 @@ def run(args) -> int:
     for item in args.files:
         p = Path(item)
         if p.is_dir():
-            found = sorted(p.glob("*.parquet"))
+            found = files_in(p, RECORD_OR_LOG_FORMATS)
             if not found:
                 failures += 1
-                sys.stderr.write(f"tepinn-flight info: error: {TepinnError('directory holds no flight records (*.parquet)', p)}\n")
+                sys.stderr.write(f"tepinn-flight info: error: {TepinnError('folder holds no flight records or logs', p)}\n")
             files += [str(f) for f in found]
         else:
             files.append(item)

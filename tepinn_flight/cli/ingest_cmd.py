@@ -20,8 +20,10 @@ def add_arguments(p) -> None:
     add_examples(p,
                  'tepinn-flight ingest flight.tlog                # -> flight.parquet',
                  'tepinn-flight ingest logs/*.BIN -o records/',
+                 'tepinn-flight ingest APM/LOGS/ -o records/      # a folder: every log in it (told by content)',
                  'tepinn-flight ingest 00000042.BIN --imu 1 --reference XKQ')
-    p.add_argument("logs", nargs="+", metavar="LOG", help="log files")
+    p.add_argument("logs", nargs="+", metavar="LOG",
+                   help="log files; a folder stands for the logs in it, told by content (not its subfolders)")
     p.add_argument("-o", "--output", metavar="OUT",
                    help="output file (one log) or folder (several logs); default: LOG name + .parquet in the current folder")
     p.add_argument("--imu", type=int, default=None, metavar="N",
@@ -38,8 +40,10 @@ def run(args) -> int:
     from ..record import write_record
     from .summary import record_summary_line
 
-    logs = [Path(p) for p in args.logs]
-    outs = output_paths(logs, args.output)
+    from ..ingest.inputs import LOG_FORMATS, expand
+
+    logs = expand(args.logs, LOG_FORMATS)
+    outs = output_paths(logs, args.output, folder=any(Path(i).is_dir() for i in args.logs))
     failures = 0
     progress = None
     if len(logs) > 1 and not args.quiet:

@@ -1,16 +1,16 @@
 """Paths on the command line shared by several verbs: the records a verb reads (a folder stands for
-the records in it) and the one output per input a verb writes."""
+the records and logs in it) and the one output per input a verb writes."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import TepinnError
 
-
-def output_paths(logs: list[Path], output: str | None) -> list[Path]:
-    """One output per log: ``-o`` is a file for one log, a folder for several."""
-    if output is not None and len(logs) == 1 and not Path(output).is_dir() and not output.endswith(("/", "\\")):
+def output_paths(logs: list[Path], output: str | None, folder: bool = False) -> list[Path]:
+    """One output per log: ``-o`` is a file for one log, a folder for several (or where ``folder``: the logs came
+    from a folder given on the command line, however many it held)."""
+    if (output is not None and len(logs) == 1 and not folder and not Path(output).is_dir()
+            and not output.endswith(("/", "\\"))):
         return [Path(output)]
     folder = Path(output) if output is not None else Path.cwd()
     names: list[Path] = []
@@ -29,17 +29,33 @@ def output_paths(logs: list[Path], output: str | None) -> list[Path]:
 
 
 def collect_records(items: list[str]) -> list[Path]:
-    """Record paths from the command line: files as given, a folder stands for its ``*.parquet``."""
-    out: list[Path] = []
-    for it in items:
-        p = Path(it)
-        if p.is_dir():
-            found = sorted(p.glob("*.parquet"))
-            if not found:
-                raise TepinnError("folder holds no flight records (*.parquet)", p)
-            out += found
-        elif p.exists():
-            out.append(p)
-        else:
-            raise TepinnError("no such file", p)
-    return out
+    """Record paths from the command line: files as given, a folder stands for the flight records and the logs
+    in it (told by content: :mod:`tepinn_flight.ingest.inputs`; its subfolders are not searched)."""
+    from ..ingest.inputs import expand
+
+    return expand(items)
+
+
+def read_records(items: list[str], paths: list[Path], notes: list[str]) -> list:
+    """The flight records at ``paths`` (from :func:`collect_records` of ``items``; logs ingested on the fly), each
+    named after its file. A file named on the command line that cannot be read is a one-line error; one a folder
+    brought in is left out with a note in ``notes`` (a log folder holds logs without IMU data, older formats...)."""
+    from ..errors import TepinnError
+    from ..ingest import load_record
+
+    named = {Path(i) for i in items if not Path(i).is_dir()}
+    records = []
+    for p in paths:
+        try:
+            rec = load_record(p)
+        except TepinnError as exc:
+            if p in named:
+                raise
+            notes.append(f"{p}: left out ({exc.reason})")
+            continue
+        rec.meta.setdefault("name", p.stem)
+        records.append(rec)
+    if not records:
+        raise TepinnError("none of the records or logs given could be read (see the notes above)"
+                          if notes else "no records given")
+    return records

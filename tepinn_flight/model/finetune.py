@@ -63,18 +63,13 @@ def finetune_config(model_config, records: list[str], minutes: float = 6.0, seed
 
 def collect_logs(items) -> list[Path]:
     """Files as given; folders: every file below them that is a record or a log ``ingest`` reads."""
-    from ..ingest.sniff import sniff
+    from ..ingest.inputs import RECORD_OR_LOG_FORMATS, files_in
 
     out: list[Path] = []
     for it in items:
         p = Path(it)
         if p.is_dir():
-            for f in sorted(q for q in p.rglob("*") if q.is_file()):
-                try:
-                    sniff(f)
-                except TepinnError:
-                    continue
-                out.append(f)
+            out += files_in(p, RECORD_OR_LOG_FORMATS, recursive=True)
         elif p.exists():
             out.append(p)
         else:

@@ -1,0 +1,64 @@
+"""What a folder given to a verb stands for: the flight records and the logs ``ingest`` reads in it,
+told by their content (:func:`~tepinn_flight.ingest.sniff.sniff`), not by their names — an ArduPilot
+``LOGS`` folder, a ground station's tlogs, a PX4 SD card's ``log/`` or a folder of records alike.
+
+Files named on the command line are taken as given (the verb reports what it cannot read); only
+the files a folder holds are chosen here. Hidden files and files none of our readers know are left
+out silently: a log folder also holds ``LASTLOG.TXT``, parameter files and the ground station's
+notes.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from ..errors import TepinnError
+from .sniff import FORMATS, sniff
+
+#: formats of the logs ``ingest`` reads (a flight record, Parquet, is already ingested)
+LOG_FORMATS = frozenset(FORMATS) - {"parquet"}
+#: what ``estimate``, ``evaluate`` and ``info`` take: records and logs (ingested on the fly)
+RECORD_OR_LOG_FORMATS = frozenset(FORMATS)
+
+
+def files_in(folder: str | os.PathLike, formats: frozenset[str], recursive: bool = False) -> list[Path]:
+    """The files in ``folder`` (and its subfolders where ``recursive``) whose content is one of
+    ``formats``, sorted by path."""
+    root = Path(folder)
+    candidates = root.rglob("*") if recursive else root.iterdir()
+    out = []
+    for f in candidates:
+        if f.name.startswith(".") or any(part.startswith(".") for part in f.relative_to(root).parts[:-1]):
+            continue
+        if not f.is_file():
+            continue
+        try:
+            fmt = sniff(f)
+        except TepinnError:
+            continue
+        if fmt in formats:
+            out.append(f)
+    return sorted(out)
+
+
+def expand(items: list[str], formats: frozenset[str] = RECORD_OR_LOG_FORMATS, recursive: bool = False) -> list[Path]:
+    """Paths from the command line: a file as given, a folder for the files in it of ``formats``.
+
+    One-line errors: an item that does not exist, a folder holding none of them."""
+    what = "logs" if "parquet" not in formats else "flight records or logs"
+    out: list[Path] = []
+    for it in items:
+        p = Path(it)
+        if p.is_dir():
+            found = files_in(p, formats, recursive)
+            if not found:
+                below = " or its subfolders" if recursive else ""
+                raise TepinnError(f"folder{below} holds no {what} (told by content: ULog, DataFlash, tlog, BROAD HDF5"
+                                  + (", Parquet record)" if "parquet" in formats else ")"), p)
+            out += found
+        elif p.exists():
+            out.append(p)
+        else:
+            raise TepinnError("no such file or folder", p)
+    return out
