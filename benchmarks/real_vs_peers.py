@@ -4,7 +4,9 @@ Real files: the shared real drone logs that `ingest` can estimate (reference: th
 estimate), by vehicle and IMU rate, and the shared BROAD trials (optical truth) by motion class.
 The split is `train/splits/real.toml`: which files are held out (never trained, selected or
 calibrated on) and which the shipped network saw — the table says which is which. Simulated: the
-held-out campaign `flight_sims/campaigns/heldout.toml` (seed 77; every `--sim-every`-th flight).
+held-out campaign `flight_sims/campaigns/heldout.toml` (seed 77; every `--sim-every`-th flight), or
+another campaign (`--campaign`: the same flights with another seed, say, as an independent check would
+fly them; `--no-real` leaves the real files out).
 
 Inclination RMSE per file (5 s warm-up, the same samples for every estimator), the files where
 TE-PINN's gyro self-calibration applied (with what it read), the mean per kind,
@@ -16,6 +18,7 @@ TE-PINN is the model as it ships: offline, its tilt smoothed where no gate acts 
 column; `--smooth` adds the smoothing to a `--model` written before session 25 (which does not smooth).
 
     python benchmarks/real_vs_peers.py [--shared ../shared] [--sim-every 4] [--model CKPT] [--lstm CKPT] [--no-smooth] [--smooth]
+    python benchmarks/real_vs_peers.py --campaign my_seed.toml --sim runs/my_seed --sim-every 1 --no-real
 """
 
 from __future__ import annotations
@@ -35,6 +38,9 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--shared", default=str(REPO.parent / "shared"))
     ap.add_argument("--sim", default=str(REPO / "runs/heldout"), help="folder of the held-out campaign")
+    ap.add_argument("--campaign", default=str(REPO / "flight_sims/campaigns/heldout.toml"),
+                    help="the campaign flown into --sim (default: the held-out one, seed 77)")
+    ap.add_argument("--no-real", action="store_true", help="simulated flights only (no real files)")
     ap.add_argument("--sim-every", type=int, default=4, help="every N-th held-out flight (0: none)")
     ap.add_argument("--model", default=None, help="TE-PINN checkpoint (default: shipped)")
     ap.add_argument("--lstm", default=None, help="LSTM baseline checkpoint (default: shipped)")
@@ -43,7 +49,16 @@ def main() -> int:
     ap.add_argument("--no-smooth", action="store_true",
                     help="add TE-PINN without the offline tilt smoothing (estimate --no-smooth: the live bridge's tilt)")
     args = ap.parse_args()
+    from tepinn_flight.errors import TepinnError
 
+    try:
+        return run(args)
+    except TepinnError as exc:  # a campaign or a folder that does not fit: one line
+        print(f"real_vs_peers.py: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def run(args) -> int:
     import torch
 
     from tepinn_flight.evaluation.estimators import FilterEstimator, TepinnEstimator
@@ -59,20 +74,22 @@ def main() -> int:
     split = tomllib.loads((REPO / "train/splits/real.toml").read_text())
     shared = Path(args.shared)
     files = []  # (kind, group, name, record, held_out)
-    for name in split["heldout"]["real_logs"] + split["seen"].get("real_logs", []):
+    real_logs = [] if args.no_real else split["heldout"]["real_logs"] + split["seen"].get("real_logs", [])
+    broad = [] if args.no_real else split["heldout"].get("broad", []) + split["seen"]["broad"]
+    for name in real_logs:
         p = shared / "real-logs" / name
         if p.exists():
             rec = ingest_log(p)
             rate = float(rec.meta.get("imu_rate_hz") or 0)
             grp = f"{rec.meta.get('autopilot', '?')} {rec.meta.get('vehicle_type', '?')} {rate:.0f} Hz"
             files.append(("drone log", grp, name, rec, name in split["heldout"]["real_logs"]))
-    for name in split["heldout"].get("broad", []) + split["seen"]["broad"]:
+    for name in broad:
         p = shared / "broad" / name
         if p.exists():
             grp = "_".join(name.split("_")[2:4]).replace("_", " ")
             files.append(("BROAD", grp, name, ingest_log(p), name in split["heldout"].get("broad", [])))
     if args.sim_every:
-        run_campaign(REPO / "flight_sims/campaigns/heldout.toml", Path(args.sim), progress=True)
+        run_campaign(Path(args.campaign), Path(args.sim), progress=True)
         for p in sorted(Path(args.sim).glob("*.parquet"))[:: args.sim_every]:
             grp = p.stem.split("-")[1]
             files.append(("simulated", grp, p.stem, read_record(p), True))
