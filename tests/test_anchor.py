@@ -770,3 +770,68 @@ def test_the_gates_over_several_records_name_those_where_one_acted():
     assert gates_acted({"a": shut, "b": shut}) == "network gates shut on all 2 record(s) (the network corrected nothing)"
     assert gates_acted({"a": shut, "b": acted}) == ("network gates acted on 1 of 2 record(s), elsewhere the network corrected "
                                                     "nothing: b (flight speed 0.5 s from t = 105.5 s)")  # fmt: skip
+
+
+def test_the_fusion_tilt_on_the_filters_heading_by_scipy():
+    """``with_fusion_tilt``: each row gets the other's down direction in body axes by the shortest turn in body
+    axes (about down × down', checked with scipy's rotations); a row whose fusion estimate is missing, or
+    whose downs are opposite, stays as it was."""
+    from tepinn_flight.model.anchor import with_fusion_tilt
+
+    rng = np.random.default_rng(5)
+    r_a, r_b = Rotation.random(50, random_state=rng), Rotation.random(50, random_state=rng)
+    q_a, q_b = (np.roll(r.as_quat(), 1, axis=1) for r in (r_a, r_b))  # scipy's x, y, z, w → w, x, y, z
+    q_b[3] = np.nan
+    q_b[4] = np.roll(Rotation.from_rotvec([np.pi, 0.0, 0.0]).__mul__(r_a[4]).as_quat(), 1)  # turned upside down in earth axes
+    out = with_fusion_tilt(q_a, q_b)
+    r_out = Rotation.from_quat(np.roll(out, -1, axis=1))
+    down_out = r_out.inv().apply([0.0, 0.0, 1.0])
+    down_a, down_b = r_a.inv().apply([0.0, 0.0, 1.0]), r_b.inv().apply([0.0, 0.0, 1.0])
+    keep = np.ones(50, bool)
+    keep[[3, 4]] = False
+    np.testing.assert_allclose(down_out[keep], down_b[keep], atol=1e-12)
+    turn = (r_a.inv() * r_out).as_rotvec()  # in body axes
+    axis = np.cross(down_a, down_b)
+    np.testing.assert_allclose(np.linalg.norm(np.cross(turn[keep], axis[keep]), axis=1), 0.0, atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(turn[keep], axis=1),
+                               np.arccos(np.clip(np.sum(down_a * down_b, 1), -1, 1))[keep], atol=1e-9)  # fmt: skip
+    np.testing.assert_array_equal(out[[3, 4]], q_a[[3, 4]])
+    from tepinn_flight.model.anchor_kernels import fusion_tilt_f  # the live path's per-sample form
+
+    one = np.array([fusion_tilt_f(*a, *b) for a, b in zip(q_a, q_b)])
+    np.testing.assert_allclose(one, out, rtol=0, atol=1e-12)
+
+
+def test_while_the_saturation_gate_is_on_the_tilt_is_the_older_fusions():
+    """Rule 17: while the saturation gate is on, the estimate's down direction is the older fusion's (its
+    per-sample, causal estimate), on the filter's own heading; everywhere else the estimate is the filter's,
+    bit for bit; live equals offline; checkpoints written before it (the key missing) keep the filter's tilt."""
+    from tepinn_flight.model.checkpoint import estimator_settings, read_checkpoint
+    from tepinn_flight.model.estimate import anchored_windows
+    from tepinn_flight.quat import gravity_body
+
+    rec = _with_clipped(synthetic_record(seed=2, duration_s=24.0, rate_hz=100.0), 15.0, 15.3)
+    model, shipped, _ = load_model(default_model_path())
+    assert shipped.clip_tilt_from_fusion
+    cfg = dataclasses.replace(shipped, smoother=False, gnss_aid=False)
+    windows = anchored_windows(model, rec, fusion=cfg.fusion_config, anchor=cfg)
+    on = estimate_anchored(model, rec, cfg, windows=windows)[Q].to_numpy()
+    off = estimate_anchored(model, rec, dataclasses.replace(cfg, clip_tilt_from_fusion=False), windows=windows)[Q].to_numpy()
+    changed = np.flatnonzero(np.any(on != off, axis=1))
+    t = rec.t_s
+    assert len(changed) > 100 and np.all(np.diff(changed) == 1)  # one spell ...
+    assert 15.0 < t[changed[0]] < 15.0 + 0.2 and t[changed[-1]] <= 15.3 + cfg.clip_hold_s + model.config.window_s  # ... the gate's
+    q_fusion = windows[1]["q_fusion"]
+    np.testing.assert_allclose(gravity_body(on[changed]), gravity_body(q_fusion[changed]), atol=1e-9)
+    assert np.degrees(np.max(np.arccos(np.clip(np.sum(gravity_body(off[changed]) * gravity_body(q_fusion[changed]), 1),
+                                               -1, 1)))) > 0.05  # the two tilts differ there  # fmt: skip
+    live = StreamingEstimator(model, cfg)
+    q_live = np.full((len(rec), 4), np.nan)
+    for i in range(len(rec)):
+        e = live.push(t[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
+        if e.q_nb_wxyz is not None:
+            q_live[i] = e.q_nb_wxyz
+    np.testing.assert_allclose(q_live[changed], on[changed], atol=1e-6)
+    ck = read_checkpoint(default_model_path())
+    del ck["anchor_config"]["clip_tilt_from_fusion"]
+    assert not estimator_settings(ck).clip_tilt_from_fusion

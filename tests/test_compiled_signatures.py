@@ -19,7 +19,7 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 #: the anchored VQF's kernels (model/anchor_kernels.py)
 ANCHOR_KERNELS = ("q_nb_from_vqf_f", "q_nb_rows", "sigma_step", "clip_sigma_step", "clip_sigma_rows", "vqf_inputs",
                   "vqf_outputs", "horizontal_bias",
-                  "tilt_pull_f", "up_in_earth_f", "turn_acc_state")
+                  "tilt_pull_f", "up_in_earth_f", "turn_acc_state", "fusion_tilt_f")
 
 _CALLS = textwrap.dedent("""
     import numpy as np
@@ -73,6 +73,8 @@ _CALLS = textwrap.dedent("""
     q_nb_from_vqf(rec.q_ref_wxyz)
     q_nb_from_vqf(rec.q_ref_wxyz[0])
     tilt_pull_quat(rec.q_ref_wxyz[0], [0, 0, 1], 1)
+    ak.fusion_tilt_f(*rec.q_ref_wxyz[0], *rec.q_ref_wxyz[1])  # a record's rows, and floats (the live path)
+    ak.fusion_tilt_f(1.0, 0.0, 0.0, 0.0, *(float(v) for v in rec.q_ref_wxyz[1]))
     from tepinn_flight.model import window_features as wf
     from tepinn_flight.model.config import ModelConfig
 

@@ -17,7 +17,8 @@ and its rate ``â``. Each enters only where there is run-time evidence that VQF'
 - **gyro saturation** (at least ``clip_min_s`` of samples with the gyro clipped within ``clip_hold_s``:
   the ``clipped`` argument of :meth:`AnchoredVQF.update`, a record's ``gyr_clipped``): the integrated
   rate is wrong, so VQF's tilt is pulled toward the network's window tilt (its physics inputs are
-  clip-aware). An accelerometer at its range leaves the integrated rate right and does not open it;
+  clip-aware), and while the gate is on the estimate's tilt *is* the pull target's — the older fusion's,
+  propagated with the network's declipping — on VQF's heading (``clip_tilt_from_fusion``, rule 17). An accelerometer at its range leaves the integrated rate right and does not open it;
   nor does a handful of clipped samples, whose missed rotation is smaller than the network's error
   on real sensors. Only at the gyro ranges the network learned to declip (``clip_gate_max_deg_s``: a
   clipped reading beyond it — an autopilot's ±2000 °/s — keeps the pull shut; VQF's accelerometer brings
@@ -82,7 +83,7 @@ from ..errors import ConfigError
 from ..quat_scalar import down_in_body
 from .anchor_kernels import FLIP as _FLIP
 from .anchor_kernels import Q_NED_ENU, Q_SENSOR_BODY  # noqa: F401  (VQF's frames; peers import them from here)
-from .anchor_kernels import (clip_sigma_rows, clip_sigma_step, horizontal_bias, q_nb_from_vqf_f, q_nb_rows, rest_rows,
+from .anchor_kernels import (clip_sigma_rows, clip_sigma_step, fusion_tilt_f, horizontal_bias, q_nb_from_vqf_f, q_nb_rows, rest_rows,
                              rest_step, sigma_step, tilt_pull_f, turn_acc_state, up_in_earth_f, vqf_inputs,
                              vqf_outputs)  # fmt: skip
 from .fusion import FusionConfig
@@ -131,6 +132,11 @@ class AnchorConfig:
     # brings the tilt back; σ's saturation term, the re-levelling at rest and the other gates act as
     # anywhere (0: any range, before session 23)
     clip_gate_max_deg_s: float = 500.0
+    # ... and while it is on, the estimate's tilt is the older fusion's (the pull target, run alongside, causal)
+    # on the filter's heading: between windows the filter integrates the clipped gyro, which the pulls can only
+    # take back a window later; the older fusion propagates with the network's declipping (rule 17, session 28;
+    # False: the filter's pulled tilt, before it)
+    clip_tilt_from_fusion: bool = True
     bias_gate_weight: float = 0.6  # pull weight while the uncalibrated-gyro gate is on (0: never)
     bias_deadzone_deg_s: float = 2.0  # the network's bias beyond this is removed from the gyro
     # ... and the gate also opens when the older fusion's bias estimate (pull target "fusion") exceeds
@@ -273,7 +279,8 @@ class AnchorConfig:
         return dataclasses.replace(self, pull_gain=0.0, centripetal=False, tau_acc_flight_s=0.0, bias_gate_weight=0.0,
                                    bias_deadzone_deg_s=1e9, sigma_net_scale=0.0, gyro_scale=(1.0, 1.0, 1.0),
                                    gyro_selfcal=False, gnss_aid=False, smoother=False,
-                                   accel_scale_selfcal=False, rest_relevel_s=0.0, sigma_gap_gain=0.0)  # fmt: skip
+                                   accel_scale_selfcal=False, rest_relevel_s=0.0, sigma_gap_gain=0.0,
+                                   clip_tilt_from_fusion=False)  # fmt: skip
 
 
 @dataclass
@@ -621,6 +628,26 @@ class AnchoredVQF:
         turn_acc_state(aq, dw, dx, dy, dz, lp, s)
         st["accQuat"], st["lastAccLp"], st["accLpState"] = aq, lp, s
         self.f.state = st
+
+
+def with_fusion_tilt(q_nb: np.ndarray, q_fusion: np.ndarray) -> np.ndarray:
+    """Rows of ``q_nb`` (body→NED) given the tilt of ``q_fusion``'s rows on their own heading
+    (:attr:`AnchorConfig.clip_tilt_from_fusion`; the smoother's tilt formula). A row whose fusion estimate is
+    missing, or whose two down directions are opposite (no shortest turn between them), stays ``q_nb``'s."""
+    from ..quat import gravity_body
+    from .smoother import blend_tilt
+
+    q_nb = np.atleast_2d(np.asarray(q_nb, np.float64))
+    q_fusion = np.atleast_2d(np.asarray(q_fusion, np.float64))
+    out = q_nb.copy()
+    ok = np.all(np.isfinite(q_fusion), axis=1) & np.all(np.isfinite(q_nb), axis=1)
+    if ok.any():
+        rows = np.flatnonzero(ok)
+        d_a, d_b = gravity_body(q_nb[rows]), gravity_body(q_fusion[rows])
+        rows = rows[1.0 + np.sum(d_a * d_b, axis=1) > 1e-9]  # opposite downs: no shortest turn
+        if rows.size:
+            out[rows] = blend_tilt(q_nb[rows], q_fusion[rows], np.ones(rows.size))
+    return out
 
 
 def _floats(v) -> list:

@@ -178,6 +178,23 @@ def tilt_pull_f(qw, qx, qy, qz, ux, uy, uz, fraction):
 
 
 @njit(cache=True)
+def fusion_tilt_f(qw, qx, qy, qz, fw, fx, fy, fz):
+    """:func:`.anchor.with_fusion_tilt` for one sample (the live path; numpy on one row cost 10× a sample):
+    ``q`` turned in body axes by the shortest turn that gives it the down direction of ``f`` — the arithmetic of
+    ``smoother.blend_tilt`` at weight 1 (``with_down``), in its order; ``q`` unchanged where ``f`` is not finite
+    or the two downs are opposite (tested against the batched form)."""
+    ax, ay, az = down_in_body(qw, qx, qy, qz)
+    bx, by, bz = down_in_body(fw, fx, fy, fz)
+    if not 1.0 + (ax * bx + ay * by + az * bz) > 1e-9:  # (also a NaN)
+        return qw, qx, qy, qz
+    n = math.sqrt(bx * bx + by * by + bz * bz)
+    bx, by, bz = bx / n, by / n, bz / n
+    cw, cx, cy, cz = qnorm(1.0 + (bx * ax + by * ay + bz * az), by * az - bz * ay, bz * ax - bx * az, bx * ay - by * ax)
+    rw, rx, ry, rz = qmul(qw, qx, qy, qz, cw, cx, cy, cz)
+    return qnorm(rw, rx, ry, rz)
+
+
+@njit(cache=True)
 def rest_step(st, gx, gy, gz, ax, ay, az, gyr_max2, acc_dev2):
     """One sample into the still run ``st`` (4,: its length in samples and the sum of its
     accelerometer, body axes), in place: the sample continues it when the gyro's |ω|² is below

@@ -18,7 +18,7 @@ import pandas as pd
 from ..errors import TepinnError
 from ..record import ACC_COLS, FlightRecord, segment_slices
 from ..record_gaps import bridge_gaps
-from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows, q_nb_from_vqf, to_sensor
+from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows, q_nb_from_vqf, to_sensor, with_fusion_tilt
 from .fusion import FusionConfig, FusionRun, feedback_bias
 from .accel_scale import AccelScale, read_accel_scale
 from .gnss_aid import GnssAidConfig, motion_acc_body, summarize
@@ -265,6 +265,7 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
     target[bad] = out["q"][bad]
     out["q_target"] = target
     out["bias_target"] = np.nan_to_num(b_old[idx])  # its gyro-bias estimate then (uncalibrated-gyro evidence)
+    out["q_fusion"] = q_old  # per sample (not per window): its estimate at every sample, causal (NaN: none)
     return idx, out
 
 
@@ -293,7 +294,9 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     """The filter-anchored estimate (:mod:`.anchor`): one row per record row, ``t_s``, ``q_est_*``
     (body→NED; 9-D heading where ``wants_mag``), ``sigma_rad``, ``gyr_bias_est_*``. Estimates start
     at a segment's first sample (VQF); the network's windows apply from the sample after their last
-    one. ``windows`` takes :func:`anchored_windows`' result when already at hand. Non-finite IMU
+    one; with ``anchor.clip_tilt_from_fusion``, while the saturation gate is on, the tilt is the older fusion's
+    (its per-sample estimate, ``windows``' ``"q_fusion"``) on the filter's heading. ``windows`` takes
+    :func:`anchored_windows`' result when already at hand. Non-finite IMU
     samples are holes, bridged with the last finite sample. With ``anchor.accel_scale_selfcal`` the
     accelerometer is first divided by its scale where the record shows one clearly not 1
     (:func:`prepared`; read over the whole record — the live estimator reads it causally):
@@ -318,15 +321,19 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     t, gyr, acc, mag = rec.t_s, *(np.ascontiguousarray(x) for x in (rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut))
     cols = (t, gyr, acc, mag, rec.gyr_clipped)  # read from the frame once (each property access copies); the
     # saturation gate opens on the gyro's clipping alone
-    q_out, s_out, b_out, gate, relevel_t, relevel_i, gates_open = _anchored_pass(anchor, rec.segment, cols, idx, out,
-                                                                                  use_mag)  # fmt: skip
+    q_out, s_out, b_out, gate, relevel_t, relevel_i, gates_open, clip_gate = _anchored_pass(anchor, rec.segment, cols,
+                                                                                             idx, out, use_mag)  # fmt: skip
     aid = None
     if anchor.gnss_aid:
         aid, acc_aided, out_aided = gnss_aided_acc(rec, q_out, anchor, idx, out, cols, use_mag)
         if acc_aided is not None:
             cols = (t, gyr, acc_aided, mag, cols[4])
-            q_out, s_out, b_out, gate, relevel_t, relevel_i, gates_open = _anchored_pass(anchor, rec.segment, cols, idx,
-                                                                                         out_aided, use_mag)  # fmt: skip
+            q_out, s_out, b_out, gate, relevel_t, relevel_i, gates_open, clip_gate = _anchored_pass(
+                anchor, rec.segment, cols, idx, out_aided, use_mag)  # fmt: skip
+    q_fusion = out.get("q_fusion")
+    if anchor.clip_tilt_from_fusion and q_fusion is not None and np.any(clip_gate > 0):
+        on = clip_gate > 0  # the saturation gate (as the filter held it): the older fusion's tilt, the filter's heading
+        q_out[on] = with_fusion_tilt(q_out[on], q_fusion[on])
     done = None
     if anchor.smoother:
         q_out, s_out, done = smooth(t, q_out, s_out, gate, rec.segment, smoother or SmootherConfig(),
@@ -398,7 +405,8 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
     applied at their last samples → (q_nb, sigma, bias, gate) per sample and the times the tilt was
     re-levelled at rest (:attr:`.anchor.AnchoredVQF.relevel_t`), the first sample estimated after each of those
     re-levellings and, per gate (:data:`GATE_NAMES`), the
-    seconds it was open and when it first opened (``{name: (s, t)}``); the gate (the largest of the
+    seconds it was open and when it first opened (``{name: (s, t)}``), and the saturation gate's part per sample
+    (its pull weight, :attr:`.anchor.AnchoredVQF.gate_parts`); the gate (the largest of the
     filter's gates, 0 where the estimate is VQF's) is each window's from the sample after it."""
     t = cols[0]
     q_pull = out.get("q_target", out["q"])
@@ -410,6 +418,7 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
     s_out = np.full(n, np.nan)
     b_out = np.full((n, 3), np.nan)
     gate = np.zeros(n)
+    clip_gate = np.zeros(n)
     relevel_t, relevel_i = [], []
     open_s, first_t = np.zeros(len(GATE_NAMES)), np.full(len(GATE_NAMES), np.inf)
     for sl in segment_slices(seg):
@@ -435,10 +444,11 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
             _put(flt, cols, cur, b, q_out, s_out, b_out, use_mag)
         if starts:  # filled once at the end (per window up to the segment's end was quadratic in its length)
             gate[a:b] = _piecewise(np.asarray(starts) - a, np.asarray(gates, np.float64), b - a)
+            clip_gate[a:b] = _piecewise(np.asarray(starts) - a, np.asarray(parts, np.float64)[:, 1], b - a)
             _add_open_time(t[a:b], np.asarray(starts) - a, np.asarray(parts, np.float64) > 0, open_s, first_t)
         relevel_t += flt.relevel_t
     gates_open = {name: (float(s), float(t0)) for name, s, t0 in zip(GATE_NAMES, open_s, first_t)}
-    return q_out, s_out, b_out, gate, relevel_t, relevel_i, gates_open
+    return q_out, s_out, b_out, gate, relevel_t, relevel_i, gates_open, clip_gate
 
 
 def _add_open_time(t: np.ndarray, starts: np.ndarray, is_open: np.ndarray, open_s: np.ndarray, first_t: np.ndarray) -> None:

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..record_gaps import GAP_PERIODS, filler_times, interpolate_rows, is_bridgeable
 from .accel_scale import AccelScaleTracker
-from .anchor import AnchorConfig, AnchoredVQF, WindowOutput
+from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, fusion_tilt_f
 from .fusion import AttitudeFusion, FusionConfig, feedback_bias
 from .runtime import NetworkRunner, as_runner
 
@@ -270,6 +270,8 @@ class StreamingEstimator:
         q = q9 if q9 is not None else q6
         if not math.isfinite(q[0] + q[1] + q[2] + q[3]):
             return None, sig, bias
+        if self.anchored.gate_parts[1] > 0 and self.anchor_cfg.clip_tilt_from_fusion and self.old_q is not None:
+            q = fusion_tilt_f(*q, *self.old_q)  # saturated: the older fusion's tilt (offline: with_fusion_tilt)
         return q, sig, bias
 
     def _close_token(self):
