@@ -196,6 +196,30 @@ def test_text_log_line_endings_and_bad_lines(tmp_path):
     np.testing.assert_array_equal(raw.imu.gyr_rad_s, a.imu.gyr_rad_s[keep])
 
 
+def test_text_log_with_corrupted_bytes(tmp_path):
+    """Corrupted bytes inside a text log's numbers (an SD card write gone wrong) spoil their rows, not the log: a
+    byte that is no UTF-8 had raised UnicodeDecodeError from pandas' parser, a stray carriage return or quote had
+    made it see another number of lines (a shape error) — tracebacks, both (found by truncating and garbling the
+    shared logs)."""
+    src = real_log("aplogan_nan.log").read_bytes()
+    lines = src.split(b"\n")
+    imu_lines = [i for i, ln in enumerate(lines) if ln.startswith(b"IMU,")]
+    for k, cell in ((15, b"\xdc\x901"), (40, b" 0.1\r2"), (41, b' "0.2'), (42, b" 0.3")):  # the gyro's y reading
+        row = lines[imu_lines[k]].split(b",")
+        row[3] = cell
+        lines[imu_lines[k]] = b",".join(row)
+    bad = tmp_path / "garbled.log"
+    bad.write_bytes(b"\n".join(lines))
+    a, raw = read(real_log("aplogan_nan.log")), read(bad)
+    keep = np.ones(705, bool)
+    keep[[15, 40, 41]] = False  # the three spoiled readings; row 42 reads 0.3 where it was written
+    assert len(raw.imu.t_s) == 702
+    got = raw.imu.gyr_rad_s
+    want = a.imu.gyr_rad_s[keep].copy()
+    want[np.flatnonzero(keep)[:].tolist().index(42), 1] = 0.3
+    np.testing.assert_array_equal(got, want)
+
+
 @pytest.mark.parametrize(
     "name, exc, pattern",
     [

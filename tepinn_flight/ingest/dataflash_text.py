@@ -6,6 +6,7 @@ few times the file size: text logs are small).
 
 from __future__ import annotations
 
+import csv
 import io
 import os
 
@@ -122,7 +123,7 @@ class TextSource:
             joined = b"\n".join([raw[x:y] for x, y in zip(a[good].tolist(), e[good].tolist())])
             num = [c for c, ch in enumerate(mf.fmt) if ch not in dfs.STRING_CHARS and ch != "a"]
             if good.any() and num:
-                out[np.ix_(good, num)] = _parse_csv(joined, k, num)
+                out[np.ix_(good, num)] = _parse_csv(joined, k, num, int(good.sum()))
         self._cache[name] = out
         return out
 
@@ -152,15 +153,29 @@ class TextSource:
         return out
 
 
-def _parse_csv(data: bytes, ncols: int, numeric: list[int]) -> np.ndarray:
-    """Numeric columns of comma-separated lines via pandas' C parser; bad cells become NaN."""
-    kw = dict(header=None, names=list(range(ncols)), usecols=numeric, skipinitialspace=True, engine="c")
+def _parse_csv(data: bytes, ncols: int, numeric: list[int], n_lines: int) -> np.ndarray:
+    """Numeric columns of ``n_lines`` comma-separated lines via pandas' C parser; bad cells become NaN. Bytes that
+    are no text are read as Latin-1 (which decodes every byte), so a corrupted byte spoils its cell, not the log;
+    where corruption made the parser see another number of lines (a stray carriage return or quote), the lines
+    are split here, one by one."""
+    kw = dict(header=None, names=list(range(ncols)), usecols=numeric, skipinitialspace=True, engine="c",
+              encoding="latin-1", quoting=csv.QUOTE_NONE)
     try:
         table = pd.read_csv(io.BytesIO(data), dtype=np.float64, **kw)
     except ValueError:
         table = pd.read_csv(io.BytesIO(data), dtype=object, **kw)
         table = table.apply(lambda c: pd.to_numeric(c.astype(str).str.strip(), errors="coerce"))
-    return table[numeric].to_numpy(np.float64)
+    if len(table) == n_lines:
+        return table[numeric].to_numpy(np.float64)
+    out = np.full((n_lines, len(numeric)), np.nan)
+    for r, line in enumerate(data.split(b"\n")[:n_lines]):
+        cells = line.decode("latin-1").split(",")
+        for j, c in enumerate(numeric):
+            try:
+                out[r, j] = float(cells[c])
+            except (IndexError, ValueError):
+                pass
+    return out
 
 
 def _name_key(name: str) -> int:
