@@ -835,3 +835,52 @@ def test_while_the_saturation_gate_is_on_the_tilt_is_the_older_fusions():
     ck = read_checkpoint(default_model_path())
     del ck["anchor_config"]["clip_tilt_from_fusion"]
     assert not estimator_settings(ck).clip_tilt_from_fusion
+
+
+@pytest.mark.parametrize("rate_hz, opens", [(10.0, False), (19.0, False), (20.0, True), (25.0, True)])
+def test_no_network_gate_below_the_imu_rates_the_network_learned(rate_hz, opens):
+    """Rule 18: on an IMU slower than ``min_network_rate_hz`` (20 Hz, the tool's "too slow for windowed
+    estimation") a window claiming flight speed and 20° of tilt moves nothing — the estimate is VQF's bit for bit —
+    while at 20 Hz and faster the gate opens; checkpoints written before it (the key missing) gate at any rate."""
+    from tepinn_flight.model.checkpoint import estimator_settings, read_checkpoint
+
+    n = 60
+    t = np.arange(n) / rate_hz
+    gyr, acc = np.zeros((n, 3)), np.tile([0.0, 0.0, -9.81], (n, 1))
+    tilted = np.array([math.cos(math.radians(10)), math.sin(math.radians(10)), 0.0, 0.0])
+    cfg = dataclasses.replace(AnchorConfig(), pull_gain=0.5, centripetal=False)
+    assert cfg.min_network_rate_hz == 20.0 and _shipped().min_network_rate_hz == 20.0
+    f, plain = AnchoredVQF(cfg, 1.0 / rate_hz), AnchoredVQF(cfg.learned_off, 1.0 / rate_hz)
+    f.update(t, gyr, acc)
+    plain.update(t, gyr, acc)
+    f.correct(WindowOutput(tilted, 0.01, np.zeros(3), np.array([60.0, 0.0, 0.0]), np.zeros(3)))
+    q, _, sig, _ = f.update(t[-1:] + 1.0 / rate_hz, gyr[:1], acc[:1])
+    q0, _, sig0, _ = plain.update(t[-1:] + 1.0 / rate_hz, gyr[:1], acc[:1])
+    assert (f.gate > 0) == opens
+    if opens:
+        assert _tilt_deg(q[0]) == pytest.approx(10.0, abs=0.3)
+    else:
+        np.testing.assert_array_equal(q, q0)
+        np.testing.assert_array_equal(sig, sig0)
+    ck = read_checkpoint(default_model_path())
+    del ck["anchor_config"]["min_network_rate_hz"]
+    assert estimator_settings(ck).min_network_rate_hz == 0.0
+
+
+def test_live_equals_offline_on_an_imu_too_slow_for_the_network():
+    """A 10-Hz record (a telemetry log) with a saturated stretch: live and offline give the same estimate, and the
+    network's gates never act (the estimate says so)."""
+    rec = _with_clipped(synthetic_record(seed=4, duration_s=40.0, rate_hz=10.0), 15.0, 16.0)
+    model, shipped, _ = load_model(default_model_path())
+    cfg = dataclasses.replace(shipped, smoother=False, gnss_aid=False, gyro_selfcal=False, accel_scale_selfcal=False)
+    df = estimate_anchored(model, rec, cfg)
+    assert "shut throughout" in df.attrs["network_gates"]
+    live = StreamingEstimator(model, cfg)
+    q_live = np.full((len(rec), 4), np.nan)
+    for i in range(len(rec)):
+        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
+        if e.q_nb_wxyz is not None:
+            q_live[i] = e.q_nb_wxyz
+    have = np.all(np.isfinite(q_live), 1)
+    assert have.sum() > len(rec) - 60
+    np.testing.assert_allclose(q_live[have], df[Q].to_numpy()[have], atol=1e-6)

@@ -191,7 +191,8 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
             rate = rec.meta.get("imu_rate_hz")
             err.append(f"tepinn-flight estimate: warning: {src}: IMU "
                        f"{'rate unknown' if rate is None else f'at {rate:.1f} Hz'} is too slow for windowed "
-                       "estimation (estimation_ok is false); estimating anyway, expect poor attitude")  # fmt: skip
+                       "estimation (estimation_ok is false); estimating anyway with VQF alone where the filter takes it "
+                       "below 20 Hz (the network's gates stay shut: min_network_rate_hz), expect a poor attitude")  # fmt: skip
         holes = int(np.sum(~(np.all(np.isfinite(rec.gyr_rad_s), 1) & np.all(np.isfinite(rec.acc_m_s2), 1))))
         if holes:
             err.append(f"tepinn-flight estimate: note: {src}: {holes} non-finite IMU sample(s) bridged with "

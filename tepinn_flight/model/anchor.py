@@ -34,6 +34,9 @@ and its rate ``â``. Each enters only where there is run-time evidence that VQF'
   then on, in that segment, the network's bias beyond ``bias_deadzone_deg_s`` is removed from the
   gyro VQF sees, and its tilt pulls with weight ``bias_gate_weight``.
 
+**Below the rates the network learned** (``min_network_rate_hz``, 20 Hz: a segment whose sample period, as the
+filter takes it, is longer) no gate opens at all: the windows are out of the network's domain (rule 18).
+
 **Quiet blocks** (``quiet_blocks``): where every gate stays shut the estimate is VQF's whatever the
 windows say, so the network need not run there. Windows come in the older fusion's bias-feedback
 blocks (``bias_feedback_windows`` tokens, 1 s); a block whose first window and those of the last
@@ -137,6 +140,11 @@ class AnchorConfig:
     # take back a window later; the older fusion propagates with the network's declipping (rule 17, session 28;
     # False: the filter's pulled tilt, before it)
     clip_tilt_from_fusion: bool = True
+    # no network gate at all on a segment whose IMU is slower than this (its sample period as the filter takes it):
+    # the network learned 25 Hz and faster, and below the tool's own 20 Hz (record.MIN_ESTIMATION_RATE_HZ, a log too
+    # slow for windowed estimation: telemetry tlogs) its windows fired gates that cost a 4-Hz VTOL log 12.4° against
+    # VQF's 8.0° (rule 18, session 28); 0: any rate (before it)
+    min_network_rate_hz: float = 20.0
     bias_gate_weight: float = 0.6  # pull weight while the uncalibrated-gyro gate is on (0: never)
     bias_deadzone_deg_s: float = 2.0  # the network's bias beyond this is removed from the gyro
     # ... and the gate also opens when the older fusion's bias estimate (pull target "fusion") exceeds
@@ -245,6 +253,7 @@ class AnchorConfig:
         check_range("busy_stride", self.busy_stride, 1, 10**6)
         check_range("speed_hi_m_s", self.speed_hi_m_s, self.speed_lo_m_s, None, lo_open=True)
         check_range("bias_gate_thrust_deg", self.bias_gate_thrust_deg, 0, 180)
+        check_range("min_network_rate_hz", self.min_network_rate_hz, 0, 100000)
         for name in ("clip_min_s", "quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "rest_relevel_s", "clip_gate_max_deg_s", "rest_gyr_deg_s", "rest_acc_m_s2", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "bias_gate_vqf_deg_s", "sigma_floor_deg", "sigma_acc_gain",
                      "sigma_net_scale", "sigma_sampling_gain", "sigma_clip_gain", "sigma_gap_gain", "sigma_gap_hold_s"):  # fmt: skip
             check_range(name, getattr(self, name), 0, None)
@@ -385,6 +394,8 @@ class AnchoredVQF:
         self.holes = 0  # non-finite samples bridged
         self.relevel_t: list[float] = []  # when the tilt was set from the accelerometer at rest (rest_relevel_s)
         self.gscale = None if c.gyro_scale == (1.0, 1.0, 1.0) else c.gyro_scale  # gyro × this (calibration)
+        # an IMU slower than the network learned: every gate stays shut (min_network_rate_hz)
+        self.slow = c.min_network_rate_hz > 0 and ts_s * c.min_network_rate_hz > 1.0
         self._g1, self._a1 = np.empty(3), np.empty(3)  # update_one's sample in VQF's frame
 
     # ------------------------------------------------------------------ samples
@@ -508,6 +519,10 @@ class AnchoredVQF:
     def correct(self, w: WindowOutput) -> None:
         """Apply the network's window made at the last sample pushed (see module doc)."""
         c = self.cfg
+        if self.slow:  # below the rates the network learned: nothing of the window acts; σ's E decays as VQF recovers
+            self.gate, self.gate_parts, self.var_gap = 0.0, (0.0, 0.0, 0.0), 0.0
+            self.clip_decay = math.exp(-self.ts / self.tau_acc)
+            return
         shut = w.gnss_aided and not (c.gnss_aid_in_flight and w.gnss_fast)  # aided and slow: the gate shut
         vx, vy, vz = (0.0, 0.0, 0.0) if shut else _floats(w.vel_m_s)
         speed = math.sqrt(vx * vx + vy * vy + vz * vz)
