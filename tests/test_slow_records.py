@@ -1,5 +1,6 @@
-"""Records that ingest flags "IMU rate too low for estimation" are scored but kept out of the
-evaluation's headline; the report lists them apart and its Records table says why (real logs)."""
+"""Records that ingest flags "IMU rate too low for estimation", and records whose reference attitude fails the trust
+check, are scored but kept out of the evaluation's headline; the report lists them apart and its Records table says
+why (real logs)."""
 
 from __future__ import annotations
 
@@ -18,9 +19,11 @@ def slow_and_fast(tmp_path_factory):
 
     slow = ingest_log(real_log("uavlv_vtol.tlog"))  # 4.2 Hz telemetry
     fast = ingest_log(real_log("ardusub_small.BIN"))  # 25 Hz onboard log
+    diverged = ingest_log(real_log("aplogan_nan.log"))  # 50 Hz, its autopilot's attitude diverged
     assert slow.meta["estimation_ok"] is False and fast.meta["estimation_ok"] is True
+    assert diverged.meta["estimation_ok"] is True
     ests = [VqfEstimator(), *baseline_estimators()[:1]]
-    res = evaluate([slow, fast], ests, HarnessConfig(warmup_s=2.0), progress=False)
+    res = evaluate([slow, fast, diverged], ests, HarnessConfig(warmup_s=2.0), progress=False)
     return res, ests
 
 
@@ -34,10 +37,13 @@ def test_the_headline_is_over_the_records_fast_enough(slow_and_fast):
         d = res.dataset[e.name]
         assert d["n_records"] == 1
         assert d["inclination_rmse_deg"] == pytest.approx(fast["results"][e.name]["inclination_rmse_deg"], rel=1e-12)
-        # and it is not the mean over both (the slow record does differ)
-        both = np.mean([slow["results"][e.name]["inclination_rmse_deg"], fast["results"][e.name]["inclination_rmse_deg"]])
-        assert abs(both - d["inclination_rmse_deg"]) > 1e-6
+        # and it is not the mean over them (the slow record and the diverged reference do differ)
+        for other in (slow, by["aplogan_nan"]):
+            both = np.mean([other["results"][e.name]["inclination_rmse_deg"], fast["results"][e.name]["inclination_rmse_deg"]])
+            assert abs(both - d["inclination_rmse_deg"]) > 1e-6
     assert any("too slow" in n and "uavlv_vtol" in n for n in res.notes)
+    assert by["aplogan_nan"]["reference_trusted"] is False and fast["reference_trusted"] is True
+    assert any("fails the trust check" in n and "aplogan_nan" in n and "kept out" in n for n in res.notes)
 
 
 def test_the_report_lists_them_apart(slow_and_fast, tmp_path):
@@ -51,9 +57,12 @@ def test_the_report_lists_them_apart(slow_and_fast, tmp_path):
     row = next(line for line in records.splitlines() if line.startswith("| uavlv_vtol "))
     assert "| 4.2 |" in row and "| ATTITUDE |" in row and "no: IMU too slow" in row
     assert "| yes |" in next(line for line in records.splitlines() if line.startswith("| ardusub_small "))
-    apart = md.split("## Records too slow for estimation (not in the summary)", 1)[1].split("\n## ", 1)[0]
-    assert "uavlv_vtol" in apart and "ardusub_small" not in apart
-    assert "## Summary (mean over the 1 records fast enough for estimation)" in md
+    row = next(line for line in records.splitlines() if line.startswith("| aplogan_nan "))
+    assert "yes: reference not trusted, not in the summary" in row
+    apart = md.split("## Records not in the summary", 1)[1].split("\n## ", 1)[0]
+    assert "| uavlv_vtol | IMU too slow |" in apart and "| aplogan_nan | reference not trusted |" in apart
+    assert "ardusub_small" not in apart
+    assert "## Summary (mean over the 1 records in it)" in md
     page = render_html(res)
-    assert "Records too slow for estimation (not in the summary)" in page
+    assert "Records not in the summary" in page and "reference not trusted" in page
     assert "estimation OK" in page and "no: IMU too slow, not in the summary" in page

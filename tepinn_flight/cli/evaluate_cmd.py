@@ -73,6 +73,7 @@ def _run(args) -> int:
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
     from ..ingest import load_record
     from ..record import check_output
+    from ..evaluation.left_out import left_out
     from .paths import collect_records, read_records
 
     check_output(args.output, folder=True)  # before the (long) evaluation
@@ -140,8 +141,9 @@ def _run(args) -> int:
         for n in result.notes:
             sys.stderr.write(f"note: {n}\n")
     best = sorted((d["inclination_rmse_deg"], k) for k, d in result.dataset.items() if d["inclination_rmse_deg"] is not None)
-    slow = sum(not r.get("estimation_ok", True) for r in result.records)
-    over = "records" if not slow or slow == len(records) else f"the {len(records) - slow} records fast enough; {slow} listed apart"
+    slow = sum(bool(left_out(r)) for r in result.records)
+    over = ("records" if not slow or slow == len(records) else
+            f"the {len(records) - slow} records in the summary; {slow} listed apart: IMU too slow or reference not trusted")
     print(f"{len(records)} record(s), {len(estimators)} estimator(s); inclination RMSE (mean over {over}): "
           + ", ".join(f"{display_name(k)} {v:.2f}°" for v, k in best))
     print(f"report: {files[-1]} (interactive: {files[-1].with_name('report.html')})")

@@ -14,8 +14,11 @@ Protocol (``estimators-and-metrics.md`` §9):
 - **Heading**: 6-D estimators (``uses_mag`` False) get ONE constant heading alignment per run
   (segment) before heading/total/yaw metrics and plots; 9-D estimators none.
 - **Headline**: records whose IMU is too slow for windowed estimation (``ingest`` flags them "IMU
-  rate too low for estimation", :func:`~tepinn_flight.record.estimation_ok`) are run and scored like
-  the others but kept out of the dataset means and the paired comparison; the report lists them apart.
+  rate too low for estimation", :func:`~tepinn_flight.record.estimation_ok`), and records whose reference
+  attitude fails the trust check (:mod:`~tepinn_flight.model.reference_trust`: an autopilot estimator that
+  diverged — every estimator's error there measures the reference's failure), are run and scored like
+  the others but kept out of the dataset means and the paired comparison; the report lists them apart
+  with the reason (:func:`.left_out.left_out`).
 - **Aggregation**: per record, then per dataset = mean over the headline records of the per-record value (with
   median and 95th percentile of the per-record inclination RMSE); the dynamic error pools its
   per-bin sums over records; compute cost = total time / total samples.
@@ -39,6 +42,7 @@ from ..record import GYR_BIAS_COLS, SIMULATED_KINDS, FlightRecord, estimation_ok
 from ..record_gaps import bridge_gaps
 from . import metrics as M
 from .estimators import EST_BIAS_COLS, EST_Q_COLS
+from .left_out import left_out
 from .names import display_name
 
 
@@ -178,6 +182,7 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
         res["reference_source"] = m.get("reference_source", "none")
         chk = check_reference(records[i])  # a reference that is not the IMU's attitude scores its own failure
         res["reference_check"] = chk.describe()
+        res["reference_trusted"] = bool(chk.trusted)
         if not chk.trusted:
             notes.append(f"{names[i]}: {chk.describe()} — every estimator's error there measures the reference's failure")
         for step in REPORTED_STEPS:  # each anchored TE-PINN's REPORTED_STEPS lines
@@ -194,16 +199,19 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
         lines = {r["name"]: r.get("network_gates", {}).get(name, "") for r in rec_results}
         if any(v.endswith("; applied") for v in lines.values()):
             notes.append(f"{display_name(name)}: {gates_acted(lines)}")
-    headline = [r for r in rec_results if r["estimation_ok"]]
+    headline = [r for r in rec_results if not left_out(r)]
     slow = [r["name"] for r in rec_results if not r["estimation_ok"]]
-    if slow and headline:
-        notes.append(f"{len(slow)} record(s) with an IMU too slow for windowed estimation ({', '.join(slow[:5])}"
-                     f"{', ...' if len(slow) > 5 else ''}) are scored but kept out of the summary means and the paired "
-                     "comparison (listed apart)")  # fmt: skip
-    elif slow:
+    untrusted = [r["name"] for r in rec_results if r["estimation_ok"] and not r["reference_trusted"]]
+    if headline:
+        for which, why in ((slow, "with an IMU too slow for windowed estimation"),
+                           (untrusted, "whose reference attitude fails the trust check")):
+            if which:
+                notes.append(f"{len(which)} record(s) {why} ({', '.join(which[:5])}{', ...' if len(which) > 5 else ''}) "
+                             "are scored but kept out of the summary means and the paired comparison (listed apart)")
+    else:
         headline = rec_results
-        notes.append("every record has an IMU too slow for windowed estimation: the summary is over them all and "
-                     "is not meaningful")  # fmt: skip
+        notes.append("every record has an IMU too slow for windowed estimation or a reference that fails the trust "
+                     "check: the summary is over them all and is not meaningful")  # fmt: skip
     dataset = aggregate(headline, estimators, len(config.rate_bins_deg_s) - 1)
     comparisons = compare_learned(headline, estimators, dataset)
     info = [{"name": e.name, "kind": e.kind, "causal": bool(e.causal), "uses_mag": bool(e.uses_mag),

@@ -26,7 +26,8 @@ from ..record import atomic_write
 from .harness import EvalResult
 from .names import display_name
 from .plotdata import PAPER_COLOURS, break_wraps, colour_map, is_9d, minmax_indices, showcase_records
-from .report_html import RECORD_COLUMNS, rate_counts, rate_labels, record_rows, slow_records, write_html
+from .left_out import LEFT_OUT_NOTE, left_out
+from .report_html import RECORD_COLUMNS, left_out_records, rate_counts, rate_labels, record_rows, write_html
 
 FIGURES = {
     "quaternion": "fig_quaternion.png",
@@ -188,18 +189,18 @@ def fig_per_record(result, colours, path=None):
     plt = _plt()
     names = list(result.dataset)
     rec_names = [r["name"] for r in result.records]
-    ok = np.array([r.get("estimation_ok", True) for r in result.records], bool)
+    ok = np.array([not left_out(r) for r in result.records], bool)
     if not ok.any():
-        ok[:] = True  # every record too slow: the summary is over them all (harness)
+        ok[:] = True  # every record left out: the summary is over them all (harness)
     fig, ax = plt.subplots(figsize=(max(6, 1.3 * len(names) + 2), 5))
     for i, name in enumerate(names):
         vals = [r["results"][name].get("inclination_rmse_deg") for r in result.records]
         vals = np.array([np.nan if v is None else v for v in vals], np.float64)
         jitter = np.linspace(-0.15, 0.15, len(vals)) if len(vals) > 1 else np.zeros(1)
         ax.scatter((i + jitter)[ok], vals[ok], color=colours[name], s=14)
-        if (~ok).any():  # too slow for estimation: hollow, not in the mean
+        if (~ok).any():  # left out of the summary (IMU too slow, reference not trusted): hollow, not in the mean
             ax.scatter((i + jitter)[~ok], vals[~ok], facecolors="none", edgecolors=colours[name], s=14,
-                       label="IMU too slow (not in the mean)" if i == 0 else None)  # fmt: skip
+                       label="IMU too slow or reference not trusted (not in the mean)" if i == 0 else None)  # fmt: skip
         fin = np.flatnonzero(np.isfinite(vals))
         if np.isfinite(vals[ok]).any():
             ax.hlines(np.nanmean(vals[ok]), i - 0.3, i + 0.3, color=colours[name], lw=2)
@@ -322,23 +323,21 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     for row in record_rows(result):
         L.append("| " + " | ".join(row) + " |")
     L.append("")
-    slow = slow_records(result)
+    slow = left_out_records(result)
     fast = len(result.records) - len(slow)
     if slow and fast:
-        L.append("## Records too slow for estimation (not in the summary)")
+        L.append("## Records not in the summary")
         L.append("")
-        L.append("`ingest` flags these \"IMU rate too low for estimation\" (below 20 Hz, typical of telemetry links): "
-                 "windowed estimation is not meaningful there. They are scored for reference only and kept out of "
-                 "the summary means, the rate bins and the paired comparison.")  # fmt: skip
+        L.append(LEFT_OUT_NOTE)
         L.append("")
-        L.append("| record | IMU rate [Hz] | " + " | ".join(display_name(n) for n in result.dataset) + " |")
-        L.append("|---|---:|" + "---:|" * len(result.dataset))
+        L.append("| record | why | IMU rate [Hz] | " + " | ".join(display_name(n) for n in result.dataset) + " |")
+        L.append("|---|---|---:|" + "---:|" * len(result.dataset))
         for r in slow:
-            L.append(f"| {r['name']} | {_f(r.get('imu_rate_hz'), 1)} | "
+            L.append(f"| {r['name']} | {left_out(r)} | {_f(r.get('imu_rate_hz'), 1)} | "
                      + " | ".join(_f(r["results"][n].get("inclination_rmse_deg")) for n in result.dataset) + " |")
         L.append("")
     L.append("## Summary (mean over records)" if not (slow and fast) else
-             f"## Summary (mean over the {fast} records fast enough for estimation)")  # fmt: skip
+             f"## Summary (mean over the {fast} records in it)")  # fmt: skip
     L.append("")
     L.append("| estimator | kind | causal | mode | incl. RMSE [°] | median | p95 | roll [°] | pitch [°] | heading [°] | "
              "total [°] | \\|drift\\| [°/min] | mean q dist | mean angle [°] | gyro bias RMS [°/s] | µs/sample |")  # fmt: skip
@@ -371,7 +370,8 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     L.append("| record | " + " | ".join(display_name(n) for n in names) + " |")
     L.append("|---|" + "---:|" * len(names))
     for r in result.records:
-        tag = "" if r.get("estimation_ok", True) else " (IMU too slow, not in the summary)"
+        why = left_out(r)
+        tag = f" ({why}, not in the summary)" if why else ""
         L.append(f"| {r['name']}{tag} | " + " | ".join(_f(r["results"][n].get("inclination_rmse_deg")) for n in names) + " |")
     L.append("")
     L.append(f"![per-record inclination RMSE]({figures['per_record']})")

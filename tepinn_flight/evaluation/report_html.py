@@ -21,6 +21,7 @@ import numpy as np
 
 from .. import __version__
 from ..record import atomic_write
+from .left_out import LEFT_OUT_NOTE, left_out
 from .names import display_name
 from .plotdata import PAPER_COLOURS, break_wraps, colour_map, is_9d, minmax_indices
 
@@ -122,22 +123,24 @@ RECORD_COLUMNS = ["record", "kind", "IMU rate [Hz]", "reference", "estimation OK
 
 def record_rows(result) -> list[list[str]]:
     """One row per record for the Records table (:data:`RECORD_COLUMNS`): records whose IMU is too
-    slow for estimation say so and are not in the summary means."""
+    slow for estimation, or whose reference fails the trust check, say so and are not in the summary means."""
     rows = []
     for r in result.records:
         rate = r.get("imu_rate_hz")
         ok = r.get("estimation_ok", True)
+        why = left_out(r)
         gaps = r.get("bridged_gaps", 0)
         rows.append([r["name"], str(r["source_kind"]), "–" if rate is None else f"{rate:.1f}", str(r.get("reference_source", "–")),
-                     "yes" if ok else "no: IMU too slow, not in the summary",
+                     ("yes" if ok else "no") + (f": {why}, not in the summary" if why else ""),
                      f"{r['duration_s']:.1f}", f"{r['n_samples']}" + (f" ({gaps} dropout(s) bridged)" if gaps else ""),
                      str(r["n_scored_common"])])  # fmt: skip
     return rows
 
 
-def slow_records(result) -> list[dict]:
-    """The records kept out of the summary (IMU too slow for windowed estimation)."""
-    return [r for r in result.records if not r.get("estimation_ok", True)]
+def left_out_records(result) -> list[dict]:
+    """The records kept out of the summary (IMU too slow for windowed estimation, or a reference that fails the trust
+    check: :func:`.left_out.left_out`)."""
+    return [r for r in result.records if left_out(r)]
 
 
 def render_html(result, title: str = "Attitude estimation report", max_points: int = MAX_POINTS) -> str:
@@ -166,21 +169,20 @@ def render_html(result, title: str = "Attitude estimation report", max_points: i
     # tables
     info = {e["name"]: e for e in result.estimators}
     order = sorted(names, key=lambda n: (result.dataset[n]["inclination_rmse_deg"] is None, result.dataset[n]["inclination_rmse_deg"] or 0))
-    slow = slow_records(result)
-    P.append("<h2>Summary (mean over records)</h2>" if not slow else
-             f"<h2>Summary (mean over the {len(result.records) - len(slow)} records fast enough for estimation)</h2>")  # fmt: skip
+    slow = left_out_records(result)
+    P.append("<h2>Summary (mean over records)</h2>" if not slow or len(slow) == len(result.records) else
+             f"<h2>Summary (mean over the {len(result.records) - len(slow)} records in it)</h2>")  # fmt: skip
     P.append(_table(["estimator", "mode", "incl. RMSE [°]", "roll [°]", "pitch [°]", "heading [°]", "total [°]", "|drift| [°/min]"],
                     [[display_name(n), "9-D" if info.get(n, {}).get("uses_mag") else "6-D"] +
                      [_f(result.dataset[n][k]) for k in ("inclination_rmse_deg", "roll_rmse_deg", "pitch_rmse_deg",
                                                          "heading_rmse_deg", "total_rmse_deg", "heading_drift_abs_deg_per_min")]
                      for n in order], numeric_from=2))  # fmt: skip
     if slow and len(slow) < len(result.records):
-        P.append("<h2>Records too slow for estimation (not in the summary)</h2>")
-        P.append("<p class=note>ingest flags these \"IMU rate too low for estimation\" (below 20 Hz, typical of "
-                 "telemetry links): windowed estimation is not meaningful there; scored for reference only.</p>")
-        P.append(_table(["record", "IMU rate [Hz]"] + [display_name(n) for n in names],
-                        [[r["name"], _f(r.get("imu_rate_hz"), 1)] + [_f(r["results"][n].get("inclination_rmse_deg")) for n in names]
-                         for r in slow]))  # fmt: skip
+        P.append("<h2>Records not in the summary</h2>")
+        P.append(f"<p class=note>{html.escape(LEFT_OUT_NOTE)}</p>")
+        P.append(_table(["record", "why", "IMU rate [Hz]"] + [display_name(n) for n in names],
+                        [[r["name"], left_out(r), _f(r.get("imu_rate_hz"), 1)]
+                         + [_f(r["results"][n].get("inclination_rmse_deg")) for n in names] for r in slow]))  # fmt: skip
     P.append("<h2>Per record: inclination RMSE [°]</h2>")
     P.append(_table(["record", "scored samples"] + [display_name(n) for n in names],
                     [[r["name"], r["n_scored_common"]] + [_f(r["results"][n].get("inclination_rmse_deg")) for n in names]
@@ -203,4 +205,4 @@ def write_html(result, path: str | os.PathLike, title: str = "Attitude estimatio
 
 
 __all__ = ["render_html", "write_html", "record_figure", "MAX_POINTS", "rate_labels", "rate_counts", "record_rows",
-           "slow_records", "RECORD_COLUMNS"]
+           "left_out_records", "RECORD_COLUMNS"]
