@@ -26,6 +26,17 @@ def _shipped() -> AnchorConfig:
     return load_model(default_model_path())[1]
 
 
+def _live(model, cfg, rec) -> np.ndarray:
+    """The live estimator pushed every sample of ``rec`` (no magnetometer) → (n, 4) its estimates, NaN where none."""
+    live = StreamingEstimator(model, cfg)
+    q_live = np.full((len(rec), 4), np.nan)
+    for i in range(len(rec)):
+        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
+        if e.q_nb_wxyz is not None:
+            q_live[i] = e.q_nb_wxyz
+    return q_live
+
+
 def _vqf_reference(rec):
     """VQF straight from the package on the record's one segment (the frame conversion is the
     one the peers use: evaluation/peers.py)."""
@@ -212,12 +223,7 @@ def test_live_equals_offline_with_the_gates_on():
     model, _, _ = load_model(default_model_path())
     cfg = dataclasses.replace(_shipped(), speed_lo_m_s=0.0, speed_hi_m_s=1e-3)
     off = estimate_anchored(model, rec, cfg)
-    live = StreamingEstimator(model, cfg)
-    q_live = np.full((len(rec), 4), np.nan)
-    for i in range(len(rec)):
-        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
-        if e.q_nb_wxyz is not None:
-            q_live[i] = e.q_nb_wxyz
+    q_live = _live(model, cfg, rec)
     have = np.all(np.isfinite(q_live), 1)
     assert have.sum() > len(rec) - 60
     q_off = off[Q].to_numpy()
@@ -825,12 +831,7 @@ def test_while_the_saturation_gate_is_on_the_tilt_is_the_older_fusions():
     np.testing.assert_allclose(gravity_body(on[changed]), gravity_body(q_fusion[changed]), atol=1e-9)
     assert np.degrees(np.max(np.arccos(np.clip(np.sum(gravity_body(off[changed]) * gravity_body(q_fusion[changed]), 1),
                                                -1, 1)))) > 0.05  # the two tilts differ there  # fmt: skip
-    live = StreamingEstimator(model, cfg)
-    q_live = np.full((len(rec), 4), np.nan)
-    for i in range(len(rec)):
-        e = live.push(t[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
-        if e.q_nb_wxyz is not None:
-            q_live[i] = e.q_nb_wxyz
+    q_live = _live(model, cfg, rec)
     np.testing.assert_allclose(q_live[changed], on[changed], atol=1e-6)
     ck = read_checkpoint(default_model_path())
     del ck["anchor_config"]["clip_tilt_from_fusion"]
@@ -875,12 +876,7 @@ def test_live_equals_offline_on_an_imu_too_slow_for_the_network():
     cfg = dataclasses.replace(shipped, smoother=False, gnss_aid=False, gyro_selfcal=False, accel_scale_selfcal=False)
     df = estimate_anchored(model, rec, cfg)
     assert "shut throughout" in df.attrs["network_gates"]
-    live = StreamingEstimator(model, cfg)
-    q_live = np.full((len(rec), 4), np.nan)
-    for i in range(len(rec)):
-        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
-        if e.q_nb_wxyz is not None:
-            q_live[i] = e.q_nb_wxyz
+    q_live = _live(model, cfg, rec)
     have = np.all(np.isfinite(q_live), 1)
     assert have.sum() > len(rec) - 60
     np.testing.assert_allclose(q_live[have], df[Q].to_numpy()[have], atol=1e-6)
