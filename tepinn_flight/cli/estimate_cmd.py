@@ -10,7 +10,8 @@ from .helptext import add_examples
 HELP = "estimate attitude over flight records with TE-PINN (the shipped model by default)"
 DESCRIPTION = (
     "Runs over whole records: the network on its windows (batched; once a second where no gate can open), then "
-    "the VQF filter it corrects where the evidence says so (flight speed, gyro saturation, an uncalibrated gyro); "
+    "the VQF filter it corrects where the evidence says so (flight speed, gyro saturation, an uncalibrated gyro; never "
+    "below a 20 Hz IMU, slower than the network learned); "
     "offline only, where the record shows them, the accelerometer's and the gyro's scale and the motion "
     "acceleration a GNSS receiver measured are taken out first, and where no gate acts for 30 s or more (5 s where "
     "none acts next to it: a short log) the tilt is VQF's run forward and backward (--no-smooth: the causal tilt the "
