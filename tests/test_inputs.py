@@ -106,3 +106,17 @@ def test_evaluate_a_folder_leaves_out_what_it_cannot_read_with_a_note(tmp_path, 
     assert main(["evaluate", str(d / "good.parquet"), str(d / "broken.ulg"), "-o", str(tmp_path / "rep2"),
                  "--no-peers", "--no-model", "-q"]) == 2  # fmt: skip
     assert "broken.ulg" in capsys.readouterr().err
+
+
+def test_recursive_takes_the_subfolders_too(folder, capsys):
+    """``-r``: the PX4 SD card's dated folder is searched too — ``info`` reads (here: reports in one line, a 60-byte
+    stub does not parse) the log in it, which it does not look at without ``-r``."""
+    from tepinn_flight.cli.paths import collect_records
+
+    sub = folder / "2024-05-01" / "12_34_56.ulg"
+    assert sub in collect_records([str(folder)], recursive=True) and sub not in collect_records([str(folder)])
+    main(["info", str(folder)])
+    assert str(sub) not in capsys.readouterr().err
+    main(["info", "-r", str(folder)])
+    cap = capsys.readouterr()
+    assert str(sub) in cap.err and str(folder / "rec.parquet") in cap.out

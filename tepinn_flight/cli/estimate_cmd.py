@@ -6,6 +6,7 @@ import dataclasses
 
 from .argtypes import busy_stride, threads, workers
 from .helptext import add_examples
+from .paths import add_recursive
 
 HELP = "estimate attitude over flight records with TE-PINN (the shipped model by default)"
 DESCRIPTION = (
@@ -83,6 +84,7 @@ def add_arguments(p) -> None:
                    help="estimate messages in the tlog, comma-separated: attitude_quaternion, attitude, debug_vect "
                         "(TP_RPY, deg), named_value (tp_roll/tp_pitch/tp_yaw, deg); default attitude_quaternion,debug_vect")
     p.add_argument("--tlog-rate", type=float, default=50.0, metavar="HZ", help="estimates per second of log time in the tlog (default 50)")
+    add_recursive(p)
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors and warnings (no progress bar)")
 
 
@@ -134,7 +136,7 @@ def _run(args) -> int:
         fusion = dataclasses.replace(fusion, smoother=False)
     if args.yaw and hasattr(fusion, "yaw"):  # the network-centred fusion only (the anchored one has VQF's heading)
         fusion = dataclasses.replace(fusion, yaw=args.yaw)
-    paths = collect_records(args.records)
+    paths = collect_records(args.records, args.recursive)
     outs = output_paths(paths, args.output, folder=any(Path(i).is_dir() for i in args.records))
     tlogs = _tlog_paths(args, paths)
     for dst in [*outs, *tlogs]:  # before any work: an output that cannot be written is a one-line error

@@ -6,6 +6,7 @@ import sys
 
 from .argtypes import busy_stride
 from .helptext import add_examples
+from .paths import add_recursive
 
 HELP = "compare TE-PINN with baseline filters and published peers on flight records; write a report"
 DESCRIPTION = (
@@ -49,6 +50,7 @@ def add_arguments(p) -> None:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config value, e.g. ekf.acc_noise_m_s2=2")
     p.add_argument("--tune-ekf-on", nargs="+", default=[], metavar="RECORD",
                    help="tune the EKF's noise parameters on these TRAINING records first (must not overlap the evaluated ones)")
+    add_recursive(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
 
 
@@ -85,7 +87,7 @@ def _run(args) -> int:
     if not levels or any(not (lv >= 0) for lv in levels):
         raise ConfigError(f"--noise-levels must be numbers >= 0, got {args.noise_levels!r}")
     hcfg = HarnessConfig(warmup_s=args.warmup_s, noise_levels=levels)
-    paths = collect_records(args.records)
+    paths = collect_records(args.records, args.recursive)
     notes: list[str] = []
     if args.tune_ekf_on:
         from ..evaluation.filters.ekf import tune

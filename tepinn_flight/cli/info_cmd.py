@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 from .helptext import add_examples
+from .paths import add_recursive
 
 HELP = "describe raw logs or flight records, or every one in a folder (format, rates, reference, segments, clipping)"
 
@@ -19,6 +20,7 @@ def add_arguments(p) -> None:
     p.add_argument("--imu", type=int, default=None, metavar="N", help="IMU instance (raw logs)")
     p.add_argument("--reference", default=None, metavar="SOURCE", help="reference source (raw logs)")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
+    add_recursive(p)
 
 
 def run(args) -> int:
@@ -38,7 +40,7 @@ def run(args) -> int:
     for item in args.files:
         p = Path(item)
         if p.is_dir():
-            found = files_in(p, RECORD_OR_LOG_FORMATS)
+            found = files_in(p, RECORD_OR_LOG_FORMATS, recursive=args.recursive)
             if not found:
                 failures += 1
                 sys.stderr.write(f"tepinn-flight info: error: {TepinnError('folder holds no flight records or logs', p)}\n")

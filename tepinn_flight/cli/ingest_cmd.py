@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from .helptext import add_examples
-from .paths import output_paths  # noqa: F401 - also imported from here by estimate_cmd
+from .paths import add_recursive, output_paths  # noqa: F401 - output_paths also imported from here by estimate_cmd
 
 HELP = "turn real logs (tlog, DataFlash .bin/.log, ULog, BROAD .hdf5) into flight records"
 DESCRIPTION = (
@@ -21,9 +21,10 @@ def add_arguments(p) -> None:
                  'tepinn-flight ingest flight.tlog                # -> flight.parquet',
                  'tepinn-flight ingest logs/*.BIN -o records/',
                  'tepinn-flight ingest APM/LOGS/ -o records/      # a folder: every log in it (told by content)',
+                 'tepinn-flight ingest -r log/ -o records/        # ... and in its subfolders (a PX4 SD card)',
                  'tepinn-flight ingest 00000042.BIN --imu 1 --reference XKQ')
     p.add_argument("logs", nargs="+", metavar="LOG",
-                   help="log files; a folder stands for the logs in it, told by content (not its subfolders)")
+                   help="log files; a folder stands for the logs in it, told by content (its subfolders with -r)")
     p.add_argument("-o", "--output", metavar="OUT",
                    help="output file (one log) or folder (several logs); default: LOG name + .parquet in the current folder")
     p.add_argument("--imu", type=int, default=None, metavar="N",
@@ -31,6 +32,7 @@ def add_arguments(p) -> None:
     p.add_argument("--reference", default=None, metavar="SOURCE",
                    help="reference attitude source, e.g. ATT, XKQ, NKQ1, ATTITUDE_QUATERNION, ATTITUDE, "
                         "vehicle_attitude, vehicle_attitude_groundtruth (default: the best available)")
+    add_recursive(p)
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
 
 
@@ -42,7 +44,7 @@ def run(args) -> int:
 
     from ..ingest.inputs import LOG_FORMATS, expand
 
-    logs = expand(args.logs, LOG_FORMATS)
+    logs = expand(args.logs, LOG_FORMATS, recursive=args.recursive)
     outs = output_paths(logs, args.output, folder=any(Path(i).is_dir() for i in args.logs))
     failures = 0
     progress = None

@@ -28,12 +28,18 @@ def output_paths(logs: list[Path], output: str | None, folder: bool = False) -> 
     return names
 
 
-def collect_records(items: list[str]) -> list[Path]:
+def add_recursive(p) -> None:
+    """``-r/--recursive``: a folder stands for what its subfolders hold too (a PX4 SD card's dated folders)."""
+    p.add_argument("-r", "--recursive", action="store_true",
+                   help="a folder stands for the logs and records in its subfolders too (e.g. a PX4 SD card's log/)")
+
+
+def collect_records(items: list[str], recursive: bool = False) -> list[Path]:
     """Record paths from the command line: files as given, a folder stands for the flight records and the logs
-    in it (told by content: :mod:`tepinn_flight.ingest.inputs`; its subfolders are not searched)."""
+    in it (told by content: :mod:`tepinn_flight.ingest.inputs`; in its subfolders too where ``recursive``)."""
     from ..ingest.inputs import expand
 
-    return expand(items)
+    return expand(items, recursive=recursive)
 
 
 def read_records(items: list[str], paths: list[Path], notes: list[str]) -> list:
