@@ -106,6 +106,13 @@ def test_evaluate_a_folder_leaves_out_what_it_cannot_read_with_a_note(tmp_path, 
     assert main(["evaluate", str(d / "good.parquet"), str(d / "broken.ulg"), "-o", str(tmp_path / "rep2"),
                  "--no-peers", "--no-model", "-q"]) == 2  # fmt: skip
     assert "broken.ulg" in capsys.readouterr().err
+    # a folder of which nothing can be read: one line naming what was wrong (no evaluation, so no notes after it)
+    only = tmp_path / "only"
+    only.mkdir()
+    (only / "broken.ulg").write_bytes(b"ULog\x01\x12\x35" + bytes(60))
+    assert main(["evaluate", str(only), "-o", str(tmp_path / "rep3"), "--no-peers", "--no-model", "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "none of the 1 records or logs given could be read" in err[0] and "broken.ulg" in err[0]
 
 
 def test_recursive_takes_the_subfolders_too(folder, capsys):

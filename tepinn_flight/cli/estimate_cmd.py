@@ -137,8 +137,9 @@ def _run(args) -> int:
     if args.yaw and hasattr(fusion, "yaw"):  # the network-centred fusion only (the anchored one has VQF's heading)
         fusion = dataclasses.replace(fusion, yaw=args.yaw)
     paths = collect_records(args.records, args.recursive)
-    outs = output_paths(paths, args.output, folder=any(Path(i).is_dir() for i in args.records))
-    tlogs = _tlog_paths(args, paths)
+    from_folder = any(Path(i).is_dir() for i in args.records)  # a folder's outputs go to a folder
+    outs = output_paths(paths, args.output, from_folder)
+    tlogs = _tlog_paths(args, paths, from_folder)
     for dst in [*outs, *tlogs]:  # before any work: an output that cannot be written is a one-line error
         check_output(dst)
     from tqdm import tqdm
@@ -251,8 +252,9 @@ def _in_workers(jobs, opts, ckpt_path, runtime, fusion, workers):
         yield from ex.map(_worker_one, [(opts, *job) for job in jobs])
 
 
-def _tlog_paths(args, paths) -> list:
-    """``--tlog``: one file for one record, else a folder of RECORD.tlog (checked before any work)."""
+def _tlog_paths(args, paths, from_folder: bool = False) -> list:
+    """``--tlog``: one file for one record (not from a folder), else a folder of RECORD.tlog (checked before any
+    work)."""
     from pathlib import Path
 
     from ..errors import ConfigError
@@ -273,8 +275,8 @@ def _tlog_paths(args, paths) -> list:
         raise ConfigError(f"--tlog-messages: {exc}") from None
     if not args.tlog_rate >= 0:
         raise ConfigError("--tlog-rate must be >= 0 (0: every sample)")
-    folder = any(Path(i).is_dir() for i in args.records)
-    return [p.with_suffix(".tlog") if len(paths) > 1 or folder else p for p in output_paths(paths, args.tlog, folder)]
+    many = len(paths) > 1 or from_folder
+    return [p.with_suffix(".tlog") if many else p for p in output_paths(paths, args.tlog, from_folder)]
 
 
 def _write_tlog(opts, src, rec, df, dst) -> tuple[list[str], list[str]]:

@@ -45,7 +45,7 @@ def run(args) -> int:
     from ..ingest.inputs import LOG_FORMATS, expand
 
     logs = expand(args.logs, LOG_FORMATS, recursive=args.recursive)
-    outs = output_paths(logs, args.output, folder=any(Path(i).is_dir() for i in args.logs))
+    outs = output_paths(logs, args.output, from_folder=any(Path(i).is_dir() for i in args.logs))
     failures = 0
     progress = None
     if len(logs) > 1 and not args.quiet:

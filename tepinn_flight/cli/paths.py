@@ -6,10 +6,10 @@ from __future__ import annotations
 from pathlib import Path
 
 
-def output_paths(logs: list[Path], output: str | None, folder: bool = False) -> list[Path]:
-    """One output per log: ``-o`` is a file for one log, a folder for several (or where ``folder``: the logs came
-    from a folder given on the command line, however many it held)."""
-    if (output is not None and len(logs) == 1 and not folder and not Path(output).is_dir()
+def output_paths(logs: list[Path], output: str | None, from_folder: bool = False) -> list[Path]:
+    """One output per log: ``-o`` is a file for one log, a folder for several (or where ``from_folder``: the logs
+    came from a folder given on the command line, however many it held)."""
+    if (output is not None and len(logs) == 1 and not from_folder and not Path(output).is_dir()
             and not output.endswith(("/", "\\"))):
         return [Path(output)]
     folder = Path(output) if output is not None else Path.cwd()
@@ -61,7 +61,7 @@ def read_records(items: list[str], paths: list[Path], notes: list[str]) -> list:
             continue
         rec.meta.setdefault("name", p.stem)
         records.append(rec)
-    if not records:
-        raise TepinnError("none of the records or logs given could be read (see the notes above)"
+    if not records:  # (the notes are printed after an evaluation, which will not run: say the first here)
+        raise TepinnError(f"none of the {len(paths)} records or logs given could be read; {notes[0]}"
                           if notes else "no records given")
     return records

@@ -83,6 +83,7 @@ import numpy as np
 from ..config import check_choice, check_range
 from ..conventions import GRAVITY_M_S2
 from ..errors import ConfigError
+from ..quat import gravity_body
 from ..quat_scalar import down_in_body
 from .anchor_kernels import FLIP as _FLIP
 from .anchor_kernels import Q_NED_ENU, Q_SENSOR_BODY  # noqa: F401  (VQF's frames; peers import them from here)
@@ -90,6 +91,7 @@ from .anchor_kernels import (clip_sigma_rows, clip_sigma_step, fusion_tilt_f, ho
                              rest_step, sigma_step, tilt_pull_f, turn_acc_state, up_in_earth_f, vqf_inputs,
                              vqf_outputs)  # fmt: skip
 from .fusion import FusionConfig
+from .smoother import blend_tilt
 BIAS_EVIDENCE_S = 2.0  # the older fusion's bias must stay beyond its gate this long
 THRUST_TAU_S = 10.0  # the accelerometer's mean direction (bias_gate_thrust_deg) is low-passed over this
 CLIP_SIGMA_CAP_RAD = math.pi / 2  # the saturation term's most: a tilt σ of 90° says nothing is known
@@ -649,9 +651,6 @@ def with_fusion_tilt(q_nb: np.ndarray, q_fusion: np.ndarray) -> np.ndarray:
     """Rows of ``q_nb`` (body→NED) given the tilt of ``q_fusion``'s rows on their own heading
     (:attr:`AnchorConfig.clip_tilt_from_fusion`; the smoother's tilt formula). A row whose fusion estimate is
     missing, or whose two down directions are opposite (no shortest turn between them), stays ``q_nb``'s."""
-    from ..quat import gravity_body
-    from .smoother import blend_tilt
-
     q_nb = np.atleast_2d(np.asarray(q_nb, np.float64))
     q_fusion = np.atleast_2d(np.asarray(q_fusion, np.float64))
     out = q_nb.copy()
