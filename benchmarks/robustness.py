@@ -40,12 +40,22 @@ files, and low IMU rates on held-out simulated flights that saturate the gyro or
    these factors — BROAD's 286 Hz to 48 and 26 Hz, the IMU rates of the ArduCopter logs users bring
    (50 Hz DataFlash, 25 Hz). Off by default.
 
+10. `--lost-samples 0.02`: that share of the real files' samples lost at random, one at a time (a logger or
+   a radio dropping IMU rows: steps of two periods, inside a segment), at the files' own rate or, with
+   `--lost-factor N`, decimated by N first (BROAD's 286 Hz to 48 Hz at 6). Session 29 (rule 19): VQF
+   integrates each sample over one fixed period, so every lost sample loses its rotation; the anchored
+   filter now integrates each over its own step. Off by default.
+
+11. `--stamp-jitter 0.15`: the real files' samples kept, their time stamps jittered by N(0, (J period)²)
+   (clipped at ±0.45 period), with `--lost-factor` likewise. Off by default.
+
 `--broad-every N` takes every N-th shared BROAD trial (default 3; 1: all 17); `--seen-only` leaves the
 held-out drone logs out (a check that must not look at them).
 
     python benchmarks/robustness.py [--model CKPT] [--acc-scales 1.0,0.8,1.25] [--rates 1,8,16] [--acc-clip-every 3]
                                     [--gyro-biases 5] [--gyro-ranges 300] [--gyro-scales 1.02]
                                     [--start-cuts 30,40,50] [--mounts 90:0:0] [--real-rates 6,11]
+                                    [--lost-samples 0.02] [--stamp-jitter 0.15] [--lost-factor 6]
                                     [--broad-every 3] [--seen-only]
 """
 
@@ -78,6 +88,9 @@ def main() -> int:
     ap.add_argument("--mounts", default="", help="IMU mountings as x:y:z Euler degrees, comma-separated ('': skip)")
     ap.add_argument("--gyro-scales", default="1.02", help="gyro scale errors, a factor or x:y:z per axis, comma-separated ('': skip)")
     ap.add_argument("--real-rates", default="", help="decimation factors of the real files, comma-separated ('': skip)")
+    ap.add_argument("--lost-samples", default="", help="shares of samples lost one at a time, comma-separated ('': skip)")
+    ap.add_argument("--stamp-jitter", default="", help="time-stamp jitter, periods (σ), comma-separated ('': skip)")
+    ap.add_argument("--lost-factor", type=int, default=1, help="decimate the real files by this first (lost samples, jitter)")
     ap.add_argument("--seen-only", action="store_true", help="leave the held-out drone logs out")
     args = ap.parse_args()
 
@@ -200,6 +213,33 @@ def main() -> int:
             r = decimate_record(rec, f)
             res.append((f"{n} ({r.meta['imu_rate_hz']:.0f} Hz)", *both(r)))
         report(f"real files decimated ×{f}", res)
+    def retimed(rec, lose, jitter, seed):
+        """``rec`` with ``lose`` of its samples lost one at a time (never two in a row: a longer gap is a new
+        segment at ingest, and bridged) and its stamps jittered by N(0, (``jitter`` period)²)."""
+        from tepinn_flight.record_gaps import GAP_PERIODS, record_period_s
+
+        rng = np.random.default_rng(seed)
+        per = record_period_s(rec)
+        lost = rng.random(len(rec)) < lose
+        lost[:5] = lost[-5:] = False
+        lost[1:] &= ~lost[:-1]
+        r = copy.copy(rec)
+        d = rec.data[~lost].reset_index(drop=True)
+        if jitter > 0:
+            d["t_s"] = d["t_s"].to_numpy() + np.clip(rng.normal(0.0, jitter * per, len(d)), -0.45 * per, 0.45 * per)
+        brk = np.r_[False, np.diff(d["t_s"].to_numpy()) > GAP_PERIODS * per]  # as ingest: a longer step breaks
+        d["segment"] = (d["segment"].to_numpy() + np.cumsum(brk)).astype(d["segment"].dtype)
+        r.data = d
+        return r
+
+    base = [(n, decimate_record(rec, args.lost_factor) if args.lost_factor > 1 else rec) for n, rec in recs]
+    at = f" at 1/{args.lost_factor} of their rate" if args.lost_factor > 1 else ""
+    for p in [float(x) for x in args.lost_samples.split(",") if x]:
+        report(f"{100 * p:g} % of the samples lost one at a time{at}",
+               [(n, *both(retimed(rec, p, 0.0, 1000 + i))) for i, (n, rec) in enumerate(base)])
+    for j in [float(x) for x in args.stamp_jitter.split(",") if x]:
+        report(f"time stamps jittered by {j:g} period (σ){at}",
+               [(n, *both(retimed(rec, 0.0, j, 1000 + i))) for i, (n, rec) in enumerate(base)])
     pick = [p for p in sorted(Path(args.sim).glob("*.parquet")) if "c172x" in p.name or read_record(p).clipped.any()]
     pick = pick[:: max(1, len(pick) // 10)][:10]
     out: dict[int, list] = {}

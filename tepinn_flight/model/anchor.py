@@ -37,6 +37,10 @@ and its rate ``â``. Each enters only where there is run-time evidence that VQF'
 **Below the rates the network learned** (``min_network_rate_hz``, 20 Hz: a segment whose sample period, as the
 filter takes it, is longer) no gate opens at all: the windows are out of the network's domain (rule 18).
 
+**Each gyro sample over its own time step** (``gyro_step_weighting``, rule 19): VQF integrates every sample over
+one fixed period Ts, so it is fed the gyro × Δt/Ts (Δt the step from the segment's previous sample): a sample a
+logger lost keeps its rotation, and jittered stamps are no gyro scale error. Regular stamps: bit for bit as VQF.
+
 **Quiet blocks** (``quiet_blocks``): where every gate stays shut the estimate is VQF's whatever the
 windows say, so the network need not run there. Windows come in the older fusion's bias-feedback
 blocks (``bias_feedback_windows`` tokens, 1 s); a block whose first window and those of the last
@@ -85,11 +89,12 @@ from ..conventions import GRAVITY_M_S2
 from ..errors import ConfigError
 from ..quat import gravity_body
 from ..quat_scalar import down_in_body
+from ..record_gaps import GAP_PERIODS
 from .anchor_kernels import FLIP as _FLIP
 from .anchor_kernels import Q_NED_ENU, Q_SENSOR_BODY  # noqa: F401  (VQF's frames; peers import them from here)
 from .anchor_kernels import (clip_sigma_rows, clip_sigma_step, fusion_tilt_f, horizontal_bias, q_nb_from_vqf_f, q_nb_rows, rest_rows,
-                             rest_step, sigma_step, tilt_pull_f, turn_acc_state, up_in_earth_f, vqf_inputs,
-                             vqf_outputs)  # fmt: skip
+                             rest_step, sigma_step, step_weight, step_weights, tilt_pull_f, turn_acc_state,
+                             up_in_earth_f, vqf_inputs, vqf_outputs)  # fmt: skip
 from .fusion import FusionConfig
 from .smoother import blend_tilt
 BIAS_EVIDENCE_S = 2.0  # the older fusion's bias must stay beyond its gate this long
@@ -147,6 +152,12 @@ class AnchorConfig:
     # slow for windowed estimation: telemetry tlogs) its windows fired gates that cost a 4-Hz VTOL log 12.4° against
     # VQF's 8.0° (rule 18, session 28); 0: any rate (before it)
     min_network_rate_hz: float = 20.0
+    # each gyro sample integrated over its own time step: VQF takes a fixed sample period Ts (a segment's first
+    # steps' median), so it is fed gyro × dt/Ts (dt the step from the segment's previous sample, clamped to
+    # [0, GAP_PERIODS]; the first sample 1): a lost sample's rotation is not lost, and jittered time stamps do
+    # not turn into a gyro scale error (rule 19, session 29: the seen BROAD trials at 48 Hz with 2 % of their
+    # samples lost, and with stamps jittered). Regular stamps: bit for bit as without it; False: before it
+    gyro_step_weighting: bool = True
     bias_gate_weight: float = 0.6  # pull weight while the uncalibrated-gyro gate is on (0: never)
     bias_deadzone_deg_s: float = 2.0  # the network's bias beyond this is removed from the gyro
     # ... and the gate also opens when the older fusion's bias estimate (pull target "fusion") exceeds
@@ -291,7 +302,7 @@ class AnchorConfig:
                                    bias_deadzone_deg_s=1e9, sigma_net_scale=0.0, gyro_scale=(1.0, 1.0, 1.0),
                                    gyro_selfcal=False, gnss_aid=False, smoother=False,
                                    accel_scale_selfcal=False, rest_relevel_s=0.0, sigma_gap_gain=0.0,
-                                   clip_tilt_from_fusion=False)  # fmt: skip
+                                   clip_tilt_from_fusion=False, gyro_step_weighting=False)  # fmt: skip
 
 
 @dataclass
@@ -398,6 +409,8 @@ class AnchoredVQF:
         self.gscale = None if c.gyro_scale == (1.0, 1.0, 1.0) else c.gyro_scale  # gyro × this (calibration)
         # an IMU slower than the network learned: every gate stays shut (min_network_rate_hz)
         self.slow = c.min_network_rate_hz > 0 and ts_s * c.min_network_rate_hz > 1.0
+        self.step_weighting = bool(c.gyro_step_weighting)  # the gyro into VQF × dt/Ts (gyro_step_weighting)
+        self.t_prev = math.nan  # the previous sample's time (NaN: none yet in this segment)
         self._g1, self._a1 = np.empty(3), np.empty(3)  # update_one's sample in VQF's frame
 
     # ------------------------------------------------------------------ samples
@@ -442,7 +455,13 @@ class AnchoredVQF:
         if self.use_mag:
             m = np.full((n, 3), np.nan) if mag is None else np.atleast_2d(np.asarray(mag, np.float64))
             m = to_sensor(np.where(np.isfinite(m), m, 0.0))  # zero: VQF skips the magnetometer update
-        out = self.f.updateBatch(g_s, a_s, m)
+        g_v = g_s  # what VQF integrates: over each sample's own step (gyro_step_weighting)
+        if self.step_weighting and n:
+            w = np.empty(n)
+            if step_weights(t_s, self.t_prev, self.ts, GAP_PERIODS, w):
+                g_v = g_s * w[:, None]
+            self.t_prev = float(t_s[-1])
+        out = self.f.updateBatch(g_v, a_s, m)
         q6, sig, bias = np.empty((n, 4)), np.empty(n), np.empty((n, 3))
         self.e_acc = vqf_outputs(_rows(out["quat6D"]), _rows(out["bias"]), a_s, g_s, self.gyr_corr, self.e_acc,
                                  self.sigma_alpha, self.sigma_var0, self.sigma_gain, self.sigma_samp, self._var_net(),
@@ -490,12 +509,19 @@ class AnchoredVQF:
             ay = ay - ((g[2] * v[0] - g[0] * v[2]) + av[1])
             az = az - ((g[0] * v[1] - g[1] * v[0]) + av[2])
         a_s = (ax, -ay, -az)  # VQF's z-up sensor frame
+        wx = wy = wz = 1.0  # VQF integrates the gyro over the sample's own step (as update())
+        if self.step_weighting:
+            k = step_weight(float(t_s) - self.t_prev, self.ts, GAP_PERIODS)
+            self.t_prev = float(t_s)
+            wx, wy, wz = k, -k, -k
+        else:
+            wy = wz = -1.0
         if self.use_mag:
             m = [0.0, 0.0, 0.0] if mag is None else [float(x) if math.isfinite(float(x)) else 0.0 for x in mag]
-            self.f.update(np.array([gx, -gy, -gz]), np.array(a_s), np.array([m[0], -m[1], -m[2]]))
+            self.f.update(np.array([gx * wx, gy * wy, gz * wz]), np.array(a_s), np.array([m[0], -m[1], -m[2]]))
         else:  # (into arrays made once: two new arrays a sample cost more than VQF's update)
             g1, a1 = self._g1, self._a1
-            g1[0], g1[1], g1[2] = gx, -gy, -gz
+            g1[0], g1[1], g1[2] = gx * wx, gy * wy, gz * wz
             a1[0], a1[1], a1[2] = a_s
             self.f.update(g1, a1)
         qw, qx, qy, qz = self.f.getQuat6D().tolist()

@@ -126,6 +126,36 @@ def vqf_inputs(gyr_b, acc_b, gyr_corr, vel, acc_v, centripetal, g_s, a_s):
     return bad
 
 
+#: a step within this fraction of the filter's period counts as exactly one period (time stamps' rounding)
+STEP_EVEN_TOL = 1e-6
+
+
+@njit(cache=True)
+def step_weight(dt, ts, w_max):
+    """The factor on a gyro sample that VQF integrates over its fixed period ``ts`` so that it turns
+    the attitude over its own step ``dt``: ``dt / ts`` clamped to [0, ``w_max``]; 1 where ``dt`` is
+    within :data:`STEP_EVEN_TOL` of ``ts`` or not finite (a segment's first sample)."""
+    if not math.isfinite(dt):
+        return 1.0
+    w = dt / ts
+    if abs(w - 1.0) <= STEP_EVEN_TOL:
+        return 1.0
+    return min(max(w, 0.0), w_max)
+
+
+@njit(cache=True)
+def step_weights(t, t_prev, ts, w_max, w):
+    """:func:`step_weight` of each row of ``t`` (its step from the row before; the first row's from
+    ``t_prev``, NaN: none) into ``w``. Returns whether any weight differs from 1."""
+    uneven = False
+    prev = t_prev
+    for i in range(t.shape[0]):
+        w[i] = step_weight(t[i] - prev, ts, w_max)
+        uneven |= w[i] != 1.0
+        prev = t[i]
+    return uneven
+
+
 @njit(cache=True)
 def vqf_outputs(q_es, bias_s, a_s, g_s, gyr_corr, e, alpha, var0, gain, samp, var_net, q_nb, bias_b, sigma):
     """VQF's block out to the estimator's frames: ``q_nb`` (n, 4) body FRD → NED, ``bias_b`` (n, 3) its

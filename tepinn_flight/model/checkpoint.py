@@ -61,7 +61,7 @@ ANCHOR_CONFIG_BEFORE = {"tau_acc_flight_s": 0.0, "bias_gate_fusion_deg_s": 0.0, 
                         "sigma_sampling_gain": 0.0, "accel_scale_selfcal": False, "sigma_clip_gain": 0.0,
                         "rest_relevel_s": 0.0, "clip_gate_max_deg_s": 0.0, "smoother": False,
                         "sigma_gap_gain": 0.0, "clip_tilt_from_fusion": False,
-                        "min_network_rate_hz": 0.0}  # fmt: skip
+                        "min_network_rate_hz": 0.0, "gyro_step_weighting": False}  # fmt: skip
 #: Anchor options removed after they measured worse: key → (the value kept, the one this tepinn-flight
 #: runs and drops from the checkpoint; the value of checkpoints written before the key existed; a key
 #: added while the option existed). A checkpoint lacking the option ran with the kept value if it has

@@ -8,6 +8,7 @@ with a :class:`FusionConfig`).
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import replace
 from typing import TYPE_CHECKING
@@ -17,8 +18,9 @@ import pandas as pd
 
 from ..errors import TepinnError
 from ..record import ACC_COLS, FlightRecord, segment_slices
-from ..record_gaps import bridge_gaps
+from ..record_gaps import GAP_PERIODS, bridge_gaps
 from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows, q_nb_from_vqf, to_sensor, with_fusion_tilt
+from .anchor_kernels import step_weights
 from .fusion import FusionConfig, FusionRun, feedback_bias
 from .accel_scale import AccelScale, read_accel_scale
 from .gnss_aid import GnssAidConfig, motion_acc_body, summarize
@@ -389,12 +391,17 @@ def describe_relevels(times_s: list[float]) -> str:
 def offline_vqf(anchor: AnchorConfig, t_s, gyr_b, acc_b) -> np.ndarray:
     """``vqf.offlineVQF`` (forward and backward, acausal) on one run of samples with the anchored
     filter's settings (its accelerometer time constant, bias limit and gyro scale; its sampling
-    time as the live estimator takes it) → its 6-D attitude, body→NED, per sample."""
+    time as the live estimator takes it; each gyro sample over its own step where the filter does so,
+    ``gyro_step_weighting``) → its 6-D attitude, body→NED, per sample."""
     import vqf
 
     dt = np.diff(t_s[: TS_STEPS + 1])
     ts = float(np.median(dt)) if dt.size else 0.01
     g = np.asarray(gyr_b, np.float64) * np.asarray(anchor.gyro_scale)
+    if anchor.gyro_step_weighting:  # each sample over its own step, as the anchored filter integrates it
+        w = np.empty(len(g))
+        if step_weights(np.asarray(t_s, np.float64), math.nan, ts, GAP_PERIODS, w):
+            g = g * w[:, None]
     params = {"tauAcc": float(anchor.tau_acc_s), "biasClip": float(anchor.bias_clip_deg_s)}
     res = vqf.offlineVQF(to_sensor(g), to_sensor(acc_b), None, ts, params)
     return q_nb_from_vqf(res["quat6D"])
