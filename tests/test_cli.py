@@ -308,18 +308,26 @@ def test_estimate_real_record_equals_the_pinned_estimates(erle, tmp_path):
     """The shipped model through the verb: the pinned attitudes of tests/test_pinned_estimates.py (the
     estimator without the GNSS aid and the smoothing is causal, so the cut record gives the full log's estimates), and
     σ in closed form where no gate acts (session 17's σ: σ₀² + (|ω|·Δt)²/12, c = 0; the pins hold the
-    σ before it)."""
+    σ before it). The pins hold VQF fed each sample over one fixed period: the shipped checkpoint with
+    ``gyro_step_weighting`` off (session 29; erle's millisecond stamps step by 19-21 ms), as a user's
+    ``--model`` would carry it."""
     import math
 
     import numpy as np
     import pandas as pd
+    import torch
 
+    from tepinn_flight.model.checkpoint import default_model_path, read_checkpoint
     from tepinn_flight.model.streaming import TS_STEPS
     from tepinn_flight.record import read_record
     from tests.test_pinned_estimates import PINNED
 
+    ck = read_checkpoint(default_model_path())
+    ck["anchor_config"]["gyro_step_weighting"] = False
+    torch.save(ck, tmp_path / "unweighted.pt")
     out = tmp_path / "est.parquet"
-    assert main(["estimate", str(erle["crop"]), "-o", str(out), "-q", "--no-gnss-aid", "--no-smooth"]) == 0
+    assert main(["estimate", str(erle["crop"]), "-o", str(out), "-q", "--no-gnss-aid", "--no-smooth",
+                 "--model", str(tmp_path / "unweighted.pt")]) == 0  # fmt: skip
     est = pd.read_parquet(out)
     assert len(est) == N_CROP
     rec = read_record(erle["crop"])
