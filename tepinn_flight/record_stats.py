@@ -6,11 +6,15 @@ from __future__ import annotations
 import numpy as np
 
 from .record import FlightRecord
-from .record_gaps import MAX_BRIDGED_GAP_S, is_bridgeable, record_period_s
+from .record_gaps import GAP_PERIODS, MAX_BRIDGED_GAP_S, is_bridgeable, record_period_s
+
+#: a step inside a segment longer than this many periods (and at most GAP_PERIODS) is a lost sample or so
+LOST_STEP_PERIODS = 1.5
 
 
 def summarize(rec: FlightRecord) -> dict:
-    """Duration, rates, segments and gaps, max angular rate, clipping, reference coverage and whether the
+    """Duration, rates, segments and gaps, lost samples and the stamps' jitter inside segments, max angular
+    rate, clipping, reference coverage and whether the
     reference turns as the gyro does and agrees with the accelerometer's gravity (:mod:`.model.reference_trust`)."""
     t = rec.t_s
     seg = rec.segment
@@ -45,6 +49,13 @@ def summarize(rec: FlightRecord) -> dict:
     gaps = [{"at_s": float(t[i]), "gap_s": float(t[i + 1] - t[i]),
              "bridged": is_bridgeable(float(t[i + 1] - t[i]), period)} for i in breaks]  # fmt: skip
     norm = np.linalg.norm(gyr, axis=1)
+    steps = np.diff(t)[np.diff(seg) == 0] / period if np.isfinite(period) and period > 0 else np.zeros(0)
+    usual = steps[(steps > 0.5) & (steps <= LOST_STEP_PERIODS)]
+    out.update(
+        steps=int(steps.size),  # inside segments: samples lost one or two at a time, and the stamps' jitter
+        lost_steps=int(np.sum((steps > LOST_STEP_PERIODS) & (steps <= GAP_PERIODS))),
+        step_jitter=float(np.std(usual)) if usual.size > 1 else 0.0,
+    )
     out.update(
         duration_s=float(sum(durations)),
         span_s=float(t[-1] - t[0]),

@@ -232,3 +232,27 @@ def test_segment_slices_cover_each_segment_in_order():
     for s in sl:  # a naive reference: every slice holds one segment id, and all of it
         assert len(set(seg[s])) == 1 and (seg == seg[s][0]).sum() == s.stop - s.start
     assert segment_slices(np.zeros(0, np.int32)) == []
+
+
+def test_info_counts_lost_samples_and_the_stamps_jitter_inside_segments(tmp_path, capsys):
+    # 100 Hz, stamps jittered by N(0, (0.05 period)²), 7 single samples lost (steps of two periods) in the first
+    # segment; the 1-s gap to the second is a break, not a lost sample
+    from tepinn_flight.cli.main import main
+    from tepinn_flight.record_stats import summarize
+
+    rec = sample_record(n=2000)
+    rng = np.random.default_rng(4)
+    d = rec.data.copy()
+    d["t_s"] = d["t_s"] + rng.normal(0.0, 0.0005, len(d))
+    lost = np.zeros(len(d), bool)
+    lost[[100, 250, 400, 555, 700, 850, 990]] = True
+    rec = FlightRecord(d[~lost].reset_index(drop=True), dict(rec.meta))
+    st = summarize(rec)
+    assert st["lost_steps"] == 7 and st["steps"] == len(rec) - 2  # one step per pair inside each of the 2 segments
+    steps = np.diff(rec.t_s)[np.diff(rec.segment) == 0] * 100.0
+    assert st["step_jitter"] == pytest.approx(np.std(steps[steps < 1.5]), rel=1e-9)
+    assert st["step_jitter"] == pytest.approx(0.05 * np.sqrt(2), rel=0.1)  # the difference of two stamps' errors
+    write_record(rec, tmp_path / "r.parquet")
+    assert main(["info", str(tmp_path / "r.parquet")]) == 0
+    out = capsys.readouterr().out
+    assert f"7 of {len(rec) - 2} (0.35 %) of about two periods" in out and "jitter 7.1 % of the period" in out

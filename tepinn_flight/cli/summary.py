@@ -43,6 +43,10 @@ def render_info(path, s: dict) -> str:
         add("", f"break at t={g['at_s']:.3f} s, step {g['gap_s']:+.3f} s" + ("  (bridged)" if g.get("bridged") else ""))
     if len(gaps) > 10:
         add("", f"... and {len(gaps) - 10} more")
+    if s.get("steps"):
+        lost, n = s.get("lost_steps", 0), s["steps"]
+        add("sample steps", f"{lost} of {n} ({100 * lost / n:.2f} %) of about two periods (a sample lost; the gyro is "
+            f"integrated over each step's time), jitter {100 * s.get('step_jitter', 0):.1f} % of the period (σ)")  # fmt: skip
     add("max angular rate", f"{s.get('max_rate_deg_s', 0):.0f} deg/s (per axis {s.get('max_axis_rate_deg_s')})")
     clip = s.get("clipped_samples")
     if "gyr_clipped_samples" in s:
