@@ -76,6 +76,18 @@ def test_blending_weights_the_two_downs():
     np.testing.assert_allclose(_down_in_body(blend_tilt(q, p, np.full(50, 0.5))), half, atol=1e-12)
 
 
+def test_the_compiled_blend_is_numpys_whole_array_form():
+    # blend_tilt runs compiled per row (session 29); numpy's form, the downs blended, normalised, then with_down:
+    # the same numbers to rounding (numpy sums its 3-vectors its own way)
+    rng = np.random.default_rng(5)
+    q = _q(Rotation.random(2000, random_state=6))
+    p = _q(Rotation.random(2000, random_state=7))
+    w = rng.uniform(0, 1, 2000)
+    v = (1.0 - w[:, None]) * _down_in_body(q) + w[:, None] * _down_in_body(p)
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    np.testing.assert_allclose(blend_tilt(q, p, w), with_down(q, v), rtol=0, atol=1e-14)
+
+
 def test_stretches_and_ramps_against_naive_references():
     rng = np.random.default_rng(0)
     for trial in range(30):

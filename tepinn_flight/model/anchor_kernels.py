@@ -208,20 +208,58 @@ def tilt_pull_f(qw, qx, qy, qz, ux, uy, uz, fraction):
 
 
 @njit(cache=True)
+def _unit4(w, x, y, z):
+    """:func:`..quat.quat_normalize` of one quaternion, its ``eps`` included."""
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    d = n if n > 1e-12 else 1e-12
+    return (w / d, x / d, y / d, z / d)
+
+
+@njit(cache=True)
+def blend_tilt_f(qw, qx, qy, qz, sw, sx, sy, sz, w):
+    """``smoother.blend_tilt`` of one sample: the tilt of ``s`` with weight ``w`` and of ``q`` with 1 − w, on
+    ``q``'s heading — the down directions blended and normalised, then ``q`` turned in body axes by the shortest
+    turn onto that down (``smoother.with_down``): numpy's arithmetic, equal to its rounding (tested)."""
+    ax, ay, az = down_in_body(qw, qx, qy, qz)
+    bx, by, bz = down_in_body(sw, sx, sy, sz)
+    vx, vy, vz = (1.0 - w) * ax + w * bx, (1.0 - w) * ay + w * by, (1.0 - w) * az + w * bz
+    n = math.sqrt(vx * vx + vy * vy + vz * vz)
+    vx, vy, vz = vx / n, vy / n, vz / n
+    cw, cx, cy, cz = _unit4(1.0 + (vx * ax + vy * ay + vz * az), vy * az - vz * ay, vz * ax - vx * az, vx * ay - vy * ax)
+    rw, rx, ry, rz = qmul(qw, qx, qy, qz, cw, cx, cy, cz)
+    return _unit4(rw, rx, ry, rz)
+
+
+@njit(cache=True)
+def blend_tilt_rows(q, q_s, w, out):
+    """:func:`blend_tilt_f` of each row into ``out`` (n, 4)."""
+    for i in range(q.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = blend_tilt_f(q[i, 0], q[i, 1], q[i, 2], q[i, 3], q_s[i, 0],
+                                                                  q_s[i, 1], q_s[i, 2], q_s[i, 3], w[i])  # fmt: skip
+
+
+@njit(cache=True)
+def tilt_angle_rows(q_a, q_b, out):
+    """Per row, the angle (rad) between the down directions (body axes) of ``q_a`` and ``q_b``:
+    atan2(|a × b|, a · b) (``smoother.disagreement_sigma``'s; NaN where either is)."""
+    for i in range(q_a.shape[0]):
+        ax, ay, az = down_in_body(q_a[i, 0], q_a[i, 1], q_a[i, 2], q_a[i, 3])
+        bx, by, bz = down_in_body(q_b[i, 0], q_b[i, 1], q_b[i, 2], q_b[i, 3])
+        cx, cy, cz = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+        out[i] = math.atan2(math.sqrt(cx * cx + cy * cy + cz * cz), ax * bx + ay * by + az * bz)
+
+
+@njit(cache=True)
 def fusion_tilt_f(qw, qx, qy, qz, fw, fx, fy, fz):
     """:func:`.anchor.with_fusion_tilt` for one sample (the live path; numpy on one row cost 10× a sample):
-    ``q`` turned in body axes by the shortest turn that gives it the down direction of ``f`` — the arithmetic of
-    ``smoother.blend_tilt`` at weight 1 (``with_down``), in its order; ``q`` unchanged where ``f`` is not finite
-    or the two downs are opposite (tested against the batched form)."""
+    ``q`` turned in body axes by the shortest turn that gives it the down direction of ``f`` —
+    :func:`blend_tilt_f` at weight 1; ``q`` unchanged where ``f`` is not finite or the two downs are opposite
+    (tested against the batched form)."""
     ax, ay, az = down_in_body(qw, qx, qy, qz)
     bx, by, bz = down_in_body(fw, fx, fy, fz)
     if not 1.0 + (ax * bx + ay * by + az * bz) > 1e-9:  # (also a NaN)
         return qw, qx, qy, qz
-    n = math.sqrt(bx * bx + by * by + bz * bz)
-    bx, by, bz = bx / n, by / n, bz / n
-    cw, cx, cy, cz = qnorm(1.0 + (bx * ax + by * ay + bz * az), by * az - bz * ay, bz * ax - bx * az, bx * ay - by * ax)
-    rw, rx, ry, rz = qmul(qw, qx, qy, qz, cw, cx, cy, cz)
-    return qnorm(rw, rx, ry, rz)
+    return blend_tilt_f(qw, qx, qy, qz, fw, fx, fy, fz, 1.0)
 
 
 @njit(cache=True)
