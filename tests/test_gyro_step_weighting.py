@@ -13,12 +13,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from tests.conftest import broad_trial
+from tests.test_anchor import _live
 from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
 from tepinn_flight.model.anchor import AnchorConfig, AnchoredVQF
 from tepinn_flight.model.anchor_kernels import step_weight
 from tepinn_flight.model.checkpoint import default_model_path, estimator_settings, load_model, read_checkpoint
 from tepinn_flight.model.estimate import estimate_anchored
-from tepinn_flight.model.streaming import StreamingEstimator
 from tepinn_flight.model.synthetic import synthetic_record
 from tepinn_flight.record import FlightRecord
 
@@ -68,6 +68,15 @@ def _filter_only(on: bool) -> AnchorConfig:
     return dataclasses.replace(AnchorConfig().learned_off, gyro_step_weighting=on)
 
 
+def _filter_errors(rec, ts: float) -> dict:
+    """{weighting on?: the filter alone's inclination RMSE (deg) from 5 s} with VQF's period ``ts``."""
+    errs = {}
+    for on in (False, True):
+        q, _, _, _ = AnchoredVQF(_filter_only(on), ts).update(rec.t_s, rec.gyr_rad_s, rec.acc_m_s2)
+        errs[on] = _rmse_deg(rec, q)
+    return errs
+
+
 @pytest.mark.parametrize("lose", [0.05, 0.2])
 def test_a_lost_sample_keeps_its_rotation(lose):
     # the filter alone (every learned part off): integrated over one fixed period, each lost sample's
@@ -75,12 +84,7 @@ def test_a_lost_sample_keeps_its_rotation(lose):
     # a constant rate is integrated exactly
     rec = _rolling(lose=lose)
     assert np.max(np.diff(rec.t_s)) > 1.9 / 100.0
-    ts = 1.0 / 100.0
-    errs = {}
-    for on in (False, True):
-        q, _, _, _ = AnchoredVQF(_filter_only(on), ts).update(rec.t_s, rec.gyr_rad_s, rec.acc_m_s2)
-        errs[on] = _rmse_deg(rec, q)
-    print(errs)
+    errs = _filter_errors(rec, 1.0 / 100.0)
     assert errs[True] < 0.05
     assert errs[False] > 20 * errs[True] and errs[False] > 1.0
 
@@ -92,11 +96,7 @@ def test_jittered_stamps_are_no_gyro_scale_error():
     dts = np.diff(rec.t_s[:52])
     ts = float(np.median(dts))
     assert abs(ts * 100.0 - 1.0) > 0.01  # the premise: this median is more than 1 % off
-    errs = {}
-    for on in (False, True):
-        q, _, _, _ = AnchoredVQF(_filter_only(on), ts).update(rec.t_s, rec.gyr_rad_s, rec.acc_m_s2)
-        errs[on] = _rmse_deg(rec, q)
-    print(errs)
+    errs = _filter_errors(rec, ts)
     assert errs[True] < 0.2
     assert errs[False] > 5 * errs[True]
 
@@ -139,12 +139,7 @@ def test_live_equals_offline_with_lost_samples_and_jittered_stamps():
     cfg = dataclasses.replace(shipped, smoother=False, gnss_aid=False, gyro_selfcal=False, accel_scale_selfcal=False,
                               speed_lo_m_s=0.0, speed_hi_m_s=1e-3)  # every gate on: all of it exercised
     off = estimate_anchored(model, rec, cfg)[Q].to_numpy()
-    live = StreamingEstimator(model, cfg)
-    q_live = np.full((len(rec), 4), np.nan)
-    for i in range(len(rec)):
-        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
-        if e.q_nb_wxyz is not None:
-            q_live[i] = e.q_nb_wxyz
+    q_live = _live(model, cfg, rec)
     have = np.all(np.isfinite(q_live), 1)
     assert have.sum() > len(rec) - 60
     np.testing.assert_allclose(q_live[have], off[have], atol=1e-6)
