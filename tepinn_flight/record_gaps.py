@@ -52,6 +52,24 @@ class Bridged:
         return frame.iloc[self.rows].reset_index(drop=True)
 
 
+#: a step inside a segment longer than this many nominal periods (and at most GAP_PERIODS) is a lost sample
+LOST_STEP_PERIODS = 1.5
+
+
+def inner_steps(rec: FlightRecord) -> np.ndarray:
+    """The steps between consecutive samples inside segments, in nominal periods (empty where unknown)."""
+    period = record_period_s(rec)
+    if not (np.isfinite(period) and period > 0) or len(rec) < 2:
+        return np.zeros(0)
+    return np.diff(rec.t_s)[np.diff(rec.segment) == 0] / period
+
+
+def lost_steps(steps: np.ndarray) -> int:
+    """How many of :func:`inner_steps` are about two periods: a sample lost between them (a logger or a radio
+    dropping IMU rows; the anchored estimator integrates the gyro over each step's time, VQF over one period)."""
+    return int(np.sum((steps > LOST_STEP_PERIODS) & (steps <= GAP_PERIODS)))
+
+
 def is_bridgeable(dt_s: float, period_s: float, max_gap_s: float = MAX_BRIDGED_GAP_S) -> bool:
     """A forward step that is a gap (> ``GAP_PERIODS`` periods) and no longer than ``max_gap_s``."""
     return bool(np.isfinite(period_s) and period_s > 0 and GAP_PERIODS * period_s < dt_s <= max_gap_s)

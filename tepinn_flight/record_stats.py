@@ -6,10 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .record import FlightRecord
-from .record_gaps import GAP_PERIODS, MAX_BRIDGED_GAP_S, is_bridgeable, record_period_s
-
-#: a step inside a segment longer than this many periods (and at most GAP_PERIODS) is a lost sample or so
-LOST_STEP_PERIODS = 1.5
+from .record_gaps import LOST_STEP_PERIODS, MAX_BRIDGED_GAP_S, inner_steps, is_bridgeable, lost_steps, record_period_s
 
 
 def summarize(rec: FlightRecord) -> dict:
@@ -49,11 +46,11 @@ def summarize(rec: FlightRecord) -> dict:
     gaps = [{"at_s": float(t[i]), "gap_s": float(t[i + 1] - t[i]),
              "bridged": is_bridgeable(float(t[i + 1] - t[i]), period)} for i in breaks]  # fmt: skip
     norm = np.linalg.norm(gyr, axis=1)
-    steps = np.diff(t)[np.diff(seg) == 0] / period if np.isfinite(period) and period > 0 else np.zeros(0)
+    steps = inner_steps(rec)
     usual = steps[(steps > 0.5) & (steps <= LOST_STEP_PERIODS)]
     out.update(
-        steps=int(steps.size),  # inside segments: samples lost one or two at a time, and the stamps' jitter
-        lost_steps=int(np.sum((steps > LOST_STEP_PERIODS) & (steps <= GAP_PERIODS))),
+        steps=int(steps.size),  # inside segments: samples lost one at a time, and the stamps' jitter
+        lost_steps=lost_steps(steps),
         step_jitter=float(np.std(usual)) if usual.size > 1 else 0.0,
     )
     out.update(

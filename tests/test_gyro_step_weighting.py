@@ -153,3 +153,25 @@ def test_checkpoints_written_before_it_run_without_it():
     del ck["anchor_config"]["gyro_step_weighting"]
     assert estimator_settings(ck).gyro_step_weighting is False
     assert AnchorConfig().learned_off.gyro_step_weighting is False  # plain VQF
+
+
+def test_evaluate_says_where_samples_were_lost_and_how_the_estimators_differ_there():
+    # 5 % of a rolling record's samples lost: the record's row counts them, a note says what sets TE-PINN and VQF
+    # apart there, and the scores show it (VQF integrates over one period)
+    from tepinn_flight.evaluation.estimators import TepinnEstimator
+    from tepinn_flight.evaluation.harness import evaluate
+    from tepinn_flight.evaluation.peers import VqfEstimator
+    from tepinn_flight.evaluation.report_html import record_rows
+
+    rec = _rolling(lose=0.05, seed=2)
+    rec.meta.update(imu_rate_hz=100.0, reference_source="synthetic-truth")
+    steps = np.diff(rec.t_s) * 100.0
+    want = int(np.sum((steps > 1.5) & (steps < 2.5)))
+    assert want > 50
+    res = evaluate([rec], [TepinnEstimator.from_checkpoint(default_model_path(), "tepinn"), VqfEstimator()], progress=False)
+    r = res.records[0]
+    assert r["lost_samples"] == want
+    assert any(f"{want} sample(s) lost one at a time" in n for n in res.notes)
+    assert f"({want} lost one at a time)" in record_rows(res)[0][6]
+    incl = {k: v["inclination_rmse_deg"] for k, v in r["results"].items()}
+    assert incl["tepinn"] < 0.05 and incl["vqf"] > 1.0

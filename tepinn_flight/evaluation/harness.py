@@ -39,7 +39,7 @@ from ..errors import ConfigError, TepinnError
 from ..model.estimate import REPORTED_STEPS, gates_acted
 from ..model.reference_trust import check_reference
 from ..record import GYR_BIAS_COLS, SIMULATED_KINDS, FlightRecord, estimation_ok, segment_slices
-from ..record_gaps import bridge_gaps
+from ..record_gaps import bridge_gaps, inner_steps, lost_steps
 from . import metrics as M
 from .estimators import EST_BIAS_COLS, EST_Q_COLS
 from .left_out import left_out
@@ -176,6 +176,10 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
         res, ser = score_record(br.record, rr, estimators, config, names[i])
         res["n_samples"] = len(records[i])
         res["bridged_gaps"], res["bridged_samples"] = br.gaps, br.filled
+        res["lost_samples"] = lost = lost_steps(inner_steps(br.record))
+        if lost:  # what sets the estimators apart there (session 29)
+            notes.append(f"{names[i]}: {lost} sample(s) lost one at a time (steps of about two periods): the anchored "
+                         "TE-PINN integrates the gyro over each step's time, VQF and the other peers over one period")  # fmt: skip
         m = records[i].meta
         res["estimation_ok"] = estimation_ok(m)
         res["imu_rate_hz"] = m.get("imu_rate_hz")

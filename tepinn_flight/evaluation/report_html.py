@@ -129,10 +129,11 @@ def record_rows(result) -> list[list[str]]:
         rate = r.get("imu_rate_hz")
         ok = r.get("estimation_ok", True)
         why = left_out(r)
-        gaps = r.get("bridged_gaps", 0)
+        gaps, lost = r.get("bridged_gaps", 0), r.get("lost_samples", 0)
+        extra = ", ".join([f"{gaps} dropout(s) bridged"] * bool(gaps) + [f"{lost} lost one at a time"] * bool(lost))
         rows.append([r["name"], str(r["source_kind"]), "–" if rate is None else f"{rate:.1f}", str(r.get("reference_source", "–")),
                      ("yes" if ok else "no") + (f": {why}, not in the summary" if why else ""),
-                     f"{r['duration_s']:.1f}", f"{r['n_samples']}" + (f" ({gaps} dropout(s) bridged)" if gaps else ""),
+                     f"{r['duration_s']:.1f}", f"{r['n_samples']}" + (f" ({extra})" if extra else ""),
                      str(r["n_scored_common"])])  # fmt: skip
     return rows
 
