@@ -509,19 +509,16 @@ class AnchoredVQF:
             ay = ay - ((g[2] * v[0] - g[0] * v[2]) + av[1])
             az = az - ((g[0] * v[1] - g[1] * v[0]) + av[2])
         a_s = (ax, -ay, -az)  # VQF's z-up sensor frame
-        wx = wy = wz = 1.0  # VQF integrates the gyro over the sample's own step (as update())
+        k = 1.0  # VQF integrates the gyro over the sample's own step (as update(); × −k: S's y and z, exactly −gy·k)
         if self.step_weighting:
             k = step_weight(float(t_s) - self.t_prev, self.ts, GAP_PERIODS)
             self.t_prev = float(t_s)
-            wx, wy, wz = k, -k, -k
-        else:
-            wy = wz = -1.0
         if self.use_mag:
             m = [0.0, 0.0, 0.0] if mag is None else [float(x) if math.isfinite(float(x)) else 0.0 for x in mag]
-            self.f.update(np.array([gx * wx, gy * wy, gz * wz]), np.array(a_s), np.array([m[0], -m[1], -m[2]]))
+            self.f.update(np.array([gx * k, gy * -k, gz * -k]), np.array(a_s), np.array([m[0], -m[1], -m[2]]))
         else:  # (into arrays made once: two new arrays a sample cost more than VQF's update)
             g1, a1 = self._g1, self._a1
-            g1[0], g1[1], g1[2] = gx * wx, gy * wy, gz * wz
+            g1[0], g1[1], g1[2] = gx * k, gy * -k, gz * -k
             a1[0], a1[1], a1[2] = a_s
             self.f.update(g1, a1)
         qw, qx, qy, qz = self.f.getQuat6D().tolist()
