@@ -38,6 +38,7 @@ import numpy as np
 
 from ..config import check_range
 from ..quat import gravity_body, quat_mul, quat_normalize
+from .anchor_kernels import blend_tilt_rows, tilt_angle_rows
 from ..record import segment_slices
 
 
@@ -133,8 +134,6 @@ def blend_tilt(q_nb: np.ndarray, q_smooth_nb: np.ndarray, w: np.ndarray) -> np.n
     heading of ``q_nb``: the two down directions in body axes blended and normalised, then
     :func:`with_down` — compiled per row (``anchor_kernels.blend_tilt_f``, the same arithmetic to rounding; numpy's
     whole-array form cost 0.7 s an hour of samples, session 29)."""
-    from .anchor_kernels import blend_tilt_rows
-
     q = np.ascontiguousarray(q_nb, np.float64)
     out = np.empty_like(q)
     blend_tilt_rows(q, np.ascontiguousarray(q_smooth_nb, np.float64), np.ascontiguousarray(w, np.float64), out)
@@ -172,8 +171,6 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
 def disagreement_sigma(t_s, q_a, q_b, seg, window_s: float) -> np.ndarray:
     """(n,) the centred RMS over ``window_s`` (within each segment; 0: none) of the angle between the tilts of
     ``q_a`` and ``q_b`` (body→NED), rad."""
-    from .anchor_kernels import tilt_angle_rows
-
     q_a, q_b = np.ascontiguousarray(q_a, np.float64), np.ascontiguousarray(q_b, np.float64)
     d2 = np.empty(len(q_a))
     tilt_angle_rows(q_a, q_b, d2)  # (compiled: numpy's gravity, cross and norms cost 0.2 s an hour, session 29)
