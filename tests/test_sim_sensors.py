@@ -385,3 +385,28 @@ def test_gnss_velocity_is_the_true_one_latency_late_with_the_configured_noise_an
     rec = record_from_truth(truth, cfg(gnss=g), 0)
     np.testing.assert_array_equal(rec.gnss_vel_ne_m_s, v)
     assert rec.meta["gnss_source"] == "simulated" and rec.meta["gnss_rate_hz"] == 5.0
+
+
+def test_a_log_that_loses_samples_and_jitters_its_stamps_keeps_every_other_draw():
+    # the log's timing (lost_fraction, stamp_jitter_s) draws from a stream of its own: the kept rows carry the very
+    # measurements and truth of the flight without it; the lost ones are single samples (steps of two periods)
+    from tepinn_flight.record_gaps import inner_steps, lost_steps
+
+    truth = wobble_truth(4000, 200.0)
+    base = load_sensor_config("consumer")
+    plain = record_from_truth(truth, base, seed=3)
+    logged = record_from_truth(truth, dataclasses.replace(base, lost_fraction=0.03, stamp_jitter_s=0.0002), seed=3)
+    lost = logged.meta["sensor_truth"]["lost_samples"]
+    assert lost == len(plain) - len(logged) and 0.02 * len(plain) < lost < 0.04 * len(plain)
+    # each row found by its stamp (σ 0.2 ms, a tenth of the 5-ms period): the kept measurements and truth are the
+    # plain flight's
+    pos = np.searchsorted(plain.t_s, logged.t_s - 0.0025)
+    np.testing.assert_array_equal(logged.q_ref_wxyz, plain.q_ref_wxyz[pos])
+    np.testing.assert_array_equal(logged.gyr_rad_s, plain.gyr_rad_s[pos])
+    assert np.all(np.diff(pos) >= 1) and np.all(np.diff(pos) <= 2)
+    steps = inner_steps(logged)
+    assert lost_steps(steps) == int(np.sum(np.diff(pos) == 2))
+    err = logged.t_s - plain.t_s[pos]
+    assert np.std(err) == pytest.approx(0.0002, rel=0.1) and np.abs(err).max() <= 0.45 / 200.0 + 1e-12
+    with pytest.raises(ConfigError, match="lost_fraction"):
+        dataclasses.replace(base, lost_fraction=0.6)

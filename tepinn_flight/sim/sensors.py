@@ -147,6 +147,11 @@ class SensorConfig:
     description: str = ""
     rate_hz: float | None = None  # IMU output rate; omitted: the simulation rate
     anti_alias: Literal["none", "boxcar"] = "none"
+    # the log, not the sensor: this share of the IMU samples lost one at a time (a logger or a telemetry radio
+    # dropping rows: steps of two periods), and the stamps' error (σ, s; clipped at ±0.45 period; each row's truth
+    # stays that of its sample). Off in every preset and campaign; `robustness`-style probes of real-log timing
+    lost_fraction: float = 0.0
+    stamp_jitter_s: float = 0.0
     gyro: GyroConfig = field(default_factory=GyroConfig)
     accel: AccelConfig = field(default_factory=AccelConfig)
     mag: MagConfig = field(default_factory=MagConfig)
@@ -155,6 +160,8 @@ class SensorConfig:
     def __post_init__(self):
         if self.rate_hz is not None:
             check(self.rate_hz > 0 and math.isfinite(self.rate_hz), f"'rate_hz' must be > 0, got {self.rate_hz!r}")
+        check(0.0 <= self.lost_fraction < 0.5, f"'lost_fraction' must be in [0, 0.5), got {self.lost_fraction!r}")
+        finite_nonneg("stamp_jitter_s", self.stamp_jitter_s)
 
     def to_dict(self) -> dict:
         """Fully resolved parameters (for record metadata); ``bias_corr_time_s`` inf → "inf"."""
@@ -368,17 +375,36 @@ def apply_sensors(truth: TruthTrajectory, cfg: SensorConfig, rng: np.random.Gene
     q = np.asarray(truth.q_nb_wxyz, np.float64)[idx]
     t = np.asarray(truth.t_s, np.float64)[idx]
 
-    seeds = np.random.SeedSequence(rng.integers(0, 2**63, size=4).tolist()).spawn(4)  # spawn(n)'s first
-    r_gyr, r_acc, r_mag, r_gnss = (np.random.default_rng(s) for s in seeds)  # children do not depend on n
+    seeds = np.random.SeedSequence(rng.integers(0, 2**63, size=4).tolist()).spawn(5)  # spawn(n)'s first
+    r_gyr, r_acc, r_mag, r_gnss, r_log = (np.random.default_rng(s) for s in seeds)  # children do not depend on n
     gyr, gclip, gbias, gtruth = _triad(r_gyr, gyr_x, _gyro_si(cfg.gyro), rate)
     acc, aclip, abias, atruth = _triad(r_acc, acc_x, _accel_si(cfg.accel), rate)
     mag, mtruth = _magnetometer(r_mag, t, q, np.asarray(truth.mag_earth_ut, np.float64), cfg.mag, rate, acc_x)
     gnss = _gnss(r_gnss, np.asarray(truth.t_s, np.float64), truth.vel_ned_m_s, t, cfg.gnss)
-    return SensorOutput(
+    out = SensorOutput(
         t_s=t, index=idx, gyr_rad_s=gyr, acc_m_s2=acc, mag_ut=mag, clipped=gclip | aclip, gyr_clipped=gclip,
         gyr_bias_rad_s=gbias, acc_bias_m_s2=abias, q_nb_wxyz=q, gnss_vel_ne_m_s=gnss,
         truth={"gyro": gtruth, "accel": atruth, "mag": mtruth, "rate_hz": rate, "decimation": k},
     )  # fmt: skip
+    return _logged(out, r_log, cfg, rate) if cfg.lost_fraction > 0 or cfg.stamp_jitter_s > 0 else out
+
+
+def _logged(out: SensorOutput, rng, cfg: SensorConfig, rate_hz: float) -> SensorOutput:
+    """``out`` as a log holds it: ``cfg.lost_fraction`` of its samples lost one at a time (never the first or
+    last 5, never two in a row: a longer gap would be a new segment), the stamps off by N(0, ``stamp_jitter_s``²)
+    clipped at ±0.45 period (kept in order)."""
+    n = len(out.t_s)
+    lost = rng.random(n) < cfg.lost_fraction
+    lost[:5] = lost[max(0, n - 5) :] = False
+    lost[1:] &= ~lost[:-1]
+    keep = ~lost
+    half = 0.45 / rate_hz
+    jitter = np.clip(rng.normal(0.0, cfg.stamp_jitter_s, n), -half, half) if cfg.stamp_jitter_s > 0 else np.zeros(n)
+    rows = {f: getattr(out, f) for f in ("index", "gyr_rad_s", "acc_m_s2", "mag_ut", "clipped", "gyr_clipped",
+                                          "gyr_bias_rad_s", "acc_bias_m_s2", "q_nb_wxyz", "gnss_vel_ne_m_s")}  # fmt: skip
+    kept = {f: (None if v is None else v[keep]) for f, v in rows.items()}
+    truth = dict(out.truth, lost_samples=int(lost.sum()), stamp_jitter_s=float(cfg.stamp_jitter_s))
+    return SensorOutput(t_s=(out.t_s + jitter)[keep], truth=truth, **kept)
 
 
 def _gnss(rng, t_truth, vel_ned_m_s, t_imu, cfg: GnssConfig) -> np.ndarray | None:
