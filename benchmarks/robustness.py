@@ -216,18 +216,14 @@ def main() -> int:
     def retimed(rec, lose, jitter, seed):
         """``rec`` with ``lose`` of its samples lost one at a time (never two in a row: a longer gap is a new
         segment at ingest, and bridged) and its stamps jittered by N(0, (``jitter`` period)²)."""
-        from tepinn_flight.record_gaps import GAP_PERIODS, record_period_s
+        from tepinn_flight.record_gaps import GAP_PERIODS, logged_timing, record_period_s
 
-        rng = np.random.default_rng(seed)
         per = record_period_s(rec)
-        lost = rng.random(len(rec)) < lose
-        lost[:5] = lost[-5:] = False
-        lost[1:] &= ~lost[:-1]
+        keep, stamps = logged_timing(np.random.default_rng(seed), rec.t_s, per, lose, jitter * per)
         r = copy.copy(rec)
-        d = rec.data[~lost].reset_index(drop=True)
-        if jitter > 0:
-            d["t_s"] = d["t_s"].to_numpy() + np.clip(rng.normal(0.0, jitter * per, len(d)), -0.45 * per, 0.45 * per)
-        brk = np.r_[False, np.diff(d["t_s"].to_numpy()) > GAP_PERIODS * per]  # as ingest: a longer step breaks
+        d = rec.data[keep].reset_index(drop=True)
+        d["t_s"] = stamps
+        brk = np.r_[False, np.diff(stamps) > GAP_PERIODS * per]  # as ingest: a longer step breaks
         d["segment"] = (d["segment"].to_numpy() + np.cumsum(brk)).astype(d["segment"].dtype)
         r.data = d
         return r

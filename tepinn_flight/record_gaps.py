@@ -70,6 +70,22 @@ def lost_steps(steps: np.ndarray) -> int:
     return int(np.sum((steps > LOST_STEP_PERIODS) & (steps <= GAP_PERIODS)))
 
 
+def logged_timing(rng: np.random.Generator, t_s: np.ndarray, period_s: float, lost_fraction: float,
+                  jitter_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """What a log that loses samples and jitters its stamps keeps of samples at times ``t_s`` → (the rows kept,
+    their stamps): ``lost_fraction`` of them lost one at a time (never the first or last 5, never two in a row: a
+    longer gap is a new segment), the stamps off by N(0, ``jitter_s``²) clipped at ±0.45 period (kept in order).
+    ``simulate``'s ``lost_fraction`` / ``stamp_jitter_s`` and ``benchmarks/robustness.py``'s probes."""
+    n = len(t_s)
+    lost = rng.random(n) < lost_fraction
+    lost[:5] = lost[max(0, n - 5) :] = False
+    lost[1:] &= ~lost[:-1]
+    half = 0.45 * period_s
+    jitter = np.clip(rng.normal(0.0, jitter_s, n), -half, half) if jitter_s > 0 else np.zeros(n)
+    keep = ~lost
+    return keep, (np.asarray(t_s, np.float64) + jitter)[keep]
+
+
 def is_bridgeable(dt_s: float, period_s: float, max_gap_s: float = MAX_BRIDGED_GAP_S) -> bool:
     """A forward step that is a gap (> ``GAP_PERIODS`` periods) and no longer than ``max_gap_s``."""
     return bool(np.isfinite(period_s) and period_s > 0 and GAP_PERIODS * period_s < dt_s <= max_gap_s)

@@ -12,13 +12,21 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
-from tepinn_flight.quat import inclination_heading_split
-from tepinn_flight.model.smoother import (SmootherConfig, blend_tilt, ramp_weight, smooth, ungated_stretches,
-                                          with_down)  # fmt: skip
+from tepinn_flight.quat import gravity_body, inclination_heading_split, quat_mul, quat_normalize
+from tepinn_flight.model.smoother import SmootherConfig, blend_tilt, ramp_weight, smooth, ungated_stretches
 
 
 def _q(r: Rotation) -> np.ndarray:
     return r.as_quat()[:, [3, 0, 1, 2]]
+
+
+def _with_down(q_nb: np.ndarray, down_b: np.ndarray) -> np.ndarray:
+    """The numpy whole-array form the compiled blend replaced (session 29), the reference: ``q_nb`` turned in body
+    axes by the minimal rotation that makes its down direction ``down_b`` (unit rows)."""
+    d_f = gravity_body(q_nb)
+    # R(q ⊗ c)ᵀ e₃ = R(c)ᵀ d_f must be down_b: c turns down_b onto d_f (half-way quaternion)
+    c = np.concatenate([1.0 + np.sum(down_b * d_f, 1, keepdims=True), np.cross(down_b, d_f)], 1)
+    return quat_normalize(quat_mul(q_nb, quat_normalize(c)))
 
 
 def _down_in_body(q_nb: np.ndarray) -> np.ndarray:
@@ -47,11 +55,11 @@ def gentle_record(duration_s: float = 60.0, rate_hz: float = 100.0, seed: int = 
 
 
 def test_the_tilt_turn_is_the_minimal_one_and_leaves_the_heading():
-    rng = np.random.default_rng(3)
+    # blend_tilt at weight 1 gives q the down direction of p (scipy's) by the minimal turn in body axes
     q = _q(Rotation.random(500, random_state=4))
-    d = rng.normal(size=(500, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    out = with_down(q, d)
+    p = _q(Rotation.random(500, random_state=3))
+    d = _down_in_body(p)
+    out = blend_tilt(q, p, np.ones(500))
     np.testing.assert_allclose(_down_in_body(out), d, atol=1e-12)
     # the turn q⁻¹·out (body axes) is about an axis perpendicular to both downs, by their angle
     turn = (Rotation.from_quat(q[:, [1, 2, 3, 0]]).inv() * Rotation.from_quat(out[:, [1, 2, 3, 0]])).as_rotvec()
@@ -77,7 +85,7 @@ def test_blending_weights_the_two_downs():
 
 
 def test_the_compiled_blend_is_numpys_whole_array_form():
-    # blend_tilt runs compiled per row (session 29); numpy's form, the downs blended, normalised, then with_down:
+    # blend_tilt runs compiled per row (session 29); numpy's form, the downs blended, normalised, then _with_down:
     # the same numbers to rounding (numpy sums its 3-vectors its own way)
     rng = np.random.default_rng(5)
     q = _q(Rotation.random(2000, random_state=6))
@@ -85,7 +93,7 @@ def test_the_compiled_blend_is_numpys_whole_array_form():
     w = rng.uniform(0, 1, 2000)
     v = (1.0 - w[:, None]) * _down_in_body(q) + w[:, None] * _down_in_body(p)
     v /= np.linalg.norm(v, axis=1, keepdims=True)
-    np.testing.assert_allclose(blend_tilt(q, p, w), with_down(q, v), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(blend_tilt(q, p, w), _with_down(q, v), rtol=0, atol=1e-14)
 
 
 def test_stretches_and_ramps_against_naive_references():

@@ -87,16 +87,14 @@ import numpy as np
 from ..config import check_choice, check_range
 from ..conventions import GRAVITY_M_S2
 from ..errors import ConfigError
-from ..quat import gravity_body
 from ..quat_scalar import down_in_body
 from ..record_gaps import GAP_PERIODS
 from .anchor_kernels import FLIP as _FLIP
 from .anchor_kernels import Q_NED_ENU, Q_SENSOR_BODY  # noqa: F401  (VQF's frames; peers import them from here)
-from .anchor_kernels import (clip_sigma_rows, clip_sigma_step, fusion_tilt_f, horizontal_bias, q_nb_from_vqf_f, q_nb_rows, rest_rows,
+from .anchor_kernels import (clip_sigma_rows, clip_sigma_step, fusion_tilt_f, fusion_tilt_rows, horizontal_bias, q_nb_from_vqf_f, q_nb_rows, rest_rows,
                              rest_step, sigma_step, step_weight, step_weights, tilt_pull_f, turn_acc_state,
                              up_in_earth_f, vqf_inputs, vqf_outputs)  # fmt: skip
 from .fusion import FusionConfig
-from .smoother import blend_tilt
 BIAS_EVIDENCE_S = 2.0  # the older fusion's bias must stay beyond its gate this long
 THRUST_TAU_S = 10.0  # the accelerometer's mean direction (bias_gate_thrust_deg) is low-passed over this
 CLIP_SIGMA_CAP_RAD = math.pi / 2  # the saturation term's most: a tilt σ of 90° says nothing is known
@@ -674,16 +672,9 @@ def with_fusion_tilt(q_nb: np.ndarray, q_fusion: np.ndarray) -> np.ndarray:
     """Rows of ``q_nb`` (body→NED) given the tilt of ``q_fusion``'s rows on their own heading
     (:attr:`AnchorConfig.clip_tilt_from_fusion`; the smoother's tilt formula). A row whose fusion estimate is
     missing, or whose two down directions are opposite (no shortest turn between them), stays ``q_nb``'s."""
-    q_nb = np.atleast_2d(np.asarray(q_nb, np.float64))
-    q_fusion = np.atleast_2d(np.asarray(q_fusion, np.float64))
-    out = q_nb.copy()
-    ok = np.all(np.isfinite(q_fusion), axis=1) & np.all(np.isfinite(q_nb), axis=1)
-    if ok.any():
-        rows = np.flatnonzero(ok)
-        d_a, d_b = gravity_body(q_nb[rows]), gravity_body(q_fusion[rows])
-        rows = rows[1.0 + np.sum(d_a * d_b, axis=1) > 1e-9]  # opposite downs: no shortest turn
-        if rows.size:
-            out[rows] = blend_tilt(q_nb[rows], q_fusion[rows], np.ones(rows.size))
+    q_nb = np.ascontiguousarray(np.atleast_2d(q_nb), np.float64)
+    out = np.empty_like(q_nb)
+    fusion_tilt_rows(q_nb, np.ascontiguousarray(np.atleast_2d(q_fusion), np.float64), out)  # the live step, per row
     return out
 
 

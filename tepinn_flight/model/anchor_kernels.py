@@ -219,7 +219,7 @@ def _unit4(w, x, y, z):
 def blend_tilt_f(qw, qx, qy, qz, sw, sx, sy, sz, w):
     """``smoother.blend_tilt`` of one sample: the tilt of ``s`` with weight ``w`` and of ``q`` with 1 − w, on
     ``q``'s heading — the down directions blended and normalised, then ``q`` turned in body axes by the shortest
-    turn onto that down (``smoother.with_down``): numpy's arithmetic, equal to its rounding (tested)."""
+    turn onto that down: the arithmetic of the numpy form it replaced, equal to its rounding (tests/test_smoother.py)."""
     ax, ay, az = down_in_body(qw, qx, qy, qz)
     bx, by, bz = down_in_body(sw, sx, sy, sz)
     vx, vy, vz = (1.0 - w) * ax + w * bx, (1.0 - w) * ay + w * by, (1.0 - w) * az + w * bz
@@ -260,6 +260,14 @@ def fusion_tilt_f(qw, qx, qy, qz, fw, fx, fy, fz):
     if not 1.0 + (ax * bx + ay * by + az * bz) > 1e-9:  # (also a NaN)
         return qw, qx, qy, qz
     return blend_tilt_f(qw, qx, qy, qz, fw, fx, fy, fz, 1.0)
+
+
+@njit(cache=True)
+def fusion_tilt_rows(q, f, out):
+    """:func:`fusion_tilt_f` of each row into ``out`` (n, 4) (offline: :func:`.anchor.with_fusion_tilt`)."""
+    for i in range(q.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = fusion_tilt_f(q[i, 0], q[i, 1], q[i, 2], q[i, 3], f[i, 0],
+                                                                   f[i, 1], f[i, 2], f[i, 3])  # fmt: skip
 
 
 @njit(cache=True)

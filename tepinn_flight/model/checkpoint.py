@@ -54,7 +54,7 @@ MODEL_CONFIG_BEFORE = {
 #: every token (no quiet blocks), the gyro's scale not read from the record, the older fusion's bias
 #: evidence counted without VQF's and in any orientation, σ without the sampling term and the saturation term,
 #: no re-levelling at rest after a saturation, the saturation gate's pull at any gyro range, no offline
-#: tilt smoothing (opt-in before session 25), no gap term in σ, the filter's own tilt while the saturation gate is on, the gates at any IMU rate
+#: tilt smoothing (opt-in before session 25), no gap term in σ, the filter's own tilt while the saturation gate is on, the gates at any IMU rate, VQF fed each gyro sample over one fixed period
 ANCHOR_CONFIG_BEFORE = {"tau_acc_flight_s": 0.0, "bias_gate_fusion_deg_s": 0.0, "quiet_blocks": False, "clip_min_s": 0.0,
                         "gyro_selfcal": False, "gnss_aid": False, "gnss_aid_in_flight": False,
                         "bias_gate_vqf_deg_s": 0.0, "bias_gate_thrust_deg": 0.0,

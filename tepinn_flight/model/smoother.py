@@ -37,7 +37,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import check_range
-from ..quat import gravity_body, quat_mul, quat_normalize
 from .anchor_kernels import blend_tilt_rows, tilt_angle_rows
 from ..record import segment_slices
 
@@ -120,20 +119,12 @@ def ramp_weight(t_s: np.ndarray, ramp_in: bool, ramp_out: bool, ramp_s: float) -
     return np.clip(d / ramp_s, 0.0, 1.0) if ramp_s > 0 else np.ones(len(t))
 
 
-def with_down(q_nb: np.ndarray, down_b: np.ndarray) -> np.ndarray:
-    """``q_nb`` (body→NED) turned in body axes by the minimal rotation that makes its down
-    direction in body axes ``down_b`` (unit rows): the tilt changes, the heading does not."""
-    d_f = gravity_body(q_nb)
-    # R(q ⊗ c)ᵀ e₃ = R(c)ᵀ d_f must be down_b: c turns down_b onto d_f (half-way quaternion)
-    c = np.concatenate([1.0 + np.sum(down_b * d_f, 1, keepdims=True), np.cross(down_b, d_f)], 1)
-    return quat_normalize(quat_mul(q_nb, quat_normalize(c)))
-
-
 def blend_tilt(q_nb: np.ndarray, q_smooth_nb: np.ndarray, w: np.ndarray) -> np.ndarray:
     """The tilt of ``q_smooth_nb`` with weight ``w`` (per row) and of ``q_nb`` with 1 − w, on the
-    heading of ``q_nb``: the two down directions in body axes blended and normalised, then
-    :func:`with_down` — compiled per row (``anchor_kernels.blend_tilt_f``, the same arithmetic to rounding; numpy's
-    whole-array form cost 0.7 s an hour of samples, session 29)."""
+    heading of ``q_nb``: the two down directions in body axes blended and normalised, then ``q_nb`` turned in body
+    axes by the minimal rotation onto that down (the tilt changes, the heading does not) — compiled per row
+    (``anchor_kernels.blend_tilt_f``; numpy's whole-array form, kept as the tests' reference, cost 0.7 s an hour of
+    samples, session 29)."""
     q = np.ascontiguousarray(q_nb, np.float64)
     out = np.empty_like(q)
     blend_tilt_rows(q, np.ascontiguousarray(q_smooth_nb, np.float64), np.ascontiguousarray(w, np.float64), out)

@@ -390,21 +390,15 @@ def apply_sensors(truth: TruthTrajectory, cfg: SensorConfig, rng: np.random.Gene
 
 
 def _logged(out: SensorOutput, rng, cfg: SensorConfig, rate_hz: float) -> SensorOutput:
-    """``out`` as a log holds it: ``cfg.lost_fraction`` of its samples lost one at a time (never the first or
-    last 5, never two in a row: a longer gap would be a new segment), the stamps off by N(0, ``stamp_jitter_s``²)
-    clipped at ±0.45 period (kept in order)."""
-    n = len(out.t_s)
-    lost = rng.random(n) < cfg.lost_fraction
-    lost[:5] = lost[max(0, n - 5) :] = False
-    lost[1:] &= ~lost[:-1]
-    keep = ~lost
-    half = 0.45 / rate_hz
-    jitter = np.clip(rng.normal(0.0, cfg.stamp_jitter_s, n), -half, half) if cfg.stamp_jitter_s > 0 else np.zeros(n)
+    """``out`` as a log holds it (:func:`..record_gaps.logged_timing`): samples lost one at a time, stamps jittered."""
+    from ..record_gaps import logged_timing
+
+    keep, stamps = logged_timing(rng, out.t_s, 1.0 / rate_hz, cfg.lost_fraction, cfg.stamp_jitter_s)
     rows = {f: getattr(out, f) for f in ("index", "gyr_rad_s", "acc_m_s2", "mag_ut", "clipped", "gyr_clipped",
                                           "gyr_bias_rad_s", "acc_bias_m_s2", "q_nb_wxyz", "gnss_vel_ne_m_s")}  # fmt: skip
     kept = {f: (None if v is None else v[keep]) for f, v in rows.items()}
-    truth = dict(out.truth, lost_samples=int(lost.sum()), stamp_jitter_s=float(cfg.stamp_jitter_s))
-    return SensorOutput(t_s=(out.t_s + jitter)[keep], truth=truth, **kept)
+    truth = dict(out.truth, lost_samples=int((~keep).sum()), stamp_jitter_s=float(cfg.stamp_jitter_s))
+    return SensorOutput(t_s=stamps, truth=truth, **kept)
 
 
 def _gnss(rng, t_truth, vel_ned_m_s, t_imu, cfg: GnssConfig) -> np.ndarray | None:
