@@ -49,6 +49,13 @@ files, and low IMU rates on held-out simulated flights that saturate the gyro or
 11. `--stamp-jitter 0.15`: the real files' samples kept, their time stamps jittered by N(0, (J period)²)
    (clipped at ±0.45 period), with `--lost-factor` likewise. Off by default.
 
+12. `--acc-vibration 3`: the real files' accelerometer shaken by a vibrating frame: on every axis white noise
+   of N m/s² RMS and a tone of the same RMS at a frame frequency drawn in 60–180 Hz (aliased at the file's own
+   rate, as a logger's samples alias a motor's vibration), the gyro left as read. Off by default (session 30).
+
+13. `--acc-biases 0.3`: the real files' accelerometer offset by N m/s² on x and y and −N on z (an uncalibrated
+   accelerometer; the reference cannot see it). Off by default (session 30).
+
 `--broad-every N` takes every N-th shared BROAD trial (default 3; 1: all 17); `--seen-only` leaves the
 held-out drone logs out (a check that must not look at them).
 
@@ -56,7 +63,7 @@ held-out drone logs out (a check that must not look at them).
                                     [--gyro-biases 5] [--gyro-ranges 300] [--gyro-scales 1.02]
                                     [--start-cuts 30,40,50] [--mounts 90:0:0] [--real-rates 6,11]
                                     [--lost-samples 0.02] [--stamp-jitter 0.15] [--lost-factor 6]
-                                    [--broad-every 3] [--seen-only]
+                                    [--acc-vibration 3] [--acc-biases 0.3] [--broad-every 3] [--seen-only]
 """
 
 from __future__ import annotations
@@ -90,6 +97,8 @@ def main() -> int:
     ap.add_argument("--real-rates", default="", help="decimation factors of the real files, comma-separated ('': skip)")
     ap.add_argument("--lost-samples", default="", help="shares of samples lost one at a time, comma-separated ('': skip)")
     ap.add_argument("--stamp-jitter", default="", help="time-stamp jitter, periods (σ), comma-separated ('': skip)")
+    ap.add_argument("--acc-vibration", default="", help="accelerometer vibration, m/s² RMS of noise and of a tone, comma-separated ('': skip)")
+    ap.add_argument("--acc-biases", default="", help="accelerometer offsets, m/s² (+x, +y, −z), comma-separated ('': skip)")
     ap.add_argument("--lost-factor", type=int, default=1, help="decimate the real files by this first (lost samples, jitter)")
     ap.add_argument("--seen-only", action="store_true", help="leave the held-out drone logs out")
     args = ap.parse_args()
@@ -236,6 +245,18 @@ def main() -> int:
     for j in [float(x) for x in args.stamp_jitter.split(",") if x]:
         report(f"time stamps jittered by {j:g} period (σ){at}",
                [(n, *both(retimed(rec, 0.0, j, 1000 + i))) for i, (n, rec) in enumerate(base)])
+    for a in [float(x) for x in args.acc_vibration.split(",") if x]:
+        res = []
+        for i, (n, rec) in enumerate(recs):
+            rng = np.random.default_rng(2000 + i)
+            f_hz, ph = rng.uniform(60.0, 180.0), rng.uniform(0.0, 2 * np.pi, 3)
+            t = rec.t_s - rec.t_s[0]
+            tone = np.sqrt(2.0) * a * np.sin(2 * np.pi * f_hz * t[:, None] + ph)  # RMS a on each axis
+            res.append((n, *both(changed(rec, acc=rec.acc_m_s2 + a * rng.standard_normal((len(rec), 3)) + tone))))
+        report(f"accelerometer vibrating, {a:g} m/s² RMS noise + {a:g} m/s² RMS tone", res)
+    for b in [float(x) for x in args.acc_biases.split(",") if x]:
+        report(f"accelerometer offset ({b:g}, {b:g}, {-b:g}) m/s²",
+               [(n, *both(changed(rec, acc=rec.acc_m_s2 + np.array([b, b, -b])))) for n, rec in recs])
     pick = [p for p in sorted(Path(args.sim).glob("*.parquet")) if "c172x" in p.name or read_record(p).clipped.any()]
     pick = pick[:: max(1, len(pick) // 10)][:10]
     out: dict[int, list] = {}

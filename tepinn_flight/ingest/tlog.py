@@ -606,8 +606,9 @@ def _unix_minus_boot_us(st_off: np.ndarray, st: np.ndarray, at_off: np.ndarray) 
 
 
 def _unknown_scale_reason(s: dict, autopilot: str) -> str:
+    article = "an" if autopilot[:1].lower() in "aeiou" else "a"
     return (
-        f"{s['name']} (IMU instance {s['instance']}) from a {autopilot} autopilot may carry raw sensor "
+        f"{s['name']} (IMU instance {s['instance']}) from {article} {autopilot} autopilot may carry raw sensor "
         "counts: its scale is unknown, refusing to guess (only ArduPilot's RAW_IMU is known to be in "
         "mG and mrad/s)"
     )
