@@ -56,6 +56,13 @@ files, and low IMU rates on held-out simulated flights that saturate the gyro or
 13. `--acc-biases 0.3`: the real files' accelerometer offset by N m/s² on x and y and −N on z (an uncalibrated
    accelerometer; the reference cannot see it). Off by default (session 30).
 
+14. `--gyro-noise 2`: white noise of N °/s RMS per sample and axis added to the real files' gyro (a noisy or
+   vibrating gyro; session 30: at 2 °/s no sample of a rest averages below the self-calibration's fixed still
+   threshold, rule 20). Off by default.
+
+15. `--gyro-bias-ramps 1,3`: a gyro bias growing linearly from 0 to N °/s (x, −y, z) over each real file (a gyro
+   warming up). Off by default (session 30).
+
 `--broad-every N` takes every N-th shared BROAD trial (default 3; 1: all 17); `--seen-only` leaves the
 held-out drone logs out (a check that must not look at them).
 
@@ -63,7 +70,8 @@ held-out drone logs out (a check that must not look at them).
                                     [--gyro-biases 5] [--gyro-ranges 300] [--gyro-scales 1.02]
                                     [--start-cuts 30,40,50] [--mounts 90:0:0] [--real-rates 6,11]
                                     [--lost-samples 0.02] [--stamp-jitter 0.15] [--lost-factor 6]
-                                    [--acc-vibration 3] [--acc-biases 0.3] [--broad-every 3] [--seen-only]
+                                    [--acc-vibration 3] [--acc-biases 0.3] [--gyro-noise 2] [--gyro-bias-ramps 1,3]
+                                    [--broad-every 3] [--seen-only]
 """
 
 from __future__ import annotations
@@ -99,6 +107,8 @@ def main() -> int:
     ap.add_argument("--stamp-jitter", default="", help="time-stamp jitter, periods (σ), comma-separated ('': skip)")
     ap.add_argument("--acc-vibration", default="", help="accelerometer vibration, m/s² RMS of noise and of a tone, comma-separated ('': skip)")
     ap.add_argument("--acc-biases", default="", help="accelerometer offsets, m/s² (+x, +y, −z), comma-separated ('': skip)")
+    ap.add_argument("--gyro-noise", default="", help="gyro white noise, °/s RMS per sample and axis, comma-separated ('': skip)")
+    ap.add_argument("--gyro-bias-ramps", default="", help="gyro bias growing from 0 to N °/s over each file, comma-separated ('': skip)")
     ap.add_argument("--lost-factor", type=int, default=1, help="decimate the real files by this first (lost samples, jitter)")
     ap.add_argument("--seen-only", action="store_true", help="leave the held-out drone logs out")
     args = ap.parse_args()
@@ -257,6 +267,16 @@ def main() -> int:
     for b in [float(x) for x in args.acc_biases.split(",") if x]:
         report(f"accelerometer offset ({b:g}, {b:g}, {-b:g}) m/s²",
                [(n, *both(changed(rec, acc=rec.acc_m_s2 + np.array([b, b, -b])))) for n, rec in recs])
+    for sd in [float(x) for x in args.gyro_noise.split(",") if x]:  # (seeds as runs/exp30's rule 20 probe with --seen-only)
+        report(f"gyro white noise {sd:g} °/s RMS",
+               [(n, *both(changed(rec, gyr=rec.gyr_rad_s + np.radians(sd) * np.random.default_rng(3000 + i).standard_normal((len(rec), 3)))))
+                for i, (n, rec) in enumerate(recs)])  # fmt: skip
+    for d in [float(x) for x in args.gyro_bias_ramps.split(",") if x]:
+        res = []
+        for n, rec in recs:
+            frac = (rec.t_s - rec.t_s[0]) / max(rec.t_s[-1] - rec.t_s[0], 1e-9)
+            res.append((n, *both(changed(rec, gyr=rec.gyr_rad_s + np.radians(d) * frac[:, None] * np.array([1.0, -1.0, 1.0])))))
+        report(f"gyro bias growing 0 → {d:g} °/s", res)
     pick = [p for p in sorted(Path(args.sim).glob("*.parquet")) if "c172x" in p.name or read_record(p).clipped.any()]
     pick = pick[:: max(1, len(pick) // 10)][:10]
     out: dict[int, list] = {}

@@ -110,6 +110,32 @@ def test_a_calibrated_gyro_gives_no_evidence_and_keeps_scale_one():
     assert max(abs(v - 1.0) for v in cal.fitted) < 2e-3  # the fit itself finds nothing to correct
 
 
+def test_a_noisy_gyro_still_takes_its_bias_from_the_stillest_rest_samples_not_from_slow_motion():
+    """Rule 20 (session 30): white noise of 2 °/s per sample averages to |ω| ≈ 0.056 rad/s, above the
+    fixed still threshold (0.05 rad/s); without the noise floor the bias came from every rest sample,
+    slow motion (here 0.1 rad/s for half of each rest) included."""
+    from tepinn_flight.model.gyro_selfcal import find_phases
+
+    rec, _ = turns_with_rests((1.0, 1.0, 1.0), seed=3)
+    rate_hz, rng = 100.0, np.random.default_rng(30)
+    gyr = rec.gyr_rad_s + rng.normal(size=(len(rec), 3)) * np.radians(2.0)
+    t = rec.t_s
+    creep = (np.mod(t, 5.0) < 1.5) & (t < 5.0 * 8 + 1.5)  # the first 1.5 s of each 3-s rest
+    gyr[creep] += 0.1 * np.array([0.6, 0.0, 0.8])
+    true_bias = np.array([0.004, -0.003, 0.002])
+
+    def bias(cfg):
+        return find_phases(t, np.ascontiguousarray(gyr), rec.acc_m_s2, rec.segment, rec.gyr_clipped, cfg)[1].bias
+
+    np.testing.assert_allclose(bias(GyroSelfCalConfig()), true_bias, atol=2e-3)
+    assert np.abs(bias(GyroSelfCalConfig(still_floor_factor=0.0)) - true_bias).max() > 0.01  # the rule before
+    # a quiet gyro keeps the fixed threshold: the floor is far below it
+    quiet, _ = turns_with_rests((1.0, 1.0, 1.0), seed=3)
+    args = (quiet.t_s, quiet.gyr_rad_s, quiet.acc_m_s2, quiet.segment, quiet.gyr_clipped)
+    np.testing.assert_array_equal(find_phases(*args, GyroSelfCalConfig())[1].bias,
+                                  find_phases(*args, GyroSelfCalConfig(still_floor_factor=0.0))[1].bias)
+
+
 def test_phases_need_rests_at_both_ends_and_no_saturation():
     rec, _ = turns_with_rests((1.0, 1.01, 1.0), n_turns=2)
     cal = calibrate(rec)

@@ -8,6 +8,11 @@ must carry the first gravity direction onto the second. A per-axis scale error `
 thousands of degrees between its rests, half a per cent is degrees of disagreement, and it is what
 VQF's tilt carries between its accelerometer corrections (BROAD's gyro, session 10).
 
+The gyro's bias, removed before the scale is read, is its mean over the stillest rest samples: those whose
+averaged rate is below ``still_rate_rad_s`` or, on a noisy gyro whose white noise alone averages above that,
+below ``still_floor_factor`` × the rests' 5th-percentile rate (rule 20, session 30: otherwise the bias came
+from every rest sample, slow motion included, and a wrong scale was read).
+
 A *phase* runs from the end of a rest to the start of the first later rest that is at least
 ``min_turn_deg`` of turning away, within ``max_phase_s``, inside one segment and with no gyro sample
 at its range (saturation); its ends sit at the stillest moment of the rests' last and first
@@ -50,7 +55,11 @@ class GyroSelfCalConfig:
     rest_rate_rad_s: float = 0.35  # a rest: the rate's norm, averaged over rest_min_s, below this
     rest_acc_tol_m_s2: float = 0.3  # ... and the accelerometer's norm within this of its resting norm
     rest_min_s: float = 0.2  # the averaging and the shortest rest
-    still_rate_rad_s: float = 0.05  # the gyro's bias: its mean where the rate stays below this at rest
+    still_rate_rad_s: float = 0.05  # the gyro's bias: its mean where the rate stays below this at rest ...
+    # ... or below this × the 5th percentile of the averaged rate at rest, where that is higher: a noisy gyro's
+    # floor (white noise of 2 °/s per sample averages to |ω| ≈ 0.056 rad/s: no sample would be still, and the
+    # bias would come from slow motion; session 30, rule 20). 0: off (before session 30)
+    still_floor_factor: float = 1.5
     end_s: float = 1.0  # a phase starts (ends) at the stillest moment of a rest's last (first) end_s
     max_phase_s: float = 120.0
     min_turn_deg: float = 60.0  # integrated |ω| over a phase
@@ -65,6 +74,7 @@ class GyroSelfCalConfig:
                      "prior_sigma", "max_scale_error"):  # fmt: skip
             check_range(name, getattr(self, name), 0, None, lo_open=True)
         check_range("min_turn_deg", self.min_turn_deg, 0, None)
+        check_range("still_floor_factor", self.still_floor_factor, 0, None)
         check_range("min_phases", self.min_phases, 2, 10**6)
         check_range("gate_ratio", self.gate_ratio, 0, 1)
         check_range("iterations", self.iterations, 1, 100)
@@ -166,7 +176,10 @@ def find_phases(t_s, gyr, acc, segment, gyr_clipped, cfg: GyroSelfCalConfig) -> 
     if quiet.sum() < k:
         return dt, empty
     rest = quiet & (np.abs(a_norm - np.median(a_norm[quiet])) < cfg.rest_acc_tol_m_s2)  # the resting norm: a board may read 0.8 g
-    still = rest & (rate < cfg.still_rate_rad_s)
+    still_below = cfg.still_rate_rad_s
+    if cfg.still_floor_factor > 0 and rest.any():  # above a noisy gyro's floor (the config's comment)
+        still_below = max(still_below, cfg.still_floor_factor * float(np.percentile(rate[rest], 5.0)))
+    still = rest & (rate < still_below)
     bias = gyr[still].mean(0) if still.sum() >= 10 * k else (gyr[rest].mean(0) if rest.sum() >= 10 * k else np.zeros(3))
     idx = np.flatnonzero(rest)
     runs = [r for r in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1) if len(r) >= k]
