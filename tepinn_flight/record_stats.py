@@ -46,6 +46,7 @@ def summarize(rec: FlightRecord) -> dict:
     gaps = [{"at_s": float(t[i]), "gap_s": float(t[i + 1] - t[i]),
              "bridged": is_bridgeable(float(t[i + 1] - t[i]), period)} for i in breaks]  # fmt: skip
     norm = np.linalg.norm(gyr, axis=1)
+    slow = slower_stretches(t, breaks, [g["bridged"] for g in gaps], period)
     steps = inner_steps(rec)
     usual = steps[(steps > 0.5) & (steps <= LOST_STEP_PERIODS)]
     out.update(
@@ -59,6 +60,7 @@ def summarize(rec: FlightRecord) -> dict:
         segments=int(len(seg_ids)),
         gaps=gaps,
         bridged_gaps=int(sum(g["bridged"] for g in gaps)),
+        slower_stretches=slow,
         max_bridged_gap_s=MAX_BRIDGED_GAP_S,
         max_rate_deg_s=float(np.degrees(np.nanmax(norm))) if np.any(np.isfinite(norm)) else float("nan"),
         max_axis_rate_deg_s=np.degrees(np.nanmax(np.abs(gyr), axis=0)).round(1).tolist(),
@@ -81,3 +83,28 @@ def summarize(rec: FlightRecord) -> dict:
         out["reference_check"] = {"trusted": chk.trusted, "turn_share": chk.turn_share, "intervals": chk.intervals,
                                   "gravity_deg": chk.gravity_deg, "quiet_s": chk.quiet_s, "line": chk.describe()}  # fmt: skip
     return out
+
+
+#: A run of at least this many consecutive breaks, each one step long, is a stretch logged at a lower rate.
+MIN_SLOWER_RUN = 20
+
+
+def slower_stretches(t: np.ndarray, breaks: np.ndarray, bridged: list, period: float) -> list[dict]:
+    """Stretches where the IMU was logged at a lower rate than the record's nominal one (a GCS lowering a
+    tlog's stream rate): runs of ≥ :data:`MIN_SLOWER_RUN` consecutive breaks (every step a break by the
+    nominal period), all bridged → ``[{"from_s", "to_s", "steps", "rate_hz"}]``. The estimators fill such a
+    stretch at the nominal rate, as any short dropout; ``info`` says it in one line instead of one per break."""
+    out: list[dict] = []
+    if len(breaks) < MIN_SLOWER_RUN or not (np.isfinite(period) and period > 0):
+        return out
+    b = np.asarray(breaks)
+    ok = np.asarray(bridged, bool)
+    cut = np.flatnonzero((np.diff(b) != 1) | ~ok[1:] | ~ok[:-1]) + 1  # runs of consecutive, bridged breaks
+    for run in np.split(np.arange(len(b)), cut):
+        if len(run) < MIN_SLOWER_RUN or not ok[run].all():
+            continue
+        i0, i1 = int(b[run[0]]), int(b[run[-1]]) + 1
+        out.append({"from_s": float(t[i0]), "to_s": float(t[i1]), "steps": int(len(run)), "first_break": int(run[0]),
+                    "rate_hz": float(1.0 / np.median(np.diff(t[i0 : i1 + 1])))})  # fmt: skip
+    return out
+

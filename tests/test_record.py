@@ -256,3 +256,27 @@ def test_info_counts_lost_samples_and_the_stamps_jitter_inside_segments(tmp_path
     assert main(["info", str(tmp_path / "r.parquet")]) == 0
     out = capsys.readouterr().out
     assert f"7 of {len(rec) - 2} (0.35 %) of about two periods" in out and "jitter 7.1 % of the period" in out
+
+
+def test_info_says_a_stretch_logged_at_a_lower_rate_in_one_line(tmp_path, capsys):
+    # 200 Hz for 10 s, then 25 Hz (a GCS lowering a tlog's stream rate), then 0.5 s of silence and 200 Hz again:
+    # ingest breaks every 25-Hz step (8 periods of the 200-Hz median), each bridged; the 0.5-s gap is a plain break
+    from tepinn_flight.cli.main import main
+    from tepinn_flight.record_stats import slower_stretches, summarize
+
+    t = np.r_[np.arange(0, 10, 0.005), 10 + np.arange(1, 201) * 0.04]
+    t = np.r_[t, t[-1] + 0.5 + np.arange(0, 5, 0.005)]
+    rec = build_record(_raw(t), "x")
+    st = summarize(rec)
+    assert st["segments"] == 202 and len(st["gaps"]) == 201  # 200 slow steps and the 0.5-s gap
+    (slow,) = st["slower_stretches"]
+    assert slow["steps"] == 200 and slow["rate_hz"] == pytest.approx(25.0)
+    assert slow["from_s"] == pytest.approx(t[1999]) and slow["to_s"] == pytest.approx(t[2199])
+    write_record(rec, tmp_path / "r.parquet")
+    assert main(["info", str(tmp_path / "r.parquet")]) == 0
+    out = capsys.readouterr().out
+    assert "IMU at 25.0 Hz from t=9.995 s to 18.000 s: each of its 200 steps a break" in out
+    assert out.count("break at t=") == 1 and "step +0.500 s" in out  # the one plain break, not 200 lines
+    # scattered dropouts are no stretch: fewer than MIN_SLOWER_RUN in a row, or not all bridged
+    assert slower_stretches(t, np.arange(100, 119), [True] * 19, 0.005) == []
+    assert slower_stretches(t, np.arange(100, 130), [True] * 10 + [False] + [True] * 19, 0.005) == []

@@ -39,10 +39,17 @@ def render_info(path, s: dict) -> str:
     nb = s.get("bridged_gaps", 0)
     add("segments", f"{s.get('segments')} ({len(gaps)} break(s)"
         + (f", {nb} dropout(s) <= {1000 * s.get('max_bridged_gap_s', 0):.0f} ms bridged by the estimators)" if nb else ")"))
-    for g in gaps[:10]:
+    slow = s.get("slower_stretches") or []
+    inside = set()
+    for r in slow:  # a lower logging rate: every step a break by the nominal period (one line, not one per break)
+        add("", f"IMU at {r['rate_hz']:.1f} Hz from t={r['from_s']:.3f} s to {r['to_s']:.3f} s: each of its "
+            f"{r['steps']} steps a break (bridged: filled at {_hz(s.get('imu_rate_hz'))} by the estimators)")  # fmt: skip
+        inside.update(range(r["first_break"], r["first_break"] + r["steps"]))
+    rest = [g for i, g in enumerate(gaps) if i not in inside]
+    for g in rest[:10]:
         add("", f"break at t={g['at_s']:.3f} s, step {g['gap_s']:+.3f} s" + ("  (bridged)" if g.get("bridged") else ""))
-    if len(gaps) > 10:
-        add("", f"... and {len(gaps) - 10} more")
+    if len(rest) > 10:
+        add("", f"... and {len(rest) - 10} more")
     if s.get("steps"):
         lost, n = s.get("lost_steps", 0), s["steps"]
         add("sample steps", f"{lost} of {n} ({100 * lost / n:.2f} %) of about two periods (a sample lost; the gyro is "
