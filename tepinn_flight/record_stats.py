@@ -61,6 +61,8 @@ def summarize(rec: FlightRecord) -> dict:
         gaps=gaps,
         bridged_gaps=int(sum(g["bridged"] for g in gaps)),
         slower_stretches=slow,
+        acc_noise_m_s2=sample_noise(rec.acc_m_s2, seg, period),
+        gyr_noise_deg_s=None if (g_n := sample_noise(gyr, seg, period)) is None else float(np.degrees(g_n)),
         max_bridged_gap_s=MAX_BRIDGED_GAP_S,
         max_rate_deg_s=float(np.degrees(np.nanmax(norm))) if np.any(np.isfinite(norm)) else float("nan"),
         max_axis_rate_deg_s=np.degrees(np.nanmax(np.abs(gyr), axis=0)).round(1).tolist(),
@@ -107,4 +109,23 @@ def slower_stretches(t: np.ndarray, breaks: np.ndarray, bridged: list, period: f
         out.append({"from_s": float(t[i0]), "to_s": float(t[i1]), "steps": int(len(run)), "first_break": int(run[0]),
                     "rate_hz": float(1.0 / np.median(np.diff(t[i0 : i1 + 1])))})  # fmt: skip
     return out
+
+
+def sample_noise(values: np.ndarray, seg: np.ndarray, period: float, window_s: float = 1.0) -> float | None:
+    """A sensor's noise per sample and axis, as its second differences show it (x[i−1] − 2x[i] + x[i+1], within a
+    segment: white noise of σ gives σ√6, smooth motion next to nothing): in windows of ``window_s``,
+    √(mean over axes of their variance / 6), the median over the windows (None: less than one window). A
+    vibrating frame shows here in m/s² on the accelerometer."""
+    if not (np.isfinite(period) and period > 0) or len(values) < 3:
+        return None
+    x = np.asarray(values, np.float64)
+    same = (seg[:-2] == seg[1:-1]) & (seg[1:-1] == seg[2:])
+    d = (x[:-2] - 2.0 * x[1:-1] + x[2:])[same]
+    d = d[np.all(np.isfinite(d), axis=1)]
+    k = max(8, int(round(window_s / period)))
+    m = len(d) // k
+    if m < 1:
+        return None
+    v = d[: m * k].reshape(m, k, -1).var(axis=1).mean(axis=1) / 6.0
+    return float(np.sqrt(np.median(v)))
 

@@ -280,3 +280,26 @@ def test_info_says_a_stretch_logged_at_a_lower_rate_in_one_line(tmp_path, capsys
     # scattered dropouts are no stretch: fewer than MIN_SLOWER_RUN in a row, or not all bridged
     assert slower_stretches(t, np.arange(100, 119), [True] * 19, 0.005) == []
     assert slower_stretches(t, np.arange(100, 130), [True] * 10 + [False] + [True] * 19, 0.005) == []
+
+
+def test_info_reads_the_sensors_noise_per_sample_through_motion():
+    # white noise of known σ on a 200-Hz record whose signal swings at 5 Hz, far larger than the noise:
+    # the second differences read the noise, not the motion; a segment break is not a step
+    from tepinn_flight.record_stats import sample_noise, summarize
+
+    rng = np.random.default_rng(7)
+    t = np.arange(0, 60, 0.005)
+    seg = (t >= 30).astype(np.int32)
+    swing = 3.0 * np.sin(2 * np.pi * 5.0 * t)[:, None] * np.ones(3)
+    acc = swing + np.array([0.0, 0.0, -9.81]) + 0.4 * rng.normal(size=(len(t), 3))
+    gyr = 0.02 * swing + np.radians(0.3) * rng.normal(size=(len(t), 3))
+    assert sample_noise(acc, seg, 0.005) == pytest.approx(0.4, rel=0.05)
+    assert np.degrees(sample_noise(gyr, seg, 0.005)) == pytest.approx(0.3, rel=0.05)
+    jump = acc.copy()
+    jump[seg == 1] += 50.0  # a jump between segments is no change inside one
+    assert sample_noise(jump, seg, 0.005) == pytest.approx(sample_noise(acc, seg, 0.005), rel=1e-9)
+    assert np.std(np.diff(acc, axis=0)) / np.sqrt(2) > 1.1 * 0.4  # a first difference reads the motion too
+    assert sample_noise(acc[:5], seg[:5], 0.005) is None  # less than one window
+    rec = sample_record(n=3000)
+    st = summarize(rec)
+    assert st["acc_noise_m_s2"] == pytest.approx(sample_noise(rec.acc_m_s2, rec.segment, 1.0 / rec.meta["imu_rate_hz"]))
