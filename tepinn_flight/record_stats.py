@@ -94,7 +94,8 @@ MIN_SLOWER_RUN = 20
 def slower_stretches(t: np.ndarray, breaks: np.ndarray, bridged: list, period: float) -> list[dict]:
     """Stretches where the IMU was logged at a lower rate than the record's nominal one (a GCS lowering a
     tlog's stream rate): runs of ≥ :data:`MIN_SLOWER_RUN` consecutive breaks (every step a break by the
-    nominal period), all bridged → ``[{"from_s", "to_s", "steps", "rate_hz"}]``. The estimators fill such a
+    nominal period), all bridged → ``[{"from_s", "to_s", "steps", "first_break", "rate_hz"}]`` (``first_break``: the
+    index of its first break among the record's breaks). The estimators fill such a
     stretch at the nominal rate, as any short dropout; ``info`` says it in one line instead of one per break."""
     out: list[dict] = []
     if len(breaks) < MIN_SLOWER_RUN or not (np.isfinite(period) and period > 0):
