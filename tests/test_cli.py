@@ -215,6 +215,49 @@ def test_estimate_warns_once_when_the_imu_is_too_slow(tmp_path, capsys):
             assert "slow.parquet" in lines[0] and "10.0 Hz" in lines[0] and "too slow" in lines[0]
 
 
+def test_estimate_resume_skips_only_outputs_of_the_same_source_model_and_settings(tmp_path, capsys):
+    """``--resume`` (a killed run over a folder goes on): an output is skipped only where it carries the key of
+    this source file (name, size, time), model and settings; a touched source, other settings, a damaged output
+    or one from before the key are estimated again, and without --resume everything is."""
+    import os
+
+    import pyarrow.parquet as pq
+
+    pytest.importorskip("torch")
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    src = tmp_path / "in"
+    src.mkdir()
+    for seed in (1, 2):
+        write_record(synthetic_record(seed=seed, duration_s=12.0, rate_hz=100.0), src / f"s{seed}.parquet")
+    out = tmp_path / "out"
+
+    def run(*extra):
+        capsys.readouterr()
+        assert main(["estimate", str(src), "-o", str(out), *extra]) == 0
+        lines = capsys.readouterr().out.splitlines()
+        return {ln.split(" -> ")[0].rsplit("/", 1)[-1]: "skipped (--resume)" in ln for ln in lines if " -> " in ln}
+
+    assert run() == {"s1.parquet": False, "s2.parquet": False}
+    key = pq.read_schema(out / "s1.parquet").metadata[b"estimate_key"]
+    stamp = (out / "s1.parquet").stat().st_mtime_ns
+    assert run("--resume") == {"s1.parquet": True, "s2.parquet": True}
+    assert (out / "s1.parquet").stat().st_mtime_ns == stamp  # not written again
+    st = (src / "s1.parquet").stat()
+    os.utime(src / "s1.parquet", ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))  # the source changed
+    assert run("--resume") == {"s1.parquet": False, "s2.parquet": True}
+    assert pq.read_schema(out / "s1.parquet").metadata[b"estimate_key"] != key
+    assert run("--resume", "--no-smooth") == {"s1.parquet": False, "s2.parquet": False}  # other settings
+    (out / "s2.parquet").write_bytes((out / "s2.parquet").read_bytes()[:100])  # damaged (not by us: writes are atomic)
+    assert run("--resume", "--no-smooth") == {"s1.parquet": True, "s2.parquet": False}
+    assert run("--no-smooth") == {"s1.parquet": False, "s2.parquet": False}
+    table = pq.read_table(out / "s1.parquet")  # an output written before outputs carried the key
+    meta = {k: v for k, v in table.schema.metadata.items() if k != b"estimate_key"}
+    pq.write_table(table.replace_schema_metadata(meta), out / "s1.parquet")
+    assert run("--resume", "--no-smooth") == {"s1.parquet": False, "s2.parquet": True}
+
+
 @pytest.mark.slow
 def test_estimate_workers_give_the_one_process_estimates_and_go_on_past_a_bad_record(tmp_path, capsys):
     """``--workers 2``: the same outputs as one process (to 1e-6: a worker runs the network on one thread),

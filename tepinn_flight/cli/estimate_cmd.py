@@ -84,6 +84,10 @@ def add_arguments(p) -> None:
                    help="estimate messages in the tlog, comma-separated: attitude_quaternion, attitude, debug_vect "
                         "(TP_RPY, deg), named_value (tp_roll/tp_pitch/tp_yaw, deg); default attitude_quaternion,debug_vect")
     p.add_argument("--tlog-rate", type=float, default=50.0, metavar="HZ", help="estimates per second of log time in the tlog (default 50)")
+    p.add_argument("--resume", action="store_true",
+                   help="skip a record whose output is already there, made from the same source file (size and time) "
+                        "by the same model and settings (each output carries that key): a killed run over a folder "
+                        "of logs goes on where it stopped")
     add_recursive(p)
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors and warnings (no progress bar)")
 
@@ -144,7 +148,8 @@ def _run(args) -> int:
         check_output(dst)
     from tqdm import tqdm
 
-    opts = _Options(args.quiet, args.tlog_messages, args.tlog_rate, args.source_log, ckpt_path.name)
+    opts = _Options(args.quiet, args.tlog_messages, args.tlog_rate, args.source_log, ckpt_path.name,
+                    _settings_key(ckpt_path, fusion), args.resume)  # fmt: skip
     jobs = [(src, dst, tlogs[i] if tlogs else None) for i, (src, dst) in enumerate(zip(paths, outs))]
     n_workers = min(args.workers, len(jobs))
     if n_workers > 1:  # one record per worker process at a time, each with its own runtime on one thread
@@ -171,6 +176,39 @@ class _Options:
     tlog_rate: float
     source_log: str | None
     model_name: str
+    settings_key: str = ""  # the model file and the estimator's settings (:func:`_settings_key`)
+    resume: bool = False
+
+
+def _settings_key(ckpt_path, fusion) -> str:
+    """What an output depends on besides its source: the model file's bytes and every estimator setting."""
+    import hashlib
+
+    from .. import __version__
+    from ..model.runtime import file_sha256
+
+    return hashlib.sha256(f"{__version__}|{file_sha256(ckpt_path)}|{fusion!r}".encode()).hexdigest()
+
+
+def _output_key(opts: _Options, src) -> str:
+    """The key an output of ``src`` carries (``estimate_key`` in its metadata): the settings' and the source
+    file's name, size and modification time."""
+    import hashlib
+    from pathlib import Path
+
+    st = Path(src).stat()
+    return hashlib.sha256(f"{opts.settings_key}|{Path(src).name}|{st.st_size}|{st.st_mtime_ns}".encode()).hexdigest()[:32]
+
+
+def _up_to_date(dst, key: str) -> bool:
+    """``dst`` exists, is a readable Parquet file and carries ``key`` (written atomically: then it is whole)."""
+    import pyarrow.parquet as pq
+
+    try:
+        meta = pq.read_schema(dst).metadata or {}
+    except (OSError, ValueError):
+        return False
+    return meta.get(b"estimate_key") == key.encode()
 
 
 def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[list[str], list[str], int]:
@@ -186,6 +224,11 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
     from ..record import atomic_write
 
     out, err = [], []
+    key = _output_key(opts, src)
+    if opts.resume and _up_to_date(dst, key) and (tlog_dst is None or tlog_dst.exists()):
+        if not opts.quiet:
+            out.append(f"{src} -> {dst}: up to date (the same source, model and settings), skipped (--resume)")
+        return out, err, 0
     try:
         rec = load_record(src)
         if not opts.quiet and sniff(src) != "parquet":
@@ -210,6 +253,7 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
     # what the record's own calibration, GNSS velocity and rests gave, and where the network's gates acted
     found = {k: df.attrs[k] for k in REPORTED_STEPS if df.attrs.get(k)}
     table = table.replace_schema_metadata({b"source_record": str(src.name).encode(), b"model": str(opts.model_name).encode(),
+                                           b"estimate_key": key.encode(),
                                            **{k.encode(): v.encode() for k, v in found.items()}})  # fmt: skip
     atomic_write(dst, lambda tmp: pq.write_table(table, tmp))
     if not opts.quiet:
