@@ -277,6 +277,7 @@ def test_info_says_a_stretch_logged_at_a_lower_rate_in_one_line(tmp_path, capsys
     out = capsys.readouterr().out
     assert "IMU at 25.0 Hz from t=9.995 s to 18.000 s: each of its 200 steps a break" in out
     assert out.count("break at t=") == 1 and "step +0.500 s" in out  # the one plain break, not 200 lines
+    assert "15.0 s in segments, 8.0 s more across the dropouts the estimators bridge (span 23.5 s)" in out
     # scattered dropouts are no stretch: fewer than MIN_SLOWER_RUN in a row, or not all bridged
     assert slower_stretches(t, np.arange(100, 119), [True] * 19, 0.005) == []
     assert slower_stretches(t, np.arange(100, 130), [True] * 10 + [False] + [True] * 19, 0.005) == []

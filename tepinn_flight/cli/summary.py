@@ -22,7 +22,10 @@ def render_info(path, s: dict) -> str:
     add("format", s.get("format"))
     add("vehicle", s.get("vehicle_type"))
     add("autopilot/firmware", f"{s.get('autopilot')} / {s.get('firmware')}")
-    add("duration", f"{s.get('duration_s', 0):.1f} s in segments (span {s.get('span_s', 0):.1f} s)")
+    bridged_s = sum(g["gap_s"] for g in s.get("gaps", []) if g.get("bridged"))
+    add("duration", f"{s.get('duration_s', 0):.1f} s in segments"
+        + (f", {bridged_s:.1f} s more across the dropouts the estimators bridge" if bridged_s >= 0.05 else "")
+        + f" (span {s.get('span_s', 0):.1f} s)")  # fmt: skip
     add("samples", s.get("samples"))
     inst = s.get("imu_instances") or []
     if inst:
