@@ -134,6 +134,16 @@ def run_pymavlink(path: Path):
     return (time.perf_counter() - t0, time.process_time() - c0), out
 
 
+def output_nbytes(raw) -> int:
+    """Bytes of every array a read() returns: its streams (IMU, magnetometer, reference, GNSS velocity), the
+    valid mask and the extra columns (before session 30 the GNSS stream, added in session 14, was left out)."""
+    arrays = [a for s in (raw.imu, raw.mag, raw.ref, raw.gnss) if s is not None for a in vars(s).values()
+              if isinstance(a, np.ndarray)]  # fmt: skip
+    arrays += [raw.valid] if isinstance(raw.valid, np.ndarray) else []
+    arrays += [a for a in raw.extra.values() if isinstance(a, np.ndarray)]
+    return sum(a.nbytes for a in arrays)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--mb", type=float, default=42.0, help="size of each test tlog in MB (default 42)")
@@ -181,13 +191,7 @@ def main() -> int:
             raw2 = tlog.read(path)
             peak = tracemalloc.get_traced_memory()[1]
             tracemalloc.stop()
-            out_bytes = sum(
-                a.nbytes
-                for s in (raw2.imu, raw2.mag, raw2.ref)
-                if s is not None
-                for a in vars(s).values()
-                if isinstance(a, np.ndarray)
-            )
+            out_bytes = output_nbytes(raw2)
             del raw2
 
             (t_pm, c_pm), pm = run_pymavlink(path)

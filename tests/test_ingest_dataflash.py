@@ -438,3 +438,30 @@ def test_merged_epochs_follow_detect_epochs():
     assert expected.max() == 2
     for k in range(3):
         np.testing.assert_array_equal(eps[k], expected[lab == k])
+
+
+def test_the_text_kernels_split_lines_and_fields_as_python_does():
+    """`dataflash_text_kernels`: lines, first commas and comma counts, and one field's bounds, against Python's own
+    split on crafted bytes — empty lines, lines without a comma, a trailing comma, carriage returns, no newline at
+    the end, and fields asked past a line's end."""
+    from tepinn_flight.ingest.dataflash_text_kernels import field_bounds, line_table
+
+    text = b"FMT, 1, 2, IMU\n\nPARM, AHRS_TRIM_X , 0.02\r\nNOCOMMA\nMSG, a,b, c,\nMODE,,x\nLAST, 1, 2"
+    data = np.frombuffer(text, np.uint8)
+    lines = text.split(b"\n")
+    n = text.count(b"\n") + 1
+    starts, ends, first, commas = (np.empty(n, np.int64) for _ in range(4))
+    assert line_table(data, starts, ends, first, commas) == n == len(lines)
+    for k, ln in enumerate(lines):
+        assert text[starts[k] : ends[k]] == ln
+        assert first[k] == (starts[k] + ln.index(b",") if b"," in ln else -1)
+        assert commas[k] == ln.count(b",")
+    rows = np.flatnonzero(first >= 0)
+    for i in range(5):
+        for last in (False, True):
+            lo, hi = np.empty(len(rows), np.int64), np.empty(len(rows), np.int64)
+            field_bounds(data, first[rows], ends[rows], i, last, lo, hi)
+            for r, a, b in zip(rows, lo, hi):
+                rest = lines[r][lines[r].index(b",") + 1 :]
+                parts = rest.split(b",", i if last else i + 1)
+                assert text[a:b] == (parts[i] if len(parts) > i else b""), (lines[r], i, last)

@@ -158,6 +158,23 @@ def test_scan_is_chunk_invariant():
         assert small.frames[t].fields.tobytes() == big.frames[t].fields.tobytes()
 
 
+def test_scan_keeps_only_the_fields_asked_for_with_the_same_values():
+    path = real_log("ardusub_small.tlog")
+    keep = {"ATTITUDE": ("time_boot_ms", "roll", "pitch", "yaw"), "GPS_RAW_INT": ("time_usec", "vel", "cog")}
+    full = scan_tlog(path, ["ATTITUDE", "GPS_RAW_INT", "RAW_IMU"])
+    some = scan_tlog(path, ["ATTITUDE", "GPS_RAW_INT", "RAW_IMU"], keep_fields=keep, chunk_bytes=1 << 16)
+    for name, fields in keep.items():
+        a, b = full.frames[name], some.frames[name]
+        assert b.fields.dtype.names == fields and b.fields.dtype.itemsize < a.fields.dtype.itemsize
+        assert len(b.fields) == len(a.fields) > 0
+        np.testing.assert_array_equal(b.offset, a.offset)
+        for f in fields:
+            np.testing.assert_array_equal(b.fields[f], a.fields[f])
+    assert some.frames["RAW_IMU"].fields.dtype == full.frames["RAW_IMU"].fields.dtype  # not named: every field
+    with pytest.raises(KeyError, match="ATTITUDE has no field"):
+        scan_tlog(path, ["ATTITUDE"], keep_fields={"ATTITUDE": ("roll", "altitude")})
+
+
 def test_crc_table_matches_pymavlink():
     from pymavlink.mavutil import x25crc
 
@@ -281,6 +298,40 @@ def test_reference_selection_and_euler_conversion(tmp_path):
         read_raw(path, reference="XKQ")
     with pytest.raises(ConfigError, match="available: ATTITUDE$"):
         read_raw(real_log("uavlv_vtol.tlog"), reference="ATTITUDE_QUATERNION")
+
+
+def test_a_reference_written_out_of_order_is_sorted_and_turned_by_the_trim_row_by_row(tmp_path):
+    # ArduPilot (its RAW_IMU in mG / mrad/s) with AHRS_TRIM_X/Y set and its ATTITUDE rows written out of time order
+    # (pairs swapped): the reference comes out in time order, each row scipy's ZYX Euler → quaternion turned by the
+    # trim (the reader sorts the rows before making the quaternions and turns them in place, block by block)
+    from pymavlink.dialects.v20 import all as m2
+
+    from tepinn_flight.ingest.ahrs_trim import trim_quat
+    from tepinn_flight.quat import quat_mul
+
+    ap = _mav(1, 1)
+    rng = np.random.default_rng(3)
+    n = 9000  # more rows than one block of the trim's product
+    att = [(10_000 + 20 * k, *rng.uniform(-1, 1, 3)) for k in range(n)]
+    order = np.arange(n)
+    for k in range(0, n - 1, 7):
+        order[k], order[k + 1] = order[k + 1], order[k]
+    items = [(ap, m2.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3), {})]
+    items += [(ap, m2.MAVLink_param_value_message(name.encode(), val, 9, 2, 0), {})
+              for name, val in (("AHRS_TRIM_X", 0.02), ("AHRS_TRIM_Y", -0.03))]  # fmt: skip
+    for k in range(n):
+        tb = 10_000 + 20 * k
+        items.append((ap, m2.MAVLink_raw_imu_message(tb * 1000, 0, 0, -1000, 1, 2, 3, 0, 0, 0), {}))
+        items.append((ap, m2.MAVLink_attitude_message(*att[order[k]], 0, 0, 0), {}))
+    path = _write(tmp_path / "ap.tlog", items)
+    raw = read_raw(path)
+    assert raw.ref.source == "ATTITUDE" and raw.meta["ahrs_trim_rad"] == pytest.approx([0.02, -0.03])
+    a = np.array(att, np.float64)
+    np.testing.assert_array_equal(raw.ref.t_s, a[:, 0] / 1e3)  # in time order
+    rpy = a[:, 1:].astype(np.float32).astype(np.float64)
+    q = Rotation.from_euler("ZYX", rpy[:, ::-1]).as_quat(scalar_first=True)
+    q = quat_mul(q, trim_quat(np.float32(0.02).item(), np.float32(-0.03).item()))
+    np.testing.assert_allclose(np.abs(np.sum(raw.ref.q_nb_wxyz * q, axis=1)), 1.0, atol=1e-9)
 
 
 def test_raw_imu_of_unknown_scale_is_refused(tmp_path):

@@ -1,42 +1,43 @@
 """Text DataFlash logs (``.log``): the :class:`~.dataflash_source.DataflashSource` of ``NAME, v1, ...`` lines.
 
-Lines are classified with numpy and the wanted lines parsed by pandas' C CSV parser (memory ≈ a
-few times the file size: text logs are small).
+The file is mapped, its lines and their commas found in one compiled pass (:mod:`.dataflash_text_kernels`),
+classified with numpy, and the wanted lines' columns parsed by pandas' C CSV parser, each column once, when first
+asked for (memory ≈ a few times the file size: text logs are small).
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import mmap
 import os
 
 import numpy as np
 import pandas as pd
 
 from . import dataflash_scan as dfs
+from .dataflash_text_kernels import NEWLINE, field_bounds, line_table
 
 
 class TextSource:
     """Text log: ``NAME, v1, v2, ...`` lines.
 
-    Lines are classified with numpy (line starts, first comma, a key from the ≤ 4-character
-    message name), so Python touches only the FMT lines and the wanted messages' lines; numeric
-    tables are parsed by pandas' C CSV parser.
+    Lines are classified by a key from their ≤ 4-character message name (before the first comma), so
+    Python touches only the FMT lines and the wanted messages' lines; numeric columns are parsed by
+    pandas' C CSV parser.
     """
 
     kind = "text"
 
     def __init__(self, path: str | os.PathLike, wanted_names: set[str], counted_names: set[str] = frozenset()):
-        with open(path, "rb") as f:
-            self._raw = f.read()
+        with open(path, "rb") as f:  # mapped, not copied (a text log of tens of MB: its pages come from the cache)
+            size = os.fstat(f.fileno()).st_size
+            self._raw = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if size else b""
         data = np.frombuffer(self._raw, np.uint8)
-        nl = np.flatnonzero(data == 10)
-        starts = np.concatenate([[0], nl + 1]).astype(np.int64)
-        ends = np.concatenate([nl, [len(data)]]).astype(np.int64)
-        self._commas = commas = np.flatnonzero(data == 44)
-        ci = np.searchsorted(commas, starts)
-        first = commas[np.minimum(ci, max(len(commas) - 1, 0))] if len(commas) else np.full(len(starts), -1)
-        has = (ci < len(commas)) & (first < ends)
+        n_lines = int(np.count_nonzero(data == NEWLINE)) + 1
+        starts, ends, first, n_commas = (np.empty(n_lines, np.int64) for _ in range(4))
+        line_table(data, starts, ends, first, n_commas)  # one compiled pass: lines, first commas, commas per line
+        has = first >= 0
         keys = np.full(len(starts), -1, np.int64)
         nlen = np.where(has, first - starts, 0)
         okn = has & (nlen >= 1) & (nlen <= 4)
@@ -47,6 +48,7 @@ class TextSource:
                 k |= np.where(j < ln, data[np.minimum(s0 + j, len(data) - 1)].astype(np.int64), 0) << (8 * j)
             keys[okn] = k | (ln << 32)
         self._starts, self._first, self._ends, self._keys = starts, first, ends, keys
+        self._n_commas = n_commas  # per line: its commas, the message name's included
 
         fmt_key = _name_key("FMT")
         self.formats: dict[str, dfs.MsgFormat] = {}
@@ -74,7 +76,9 @@ class TextSource:
             for name, k in self._name_keys.items()
             if name in wanted_names or name in counted_names
         }
-        self._cache: dict[str, np.ndarray] = {}
+        self._cache: dict[tuple[str, int], np.ndarray] = {}  # (message, column) -> its values per line
+        self._joined: dict[str, tuple[np.ndarray, bytes]] = {}
+        self._str_cache: dict[tuple[str, str], list[str]] = {}
         self.corrupt_frames = bad_fmt
         self.skipped_frames = unknown
         self.notes = []
@@ -104,53 +108,79 @@ class TextSource:
         rows = self._rows.get(name)
         return np.zeros(0, np.int64) if rows is None else self._starts[rows]
 
-    def _numeric(self, name: str) -> np.ndarray:
-        """``(n, ncols)`` float64 of one message's lines; strings and malformed rows are NaN."""
-        if name in self._cache:
-            return self._cache[name]
+    def _lines(self, name: str) -> tuple[np.ndarray, bytes]:
+        """(which of the message's lines have its number of fields, those lines joined by newlines), made once per
+        message; a line with another number of fields is counted and said once."""
+        got = self._joined.get(name)
+        if got is None:
+            k = len(self.formats[name].fmt)
+            rows = self._rows.get(name, np.zeros(0, np.int64))
+            good = np.zeros(len(rows), bool)
+            joined = b""
+            if len(rows) and k:
+                a, e = self._first[rows] + 1, self._ends[rows]
+                good = self._n_commas[rows] - 1 == k - 1  # the commas after the name's
+                if not good.all():
+                    self.corrupt_frames += int((~good).sum())
+                    self.notes.append(f"{int((~good).sum())} {name} line(s) with a wrong number of fields skipped")
+                raw = self._raw
+                joined = b"\n".join([raw[x:y] for x, y in zip(a[good].tolist(), e[good].tolist())])
+            got = self._joined[name] = (good, joined)
+        return got
+
+    def _columns(self, name: str, idx: list[int]) -> np.ndarray:
+        """``(n, len(idx))`` float64 of those columns of the message's lines; strings and malformed lines NaN.
+        Each column is parsed once, when first asked for (pandas' C parser reads only the columns it is given)."""
         mf = self.formats[name]
         k = len(mf.fmt)
-        rows = self._rows.get(name, np.zeros(0, np.int64))
-        out = np.full((len(rows), k), np.nan)
-        if len(rows) and k:
-            a, e = self._first[rows] + 1, self._ends[rows]
-            n_commas = np.searchsorted(self._commas, e) - np.searchsorted(self._commas, a)
-            good = n_commas == k - 1
-            if not good.all():
-                self.corrupt_frames += int((~good).sum())
-                self.notes.append(f"{int((~good).sum())} {name} line(s) with a wrong number of fields skipped")
-            raw = self._raw
-            joined = b"\n".join([raw[x:y] for x, y in zip(a[good].tolist(), e[good].tolist())])
-            num = [c for c, ch in enumerate(mf.fmt) if ch not in dfs.STRING_CHARS and ch != "a"]
+        todo = [j for j in dict.fromkeys(idx) if (name, j) not in self._cache]
+        if todo:
+            good, joined = self._lines(name)
+            num = [j for j in todo if mf.fmt[j] not in dfs.STRING_CHARS and mf.fmt[j] != "a"]
+            cols = {j: np.full(len(good), np.nan) for j in todo}
             if good.any() and num:
-                out[np.ix_(good, num)] = _parse_csv(joined, k, num, int(good.sum()))
-        self._cache[name] = out
-        return out
+                parsed = _parse_csv(joined, k, num, int(good.sum()))
+                for c, j in enumerate(num):
+                    cols[j][good] = parsed[:, c]
+            for j in todo:
+                self._cache[(name, j)] = cols[j]
+        n = len(self._rows.get(name, ()))
+        return np.column_stack([self._cache[(name, j)] for j in idx]) if idx else np.zeros((n, 0))
 
     def instance_column(self, name: str, col: str) -> np.ndarray:
-        return self._numeric(name)[:, self.formats[name].columns.index(col)]
+        return self._columns(name, [self.formats[name].columns.index(col)])[:, 0]
 
     def instance_counts(self, name: str, col: str) -> dict[int, int]:
         v, n = np.unique(self.instance_column(name, col), return_counts=True)
         return {int(a): int(b) for a, b in zip(v, n) if np.isfinite(a)}
 
     def table(self, name: str, cols: tuple[str, ...], rows: np.ndarray | None = None) -> np.ndarray:
-        arr = self._numeric(name)
         mf = self.formats[name]
-        idx = [mf.columns.index(c) for c in cols]
-        return arr[:, idx] if rows is None else arr[np.ix_(rows, idx)]
+        arr = self._columns(name, [mf.columns.index(c) for c in cols])
+        return arr if rows is None else arr[rows]
 
     def strings(self, name: str, col: str) -> list[str]:
+        """One column of a message's lines as text (a copy of a list made once per column: a log's PARM
+        names are asked for once per parameter read, and each pass is a Python loop over its lines)."""
         mf = self.formats.get(name)
         if mf is None or col not in mf.columns:
             return []
-        i = mf.columns.index(col)
-        last = i == len(mf.columns) - 1
-        out = []
-        for r in self._rows.get(name, []):
-            parts = self._line(r, self._first[r] + 1).split(",", i if last else i + 1)
-            out.append(parts[i].strip() if len(parts) > i else "")
-        return out
+        got = self._str_cache.get((name, col))
+        if got is None:
+            got = self._column_text(np.asarray(self._rows.get(name, np.zeros(0, np.int64))), mf.columns.index(col),
+                                    mf.columns.index(col) == len(mf.columns) - 1)  # fmt: skip
+            self._str_cache[(name, col)] = got
+        return list(got)
+
+    def _column_text(self, rows: np.ndarray, i: int, last: bool) -> list[str]:
+        """Field ``i`` (after the message name) of the lines ``rows``, stripped; the last field runs to the line's
+        end (commas and all); a line with fewer fields gives "". Its bounds: a compiled walk of each line."""
+        if len(rows) == 0:
+            return []
+        start, end = np.empty(len(rows), np.int64), np.empty(len(rows), np.int64)
+        field_bounds(np.frombuffer(self._raw, np.uint8), self._first[rows], self._ends[rows], i, last, start, end)
+        raw = self._raw
+        return [raw[a:b].decode("utf-8", "replace").strip() for a, b in zip(start.tolist(), end.tolist())]
 
 
 def _parse_csv(data: bytes, ncols: int, numeric: list[int], n_lines: int) -> np.ndarray:

@@ -160,10 +160,12 @@ _CRC_SLICES = crc_slices(_CRC_TABLE)
 
 
 class _Acc:
-    """Per-message accumulation of decoded chunks."""
+    """Per-message accumulation of decoded chunks (of every field, or of ``keep``'s only: memory)."""
 
-    def __init__(self, lay: MsgLayout):
+    def __init__(self, lay: MsgLayout, keep: tuple[str, ...] | None = None):
         self.lay = lay
+        self.keep = keep
+        self.dtype = lay.dtype if keep is None else np.dtype([(f, lay.dtype.fields[f][0]) for f in keep])
         self.parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
 
     def add(self, buf, rec, pstart, plen, sysid, compid, base):
@@ -179,16 +181,20 @@ class _Acc:
             part[cols[None, :] >= plen[short, None]] = 0
             mat[short] = part
         rows = mat.view(lay.dtype).reshape(n)
+        if self.keep is not None:  # the fields asked for, packed (the chunk's full rows are dropped)
+            full, rows = rows, np.empty(n, self.dtype)
+            for f in self.keep:
+                rows[f] = full[f]
         self.parts.append((rec.astype(np.int64) + base, sysid.copy(), compid.copy(), rows))
 
     def result(self) -> Frames:
         if not self.parts:
             z = np.zeros(0, np.int64)
-            return Frames(self.lay.name, z, z.astype(np.uint8), z.astype(np.uint8), np.zeros(0, self.lay.dtype))
+            return Frames(self.lay.name, z, z.astype(np.uint8), z.astype(np.uint8), np.zeros(0, self.dtype))
         # filled part by part, each part dropped once copied: memory is the result plus one part
         n = sum(len(p[0]) for p in self.parts)
         out = Frames(self.lay.name, np.empty(n, np.int64), np.empty(n, np.uint8), np.empty(n, np.uint8),
-                     np.empty(n, self.lay.dtype))  # fmt: skip
+                     np.empty(n, self.dtype))  # fmt: skip
         k = 0
         self.parts.reverse()
         while self.parts:
@@ -200,15 +206,21 @@ class _Acc:
 
 
 def scan_tlog(
-    path: str | os.PathLike, names: Iterable[str], chunk_bytes: int = DEFAULT_CHUNK_BYTES
+    path: str | os.PathLike, names: Iterable[str], chunk_bytes: int = DEFAULT_CHUNK_BYTES,
+    keep_fields: dict[str, tuple[str, ...]] | None = None,
 ) -> ScanResult:
-    """Decode the good frames of the messages ``names`` from the tlog at ``path``."""
+    """Decode the good frames of the messages ``names`` from the tlog at ``path``; ``keep_fields``: for the
+    messages it names, only those fields are kept (in that order, packed: the rest is never stored)."""
     known_tab, extra_tab = _id_tables()
+    keep_fields = keep_fields or {}
     lays = {}
     for nm in names:
         lay = layout(nm)
         lays[lay.msgid] = lay
-    accs = {mid: _Acc(lay) for mid, lay in lays.items()}
+        missing = [f for f in keep_fields.get(nm, ()) if f not in lay.dtype.names]
+        if missing:
+            raise KeyError(f"{nm} has no field(s) {', '.join(missing)}")
+    accs = {mid: _Acc(lay, keep_fields.get(lay.name)) for mid, lay in lays.items()}
     wanted = np.zeros(_MAX_ID, bool)
     wanted[list(lays)] = True
 

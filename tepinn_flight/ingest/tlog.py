@@ -94,6 +94,18 @@ REF_MESSAGES = ("ATTITUDE_QUATERNION", "ATTITUDE")
 META_MESSAGES = ("HEARTBEAT", "AUTOPILOT_VERSION", "PARAM_VALUE")
 #: The receiver's velocity, the clock that maps its UNIX time to boot time, and the fallback.
 GNSS_MESSAGES = ("GPS_RAW_INT", "SYSTEM_TIME", "GLOBAL_POSITION_INT")
+#: The fields read of the messages besides the IMU's (the scan stores these only: a 42-MB tlog's ATTITUDE at
+#: 10× the IMU's rate held 28 bytes a row for the 16 read; session 30: peak memory over 2× the output)
+KEEP_FIELDS = {
+    "ATTITUDE": ("time_boot_ms", "roll", "pitch", "yaw"),
+    "ATTITUDE_QUATERNION": ("time_boot_ms", "q1", "q2", "q3", "q4"),
+    "HEARTBEAT": ("type", "autopilot"),
+    "AUTOPILOT_VERSION": ("flight_sw_version", "flight_custom_version"),
+    "PARAM_VALUE": ("param_id", "param_value"),
+    "GPS_RAW_INT": ("time_usec", "fix_type", "vel", "cog"),
+    "SYSTEM_TIME": ("time_unix_usec", "time_boot_ms"),
+    "GLOBAL_POSITION_INT": ("time_boot_ms", "vx", "vy"),
+}
 MIN_3D_FIX = 3  # GPS_FIX_TYPE_3D_FIX (4..8: DGPS, RTK float/fixed, static, PPP)
 GPS_UNKNOWN_U16 = 65535  # GPS_RAW_INT vel / cog: unknown
 
@@ -109,7 +121,7 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     """Parse a MAVLink tlog into raw streams (SI units, the autopilot's own clock)."""
     names = (*IMU_MESSAGES, *REF_MESSAGES, *META_MESSAGES, *GNSS_MESSAGES)
     try:
-        scan = scan_tlog(path, names)
+        scan = scan_tlog(path, names, keep_fields=KEEP_FIELDS)
     except OSError as exc:
         raise CorruptLog(f"cannot read the tlog ({exc.strerror or exc})") from None
     notes: list[str] = []
@@ -246,17 +258,22 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
             notes.append(f"{rname} and {sel['name']} use different clocks (boot vs UNIX): no reference")
         else:
             o = _time_order(r["t_s"], r["epoch"])
-            q = _ref_quaternions(rname, r.pop("fields"), r["norm"])
+            f, norm = r.pop("fields"), r["norm"]
+            if not isinstance(o, slice):  # in time order before the quaternions are made (memory: a row of the
+                f, norm = f[o], norm[o]  # fields is half a quaternion's 32 bytes; the same numbers row by row)
+            q = _ref_quaternions(rname, f, norm)
+            del f
             if autopilot == "ardupilot":  # ArduPilot reports the vehicle's attitude (.ahrs_trim)
                 trim = usable_trim(*(params.get(n) for n in TRIM_PARAMS))
                 if trim is not None:
-                    q = vehicle_to_board(q, *trim)
+                    for i in range(0, len(q), _BLOCK):  # in place, block by block (row by row the same product)
+                        q[i : i + _BLOCK] = vehicle_to_board(q[i : i + _BLOCK], *trim)
                     trim_meta = list(trim)
                     notes.append(trim_note(rname, trim))
                 elif not all(n in params for n in TRIM_PARAMS):
                     notes.append(f"reference {rname} is ArduPilot's vehicle attitude and the tlog holds no AHRS_TRIM_X/Y "
                                  "(the ground station fetched no parameters): a level trim, if set, stays in it")  # fmt: skip
-            ref = RefStream(t_s=r["t_s"][o], q_nb_wxyz=q[o], source=rname, epoch=r["epoch"][o])
+            ref = RefStream(t_s=r["t_s"][o], q_nb_wxyz=q, source=rname, epoch=r["epoch"][o])
     del refs
 
     meta = {
