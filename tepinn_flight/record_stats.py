@@ -129,4 +129,3 @@ def sample_noise(values: np.ndarray, seg: np.ndarray, period: float, window_s: f
         return None
     v = d[: m * k].reshape(m, k, -1).var(axis=1).mean(axis=1) / 6.0
     return float(np.sqrt(np.median(v)))
-

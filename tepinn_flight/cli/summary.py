@@ -57,9 +57,11 @@ def render_info(path, s: dict) -> str:
         lost, n = s.get("lost_steps", 0), s["steps"]
         add("sample steps", f"{lost} of {n} ({100 * lost / n:.2f} %) of about two periods (a sample lost; the gyro is "
             f"integrated over each step's time), jitter {100 * s.get('step_jitter', 0):.1f} % of the period (σ)")  # fmt: skip
-    if s.get("acc_noise_m_s2") is not None:
-        add("sample noise", f"accelerometer {s['acc_noise_m_s2']:.3f} m/s², gyro {s['gyr_noise_deg_s']:.3f} °/s per sample "
-            "and axis (from second differences, median over 1-s windows; a vibrating frame shows here, fast motion adds)")  # fmt: skip
+    noise = [f"{what} {s[k]:.3f} {unit}" for what, k, unit in (("accelerometer", "acc_noise_m_s2", "m/s²"),
+                                                              ("gyro", "gyr_noise_deg_s", "°/s")) if s.get(k) is not None]  # fmt: skip
+    if noise:  # (each needs a second's finite samples in one segment)
+        add("sample noise", ", ".join(noise) + " per sample and axis (from second differences, median over 1-s windows; "
+            "a vibrating frame shows here, fast motion adds)")  # fmt: skip
     add("max angular rate", f"{s.get('max_rate_deg_s', 0):.0f} deg/s (per axis {s.get('max_axis_rate_deg_s')})")
     clip = s.get("clipped_samples")
     if "gyr_clipped_samples" in s:

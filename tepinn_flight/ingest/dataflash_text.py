@@ -119,7 +119,7 @@ class TextSource:
             joined = b""
             if len(rows) and k:
                 a, e = self._first[rows] + 1, self._ends[rows]
-                good = self._n_commas[rows] - 1 == k - 1  # the commas after the name's
+                good = self._n_commas[rows] == k  # the name's comma and one before each later field
                 if not good.all():
                     self.corrupt_frames += int((~good).sum())
                     self.notes.append(f"{int((~good).sum())} {name} line(s) with a wrong number of fields skipped")
