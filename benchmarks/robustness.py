@@ -63,6 +63,11 @@ files, and low IMU rates on held-out simulated flights that saturate the gyro or
 15. `--gyro-bias-ramps 1,3`: a gyro bias growing linearly from 0 to N °/s (x, −y, z) over each real file (a gyro
    warming up). Off by default (session 30).
 
+16. `--acc-scale-gyro-noise 2`: the `--acc-scales` conditions again with white noise of N °/s added to the gyro (the
+   draws of `--gyro-noise`): a mis-scaled accelerometer on a noisy board. Session 31 (rule 21): at 2 °/s no sample was
+   quiet enough for the scale reading (its 0.5-s mean |ω| under 0.05 rad/s), so × 1.25 went unread — seen BROAD
+   1.004° against VQF's 0.731°, three trials over the per-file bound; now 0.526°. Off by default.
+
 `--broad-every N` takes every N-th shared BROAD trial (default 3; 1: all 17); `--seen-only` leaves the
 held-out drone logs out (a check that must not look at them).
 
@@ -71,7 +76,7 @@ held-out drone logs out (a check that must not look at them).
                                     [--start-cuts 30,40,50] [--mounts 90:0:0] [--real-rates 6,11]
                                     [--lost-samples 0.02] [--stamp-jitter 0.15] [--lost-factor 6]
                                     [--acc-vibration 3] [--acc-biases 0.3] [--gyro-noise 2] [--gyro-bias-ramps 1,3]
-                                    [--broad-every 3] [--seen-only]
+                                    [--acc-scale-gyro-noise 2] [--broad-every 3] [--seen-only]
 """
 
 from __future__ import annotations
@@ -109,6 +114,7 @@ def main() -> int:
     ap.add_argument("--acc-biases", default="", help="accelerometer offsets, m/s² (+x, +y, −z), comma-separated ('': skip)")
     ap.add_argument("--gyro-noise", default="", help="gyro white noise, °/s RMS per sample and axis, comma-separated ('': skip)")
     ap.add_argument("--gyro-bias-ramps", default="", help="gyro bias growing from 0 to N °/s over each file, comma-separated ('': skip)")
+    ap.add_argument("--acc-scale-gyro-noise", default="", help="the --acc-scales conditions again with gyro white noise, °/s RMS per sample and axis, comma-separated ('': skip; rule 21's case: 2)")
     ap.add_argument("--lost-factor", type=int, default=1, help="decimate the real files by this first (lost samples, jitter)")
     ap.add_argument("--seen-only", action="store_true", help="leave the held-out drone logs out")
     args = ap.parse_args()
@@ -180,6 +186,11 @@ def main() -> int:
 
     for s in [float(x) for x in args.acc_scales.split(",") if x]:
         report(f"accelerometer × {s:g}", [(n, *both(changed(rec, acc=rec.acc_m_s2 * s))) for n, rec in recs])
+        for sd in [float(x) for x in args.acc_scale_gyro_noise.split(",") if x]:  # (the noise draws of --gyro-noise)
+            report(f"accelerometer × {s:g}, gyro white noise {sd:g} °/s RMS",
+                   [(n, *both(changed(rec, acc=rec.acc_m_s2 * s,
+                                      gyr=rec.gyr_rad_s + np.radians(sd) * np.random.default_rng(3000 + i).standard_normal((len(rec), 3)))))
+                    for i, (n, rec) in enumerate(recs)])  # fmt: skip
     if args.acc_clip_every > 0:
         for label, as_gyro in (("the accelerometer's (as recorded)", False), ("the gyro's (what session 8's gate did with any clipped sample)", True)):
             res = []

@@ -1,7 +1,8 @@
 """The slow, obviously-correct reference of the live accelerometer-scale reading: the plain-Python
 tracker (two deques) that :mod:`tepinn_flight.model.accel_scale_kernels` compiled, kept verbatim
-(renamed ``AccelScaleTrackerReference``). The compiled tracker must equal it bit for bit
-(``tests/test_accel_scale.py``)."""
+(renamed ``AccelScaleTrackerReference``) but for rule 21 (session 31: the quiet threshold above a noisy
+gyro's floor, the mean of |ω − ω_prev|/√2 over the same window), added here in plain Python. The compiled
+tracker must equal it bit for bit (``tests/test_accel_scale.py``)."""
 
 from __future__ import annotations
 
@@ -25,8 +26,9 @@ class AccelScaleTrackerReference:
         self.cfg = cfg or AccelScaleConfig()
         self.scale = 1.0
         self.decided: AccelScale | None = None
-        self._avg = deque()  # (t, |ω|, ax, ay, az) of the last avg_s
-        self._sums = [0.0, 0.0, 0.0, 0.0]
+        self._avg = deque()  # (t, |ω|, ax, ay, az, |ω − ω_prev|/√2) of the last avg_s
+        self._sums = [0.0, 0.0, 0.0, 0.0, 0.0]
+        self._g_prev = (0.0, 0.0, 0.0)
         self._norms = deque()  # (t, |ā|) of the last steady_s
         self._n1 = self._n2 = 0.0
         self._quiet: list[float] = []
@@ -43,27 +45,34 @@ class AccelScaleTrackerReference:
             return (ax / s, ay / s, az / s) if s != 1.0 else (ax, ay, az)
         c = self.cfg
         dt = 0.0 if self._t_prev is None else t - self._t_prev
+        d = 0.0
         if self._t_first is None or not 0.0 < dt <= MAX_STEP_S:  # the start, a time jump or a dropout:
             self._t_first, dt = t, 0.0  # the trailing windows start again (the quiet samples so far are kept)
             self._avg.clear()
             self._norms.clear()
-            self._sums = [0.0, 0.0, 0.0, 0.0]
+            self._sums = [0.0, 0.0, 0.0, 0.0, 0.0]
             self._n1 = self._n2 = 0.0
+        else:
+            e = [gyr[i] - self._g_prev[i] for i in range(3)]
+            d = math.sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]) / math.sqrt(2.0)
         self._t_prev = t
+        self._g_prev = (gyr[0], gyr[1], gyr[2])
         w = math.sqrt(gyr[0] * gyr[0] + gyr[1] * gyr[1] + gyr[2] * gyr[2])
         avg = self._avg
-        avg.append((t, w, ax, ay, az))
+        avg.append((t, w, ax, ay, az, d))
         sums = self._sums
         sums[0] += w
         sums[1] += ax
         sums[2] += ay
         sums[3] += az
+        sums[4] += d
         while t - avg[0][0] >= c.avg_s:
-            _, w0, x0, y0, z0 = avg.popleft()
+            _, w0, x0, y0, z0, d0 = avg.popleft()
             sums[0] -= w0
             sums[1] -= x0
             sums[2] -= y0
             sums[3] -= z0
+            sums[4] -= d0
         n = len(avg)
         norm = math.sqrt(sums[1] * sums[1] + sums[2] * sums[2] + sums[3] * sums[3]) / n
         norms = self._norms
@@ -79,7 +88,8 @@ class AccelScaleTrackerReference:
         m = len(norms)
         mean = self._n1 / m
         spread = math.sqrt(max(self._n2 / m - mean * mean, 0.0))
-        if sums[0] / n < c.quiet_rate_rad_s and spread < c.steady_m_s2:
+        thr = max(c.quiet_rate_rad_s, min(c.quiet_rate_cap_rad_s, c.noise_floor_factor * (sums[4] / n)))
+        if sums[0] / n < thr and spread < c.steady_m_s2:
             self._quiet.append(norm)
             self._quiet_s += dt
             if self._quiet_s >= c.min_quiet_s:

@@ -16,13 +16,13 @@ from tepinn_flight.model.checkpoint import anchor_config_from
 from .conftest import broad_trial, estimate_says_and_stores
 
 
-def _imu(seconds: float, rate_hz: float, scale: float, rate_rad_s: float = 0.0, seed: int = 0):
-    """A level IMU (specific force −g·scale on z, white noise 0.5 m/s² per axis) turning about z at
-    ``rate_rad_s``."""
+def _imu(seconds: float, rate_hz: float, scale: float, rate_rad_s: float = 0.0, seed: int = 0, gyr_noise: float = 0.01):
+    """A level IMU (specific force −g·scale on z, white noise 0.5 m/s² per axis; the gyro's ``gyr_noise``
+    rad/s per axis) turning about z at ``rate_rad_s``."""
     rng = np.random.default_rng(seed)
     n = int(seconds * rate_hz)
     t = np.arange(n) / rate_hz
-    gyr = rng.normal(0.0, 0.01, (n, 3)) + np.array([0.0, 0.0, rate_rad_s])
+    gyr = rng.normal(0.0, gyr_noise, (n, 3)) + np.array([0.0, 0.0, rate_rad_s])
     acc = rng.normal(0.0, 0.5, (n, 3)) + np.array([0.0, 0.0, -GRAVITY_M_S2 * scale])
     return t, gyr, acc
 
@@ -51,6 +51,42 @@ def test_turning_or_accelerating_samples_give_no_reading():
     t, gyr, acc = _imu(30.0, 200.0, 1.0)
     acc[:, 2] += 3.0 * np.sin(2 * np.pi * 0.5 * t)
     assert read_accel_scale(t, gyr, acc).read is None
+
+
+def test_a_noisy_gyro_at_rest_still_lets_the_board_be_read_offline_and_live():
+    """Rule 21: white gyro noise of 2 °/s per sample averages to |ω| ≈ 1.6 × 0.035 = 0.056 rad/s, above the
+    0.05 rad/s quiet rate; the threshold rises to 1.5 × the noise floor (the mean of |ω_i − ω_(i−1)|/√2)."""
+    from tepinn_flight.model.accel_scale import AccelScaleTracker, noise_norms, quiet_threshold
+
+    sd = np.radians(2.0)
+    t, gyr, acc = _imu(30.0, 286.0, 1.25, gyr_noise=sd)
+    floor = noise_norms(gyr, np.ones(len(t), bool))[1:].mean()  # closed form: the mean of a χ₃ × σ, 2·√(2/π)·σ
+    assert floor == pytest.approx(2 * np.sqrt(2 / np.pi) * sd, rel=0.02)
+    assert np.mean(np.linalg.norm(gyr, axis=1)) > AccelScaleConfig().quiet_rate_rad_s  # no sample quiet before rule 21
+    assert quiet_threshold(floor, AccelScaleConfig()) == pytest.approx(1.5 * floor)
+    found = read_accel_scale(t, gyr, acc)
+    assert found.applied and found.read == pytest.approx(1.25, abs=0.005) and found.quiet_s > 25.0
+    assert read_accel_scale(t, gyr, acc, AccelScaleConfig(noise_floor_factor=0.0)).read is None  # the rule off
+    tr = AccelScaleTracker()
+    for ti, g, a in zip(t, gyr, acc):
+        tr.update(float(ti), g, a)
+    assert tr.decided is not None and tr.decided.applied and tr.decided.read == pytest.approx(1.25, abs=0.005)
+    tr = AccelScaleTracker(AccelScaleConfig(noise_floor_factor=0.0))
+    for ti, g, a in zip(t, gyr, acc):
+        tr.update(float(ti), g, a)
+    assert tr.decided is None
+
+
+def test_the_noise_floor_does_not_make_a_steady_turn_quiet():
+    # a clean gyro turning steadily at 0.08 rad/s (a banked turn reads more than g): its consecutive
+    # differences hold only the small noise, so the threshold stays 0.05 rad/s
+    t, gyr, acc = _imu(30.0, 200.0, 1.2, rate_rad_s=0.08)
+    assert read_accel_scale(t, gyr, acc).read is None
+    # a gyro too noisy to tell (10 °/s per sample): the threshold stops at the cap, 0.1 rad/s, and nothing is read
+    t, gyr, acc = _imu(30.0, 200.0, 1.2, gyr_noise=np.radians(10.0))
+    assert read_accel_scale(t, gyr, acc).read is None
+    with pytest.raises(Exception, match="noise_floor_factor"):
+        AccelScaleConfig(noise_floor_factor=-1.0)
 
 
 def test_records_too_short_or_without_a_finite_sample_give_no_reading():
@@ -160,9 +196,11 @@ def _awkward_stream(seed: int):
     clock jumping back (a reboot) and samples at uneven steps."""
     rng = np.random.default_rng(seed)
     parts, t0 = [], 0.0
-    for seconds, rate_hz, turn in ((3.0, 200.0, 0.0), (2.0, 200.0, 0.4), (4.0, 2000.0, 0.0), (1.0, 100.0, 0.0),
-                                   (6.0, 400.0, 0.0), (3.0, 250.0, 0.0), (8.0, 300.0, 0.0)):  # fmt: skip
-        t, gyr, acc = _imu(seconds, rate_hz, 0.8, turn, seed=int(rng.integers(1 << 30)))
+    for seconds, rate_hz, turn, noise in ((3.0, 200.0, 0.0, 0.01), (2.0, 200.0, 0.4, 0.01), (4.0, 2000.0, 0.0, 0.01),
+                                          (1.0, 100.0, 0.0, 0.01), (6.0, 400.0, 0.0, 0.01), (3.0, 250.0, 0.0, 0.04),
+                                          (8.0, 300.0, 0.0, 0.04)):  # fmt: skip  (the last two: a gyro noisy enough
+        # to raise the quiet threshold, rule 21)
+        t, gyr, acc = _imu(seconds, rate_hz, 0.8, turn, seed=int(rng.integers(1 << 30)), gyr_noise=noise)
         t = t + t0 + rng.uniform(0.0, 0.2 / rate_hz, len(t))
         parts.append((t, gyr, acc))
         t0 = t[-1] + (1.5 if len(parts) == 3 else 1.0 / rate_hz)  # a 1.5-s dropout after the 2 kHz stretch

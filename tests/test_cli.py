@@ -258,6 +258,31 @@ def test_estimate_resume_skips_only_outputs_of_the_same_source_model_and_setting
     assert run("--resume", "--no-smooth") == {"s1.parquet": False, "s2.parquet": True}
 
 
+def test_estimate_resume_estimates_again_where_an_offline_step_s_own_settings_changed(tmp_path, capsys, monkeypatch):
+    """The offline steps' settings are module defaults no checkpoint carries (a rule changes them, as rule 21
+    did the accelerometer-scale reading's): the resume key holds them, so an upgrade does not keep stale outputs."""
+    import dataclasses
+
+    pytest.importorskip("torch")
+    import tepinn_flight.model.accel_scale as acs
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    src = tmp_path / "s1.parquet"
+    write_record(synthetic_record(seed=1, duration_s=12.0, rate_hz=100.0), src)
+    out = tmp_path / "out"
+
+    def skipped():
+        capsys.readouterr()
+        assert main(["estimate", str(src), "-o", str(out), "--resume"]) == 0
+        return "skipped (--resume)" in capsys.readouterr().out
+
+    assert not skipped() and skipped()
+    other = dataclasses.replace(acs.AccelScaleConfig(), noise_floor_factor=2.0)
+    monkeypatch.setattr(acs, "AccelScaleConfig", lambda: other)
+    assert not skipped() and skipped()
+
+
 @pytest.mark.slow
 def test_estimate_workers_give_the_one_process_estimates_and_go_on_past_a_bad_record(tmp_path, capsys):
     """``--workers 2``: the same outputs as one process (to 1e-6: a worker runs the network on one thread),

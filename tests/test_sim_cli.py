@@ -168,6 +168,30 @@ def test_campaign_parallel_resumable_deterministic(tmp_path, capsys):
             assert (out2 / f).stat().st_mtime_ns == before[f]
     assert not list(out2.glob(".*.tmp"))
 
+    # a folder flown before the sensors' lost samples and stamp jitter existed (session 29; its manifest's digest
+    # made without those keys) holds the very flights where they stay 0: resumed, not refused
+    import hashlib
+
+    def digest(m, strip=()):
+        sensors = {k: {f: v for f, v in s.items() if f not in strip} for k, s in m["sensors_resolved"].items()}
+        d = {"campaign": m["definition"], "sensors_resolved": sensors,
+             "flights": [[f["file"], f["seed"], f["sensor"]] for f in m["flights"]]}  # fmt: skip
+        return hashlib.sha256(json.dumps(d, sort_keys=True, default=str).encode()).hexdigest()
+
+    manifest = json.loads((out2 / MANIFEST).read_text())
+    assert digest(manifest) == manifest["definition_sha256"]
+    older = digest(manifest, strip=("lost_fraction", "stamp_jitter_s"))
+    assert older != manifest["definition_sha256"]
+    (out2 / MANIFEST).write_text(json.dumps({**manifest, "definition_sha256": older}))
+    capsys.readouterr()
+    assert sim("--campaign", cfile, "-o", out2, "--workers", 1) == 0
+    assert "4 flights, 0 computed, 4 already done, 0 failed" in capsys.readouterr().out
+    # ... but not where the campaign now loses samples: other flights
+    cfile.write_text(CAMPAIGN.replace('turbulence = ["none"]', 'turbulence = ["none"]\nsensor_set = ["lost_fraction=0.02"]'))
+    (out2 / MANIFEST).write_text(json.dumps({**manifest, "definition_sha256": older}))
+    assert sim("--campaign", cfile, "-o", out2, "-q") == 2
+    assert "holds a different campaign" in capsys.readouterr().err
+
     # a different campaign definition is refused in the same folder
     cfile.write_text(CAMPAIGN.replace("seed = 5", "seed = 6"))
     assert sim("--campaign", cfile, "-o", out2, "-q") == 2

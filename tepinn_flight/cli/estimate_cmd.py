@@ -181,13 +181,19 @@ class _Options:
 
 
 def _settings_key(ckpt_path, fusion) -> str:
-    """What an output depends on besides its source: the model file's bytes and every estimator setting."""
+    """What an output depends on besides its source: the model file's bytes, every estimator setting and the
+    offline steps' own settings (their defaults, which no checkpoint carries: a new rule changes them)."""
     import hashlib
 
     from .. import __version__
+    from ..model.accel_scale import AccelScaleConfig
+    from ..model.gnss_aid import GnssAidConfig
+    from ..model.gyro_selfcal import GyroSelfCalConfig
     from ..model.runtime import file_sha256
+    from ..model.smoother import SmootherConfig
 
-    return hashlib.sha256(f"{__version__}|{file_sha256(ckpt_path)}|{fusion!r}".encode()).hexdigest()
+    steps = f"{AccelScaleConfig()!r}|{GyroSelfCalConfig()!r}|{GnssAidConfig()!r}|{SmootherConfig()!r}"
+    return hashlib.sha256(f"{__version__}|{file_sha256(ckpt_path)}|{fusion!r}|{steps}".encode()).hexdigest()
 
 
 def _output_key(opts: _Options, src) -> str:

@@ -13,8 +13,14 @@ accelerometer's low-passed norm is g times its scale. So over ``avg_s`` the rate
 and the accelerometer is averaged (vibration out of the norm: a noisy vector's norm is biased up), and
 the scale is the median of that norm over the *quiet* samples (rate below ``quiet_rate_rad_s``: a
 coordinated 15° banked turn at 50 m/s turns at 0.05 rad/s and reads 1.035 g), over at least
-``min_quiet_s`` of them. It is **applied only where it is clearly not 1** (``|s − 1| ≥ tolerance``,
-beyond what calibrated boards and gentle turns show): then the accelerometer is divided by it before
+``min_quiet_s`` of them. A noisy gyro's mean |ω| keeps its noise (white noise of 2 °/s per sample
+averages to |ω| ≈ 0.056 rad/s: no sample would be quiet), so the threshold is raised to
+``noise_floor_factor`` × the window's noise floor where that is higher, at most ``quiet_rate_cap_rad_s``
+(rule 21): the floor is the mean of |ω_i − ω_(i−1)|/√2 over the same window — for white noise a
+consecutive difference over √2 has the noise's own distribution, and a steady turn adds nothing to it,
+so a clean gyro turning at 0.08 rad/s is still not quiet (:func:`quiet_threshold`). The scale is
+**applied only where it is clearly not 1** (``|s − 1| ≥ tolerance``, beyond what calibrated boards
+and gentle turns show): then the accelerometer is divided by it before
 anything else reads it. Every record whose scale is within the tolerance is estimated bit for bit as
 before.
 
@@ -42,7 +48,11 @@ class AccelScaleConfig:
     """Settings of the accelerometer scale read from a record; the defaults are the shipped model's."""
 
     avg_s: float = 0.5  # rate and accelerometer averaged over this before the quiet test and the norm
-    quiet_rate_rad_s: float = 0.05  # a quiet sample: the averaged rate's norm below this
+    quiet_rate_rad_s: float = 0.05  # a quiet sample: the averaged rate's norm below this ...
+    # ... or below this × the gyro's noise floor over the same window, where that is higher (rule 21, session 31;
+    # 0: off), up to quiet_rate_cap_rad_s
+    noise_floor_factor: float = 1.5
+    quiet_rate_cap_rad_s: float = 0.1
     steady_s: float = 2.0  # ... and the averaged accelerometer's norm steady over this
     steady_m_s2: float = 0.1  # (its standard deviation there below this)
     min_quiet_s: float = 5.0  # at least this much quiet time for a reading
@@ -51,8 +61,10 @@ class AccelScaleConfig:
     tolerance: float = 0.10
 
     def __post_init__(self):
-        for name in ("avg_s", "quiet_rate_rad_s", "steady_s", "steady_m_s2", "min_quiet_s", "tolerance"):
+        for name in ("avg_s", "quiet_rate_rad_s", "steady_s", "steady_m_s2", "min_quiet_s", "tolerance",
+                     "quiet_rate_cap_rad_s"):
             check_range(name, getattr(self, name), 0, None, lo_open=True)
+        check_range("noise_floor_factor", self.noise_floor_factor, 0, None)
 
 
 @dataclass(frozen=True)
@@ -70,6 +82,24 @@ class AccelScale:
             return f"accelerometer scale: {self.quiet_s:.1f} s quiet, too little to read; not applied"
         what = "divided out; applied" if self.applied else "within the tolerance; not applied"
         return f"accelerometer scale: {self.read:.3f} g at {self.quiet_s:.0f} s of quiet, steady samples; {what}"
+
+
+def quiet_threshold(noise_floor, cfg: AccelScaleConfig):
+    """The averaged |ω| below which a sample is quiet, given the gyro's noise floor over the same window
+    (the mean of |ω_i − ω_(i−1)|/√2; rad/s): ``quiet_rate_rad_s``, raised to ``noise_floor_factor`` × the floor
+    where that is higher, at most ``quiet_rate_cap_rad_s`` (rule 21). The live tracker's compiled step
+    computes the same expression (:mod:`.accel_scale_kernels`)."""
+    return np.maximum(cfg.quiet_rate_rad_s, np.minimum(cfg.quiet_rate_cap_rad_s, cfg.noise_floor_factor * noise_floor))
+
+
+def noise_norms(gyr, ok) -> np.ndarray:
+    """(n,) |ω_i − ω_(i−1)|/√2 per sample (0 at the first and next to a non-finite sample): what white
+    noise alone adds to |ω|, in distribution."""
+    d = np.zeros(len(gyr))
+    if len(gyr) > 1:
+        step = np.diff(np.where(ok[:, None], gyr, 0.0), axis=0)
+        d[1:] = np.where(ok[1:] & ok[:-1], np.sqrt(np.einsum("ij,ij->i", step, step)) / math.sqrt(2.0), 0.0)
+    return d
 
 
 def quiet_samples(t_s, gyr, acc, cfg: AccelScaleConfig | None = None):
@@ -99,7 +129,8 @@ def quiet_samples(t_s, gyr, acc, cfg: AccelScaleConfig | None = None):
         return None
     mean = _boxcar(a_norm[:, None], m)[:, 0]
     spread = np.sqrt(np.maximum(_boxcar((a_norm**2)[:, None], m)[:, 0] - mean**2, 0.0))
-    quiet = whole & (rate < cfg.quiet_rate_rad_s) & (spread < cfg.steady_m_s2)
+    thr = quiet_threshold(_boxcar(noise_norms(gyr, ok)[:, None], k)[:, 0], cfg)  # a noisy gyro's floor (rule 21)
+    quiet = whole & (rate < thr) & (spread < cfg.steady_m_s2)
     return quiet, acc_lp, step
 
 
@@ -135,10 +166,11 @@ class AccelScaleTracker:
         self.cfg = c = cfg or AccelScaleConfig()
         self.scale = 1.0
         self.decided: AccelScale | None = None
-        self._cfg = np.array([c.avg_s, c.steady_s, c.quiet_rate_rad_s, c.steady_m_s2, c.min_quiet_s, MAX_STEP_S])
+        self._cfg = np.array([c.avg_s, c.steady_s, c.quiet_rate_rad_s, c.steady_m_s2, c.min_quiet_s, MAX_STEP_S,
+                              c.noise_floor_factor, c.quiet_rate_cap_rad_s])  # fmt: skip
         self._state, self._idx = new_state()
         # ring buffers of the two trailing windows and the quiet norms, grown when full (FULL)
-        self._avg, self._norms, self._quiet = np.zeros((256, 5)), np.zeros((1024, 2)), np.zeros(1024)
+        self._avg, self._norms, self._quiet = np.zeros((256, 6)), np.zeros((1024, 2)), np.zeros(1024)
 
     def window_lengths(self) -> tuple[int, int]:
         """How many samples the trailing ``avg_s`` and ``steady_s`` windows hold (0, 0 once decided)."""

@@ -284,15 +284,29 @@ def _mp_context():
     return ctx
 
 
+#: Sensor settings added after campaigns were first flown, with the value that flies every flight as before: a
+#: folder flown before they existed holds the same flights where they keep that value (session 29's lost samples).
+SENSOR_FIELDS_ADDED = {"lost_fraction": 0.0, "stamp_jitter_s": 0.0}
+
+
+def _digest(definition: dict) -> str:
+    return hashlib.sha256(json.dumps(definition, sort_keys=True, default=str).encode()).hexdigest()
+
+
 def _manifest(cfg: CampaignConfig, flights: list[FlightSpec], sensors: dict) -> dict:
     definition = {"campaign": to_dict(cfg), "sensors_resolved": sensors,
                   "flights": [[f.file, f.seed, f.sensor] for f in flights]}  # fmt: skip
-    digest = hashlib.sha256(json.dumps(definition, sort_keys=True, default=str).encode()).hexdigest()
+    digest = _digest(definition)
+    # the same definition as written before SENSOR_FIELDS_ADDED existed, where each keeps its neutral value
+    older = {k: {f: v for f, v in s.items() if not (f in SENSOR_FIELDS_ADDED and v == SENSOR_FIELDS_ADDED[f])}
+             if isinstance(s, dict) else s for k, s in sensors.items()}  # fmt: skip
+    same_as = sorted({digest, _digest({**definition, "sensors_resolved": older})})
     return {
         "name": cfg.name,
         "description": cfg.description,
         "seed": cfg.seed,
         "definition_sha256": digest,
+        "same_as_sha256": same_as,  # digests of folders written by earlier versions that hold these very flights
         "definition": definition["campaign"],
         "sensors_resolved": sensors,
         "flights": [asdict(f) for f in flights],
@@ -308,7 +322,7 @@ def _prepare_dir(out_dir: Path, manifest: dict) -> None:
             old = json.loads(mpath.read_text())
         except (OSError, ValueError):
             raise ConfigError(f"unreadable {MANIFEST}; delete it or use another folder", out_dir) from None
-        if old.get("definition_sha256") != manifest["definition_sha256"]:
+        if old.get("definition_sha256") not in manifest["same_as_sha256"]:
             raise ConfigError(
                 f"holds a different campaign ({old.get('name')!r}, other definition or sensor presets); "
                 "use another folder or delete it", out_dir,
