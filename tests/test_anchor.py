@@ -200,6 +200,40 @@ def test_in_a_gap_after_a_gate_sigma_holds_the_networks_disagreement_for_sigma_g
     assert [s for _, s in never] == pytest.approx([s for _, s in sigmas(0.0, [(3.0, 0.0), (3.0, 0.0)])], rel=1e-12)
 
 
+def test_sigma_holds_the_networks_disagreement_while_the_uncalibrated_gyro_evidence_builds():
+    """Rule 22: level at rest on a gyro with a 1 °/s bias on x (VQF reads it at rest: ≥ 0.2 °/s), no gate acting (hand-held
+    speed; the older fusion's horizontal bias 2.5 °/s, beyond quiet_bias_deg_s but below the gate's 3 °/s), the network's
+    target tilted 10°: σ² grows by (k·D)² against the same filter without the rule; not where the fusion's bias is
+    1 °/s, nor where the gyro has no bias (VQF's estimate stays near 0), nor with sigma_gap_bias_evidence off."""
+    n = 500
+    t = np.arange(n) * 0.01
+    acc = np.tile([0.0, 0.0, -9.81], (n, 1))
+    target = np.array([math.cos(math.radians(5)), math.sin(math.radians(5)), 0.0, 0.0])  # 10° of roll
+
+    def sigma(gyr_bias_deg_s, fusion_bias_deg_s, on=True, k=1.5):
+        cfg = AnchorConfig(pull_gain=0.0, centripetal=False, sigma_gap_gain=k, sigma_gap_bias_evidence=on)
+        f = AnchoredVQF(cfg, 0.01)
+        gyr = np.tile([math.radians(gyr_bias_deg_s), 0.0, 0.0], (n, 1))
+        q_last = f.update(t, gyr, acc)[0][-1]
+        vqf_bias = math.degrees(float(np.max(np.abs(f.f.getBiasEstimate()[0]))))
+        f.correct(WindowOutput(target, 0.01, np.zeros(3), np.array([3.0, 0.0, 0.0]), np.zeros(3),
+                               np.array([math.radians(fusion_bias_deg_s), 0.0, 0.0])))  # fmt: skip
+        assert f.gate == 0.0 and not f.bias_latched
+        # D by scipy: the angle between the target's down and the filter's, both in body axes
+        downs = [Rotation.from_quat(np.asarray(q)[[1, 2, 3, 0]]).inv().apply([0.0, 0.0, 1.0]) for q in (target, q_last)]
+        d = math.acos(float(np.clip(downs[0] @ downs[1], -1.0, 1.0)))
+        return float(f.update(t[-1:] + 0.01, gyr[:1], acc[:1])[2][0]), vqf_bias, d
+
+    (on, vb, d), (off, _, _) = sigma(1.0, 2.5), sigma(1.0, 2.5, on=False)
+    assert 0.2 <= vb < 1.9  # VQF reads the bias: the evidence, below its clip (where the gate itself would latch)
+    assert math.degrees(d) == pytest.approx(10.0, abs=1.0)
+    assert on**2 - off**2 == pytest.approx((1.5 * d) ** 2, rel=1e-3)
+    assert sigma(1.0, 1.0)[0] == pytest.approx(off, rel=1e-12)  # the fusion's bias within quiet_bias_deg_s
+    no_bias, vb0, _ = sigma(0.0, 2.5)
+    assert vb0 < 0.2 and no_bias == pytest.approx(sigma(0.0, 2.5, on=False)[0], rel=1e-12)
+    assert AnchorConfig().sigma_gap_bias_evidence and not AnchorConfig().learned_off.sigma_gap_gain
+
+
 def test_a_non_finite_sample_is_a_hole_not_the_end_of_the_estimate():
     rec = synthetic_record(seed=1, duration_s=12.0, rate_hz=100.0)
     model, _, _ = load_model(default_model_path())

@@ -66,7 +66,8 @@ have lost (each sample with the gyro clipped adds k·|ω|·Δt, |ω| its clipped
 time constant τ after; at most π/2: ``sigma_clip_gain``, ``sigma_clip_tau_s``, fitted on simulated
 flights that clip); and, where no gate acts but one did within ``sigma_gap_hold_s``, (k·D)² with D the
 tilt angle between the network's pull target and VQF (``sigma_gap_gain``: the witness the gate just
-stopped using, session 26);
+stopped using, session 26) — also while the uncalibrated-gyro gate's evidence builds before it latches
+(``sigma_gap_bias_evidence``, rule 22: VQF then carries a bias beyond its clip);
 σ₀ and c fitted on real files with a trusted reference (and g chosen there, by the fine-tuning).
 
 Frames: VQF works in a z-up sensor frame ``S`` (body FRD turned 180° about x) and a z-up earth
@@ -202,6 +203,12 @@ class AnchorConfig:
     # T = min_stretch_s a priori; c172x flights' NEES 9–101 → 0.5–2.2); 0: off (checkpoints before it)
     sigma_gap_gain: float = 1.0
     sigma_gap_hold_s: float = 30.0
+    # ... and while the uncalibrated-gyro gate's evidence builds, before it latches: the older fusion's horizontal
+    # bias beyond quiet_bias_deg_s and VQF's own at bias_gate_vqf_deg_s or more on an axis (its existing thresholds).
+    # VQF then carries a bias beyond its clip (training flights' uncalibrated IMUs: tilt error 8–20° for 8–13 s with σ
+    # at its floor, NEES 300–1800 there) and the network's target is the witness. Calibrated gyros never show it (the
+    # 17 BROAD trials: σ identical). Session 31, rule 22; False: before it (checkpoints without the key)
+    sigma_gap_bias_evidence: bool = True
     # quiet blocks (speed): the windows matter only where a gate may open. A block of the older
     # fusion's bias feedback (its bias_feedback_windows tokens) whose first window shows |v̂| below
     # quiet_speed_m_s and a fusion gyro bias below quiet_bias_deg_s on every axis runs only that window
@@ -584,7 +591,7 @@ class AnchoredVQF:
         self.var_gap = 0.0
         if self.gate > 0:
             self.t_gated = self.t
-        elif c.sigma_gap_gain > 0 and self.t - self.t_gated <= c.sigma_gap_hold_s:
+        elif c.sigma_gap_gain > 0 and (self.t - self.t_gated <= c.sigma_gap_hold_s or self._bias_evidence(b_h)):
             d = down_in_body(*_floats(w.q_nb_wxyz))  # the target's up in S: (−d₀, d₁, d₂), as for the pull below
             ex, ey, ez = up_in_earth_f(qw, qx, qy, qz, -d[0], d[1], d[2])
             self.var_gap = (c.sigma_gap_gain * math.atan2(math.hypot(ex, ey), ez)) ** 2
@@ -612,6 +619,15 @@ class AnchoredVQF:
         if k > 0:
             d = down_in_body(*_floats(w.q_nb_wxyz))  # the target's down in body axes; its up in S: (−d₀, d₁, d₂)
             self.pull(tilt_pull_f(qw, qx, qy, qz, -d[0], d[1], d[2], float(k)))
+
+    def _bias_evidence(self, b_h) -> bool:
+        """The uncalibrated-gyro gate's evidence building (``sigma_gap_bias_evidence``, rule 22): the older fusion's
+        horizontal bias ``b_h`` beyond ``quiet_bias_deg_s`` and VQF's own bias at ``bias_gate_vqf_deg_s`` or more."""
+        c = self.cfg
+        if not c.sigma_gap_bias_evidence or _norm3(b_h) <= math.radians(c.quiet_bias_deg_s):
+            return False
+        b = self.f.getBiasEstimate()[0].tolist()
+        return max(abs(b[0]), abs(b[1]), abs(b[2])) >= math.radians(c.bias_gate_vqf_deg_s)
 
     def _relevel(self) -> float:
         """At rest after a saturation: VQF's tilt set to the still run's mean specific force (gravity
