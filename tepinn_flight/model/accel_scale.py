@@ -104,8 +104,8 @@ def noise_norms(gyr, ok) -> np.ndarray:
 
 def quiet_samples(t_s, gyr, acc, cfg: AccelScaleConfig | None = None):
     """The samples where the vehicle is neither turning nor shaking (module docstring: the rate's norm,
-    averaged over ``avg_s``, below ``quiet_rate_rad_s``; the averaged accelerometer's norm steady over
-    ``steady_s``) → (quiet mask (n,), the averaged accelerometer (n, 3), the sample step in s), or None
+    averaged over ``avg_s``, below ``quiet_rate_rad_s`` or a noisy gyro's floor, :func:`quiet_threshold`; the
+    averaged accelerometer's norm steady over ``steady_s``) → (quiet mask (n,), the averaged accelerometer (n, 3), the sample step in s), or None
     where the record is too short to tell. There the accelerometer shows gravity alone."""
     cfg = cfg or AccelScaleConfig()
     t_s = np.asarray(t_s, np.float64)
