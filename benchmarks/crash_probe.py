@@ -32,7 +32,7 @@ ran VQF backward through the clipped tumble and spoiled the 5 s before it (befor
 re-levelling at rest the smoothed tilt had kept 17° of the tumble for 3 s (the whole stretch's forward pass crossed
 the reset; σ at its floor, whole-file NEES 30–36): the runs now never cross a re-levelling either (rule 13).
 
-    python benchmarks/crash_probe.py [--seeds 101 102 103] [--rate 2400 --turn 540] [RECORD ...]
+    python benchmarks/crash_probe.py [--seeds 101 102 103] [--rate 2400 --turn 540] [--gyro-noise 2] [RECORD ...]
 """
 
 from __future__ import annotations
@@ -149,6 +149,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[101, 102, 103], help="F450 consumer flights, 60 s")
     ap.add_argument("--rate", type=float, nargs="+", default=[2400.0, 1500.0], help="tumble rates, deg/s")
     ap.add_argument("--turn", type=float, nargs="+", default=[540.0, 90.0], help="tumble angles (with --rate), deg")
+    ap.add_argument("--gyro-noise", type=float, default=0.0,
+                    help="white noise added to the whole record's gyro after the crash is appended, deg/s RMS per sample "
+                         "and axis (a noisy gyro: the re-levelling at rest reads a still gyro)")  # fmt: skip
     args = ap.parse_args(argv)
     if len(args.rate) != len(args.turn):
         ap.error("--rate and --turn pair up: give as many of each")
@@ -168,6 +171,11 @@ def main(argv=None) -> int:
     for name, base in flights:
         for rate, turn in zip(args.rate, args.turn):
             rec0, t0 = with_crash(base, rate, turn)
+            if args.gyro_noise > 0:
+                noisy = rec0.data.copy()
+                g = rec0.gyr_rad_s + np.radians(args.gyro_noise) * np.random.default_rng(7).standard_normal((len(rec0), 3))
+                noisy[["gyr_x_rad_s", "gyr_y_rad_s", "gyr_z_rad_s"]] = g
+                rec0 = FlightRecord(noisy, dict(rec0.meta))
             for fac in (1, 16):
                 rec = rec0 if fac == 1 else decimate_record(rec0, fac)
                 hz = 1.0 / float(np.median(np.diff(rec.t_s)))
