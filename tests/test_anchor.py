@@ -572,6 +572,37 @@ def test_at_rest_after_a_saturation_the_tilt_is_the_accelerometers(relevel_s):
         assert abs(_tilt_deg(q[-1]) - tilt_true) > 20
 
 
+@pytest.mark.parametrize("rule23", [True, False])
+def test_a_noisy_gyro_at_rest_after_a_saturation_still_re_levels_and_stays_at_rest(rule23):
+    """Rule 23: the same tumble and rest with white gyro noise of 2 °/s per sample and axis at 400 Hz (|n| ≈ 3.2 °/s:
+    most samples above the 2 °/s rest rate). The still run keeps a sample up to 4 × that rate while its mean gyro
+    stays still, and the re-levelling keeps that run: the tilt is the accelerometer's (to 0.1°) and "at rest" holds
+    through the whole rest, so a window holding the tumble at flight speed pulls nothing. Before the rule
+    (spike factor 1, a fresh run at the re-levelling) the rest never re-levels or does not stay at rest, and the
+    tilt ends far from the truth."""
+    t, gyr, acc, clipped, tilt_true = _tumble_then_rest(rate_hz=400.0, rest_s=4.0)
+    gyr = gyr + np.where(clipped[:, None], 0.0, math.radians(2.0) * np.random.default_rng(5).standard_normal(gyr.shape))
+    assert np.mean(np.linalg.norm(gyr[900:], axis=1) > math.radians(2.0)) > 0.7
+    cfg = AnchorConfig(centripetal=False) if rule23 else AnchorConfig(centripetal=False, rest_spike_factor=1.0,
+                                                                      rest_keeps_run=False)  # fmt: skip
+    f = AnchoredVQF(cfg, 0.0025)
+    wrong = WindowOutput(np.array([1.0, 0.0, 0.0, 0.0]), 0.01, np.zeros(3), np.array([40.0, 0, 0]), np.zeros(3))
+    i_rest = 880  # the tumble ends at 2.2 s
+    f.update(t[:i_rest], gyr[:i_rest], acc[:i_rest], clipped=clipped[:i_rest])
+    rested = []
+    for k in range(i_rest, len(t), 40):  # windows every 0.1 s through the rest
+        q = f.update(t[k : k + 40], gyr[k : k + 40], acc[k : k + 40], clipped=clipped[k : k + 40])[0]
+        f.correct(wrong)
+        rested.append(f.at_rest)
+    if rule23:
+        assert len(f.relevel_t) == 1 and f.relevel_t[0] < t[i_rest] + 1.0
+        assert all(rested[10:])  # at rest from the re-levelling to the end
+        assert _tilt_deg(q[-1]) == pytest.approx(tilt_true, abs=0.1)
+    else:
+        assert not all(rested[10:])
+        assert abs(_tilt_deg(q[-1]) - tilt_true) > 5
+
+
 def test_a_free_fall_is_no_rest():
     """A still run whose accelerometer reads less than half of g (a free fall) shows no gravity: the
     saturation gate stays on and no tilt is set from it."""

@@ -148,26 +148,32 @@ def test_turn_acc_state_turns_the_inclination_and_its_filter_states_together(ave
         np.testing.assert_allclose(st2.reshape(3, 2), r @ st.reshape(3, 2), atol=1e-13)
 
 
-def _still_runs_slowly(gyr, acc, gyr_max, acc_dev):
+def _still_runs_slowly(gyr, acc, gyr_max, acc_dev, spike=1.0):
     """The still run after each sample, written out: its start index (None: no run) recomputed from
-    the definition — a sample continues the run when |ω| < gyr_max and it lies within acc_dev of the
-    mean of the run's samples before it; else a run starts at it if its gyro is still."""
+    the definition — a sample continues the run when it lies within acc_dev of the mean of the run's samples
+    before it and |ω| < gyr_max, or |ω| < spike·gyr_max while the mean gyro of the run with it stays below
+    gyr_max (rule 23); else a run starts at it if |ω| < gyr_max."""
     start, out = None, []
     for i in range(len(gyr)):
-        still_gyro = np.linalg.norm(gyr[i]) < gyr_max and np.all(np.isfinite(acc[i]))
-        if not still_gyro:
+        w = np.linalg.norm(gyr[i])
+        finite = np.all(np.isfinite(acc[i]))
+        if not (finite and w < spike * gyr_max):
             start = None
-        elif start is not None and np.linalg.norm(acc[i] - acc[start:i].mean(0)) < acc_dev:
+        elif (start is not None and np.linalg.norm(acc[i] - acc[start:i].mean(0)) < acc_dev
+              and (w < gyr_max or np.linalg.norm(gyr[start : i + 1].mean(0)) < gyr_max)):  # fmt: skip
             pass
         else:
-            start = i
+            start = i if w < gyr_max else None
         out.append(start)
     return out
 
 
-def test_the_still_run_against_its_definition_written_out():
-    """rest_rows keeps (length, sum of the accelerometer) of the still run: checked sample by sample
-    against the run recomputed from its definition on a record of rests, turns, jolts and a hole."""
+@pytest.mark.parametrize("spike", [1.0, 4.0])
+def test_the_still_run_against_its_definition_written_out(spike):
+    """rest_rows keeps (length, sum of the accelerometer, sum of the gyro) of the still run: checked sample by
+    sample against the run recomputed from its definition on a record of rests, turns, jolts, a hole and a noisy
+    gyro's single samples up to 6 °/s (rule 23: spike 4 keeps a run through them while its mean gyro stays still;
+    spike 1, the rule before it, breaks at each)."""
     rng = np.random.default_rng(23)
     n = 400
     gyr = rng.normal(0, 0.005, (n, 3))
@@ -176,17 +182,25 @@ def test_the_still_run_against_its_definition_written_out():
     acc[150] += [0.0, 3.0, 0.0]  # a jolt: the run starts again at it
     acc[200:260] += np.linspace(0, 1.5, 60)[:, None] * [1, 0, 0]  # a slow drift out of the run's mean
     acc[300] = np.nan  # a hole
+    for i, deg_s in ((110, 5.0), (111, -4.0), (320, 6.0), (340, 3.0), (341, 3.0), (342, 3.0)):
+        gyr[i, 0] = math.radians(deg_s)  # single noisy samples (and a short run of 3 °/s: its mean grows)
+    gyr[302, 2] = math.radians(3.0)  # the sample after the hole: no run to keep, none starts at it
     gyr_max, acc_dev = math.radians(2.0), 0.5
-    want = _still_runs_slowly(gyr, acc, gyr_max, acc_dev)
-    st = np.zeros(4)
+    want = _still_runs_slowly(gyr, acc, gyr_max, acc_dev, spike)
+    st = np.zeros(7)
     for i in range(n):
-        rest_rows(st, gyr[i : i + 1].copy(), acc[i : i + 1].copy(), gyr_max**2, acc_dev**2)
+        rest_rows(st, gyr[i : i + 1].copy(), acc[i : i + 1].copy(), gyr_max**2, acc_dev**2, (spike * gyr_max) ** 2)
         if want[i] is None:
             assert st[0] == 0.0, i
         else:
             assert st[0] == i - want[i] + 1, i
-            np.testing.assert_allclose(st[1:] / st[0], acc[want[i] : i + 1].mean(0), atol=1e-12)
+            np.testing.assert_allclose(st[1:4] / st[0], acc[want[i] : i + 1].mean(0), atol=1e-12)
+            np.testing.assert_allclose(st[4:7] / st[0], gyr[want[i] : i + 1].mean(0), atol=1e-12)
     assert {None} < set(want) and len(set(want)) > 4  # the record holds several runs and breaks
-    st2 = np.zeros(4)  # a block gives what sample after sample gives
-    rest_rows(st2, gyr, acc, gyr_max**2, acc_dev**2)
+    if spike > 1:  # the single samples at 110, 111 and 320 no longer break their runs
+        assert want[112] == want[109] and want[321] == want[319]
+    else:
+        assert want[110] is None and want[320] is None
+    st2 = np.zeros(7)  # a block gives what sample after sample gives
+    rest_rows(st2, gyr, acc, gyr_max**2, acc_dev**2, (spike * gyr_max) ** 2)
     np.testing.assert_allclose(st2, st, rtol=1e-15)

@@ -133,6 +133,16 @@ class AnchorConfig:
     rest_relevel_s: float = 0.5
     rest_gyr_deg_s: float = 2.0
     rest_acc_m_s2: float = 0.5
+    # ... a sample up to this × rest_gyr_deg_s keeps the run while the run's mean gyro stays below rest_gyr_deg_s: a
+    # noisy gyro's single samples (2 °/s of white noise per sample at 400 Hz broke every run after a crash past the
+    # range: crash_probe.py --gyro-noise 2, at rest 35.9° / 5.3° / 3.4° against 0.2° / 1.8° / 0.0°). Session 31, rule 23;
+    # 1: each sample below rest_gyr_deg_s (before it)
+    rest_spike_factor: float = 4.0
+    # ... and the re-levelling keeps the still run it was made from: "at rest" (no gate opens) lasts while that run goes
+    # on — not while a fresh one, started at the re-levelling, grows in lockstep (a fresh run's first samples are the
+    # fragile ones on a noisy gyro: at rest ended 16 samples after the re-levelling, then the flight-speed gate pulled
+    # the tilt toward windows still holding the tumble). Rule 23; False: before it
+    rest_keeps_run: bool = True
     # ... and pulls only for gyros whose range the network learned to declip: a clipped sample reading
     # more than this on an axis (the ±2000 °/s of autopilot gyros, past their range) keeps the pull shut
     # for clip_hold_s — the network saw saturation only at ±400 °/s (the training's tactical gyro; this
@@ -272,6 +282,7 @@ class AnchorConfig:
         check_range("speed_hi_m_s", self.speed_hi_m_s, self.speed_lo_m_s, None, lo_open=True)
         check_range("bias_gate_thrust_deg", self.bias_gate_thrust_deg, 0, 180)
         check_range("min_network_rate_hz", self.min_network_rate_hz, 0, 100000)
+        check_range("rest_spike_factor", self.rest_spike_factor, 1, None)
         for name in ("clip_min_s", "quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "rest_relevel_s", "clip_gate_max_deg_s", "rest_gyr_deg_s", "rest_acc_m_s2", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "bias_gate_vqf_deg_s", "sigma_floor_deg", "sigma_acc_gain",
                      "sigma_net_scale", "sigma_sampling_gain", "sigma_clip_gain", "sigma_gap_gain", "sigma_gap_hold_s"):  # fmt: skip
             check_range(name, getattr(self, name), 0, None)
@@ -389,11 +400,13 @@ class AnchoredVQF:
         self.clip_gate_max = math.radians(c.clip_gate_max_deg_s) if c.clip_gate_max_deg_s > 0 else math.inf
         self.t_clip_high = -math.inf  # the last saturated sample reading beyond clip_gate_max_deg_s
         self.t_clip_last = -math.inf  # the last saturated sample
-        self.still = np.zeros(4)  # the still run while the saturation gate may be on (rest_step)
+        self.still = np.zeros(7)  # the still run while the saturation gate may be on (rest_step)
         self.at_rest = False  # re-levelled at rest and still since: no gate opens (rest_relevel_s)
         self.rest_samples = 0  # samples since that re-levelling (the still run's length while it lasts)
+        self.rest_base = 0.0  # the still run's length at that re-levelling (rest_keeps_run; else 0: a fresh run)
         self.rest_gyr2 = math.radians(c.rest_gyr_deg_s) ** 2
         self.rest_acc2 = float(c.rest_acc_m_s2) ** 2
+        self.rest_spike2 = self.rest_gyr2 * float(c.rest_spike_factor) ** 2
         self.t = 0.0
         self.gate = 0.0
         self.gate_parts = (0.0, 0.0, 0.0)  # the last window's flight-speed, saturation and bias gates
@@ -439,7 +452,7 @@ class AnchoredVQF:
                     self.t_clip_high = float(t_s[high[-1]])
         if self.cfg.rest_relevel_s > 0:  # the still run, only while a saturation or a re-levelling is remembered
             if self.clip_times or self.at_rest:
-                rest_rows(self.still, gyr_b, acc_b, self.rest_gyr2, self.rest_acc2)
+                rest_rows(self.still, gyr_b, acc_b, self.rest_gyr2, self.rest_acc2, self.rest_spike2)
                 self._rest_goes_on(n)
             elif self.still[0]:
                 self.still[:] = 0.0
@@ -498,7 +511,7 @@ class AnchoredVQF:
                 self.t_clip_high = float(t_s)
         if self.cfg.rest_relevel_s > 0:  # as update(): on the sample as it came (a hole is no rest)
             if self.clip_times or self.at_rest:
-                rest_step(self.still, g[0], g[1], g[2], a[0], a[1], a[2], self.rest_gyr2, self.rest_acc2)
+                rest_step(self.still, g[0], g[1], g[2], a[0], a[1], a[2], self.rest_gyr2, self.rest_acc2, self.rest_spike2)
                 self._rest_goes_on(1)
             elif self.still[0]:
                 self.still[:] = 0.0
@@ -633,7 +646,7 @@ class AnchoredVQF:
         """At rest after a saturation: VQF's tilt set to the still run's mean specific force (gravity
         alone) and the saturation gate shut (its remembered samples and E cleared) → the gate, 0.
         A mean under half of g (a free fall, no gravity to read) leaves it on → 1."""
-        n, sx, sy, sz = self.still.tolist()
+        n, sx, sy, sz = self.still[:4].tolist()
         f = math.sqrt(sx * sx + sy * sy + sz * sz) / n
         if f < 0.5 * GRAVITY_M_S2:
             return 1.0
@@ -646,7 +659,10 @@ class AnchoredVQF:
         st["accLpState"] = np.full(6, np.nan)
         self.f.state = st
         self.clip_times.clear()
-        self.still[:] = 0.0
+        if self.cfg.rest_keeps_run:
+            self.rest_base = float(self.still[0])
+        else:
+            self.still[:] = 0.0
         self.e_clip = 0.0
         self.relevel_t.append(self.t)
         self.at_rest, self.rest_samples = True, 0
@@ -656,7 +672,7 @@ class AnchoredVQF:
         """After ``n`` more samples: the rest a re-levelling found ends with its still run."""
         if self.at_rest:
             self.rest_samples += n
-            self.at_rest = self.still[0] == self.rest_samples
+            self.at_rest = self.still[0] == self.rest_base + self.rest_samples
 
     def _thrust_cos(self) -> float:
         """Cosine of the angle between the body's −z axis and the accelerometer's mean, the last sample

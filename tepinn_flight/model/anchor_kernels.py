@@ -271,28 +271,38 @@ def fusion_tilt_rows(q, f, out):
 
 
 @njit(cache=True)
-def rest_step(st, gx, gy, gz, ax, ay, az, gyr_max2, acc_dev2):
-    """One sample into the still run ``st`` (4,: its length in samples and the sum of its
-    accelerometer, body axes), in place: the sample continues it when the gyro's |ω|² is below
-    ``gyr_max2`` and the accelerometer lies within √``acc_dev2`` of the run's mean so far; otherwise a
-    run starts at it (when the gyro is still) or none (a non-finite sample too)."""
+def rest_step(st, gx, gy, gz, ax, ay, az, gyr_max2, acc_dev2, spike2):
+    """One sample into the still run ``st`` (7,: its length in samples, the sum of its accelerometer and
+    the sum of its gyro, body axes), in place: the sample continues it when the accelerometer lies
+    within √``acc_dev2`` of the run's mean so far and the gyro's |ω|² is below ``gyr_max2`` — or below
+    ``spike2`` while the run's mean gyro, the sample included, stays below √``gyr_max2`` (a noisy gyro's
+    single samples: white noise averages out of the mean, a turn does not; rule 23). Otherwise a run
+    starts at it (when its gyro is below √``gyr_max2``) or none (a non-finite sample too)."""
     w2 = gx * gx + gy * gy + gz * gz
-    if not (w2 < gyr_max2 and math.isfinite(ax + ay + az)):  # (a NaN compares False)
-        st[0], st[1], st[2], st[3] = 0.0, 0.0, 0.0, 0.0
+    if not (w2 < spike2 and math.isfinite(ax + ay + az)):  # (a NaN compares False)
+        st[0], st[1], st[2], st[3], st[4], st[5], st[6] = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         return
     if st[0] > 0.0:
         dx, dy, dz = ax - st[1] / st[0], ay - st[2] / st[0], az - st[3] / st[0]
         if dx * dx + dy * dy + dz * dz < acc_dev2:
-            st[0], st[1], st[2], st[3] = st[0] + 1.0, st[1] + ax, st[2] + ay, st[3] + az
-            return
-    st[0], st[1], st[2], st[3] = 1.0, ax, ay, az
+            n = st[0] + 1.0
+            mx, my, mz = (st[4] + gx) / n, (st[5] + gy) / n, (st[6] + gz) / n
+            if w2 < gyr_max2 or mx * mx + my * my + mz * mz < gyr_max2:
+                st[0], st[1], st[2], st[3] = n, st[1] + ax, st[2] + ay, st[3] + az
+                st[4], st[5], st[6] = st[4] + gx, st[5] + gy, st[6] + gz
+                return
+    if w2 < gyr_max2:
+        st[0], st[1], st[2], st[3], st[4], st[5], st[6] = 1.0, ax, ay, az, gx, gy, gz
+    else:
+        st[0], st[1], st[2], st[3], st[4], st[5], st[6] = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
 
 
 @njit(cache=True)
-def rest_rows(st, gyr_b, acc_b, gyr_max2, acc_dev2):
+def rest_rows(st, gyr_b, acc_b, gyr_max2, acc_dev2, spike2):
     """:func:`rest_step` of each row of ``gyr_b`` / ``acc_b`` (n, 3), in order."""
     for i in range(gyr_b.shape[0]):
-        rest_step(st, gyr_b[i, 0], gyr_b[i, 1], gyr_b[i, 2], acc_b[i, 0], acc_b[i, 1], acc_b[i, 2], gyr_max2, acc_dev2)
+        rest_step(st, gyr_b[i, 0], gyr_b[i, 1], gyr_b[i, 2], acc_b[i, 0], acc_b[i, 1], acc_b[i, 2], gyr_max2, acc_dev2,
+                  spike2)  # fmt: skip
 
 
 @njit(cache=True)
