@@ -85,7 +85,9 @@ def test_the_noise_floor_does_not_make_a_steady_turn_quiet():
     # a gyro too noisy to tell (10 °/s per sample): the threshold stops at the cap, 0.1 rad/s, and nothing is read
     t, gyr, acc = _imu(30.0, 200.0, 1.2, gyr_noise=np.radians(10.0))
     assert read_accel_scale(t, gyr, acc).read is None
-    with pytest.raises(Exception, match="noise_floor_factor"):
+    from tepinn_flight.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="noise_floor_factor"):
         AccelScaleConfig(noise_floor_factor=-1.0)
 
 

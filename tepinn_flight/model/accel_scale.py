@@ -94,7 +94,9 @@ def quiet_threshold(noise_floor, cfg: AccelScaleConfig):
 
 def noise_norms(gyr, ok) -> np.ndarray:
     """(n,) |ω_i − ω_(i−1)|/√2 per sample (0 at the first and next to a non-finite sample): what white
-    noise alone adds to |ω|, in distribution."""
+    noise alone adds to |ω|, in distribution. (First differences, not the second differences of
+    :func:`..record_stats.sample_noise`, which reports a per-axis σ: the norm of a first difference over √2 has the
+    distribution of the noise vector's own norm, and the live tracker needs only the previous sample.)"""
     d = np.zeros(len(gyr))
     if len(gyr) > 1:
         step = np.diff(np.where(ok[:, None], gyr, 0.0), axis=0)

@@ -216,8 +216,8 @@ class AnchorConfig:
     # ... and while the uncalibrated-gyro gate's evidence builds, before it latches: the older fusion's horizontal
     # bias beyond quiet_bias_deg_s and VQF's own at bias_gate_vqf_deg_s or more on an axis (its existing thresholds).
     # VQF then carries a bias beyond its clip (training flights' uncalibrated IMUs: tilt error 8–20° for 8–13 s with σ
-    # at its floor, NEES 300–1800 there) and the network's target is the witness. Calibrated gyros never show it (the
-    # 17 BROAD trials: σ identical). Session 31, rule 22; False: before it (checkpoints without the key)
+    # at its floor, NEES 300–1800 there) and the network's target is the witness. It did not appear on any calibrated
+    # gyro we have (the 17 BROAD trials and the 6 held-out drone logs: σ identical). Session 31, rule 22; False: before it (checkpoints without the key)
     sigma_gap_bias_evidence: bool = True
     # quiet blocks (speed): the windows matter only where a gate may open. A block of the older
     # fusion's bias feedback (its bias_feedback_windows tokens) whose first window shows |v̂| below
