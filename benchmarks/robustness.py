@@ -184,13 +184,16 @@ def main() -> int:
         at = (np.abs(g) >= lim).any(axis=1)
         return changed(rec, gyr=np.clip(g, -lim, lim), clipped=rec.clipped | at, gyr_clipped=rec.gyr_clipped | at), at.mean()
 
+    def noisy_gyro(rec, sd_deg_s, i):
+        """The file's gyro with white noise of ``sd_deg_s`` per sample and axis (file ``i``'s own draws: the same in
+        every condition, as runs/exp30's rule-20 probe with --seen-only)."""
+        return rec.gyr_rad_s + np.radians(sd_deg_s) * np.random.default_rng(3000 + i).standard_normal((len(rec), 3))
+
     for s in [float(x) for x in args.acc_scales.split(",") if x]:
         report(f"accelerometer × {s:g}", [(n, *both(changed(rec, acc=rec.acc_m_s2 * s))) for n, rec in recs])
-        for sd in [float(x) for x in args.acc_scale_gyro_noise.split(",") if x]:  # (the noise draws of --gyro-noise)
+        for sd in [float(x) for x in args.acc_scale_gyro_noise.split(",") if x]:
             report(f"accelerometer × {s:g}, gyro white noise {sd:g} °/s RMS",
-                   [(n, *both(changed(rec, acc=rec.acc_m_s2 * s,
-                                      gyr=rec.gyr_rad_s + np.radians(sd) * np.random.default_rng(3000 + i).standard_normal((len(rec), 3)))))
-                    for i, (n, rec) in enumerate(recs)])  # fmt: skip
+                   [(n, *both(changed(rec, acc=rec.acc_m_s2 * s, gyr=noisy_gyro(rec, sd, i)))) for i, (n, rec) in enumerate(recs)])
     if args.acc_clip_every > 0:
         for label, as_gyro in (("the accelerometer's (as recorded)", False), ("the gyro's (what session 8's gate did with any clipped sample)", True)):
             res = []
@@ -278,10 +281,8 @@ def main() -> int:
     for b in [float(x) for x in args.acc_biases.split(",") if x]:
         report(f"accelerometer offset ({b:g}, {b:g}, {-b:g}) m/s²",
                [(n, *both(changed(rec, acc=rec.acc_m_s2 + np.array([b, b, -b])))) for n, rec in recs])
-    for sd in [float(x) for x in args.gyro_noise.split(",") if x]:  # (seeds as runs/exp30's rule 20 probe with --seen-only)
-        report(f"gyro white noise {sd:g} °/s RMS",
-               [(n, *both(changed(rec, gyr=rec.gyr_rad_s + np.radians(sd) * np.random.default_rng(3000 + i).standard_normal((len(rec), 3)))))
-                for i, (n, rec) in enumerate(recs)])  # fmt: skip
+    for sd in [float(x) for x in args.gyro_noise.split(",") if x]:
+        report(f"gyro white noise {sd:g} °/s RMS", [(n, *both(changed(rec, gyr=noisy_gyro(rec, sd, i)))) for i, (n, rec) in enumerate(recs)])
     for d in [float(x) for x in args.gyro_bias_ramps.split(",") if x]:
         res = []
         for n, rec in recs:
