@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from tepinn_flight.evaluation.peers import Q_NED_ENU, q_nb_from_earth_sensor
 from tepinn_flight.model.anchor import q_nb_from_vqf
 from tepinn_flight.model.anchor_kernels import (horizontal_bias, rest_rows, sigma_step, turn_acc_state, vqf_inputs,
-                                                vqf_outputs)  # fmt: skip
+                                                vqf_output_one, vqf_outputs)  # fmt: skip
 from tepinn_flight.quat_scalar import rotmat_entries
 from tests.conftest import broad_trial
 
@@ -105,6 +105,12 @@ def test_block_outputs_against_scipy_and_a_slow_sigma():
         s, e1 = sigma_step(*q[i], *a_s[i], *g_s[i], e1, *args[1:])
         assert s == sigma[i]
     assert e1 == e
+    # ... and so does the live path's one call per sample, the quaternion and the bias too
+    sp, out = np.array([args[0], *args[1:]]), np.empty(8)
+    for i in range(300):
+        vqf_output_one(q[i].copy(), bias_s[i].copy(), a_s[i].copy(), *g_s[i], corr, sp, out)
+        assert out[:4].tolist() == q_nb[i].tolist() and out[4] == sigma[i] and out[5:].tolist() == bias_b[i].tolist()
+    assert sp[0] == e and sp[1:].tolist() == list(args[1:])
     # a low-pass gain of 1 (τ below the sample period): the angle itself
     vqf_outputs(q, bias_s, a_s, g_s, corr, 0.3, 1.0, 0.0, 1.0, 0.0, 0.0, q_nb, bias_b, sigma)
     np.testing.assert_allclose(sigma, _sigma_reference(q, a_s, g_s, 0.0, 1.0, 0.0, 1.0, 0.0, 0.0)[0], rtol=0, atol=1e-13)

@@ -93,8 +93,8 @@ from ..record_gaps import GAP_PERIODS
 from .anchor_kernels import FLIP as _FLIP
 from .anchor_kernels import Q_NED_ENU, Q_SENSOR_BODY  # noqa: F401  (VQF's frames; peers import them from here)
 from .anchor_kernels import (clip_sigma_rows, clip_sigma_step, fusion_tilt_f, fusion_tilt_rows, horizontal_bias, q_nb_from_vqf_f, q_nb_rows, rest_rows,
-                             rest_step, sigma_step, step_weight, step_weights, tilt_pull_f, turn_acc_state,
-                             up_in_earth_f, vqf_inputs, vqf_outputs)  # fmt: skip
+                             rest_step, step_weight, step_weights, tilt_pull_f, turn_acc_state,
+                             up_in_earth_f, vqf_inputs, vqf_output_one, vqf_outputs)  # fmt: skip
 from .fusion import FusionConfig
 BIAS_EVIDENCE_S = 2.0  # the older fusion's bias must stay beyond its gate this long
 THRUST_TAU_S = 10.0  # the accelerometer's mean direction (bias_gate_thrust_deg) is low-passed over this
@@ -413,11 +413,11 @@ class AnchoredVQF:
         self.sigma_net = 0.0
         self.var_gap = 0.0  # σ²'s gap term (sigma_gap_gain), set at each window
         self.t_gated = -math.inf  # the last window where a gate acted
-        self.e_acc = 0.0  # low-passed accelerometer-vs-gravity angle (rad)
-        self.sigma_alpha = min(1.0, self.ts / c.sigma_acc_tau_s)  # its low-pass gain per sample
-        self.sigma_var0 = math.radians(c.sigma_floor_deg) ** 2
-        self.sigma_gain = float(c.sigma_acc_gain)
-        self.sigma_samp = float(c.sigma_sampling_gain) * self.ts * self.ts / 12.0  # × |ω|²: the sampling term
+        # σ's accelerometer term and constants as vqf_output_one takes them: (e, α, var0, gain, samp, var_net) —
+        # e the low-passed accelerometer-vs-gravity angle (rad), α its low-pass gain per sample, samp × |ω|² the
+        # sampling term, var_net the network's share (_var_net, kept current by correct)
+        self._sp = np.array([0.0, min(1.0, self.ts / c.sigma_acc_tau_s), math.radians(c.sigma_floor_deg) ** 2,
+                             float(c.sigma_acc_gain), float(c.sigma_sampling_gain) * self.ts * self.ts / 12.0, 0.0])  # fmt: skip
         self.e_clip = 0.0  # the gyro-saturation term E (rad)
         self.clip_decay = math.exp(-self.ts / c.sigma_clip_tau_s)
         self.clip_gain_dt = float(c.sigma_clip_gain) * self.ts
@@ -430,6 +430,9 @@ class AnchoredVQF:
         self.step_weighting = bool(c.gyro_step_weighting)  # the gyro into VQF × dt/Ts (gyro_step_weighting)
         self.t_prev = math.nan  # the previous sample's time (NaN: none yet in this segment)
         self._g1, self._a1 = np.empty(3), np.empty(3)  # update_one's sample in VQF's frame
+        self._out1 = np.empty(8)  # ... and its outputs (vqf_output_one)
+        # gyr_corr, vel and acc_v as floats for update_one (numpy's scalar reads cost it ~1 µs a sample), set with them
+        self._gc, self._vel_f, self._acc_v_f = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
 
     # ------------------------------------------------------------------ samples
 
@@ -481,9 +484,9 @@ class AnchoredVQF:
             self.t_prev = float(t_s[-1])
         out = self.f.updateBatch(g_v, a_s, m)
         q6, sig, bias = np.empty((n, 4)), np.empty(n), np.empty((n, 3))
-        self.e_acc = vqf_outputs(_rows(out["quat6D"]), _rows(out["bias"]), a_s, g_s, self.gyr_corr, self.e_acc,
-                                 self.sigma_alpha, self.sigma_var0, self.sigma_gain, self.sigma_samp, self._var_net(),
-                                 q6, bias, sig)  # fmt: skip
+        sp = self._sp
+        sp[0] = vqf_outputs(_rows(out["quat6D"]), _rows(out["bias"]), a_s, g_s, self.gyr_corr, float(sp[0]),
+                            float(sp[1]), float(sp[2]), float(sp[3]), float(sp[4]), self._var_net(), q6, bias, sig)  # fmt: skip
         if self.clip_gain_dt > 0 and (self.e_clip > 0 or (cl is not None and cl.size)):  # the saturation term
             flags = np.zeros(n, np.bool_)
             if cl is not None:
@@ -499,8 +502,10 @@ class AnchoredVQF:
         """:meth:`update` of one sample in plain floats (the live path: numpy's per-call overhead
         on one row cost 10× the arithmetic) → (q_nb, q_nb_9d or None, sigma, bias_b) as tuples and
         a float; the numbers of a one-row :meth:`update` (tested)."""
-        g = [float(v) for v in gyr_b]
-        a = [float(v) for v in acc_b]
+        gx, gy, gz = gyr_b
+        ax, ay, az = acc_b
+        g = [float(gx), float(gy), float(gz)]
+        a = [float(ax), float(ay), float(az)]
         if self.gscale is not None:  # as update()
             sx, sy, sz = self.gscale
             g = [g[0] * sx, g[1] * sy, g[2] * sz]
@@ -519,34 +524,30 @@ class AnchoredVQF:
             g, a = [float(v) for v in self.last_imu[0]], [float(v) for v in self.last_imu[1]]  # the last finite sample
             self.holes += 1
         self.last_imu = (g, a)
-        gc, v, av = self.gyr_corr, self.vel, self.acc_v
+        gc, v, av = self._gc, self._vel_f, self._acc_v_f
         gx, gy, gz = g[0] - gc[0], g[1] - gc[1], g[2] - gc[2]
         ax, ay, az = a
         if self.turn_on:  # a − (ω × v̂ + â)
             ax = ax - ((g[1] * v[2] - g[2] * v[1]) + av[0])
             ay = ay - ((g[2] * v[0] - g[0] * v[2]) + av[1])
             az = az - ((g[0] * v[1] - g[1] * v[0]) + av[2])
-        a_s = (ax, -ay, -az)  # VQF's z-up sensor frame
         k = 1.0  # VQF integrates the gyro over the sample's own step (as update(); × −k: S's y and z, exactly −gy·k)
         if self.step_weighting:
             k = step_weight(float(t_s) - self.t_prev, self.ts, GAP_PERIODS)
             self.t_prev = float(t_s)
+        g1, a1 = self._g1, self._a1  # VQF's z-up sensor frame, into arrays made once (new ones cost more than VQF's update)
+        g1[0], g1[1], g1[2] = gx * k, gy * -k, gz * -k
+        a1[0], a1[1], a1[2] = ax, -ay, -az
         if self.use_mag:
             m = [0.0, 0.0, 0.0] if mag is None else [float(x) if math.isfinite(float(x)) else 0.0 for x in mag]
-            self.f.update(np.array([gx * k, gy * -k, gz * -k]), np.array(a_s), np.array([m[0], -m[1], -m[2]]))
-        else:  # (into arrays made once: two new arrays a sample cost more than VQF's update)
-            g1, a1 = self._g1, self._a1
-            g1[0], g1[1], g1[2] = gx * k, gy * -k, gz * -k
-            a1[0], a1[1], a1[2] = a_s
+            self.f.update(g1, a1, np.array([m[0], -m[1], -m[2]]))
+        else:
             self.f.update(g1, a1)
-        qw, qx, qy, qz = self.f.getQuat6D().tolist()
-        q6 = q_nb_from_vqf_f(qw, qx, qy, qz)
+        out = self._out1
+        vqf_output_one(self.f.getQuat6D(), self.f.getBiasEstimate()[0], a1, gx, -gy, -gz, self.gyr_corr, self._sp, out)
+        o = out.tolist()
+        q6, sig, bias = (o[0], o[1], o[2], o[3]), o[4], (o[5], o[6], o[7])
         q9 = q_nb_from_vqf_f(*self.f.getQuat9D().tolist()) if self.use_mag else None
-        b = self.f.getBiasEstimate()[0]
-        bias = (b[0] + gc[0], -b[1] + gc[1], -b[2] + gc[2])
-        sig, self.e_acc = sigma_step(qw, qx, qy, qz, a_s[0], a_s[1], a_s[2], gx, -gy, -gz, self.e_acc,
-                                     self.sigma_alpha, self.sigma_var0, self.sigma_gain, self.sigma_samp,
-                                     self._var_net())  # fmt: skip
         if self.clip_gain_dt > 0 and (clipped or self.e_clip > 0):  # the saturation term
             sig, self.e_clip = clip_sigma_step(sig, self.e_clip, bool(clipped), gx, -gy, -gz, self.clip_decay,
                                                self.clip_gain_dt, CLIP_SIGMA_CAP_RAD)  # fmt: skip
@@ -561,6 +562,12 @@ class AnchoredVQF:
 
     def correct(self, w: WindowOutput) -> None:
         """Apply the network's window made at the last sample pushed (see module doc)."""
+        self._correct(w)
+        # what update_one reads per sample, set once a window (the same numbers as the arrays: tolist is exact)
+        self._sp[5] = self._var_net()
+        self._gc, self._vel_f, self._acc_v_f = (tuple(x.tolist()) for x in (self.gyr_corr, self.vel, self.acc_v))
+
+    def _correct(self, w: WindowOutput) -> None:
         c = self.cfg
         if self.slow:  # below the rates the network learned: nothing of the window acts; σ's E decays as VQF recovers
             self.gate, self.gate_parts, self.var_gap = 0.0, (0.0, 0.0, 0.0), 0.0

@@ -173,6 +173,22 @@ def vqf_outputs(q_es, bias_s, a_s, g_s, gyr_corr, e, alpha, var0, gain, samp, va
 
 
 @njit(cache=True)
+def vqf_output_one(q_es, bias_s, a_s, gx, gy, gz, gyr_corr, sp, out):
+    """:func:`vqf_outputs` of one sample, for the live path (one compiled call where there were three):
+    ``q_es`` (4,) and ``bias_s`` (3,) VQF's after its update, ``a_s`` (3,) the accelerometer it saw and
+    (``gx``, ``gy``, ``gz``) the gyro, sensor axes, before any step weighting; ``sp`` = (e, α, var0, gain,
+    samp, var_net) as :func:`sigma_step` takes them, its ``e`` updated in place; ``out`` (8,) ← q_nb (4),
+    σ, bias_b (3)."""
+    qw, qx, qy, qz = q_es[0], q_es[1], q_es[2], q_es[3]
+    out[0], out[1], out[2], out[3] = q_nb_from_vqf_f(qw, qx, qy, qz)
+    out[5] = bias_s[0] + gyr_corr[0]
+    out[6] = -bias_s[1] + gyr_corr[1]
+    out[7] = -bias_s[2] + gyr_corr[2]
+    out[4], sp[0] = sigma_step(qw, qx, qy, qz, a_s[0], a_s[1], a_s[2], gx, gy, gz, sp[0], sp[1], sp[2], sp[3], sp[4],
+                               sp[5])  # fmt: skip
+
+
+@njit(cache=True)
 def horizontal_bias(qw, qx, qy, qz, bx, by, bz):
     """The part of a body-axes gyro bias ``b`` perpendicular to gravity, for VQF's attitude ``q``
     (sensor → earth): ``(I − d dᵀ) b`` with d the filter's down in body axes."""

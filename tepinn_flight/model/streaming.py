@@ -147,16 +147,6 @@ class StreamingEstimator:
         self.speeds = deque(maxlen=self.anchor_cfg.quiet_memory_blocks) if self.anchor_cfg else None  # ... of the last blocks
         self.quiet = self.anchor_cfg.quiet_in(self.fusion_cfg) if self.anchor_cfg is not None else 0
 
-    def _new_segment(self, t: float) -> bool:
-        if self.t_prev is None:
-            return True
-        dt = t - self.t_prev
-        if dt <= 0:
-            return True
-        if self.period is not None and dt > GAP_PERIODS * self.period:
-            return True
-        return False
-
     def push(self, t_s: float, gyr_rad_s, acc_m_s2, mag_ut=None, clipped: bool = False,
              gyr_clipped: bool | None = None) -> Estimate:
         """One sample → its estimate. ``clipped``: a sensor axis at its range (the network's tokens, the
@@ -164,9 +154,10 @@ class StreamingEstimator:
         — a record's ``clipped`` and ``gyr_clipped`` columns."""
         t0c = time.perf_counter()
         t = float(t_s)
-        gx, gy, gz = gyr_rad_s  # (unpacked once: this path runs per sample, its Python is most of its cost)
+        gx, gy, gz = gyr_rad_s  # (unpacked and made floats once: this path runs per sample, its Python is most of its cost)
         ax, ay, az = acc_m_s2
-        if math.isfinite(float(gx) + float(gy) + float(gz) + float(ax) + float(ay) + float(az)):  # a NaN or inf makes the sum one
+        gx, gy, gz, ax, ay, az = float(gx), float(gy), float(gz), float(ax), float(ay), float(az)
+        if math.isfinite(gx + gy + gz + ax + ay + az):  # a NaN or inf makes the sum one
             gyr_rad_s, acc_m_s2 = (gx, gy, gz), (ax, ay, az)
             self.last_imu = (gyr_rad_s, acc_m_s2)
         else:  # a hole: bridged with the last finite sample, as offline
@@ -181,11 +172,12 @@ class StreamingEstimator:
         if self.acc_scale is not None:  # divided by the accelerometer's scale once read (where ≥ 10 % off)
             acc_m_s2 = self.acc_scale.update(t, gyr_rad_s, acc_m_s2)
             ax, ay, az = acc_m_s2
-        if self._new_segment(t):
+        t_prev = self.t_prev  # a new segment: the first sample, a time reversal or a gap (not bridged above)
+        dt = None if t_prev is None else t - t_prev
+        if dt is None or dt <= 0 or (self.period is not None and dt > GAP_PERIODS * self.period):
             self.reset()
             self.t0 = t
         else:
-            dt = t - self.t_prev
             if len(self._dts) < 51:
                 self._dts.append(dt)
                 self.period = float(np.median(self._dts))
@@ -202,12 +194,12 @@ class StreamingEstimator:
             self.cur = _Token()
         tok = self.cur
         tg, ta = tok.g, tok.a
-        tg[0] += float(gx)
-        tg[1] += float(gy)
-        tg[2] += float(gz)
-        ta[0] += float(ax)
-        ta[1] += float(ay)
-        ta[2] += float(az)
+        tg[0] += gx
+        tg[1] += gy
+        tg[2] += gz
+        ta[0] += ax
+        ta[1] += ay
+        ta[2] += az
         if mag_ut is not None and all(math.isfinite(float(v)) for v in mag_ut):
             for i in range(3):
                 tok.m[i] += float(mag_ut[i])
@@ -249,23 +241,15 @@ class StreamingEstimator:
                 q_pull = np.asarray(target, np.float64)
             est = WindowOutput(q_pull, est.sigma_rad, est.gyr_bias_rad_s, est.vel_m_s, est.acc_m_s2, b, est.gnss_aided,
                                est.gnss_fast)  # fmt: skip
-        if self.anchored is None:
-            self.pending.append((t, gyr, acc, mag, gyr_clipped, est))
-            if len(self.pending) <= TS_STEPS:
-                return None, float("nan"), (float("nan"),) * 3
-            dts = np.diff([p[0] for p in self.pending])
-            mode = self.anchor_cfg.mode  # auto: 9-D when the segment's first samples carry a magnetometer
-            use_mag = mode == "9d" or (mode == "auto" and any(p[3] is not None and all(math.isfinite(float(v)) for v in p[3])
-                                                              for p in self.pending))  # fmt: skip
-            self.anchored = AnchoredVQF(self.anchor_cfg, float(np.median(dts)), use_mag=use_mag)
-            pending, self.pending = self.pending, []
+        anchored = self.anchored
+        if anchored is not None:  # (the usual case, without the list below)
+            if est is not None:
+                anchored.correct(est)
+            out = anchored.update_one(t, gyr, acc, mag, gyr_clipped)
         else:
-            pending = [(t, gyr, acc, mag, gyr_clipped, est)]
-        out = None
-        for t_i, g_i, a_i, m_i, c_i, e_i in pending:
-            if e_i is not None:
-                self.anchored.correct(e_i)
-            out = self.anchored.update_one(t_i, g_i, a_i, m_i, c_i)
+            out = self._first_samples(t, gyr, acc, mag, gyr_clipped, est)
+            if out is None:
+                return None, float("nan"), (float("nan"),) * 3
         q6, q9, sig, bias = out
         q = q9 if q9 is not None else q6
         if not math.isfinite(q[0] + q[1] + q[2] + q[3]):
@@ -273,6 +257,25 @@ class StreamingEstimator:
         if self.anchored.gate_parts[1] > 0 and self.anchor_cfg.clip_tilt_from_fusion and self.old_q is not None:
             q = fusion_tilt_f(*q, *self.old_q)  # saturated: the older fusion's tilt (offline: with_fusion_tilt)
         return q, sig, bias
+
+    def _first_samples(self, t, gyr, acc, mag, gyr_clipped, est):
+        """A segment's first samples: held until its sample period is known (the median of its first
+        steps), then the anchored filter made and run over them → the last one's outputs (None: still held)."""
+        self.pending.append((t, gyr, acc, mag, gyr_clipped, est))
+        if len(self.pending) <= TS_STEPS:
+            return None
+        dts = np.diff([p[0] for p in self.pending])
+        mode = self.anchor_cfg.mode  # auto: 9-D when the segment's first samples carry a magnetometer
+        use_mag = mode == "9d" or (mode == "auto" and any(p[3] is not None and all(math.isfinite(float(v)) for v in p[3])
+                                                          for p in self.pending))  # fmt: skip
+        self.anchored = AnchoredVQF(self.anchor_cfg, float(np.median(dts)), use_mag=use_mag)
+        pending, self.pending = self.pending, []
+        out = None
+        for t_i, g_i, a_i, m_i, c_i, e_i in pending:
+            if e_i is not None:
+                self.anchored.correct(e_i)
+            out = self.anchored.update_one(t_i, g_i, a_i, m_i, c_i)
+        return out
 
     def _close_token(self):
         tok = self.cur
