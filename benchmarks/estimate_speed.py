@@ -104,7 +104,7 @@ def vqf_offline(rec) -> tuple[float, float]:
 
 def streaming(runner, settings, rec, skip: int) -> tuple[np.ndarray, float]:
     """(wall µs of each push after the first ``skip``, CPU µs per push over those)."""
-    se = StreamingEstimator(runner, settings, threads=1)
+    se = StreamingEstimator(runner, settings, threads=1, vehicle=rec.meta.get("vehicle_type"))  # (as the bridge told)
     t, g, a = rec.t_s, rec.gyr_rad_s, rec.acc_m_s2
     cost = np.empty(len(t))
     for i in range(len(t)):

@@ -104,7 +104,7 @@ def speed(model, fusion, seconds: float) -> None:
     t0 = time.perf_counter()
     estimate_record(model, rec, fusion)
     off = time.perf_counter() - t0
-    live = StreamingEstimator(model, fusion, threads=1)
+    live = StreamingEstimator(model, fusion, threads=1, vehicle=rec.meta.get("vehicle_type"))
     costs = np.empty(n)
     for i, (t, g, a) in enumerate(zip(rec.t_s, rec.gyr_rad_s, rec.acc_m_s2)):
         c0 = time.perf_counter()

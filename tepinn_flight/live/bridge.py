@@ -255,7 +255,7 @@ class Bridge:
         boot_ms = s.time_boot_ms
         if boot_ms is None:  # UNIX-stamped IMU: carry the boot clock on
             boot_ms = self.ap.boot_ms_at(t_in)
-        self.feed.submit(s, t_in, boot_ms)
+        self.feed.submit(s, t_in, boot_ms, self.ap.type_name())
 
     # ------------------------------------------------------------------ estimates out
     def _emit(self, est: dict) -> None:

@@ -20,7 +20,7 @@ import threading
 
 from .messages import diagnostic_msgs, estimate_msgs
 from .status import RateMeter, latency_histogram
-from .worker import COUNTERS, ProcessWorker, ThreadWorker, pack_sample, reset_record, unpack_estimate
+from .worker import COUNTERS, ProcessWorker, ThreadWorker, pack_sample, reset_record, unpack_estimate, vehicle_record
 
 RESTART_BACKOFF_S = (2.0, 4.0, 8.0, 16.0, 30.0)
 _ZERO = (0, 0, 0, 0, 0, 0.0, 0.0)  # the worker's counters: processed, stale, resets, errors, model runs, model s, step s
@@ -46,6 +46,7 @@ class EstimatorFeed:
         self.dropped_queue = 0
         self.no_worker_samples = 0
         self.seq = 0
+        self.vehicle_told = False, None  # (told the current worker?, what: the vehicle's MAV_TYPE name)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -56,6 +57,7 @@ class EstimatorFeed:
             self.worker = ThreadWorker(self.make_estimator, c.rate_hz, c.max_sample_age_s)
         self.worker_ready = False
         self.wc = list(_ZERO)
+        self.vehicle_told = False, None  # a new worker knows nothing of the vehicle
 
     def _died(self, now: float) -> None:
         w = self.worker
@@ -147,12 +149,16 @@ class EstimatorFeed:
         if self.worker is not None:
             self.worker.submit(reset_record())
 
-    def submit(self, s, t_in: float, boot_ms: int | None) -> None:
-        """One IMU sample (:class:`~tepinn_flight.live.inputs.ImuSample`) read at ``t_in``."""
+    def submit(self, s, t_in: float, boot_ms: int | None, vehicle: str | None = None) -> None:
+        """One IMU sample (:class:`~tepinn_flight.live.inputs.ImuSample`) read at ``t_in``; ``vehicle``: what the
+        autopilot's heartbeat says the vehicle is (its MAV_TYPE name; None: not known), told the worker before the
+        first sample and whenever it changes (as offline from a record's ``vehicle_type``)."""
         w = self.worker
         if w is None or not self.worker_ready:
             self.no_worker_samples += 1
             return
+        if self.vehicle_told != (True, vehicle) and w.submit(vehicle_record(vehicle)):
+            self.vehicle_told = True, vehicle
         in_flight = w.submitted - self.wc[0] - self.wc[1] - self.wc[3]
         if in_flight >= self.cfg.queue_samples:
             self.dropped_queue += 1

@@ -42,12 +42,16 @@ import sys
 import threading
 import time
 
+from ..vehicle_class import CLASSES as VEHICLE_CLASSES
+from ..vehicle_class import vehicle_class
+
 #: kind, seq, t_s, arrival (monotonic s), gyr(3), acc(3), mag(3, NaN = none), time_usec, time_boot_ms (-1 = none),
 #: flags (CLIPPED | GYR_CLIPPED: the sample at its range, ingest.saturation)
 SAMPLE = struct.Struct("<BIdd3d3d3dQiB")
 CLIPPED, GYR_CLIPPED = 1, 2
 KIND_SAMPLE = 1
 KIND_RESET = 2
+KIND_VEHICLE = 3  # what the vehicle is: its class's index in vehicle_class.CLASSES in the seq field
 #: seq, t_s, arrival, q(4), sigma, bias(3), gyr(3), time_usec, time_boot_ms, model_ran, compute_s
 EST = struct.Struct("<Idd4dd3d3dQiBd")
 #: processed, dropped_stale, resets, errors, model_runs, model_s, step_s
@@ -69,6 +73,11 @@ def pack_sample(seq, t_s, arrival, gyr, acc, mag, time_usec, time_boot_ms, kind=
 
 def reset_record() -> bytes:
     return SAMPLE.pack(KIND_RESET, 0, 0.0, 0.0, *([0.0] * 9), 0, -1, 0)
+
+
+def vehicle_record(vehicle: str | None) -> bytes:
+    """What the vehicle is (the autopilot's MAV_TYPE name, ...: :func:`..vehicle_class.vehicle_class`)."""
+    return SAMPLE.pack(KIND_VEHICLE, VEHICLE_CLASSES.index(vehicle_class(vehicle)), 0.0, 0.0, *([0.0] * 9), 0, -1, 0)
 
 
 def unpack_estimate(payload: bytes) -> tuple[dict, tuple]:
@@ -136,6 +145,10 @@ def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, 
             if r[0] == KIND_RESET:
                 est.reset()
                 last_k = None
+                continue
+            if r[0] == KIND_VEHICLE:
+                if r[1] < len(VEHICLE_CLASSES) and hasattr(est, "set_vehicle"):
+                    est.set_vehicle(VEHICLE_CLASSES[r[1]])
                 continue
             if clock() - r[3] > max_age_s:
                 dropped += 1

@@ -90,6 +90,8 @@ from ..conventions import GRAVITY_M_S2
 from ..errors import ConfigError
 from ..quat_scalar import down_in_body
 from ..record_gaps import GAP_PERIODS
+from ..vehicle_class import CLASSES as VEHICLE_CLASSES
+from ..vehicle_class import vehicle_class
 from .anchor_kernels import FLIP as _FLIP
 from .anchor_kernels import Q_NED_ENU, Q_SENSOR_BODY  # noqa: F401  (VQF's frames; peers import them from here)
 from .anchor_kernels import (clip_sigma_rows, clip_sigma_step, fusion_tilt_f, fusion_tilt_rows, horizontal_bias, q_nb_from_vqf_f, q_nb_rows, rest_rows,
@@ -120,6 +122,13 @@ class AnchorConfig:
     # was removed, measured worse: validation flights 6.21° against 5.05°)
     speed_lo_m_s: float = 20.0  # flight-speed gate: 0 below, 1 above speed_hi_m_s
     speed_hi_m_s: float = 30.0
+    # ... and stays shut on a record whose log names a vehicle of these classes (:mod:`..vehicle_class`; unnamed:
+    # as any other): the gate's correction was learned on fixed-wing flight only. On the training campaign the
+    # shipped network's |v̂| reached 20 m/s on 46–84 % of the c172x's windows but on 0.2 % of the F450's (flights
+    # that never fly that fast) and none of the agile quad's: on a multirotor an opening is a misreading; and a
+    # network that never saw hand-held motion opened it on BROAD (2.41° against VQF's 0.68°; with the rule 0.63°).
+    # Session 32, rule 24; () — any vehicle — before
+    speed_gate_shut_for: tuple[str, ...] = ("multirotor", "handheld")
     centripetal: bool = True  # remove ω × v̂ + â (times the flight gate) from VQF's accelerometer
     clip_hold_s: float = 4.0  # gyro-saturation gate stays on this long after the last clipped sample
     # ... and opens only where the last clip_hold_s hold at least clip_min_s of clipped samples (0: one)
@@ -270,6 +279,12 @@ class AnchorConfig:
         for v in gs:
             check_range("gyro_scale", v, 0.5, 2.0)
         object.__setattr__(self, "gyro_scale", tuple(float(v) for v in gs))
+        shut = self.speed_gate_shut_for
+        shut = (shut,) if isinstance(shut, str) else tuple(shut) if isinstance(shut, (list, tuple)) else None
+        if shut is None or any(v not in VEHICLE_CLASSES for v in shut):
+            raise ConfigError(f"'speed_gate_shut_for' must name vehicle classes among {', '.join(VEHICLE_CLASSES)}, "
+                              f"got {self.speed_gate_shut_for!r}")  # fmt: skip
+        object.__setattr__(self, "speed_gate_shut_for", shut)
         for name in ("tau_acc_s", "bias_clip_deg_s", "sigma_acc_tau_s", "sigma_clip_tau_s"):
             check_range(name, getattr(self, name), 0, None, lo_open=True)
         check_range("tau_acc_flight_s", self.tau_acc_flight_s, 0, None)  # 0: tau_acc_s
@@ -379,11 +394,14 @@ class AnchoredVQF:
     the result is the same — and ``correct(window)`` applies a network window made at the last
     sample pushed, for the samples after it (causal)."""
 
-    def __init__(self, config: AnchorConfig, ts_s: float, use_mag: bool = False):
+    def __init__(self, config: AnchorConfig, ts_s: float, use_mag: bool = False, vehicle: str | None = None):
+        """``vehicle``: what the record says the vehicle is (its ``vehicle_type``; None: nothing) —
+        ``config.speed_gate_shut_for`` keeps the flight-speed gate shut for some classes of it."""
         import vqf
 
         self.cfg = c = config
         self.centripetal = bool(c.centripetal)
+        self.speed_gate = speed_gate_allowed(c, vehicle)
         self.use_mag = use_mag
         self.ts = ts_s
         self.f = vqf.VQF(ts_s, tauAcc=c.tau_acc_s, biasClip=c.bias_clip_deg_s)
@@ -577,6 +595,8 @@ class AnchoredVQF:
         vx, vy, vz = (0.0, 0.0, 0.0) if shut else _floats(w.vel_m_s)
         speed = math.sqrt(vx * vx + vy * vy + vz * vz)
         g_flight = min(1.0, max(0.0, (speed - c.speed_lo_m_s) / (c.speed_hi_m_s - c.speed_lo_m_s)))
+        if not self.speed_gate:  # a vehicle the gate was not learned on (speed_gate_shut_for)
+            g_flight = 0.0
         ct = self.clip_times  # enough saturated time in the last clip_hold_s (clip_min_s 0: one sample)
         while ct and self.t - ct[0] >= c.clip_hold_s:
             ct.popleft()
@@ -705,6 +725,13 @@ class AnchoredVQF:
         turn_acc_state(aq, dw, dx, dy, dz, lp, s)
         st["accQuat"], st["lastAccLp"], st["accLpState"] = aq, lp, s
         self.f.state = st
+
+
+def speed_gate_allowed(config: AnchorConfig, vehicle: str | None) -> bool:
+    """Whether the flight-speed gate may open for ``vehicle`` (a record's ``vehicle_type``, an autopilot's MAV_TYPE
+    name or a :mod:`..vehicle_class` class; None: not known): not for the classes ``config.speed_gate_shut_for``
+    names (rule 24, session 32)."""
+    return vehicle_class(vehicle) not in config.speed_gate_shut_for
 
 
 def with_fusion_tilt(q_nb: np.ndarray, q_fusion: np.ndarray) -> np.ndarray:

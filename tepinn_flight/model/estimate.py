@@ -323,15 +323,16 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     t, gyr, acc, mag = rec.t_s, *(np.ascontiguousarray(x) for x in (rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut))
     cols = (t, gyr, acc, mag, rec.gyr_clipped)  # read from the frame once (each property access copies); the
     # saturation gate opens on the gyro's clipping alone
+    vehicle = rec.meta.get("vehicle_type")  # what the log says the vehicle is (AnchorConfig.speed_gate_shut_for)
     q_out, s_out, b_out, gate, relevel_t, relevel_i, gates_open, clip_gate = _anchored_pass(anchor, rec.segment, cols,
-                                                                                             idx, out, use_mag)  # fmt: skip
+                                                                                             idx, out, use_mag, vehicle)  # fmt: skip
     aid = None
     if anchor.gnss_aid:
         aid, acc_aided, out_aided = gnss_aided_acc(rec, q_out, anchor, idx, out, cols, use_mag)
         if acc_aided is not None:
             cols = (t, gyr, acc_aided, mag, cols[4])
             q_out, s_out, b_out, gate, relevel_t, relevel_i, gates_open, clip_gate = _anchored_pass(
-                anchor, rec.segment, cols, idx, out_aided, use_mag)  # fmt: skip
+                anchor, rec.segment, cols, idx, out_aided, use_mag, vehicle)  # fmt: skip
     q_fusion = out.get("q_fusion")
     if anchor.clip_tilt_from_fusion and q_fusion is not None and np.any(clip_gate > 0):
         on = clip_gate > 0  # the saturation gate (as the filter held it): the older fusion's tilt, the filter's heading
@@ -407,14 +408,15 @@ def offline_vqf(anchor: AnchorConfig, t_s, gyr_b, acc_b) -> np.ndarray:
     return q_nb_from_vqf(res["quat6D"])
 
 
-def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
+def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag, vehicle: str | None = None):
     """One run of the anchored filter over every segment with the network's windows ``(idx, out)``
     applied at their last samples → (q_nb, sigma, bias, gate) per sample and the times the tilt was
     re-levelled at rest (:attr:`.anchor.AnchoredVQF.relevel_t`), the first sample estimated after each of those
     re-levellings and, per gate (:data:`GATE_NAMES`), the
     seconds it was open and when it first opened (``{name: (s, t)}``), and the saturation gate's part per sample
     (its pull weight, :attr:`.anchor.AnchoredVQF.gate_parts`); the gate (the largest of the
-    filter's gates, 0 where the estimate is VQF's) is each window's from the sample after it."""
+    filter's gates, 0 where the estimate is VQF's) is each window's from the sample after it. ``vehicle``: the
+    record's ``vehicle_type`` (:class:`.anchor.AnchoredVQF`)."""
     t = cols[0]
     q_pull = out.get("q_target", out["q"])
     b_fus = out.get("bias_target")
@@ -431,7 +433,7 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag):
     for sl in segment_slices(seg):
         a, b = sl.start, sl.stop
         dt = np.diff(t[a : min(b, a + TS_STEPS + 1)])  # as the live estimator: its first steps
-        flt = AnchoredVQF(anchor, float(np.median(dt)) if dt.size else 0.01, use_mag)
+        flt = AnchoredVQF(anchor, float(np.median(dt)) if dt.size else 0.01, use_mag, vehicle)
         n_before = len(relevel_i)
         cur = a
         starts, gates, parts = [], [], []  # each window's gate holds from the sample after it to the next one's
@@ -516,7 +518,8 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
         aided = acc - a_b
         out_aided = dict(out, gnss_aided=trusted[at], gnss_fast=fast)
         if p + 1 < cfg.passes:
-            q_nb = _anchored_pass(anchor, seg, (t, cols[1], aided, cols[3], cols[4]), idx, out_aided, use_mag)[0]
+            q_nb = _anchored_pass(anchor, seg, (t, cols[1], aided, cols[3], cols[4]), idx, out_aided, use_mag,
+                                  rec.meta.get("vehicle_type"))[0]  # fmt: skip
     trusted, covered, a_b = found
     return summarize(trusted, covered, a_b, vel, cfg), aided, out_aided
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..record_gaps import GAP_PERIODS, filler_times, interpolate_rows, is_bridgeable
 from .accel_scale import AccelScaleTracker
-from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, fusion_tilt_f
+from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, fusion_tilt_f, speed_gate_allowed
 from .fusion import AttitudeFusion, FusionConfig, feedback_bias
 from .runtime import NetworkRunner, as_runner
 
@@ -98,9 +98,11 @@ class _TokenWindow:
 
 class StreamingEstimator:
     def __init__(self, model: TEPINN | NetworkRunner, fusion: FusionConfig | AnchorConfig | None = None,
-                 threads: int | None = 1):  # fmt: skip
+                 threads: int | None = 1, vehicle: str | None = None):  # fmt: skip
         """``model``: a TE-PINN module (put in eval mode, run in PyTorch) or a network runner;
-        ``threads``: the runtime's CPU threads (None/0: its own choice)."""
+        ``threads``: the runtime's CPU threads (None/0: its own choice); ``vehicle``: what the vehicle is (a
+        record's ``vehicle_type``, the autopilot's MAV_TYPE name, or a :mod:`..vehicle_class` class; None: not
+        known), as offline from the record (:meth:`set_vehicle` when it is learnt later)."""
         self.model = model if isinstance(model, NetworkRunner) else model.eval()
         self.runner = as_runner(self.model)
         self.cfg = self.runner.config
@@ -116,6 +118,7 @@ class StreamingEstimator:
         self.delta = 1.0 / self.cfg.token_rate_hz
         # the accelerometer's scale, read causally and kept across segments (a sensor's property)
         self.acc_scale = AccelScaleTracker() if a is not None and a.accel_scale_selfcal else None
+        self.vehicle = vehicle  # kept across segments (the vehicle's, not the segment's)
         if threads:
             self.runner.set_threads(threads)
         self.reset()
@@ -215,6 +218,12 @@ class StreamingEstimator:
         self.t_prev = t
         return Estimate(t, q, sigma, bias, ran, time.perf_counter() - t0c)
 
+    def set_vehicle(self, vehicle: str | None) -> None:
+        """What the vehicle is, learnt after the start (the bridge: the autopilot's heartbeat): from the next window on."""
+        self.vehicle = vehicle
+        if self.anchored is not None:
+            self.anchored.speed_gate = speed_gate_allowed(self.anchor_cfg, vehicle)
+
     def _bridge(self, t: float, row: tuple) -> None:
         """Push the samples that fill the gap from the previous sample to ``t`` (as offline)."""
         t_a = self.t_prev
@@ -268,7 +277,7 @@ class StreamingEstimator:
         mode = self.anchor_cfg.mode  # auto: 9-D when the segment's first samples carry a magnetometer
         use_mag = mode == "9d" or (mode == "auto" and any(p[3] is not None and all(math.isfinite(float(v)) for v in p[3])
                                                           for p in self.pending))  # fmt: skip
-        self.anchored = AnchoredVQF(self.anchor_cfg, float(np.median(dts)), use_mag=use_mag)
+        self.anchored = AnchoredVQF(self.anchor_cfg, float(np.median(dts)), use_mag=use_mag, vehicle=self.vehicle)
         pending, self.pending = self.pending, []
         out = None
         for t_i, g_i, a_i, m_i, c_i, e_i in pending:

@@ -1,0 +1,135 @@
+"""Rule 24 (session 32): the flight-speed gate stays shut on a record whose log names a vehicle of a class in
+``AnchorConfig.speed_gate_shut_for`` (multirotors and hand-held IMUs in the shipped model) — offline from the
+record's ``vehicle_type``, live from the vehicle the bridge learns from the autopilot's heartbeat; and the class of
+each vehicle name the readers write."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import numpy as np
+import pytest
+
+from tepinn_flight.errors import ConfigError
+from tepinn_flight.model.anchor import AnchorConfig, AnchoredVQF, WindowOutput
+from tepinn_flight.model.checkpoint import ANCHOR_CONFIG_BEFORE, anchor_config_from, default_model_path, load_model
+from tepinn_flight.model.estimate import estimate_anchored
+from tepinn_flight.model.streaming import StreamingEstimator
+from tepinn_flight.model.synthetic import synthetic_record
+from tepinn_flight.record import FlightRecord
+from tepinn_flight.vehicle_class import FIXED_WING, HANDHELD, MULTIROTOR, OTHER, UNKNOWN, vehicle_class
+
+Q = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
+
+
+@pytest.mark.parametrize("name, cls", [
+    # what the readers write (the shared logs, our simulations, BROAD) and the live heartbeat's MAV_TYPE names
+    ("copter", MULTIROTOR), ("quadrotor", MULTIROTOR), ("hexarotor", MULTIROTOR), ("octorotor", MULTIROTOR),
+    ("multirotor", MULTIROTOR), ("QUADROTOR", MULTIROTOR), ("plane", FIXED_WING), ("fixed-wing", FIXED_WING),
+    ("fixed_wing", FIXED_WING), ("handheld-imu", HANDHELD), ("vtol-fixedrotor", OTHER), ("vtol_tailsitter", OTHER),
+    ("helicopter", OTHER), ("submarine", OTHER), ("sub", OTHER), ("surface_boat", OTHER), ("rover", OTHER),
+    (None, UNKNOWN), ("", UNKNOWN), ("unknown", UNKNOWN), ("generic", UNKNOWN), ("synthetic", UNKNOWN),
+    ("mav_type_99", UNKNOWN), ("mav-type-99", UNKNOWN), ("99", UNKNOWN),
+    # a class's own name is itself
+    (MULTIROTOR, MULTIROTOR), (FIXED_WING, FIXED_WING), (HANDHELD, HANDHELD), (OTHER, OTHER), (UNKNOWN, UNKNOWN),
+])  # fmt: skip
+def test_the_class_of_each_vehicle_name(name, cls):
+    assert vehicle_class(name) == cls
+
+
+def test_the_setting_names_classes_and_old_checkpoints_open_the_gate_on_any_vehicle():
+    assert AnchorConfig().speed_gate_shut_for == (MULTIROTOR, HANDHELD)
+    assert AnchorConfig(speed_gate_shut_for=["multirotor"]).speed_gate_shut_for == ("multirotor",)  # a checkpoint's list
+    with pytest.raises(ConfigError, match="speed_gate_shut_for"):
+        AnchorConfig(speed_gate_shut_for=("quadrotor",))  # a vehicle name, not a class
+    assert ANCHOR_CONFIG_BEFORE["speed_gate_shut_for"] == ()
+    raw = {k: v for k, v in dataclasses.asdict(AnchorConfig()).items() if k not in ("fusion_config", "speed_gate_shut_for")}
+    assert anchor_config_from({"anchor_config": raw}).speed_gate_shut_for == ()
+    _, shipped, _ = load_model(default_model_path())
+    assert shipped.speed_gate_shut_for == (MULTIROTOR, HANDHELD)
+
+
+def _window(speed_m_s: float) -> WindowOutput:
+    return WindowOutput(np.array([1.0, 0.0, 0.0, 0.0]), 0.01, np.zeros(3), np.array([speed_m_s, 0.0, 0.0]), np.zeros(3))
+
+
+@pytest.mark.parametrize("vehicle, shut_for, opens", [
+    ("quadrotor", (MULTIROTOR, HANDHELD), False), ("handheld-imu", (MULTIROTOR, HANDHELD), False),
+    ("plane", (MULTIROTOR, HANDHELD), True), (None, (MULTIROTOR, HANDHELD), True),
+    ("vtol-fixedrotor", (MULTIROTOR, HANDHELD), True), ("quadrotor", (), True),
+])  # fmt: skip
+def test_the_flight_speed_gate_at_30_m_s_by_vehicle(vehicle, shut_for, opens):
+    cfg = dataclasses.replace(AnchorConfig(), speed_gate_shut_for=shut_for)
+    flt = AnchoredVQF(cfg, 0.01, vehicle=vehicle)
+    flt.update(np.arange(20) * 0.01, np.zeros((20, 3)), np.tile([0.0, 0.0, -9.81], (20, 1)))
+    flt.correct(_window(30.0))
+    assert flt.gate_parts[0] == (1.0 if opens else 0.0)
+    assert flt.gate == (1.0 if opens else 0.0)
+
+
+def _with_vehicle(rec: FlightRecord, vehicle: str) -> FlightRecord:
+    return FlightRecord(rec.data, {**rec.meta, "vehicle_type": vehicle})
+
+
+def test_offline_and_live_keep_the_gate_shut_for_a_multirotor_log():
+    """With the flight-speed gate forced open on every window (its threshold at 0), a record named a quadrotor is
+    estimated as with that gate out of reach, live (told the vehicle) as offline; named a plane, the gate acts."""
+    model, settings, _ = load_model(default_model_path())
+    every = dataclasses.replace(settings, speed_lo_m_s=0.0, speed_hi_m_s=1e-3)
+    never = dataclasses.replace(settings, speed_lo_m_s=1e9, speed_hi_m_s=2e9)
+    rec = synthetic_record(seed=3, duration_s=8.0, rate_hz=100.0)
+    quad, plane = _with_vehicle(rec, "quadrotor"), _with_vehicle(rec, "plane")
+    q_quad = estimate_anchored(model, quad, every)[Q].to_numpy()
+    np.testing.assert_array_equal(q_quad, estimate_anchored(model, quad, never)[Q].to_numpy())
+    q_plane = estimate_anchored(model, plane, every)[Q].to_numpy()
+    assert np.nanmax(np.abs(q_plane - q_quad)) > 1e-3  # the gate acted on the plane
+    every = dataclasses.replace(every, smoother=False)  # live: nothing smoothed (the offline-only step)
+    q_quad = estimate_anchored(model, quad, every)[Q].to_numpy()
+    for told_late in (False, True):  # the vehicle known from the start, or told before the first window
+        live = StreamingEstimator(model, every, vehicle=None if told_late else "quadrotor")
+        q_live = np.full((len(rec), 4), np.nan)
+        for i in range(len(rec)):
+            if told_late and i == 60:
+                live.set_vehicle("quadrotor")
+            e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i])
+            if e.q_nb_wxyz is not None:
+                q_live[i] = e.q_nb_wxyz
+        have = np.all(np.isfinite(q_live), 1)
+        assert have.sum() > len(rec) - 60
+        np.testing.assert_allclose(q_live[have], q_quad[have], atol=1e-6)
+
+
+def test_the_worker_tells_the_estimator_what_the_vehicle_is():
+    """The bridge's vehicle record (its heartbeat's MAV_TYPE name) reaches the worker's estimator as its class."""
+    from tepinn_flight.live.worker import pack_sample, vehicle_record, worker_loop
+
+    class Est:
+        def __init__(self):
+            self.told = []
+
+        def set_vehicle(self, v):
+            self.told.append(v)
+
+        def push(self, *a):
+            raise AssertionError("no sample was sent")
+
+        def reset(self, sensor=False):
+            pass
+
+    est = Est()
+    r_in, w_in = os.pipe()
+    r_out, w_out = os.pipe()
+    os.write(w_in, vehicle_record("quadrotor") + vehicle_record(None) + vehicle_record("fixed_wing"))
+    os.close(w_in)
+    import tepinn_flight.live.worker as worker
+
+    warm, worker.warm_up = worker.warm_up, lambda e: None
+    try:
+        assert worker_loop(r_in, w_out, lambda: est) == 0
+    finally:
+        worker.warm_up = warm
+        for fd in (r_in, r_out, w_out):
+            os.close(fd)
+    assert est.told == [MULTIROTOR, UNKNOWN, FIXED_WING]
+    assert len(pack_sample(1, 0.0, 0.0, (0, 0, 0), (0, 0, 0), None, 0, None)) == len(vehicle_record("plane"))
