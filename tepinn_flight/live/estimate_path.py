@@ -47,6 +47,7 @@ class EstimatorFeed:
         self.no_worker_samples = 0
         self.seq = 0
         self.vehicle_told = False, None  # (told the current worker?, what: the vehicle's MAV_TYPE name)
+        self.controls = 0  # reset and vehicle records the current worker was sent (not samples: never processed)
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -58,6 +59,7 @@ class EstimatorFeed:
         self.worker_ready = False
         self.wc = list(_ZERO)
         self.vehicle_told = False, None  # a new worker knows nothing of the vehicle
+        self.controls = 0
 
     def _died(self, now: float) -> None:
         w = self.worker
@@ -147,7 +149,7 @@ class EstimatorFeed:
     def reset(self) -> None:
         """The estimator starts over (the IMU stream switched to another message)."""
         if self.worker is not None:
-            self.worker.submit(reset_record())
+            self.controls += self.worker.submit(reset_record())
 
     def submit(self, s, t_in: float, boot_ms: int | None, vehicle: str | None = None) -> None:
         """One IMU sample (:class:`~tepinn_flight.live.inputs.ImuSample`) read at ``t_in``; ``vehicle``: what the
@@ -159,7 +161,8 @@ class EstimatorFeed:
             return
         if self.vehicle_told != (True, vehicle) and w.submit(vehicle_record(vehicle)):
             self.vehicle_told = True, vehicle
-        in_flight = w.submitted - self.wc[0] - self.wc[1] - self.wc[3]
+            self.controls += 1
+        in_flight = w.submitted - self.controls - self.wc[0] - self.wc[1] - self.wc[3]
         if in_flight >= self.cfg.queue_samples:
             self.dropped_queue += 1
             return
