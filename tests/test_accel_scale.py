@@ -110,8 +110,10 @@ def test_checkpoints_written_before_it_run_without_it():
 @pytest.mark.slow
 def test_a_real_trial_read_as_a_board_at_1_25_g_is_estimated_as_the_trial_itself():
     """BROAD trial 05 (hand-held, optical truth) with its accelerometer × 1.25: the shipped estimator
-    without the scale read loses to its own estimate of the trial as logged by far (a gate opens); with
-    it, the trial's scale is read as 1.25 and the estimate is the logged trial's."""
+    without the scale read, where the flight-speed gate may act (a log that names no vehicle: the gate as before
+    rule 24), loses to its own estimate of the trial as logged by far (the gate opens); with it, the trial's scale
+    is read as 1.25 and the estimate is the logged trial's. Named hand-held, the gate stays shut (rule 24) and the
+    misread scale costs the tilt nothing: gravity's direction does not depend on it."""
     from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
     from tepinn_flight.evaluation.harness import scoring_mask
     from tepinn_flight.ingest import ingest_log
@@ -134,10 +136,12 @@ def test_a_real_trial_read_as_a_board_at_1_25_g_is_estimated_as_the_trial_itself
 
     logged, est0 = rmse(rec, anchor)
     fixed, est1 = rmse(big, anchor)
-    without, _ = rmse(big, dataclasses.replace(anchor, accel_scale_selfcal=False))
+    without, _ = rmse(big, dataclasses.replace(anchor, accel_scale_selfcal=False, speed_gate_shut_for=()))
+    handheld, _ = rmse(big, dataclasses.replace(anchor, accel_scale_selfcal=False))
     assert "not applied" in est0.attrs["accel_scale_selfcal"] and est1.attrs["accel_scale_selfcal"].endswith("; applied")
     assert abs(fixed - logged) < 0.01
     assert without > 2.0 * logged
+    assert abs(handheld - logged) < 0.01
 
 
 def test_estimate_says_what_it_read_keeps_it_in_the_output_and_no_accel_scale_turns_it_off(tmp_path, capsys):
