@@ -80,9 +80,13 @@ def test_offline_and_live_keep_the_gate_shut_for_a_multirotor_log():
     never = dataclasses.replace(settings, speed_lo_m_s=1e9, speed_hi_m_s=2e9)
     rec = synthetic_record(seed=3, duration_s=8.0, rate_hz=100.0)
     quad, plane = _with_vehicle(rec, "quadrotor"), _with_vehicle(rec, "plane")
-    q_quad = estimate_anchored(model, quad, every)[Q].to_numpy()
+    est_quad = estimate_anchored(model, quad, every)
+    q_quad = est_quad[Q].to_numpy()
+    assert est_quad.attrs["speed_gate"] == "flight-speed gate: not used on a multirotor log (it names a quadrotor)"
     np.testing.assert_array_equal(q_quad, estimate_anchored(model, quad, never)[Q].to_numpy())
-    q_plane = estimate_anchored(model, plane, every)[Q].to_numpy()
+    est_plane = estimate_anchored(model, plane, every)
+    q_plane = est_plane[Q].to_numpy()
+    assert "speed_gate" not in est_plane.attrs
     assert np.nanmax(np.abs(q_plane - q_quad)) > 1e-3  # the gate acted on the plane
     every = dataclasses.replace(every, smoother=False)  # live: nothing smoothed (the offline-only step)
     q_quad = estimate_anchored(model, quad, every)[Q].to_numpy()

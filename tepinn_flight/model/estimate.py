@@ -19,7 +19,9 @@ import pandas as pd
 from ..errors import TepinnError
 from ..record import ACC_COLS, FlightRecord, segment_slices
 from ..record_gaps import GAP_PERIODS, bridge_gaps
-from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows, q_nb_from_vqf, to_sensor, with_fusion_tilt
+from ..vehicle_class import vehicle_class
+from .anchor import (AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows, q_nb_from_vqf, speed_gate_allowed, to_sensor,
+                     with_fusion_tilt)  # fmt: skip
 from .anchor_kernels import step_weights
 from .fusion import FusionConfig, FusionRun, feedback_bias
 from .accel_scale import AccelScale, read_accel_scale
@@ -41,7 +43,7 @@ OFFLINE_STEPS = ("accel_scale_selfcal", "gyro_selfcal", "gnss_aid", "smoother")
 #: what an anchored estimate reports in its ``attrs`` (one line each; ``estimate`` prints and stores them,
 #: ``evaluate`` keeps them per record): the offline steps, the re-levelling at rest after a saturation and
 #: where the network's gates acted (elsewhere the estimate is VQF's on the inputs the steps gave it)
-REPORTED_STEPS = (*OFFLINE_STEPS, "rest_relevel", "network_gates")
+REPORTED_STEPS = (*OFFLINE_STEPS, "rest_relevel", "network_gates", "speed_gate")
 #: the anchored filter's gates, in :attr:`.anchor.AnchoredVQF.gate_parts`' order, as a user reads them
 GATE_NAMES = ("flight speed", "gyro saturation", "uncalibrated gyro")
 
@@ -352,6 +354,8 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     for sl in segment_slices(rec.segment):
         steps[sl] = _sample_steps(t[sl])
     df.attrs["network_gates"] = describe_gates(gates_open, float(steps[gate > 0].sum()), float(steps.sum()))
+    if not speed_gate_allowed(anchor, vehicle):  # why the flight-speed gate never opened here (rule 24)
+        df.attrs["speed_gate"] = f"flight-speed gate: not used on a {vehicle_class(vehicle)} log (it names a {vehicle})"
     return df
 
 
