@@ -24,6 +24,7 @@ three folds ran in parallel in 6 minutes (session 24; `--set optim.max_minutes=6
 
     python benchmarks/broad_cv.py [--shared ../shared] [--runs runs/broad_cv] [--seed 0] [--score-only]
                                   [--train-args "--device cuda --set optim.max_minutes=6.0"] [--no-smooth] [--smooth]
+                                  [--speed-gate-rule]
 """
 
 from __future__ import annotations
@@ -82,6 +83,9 @@ def main() -> int:
                     help="also score each fold's estimator without the offline tilt smoothing (estimate --no-smooth)")
     ap.add_argument("--smooth", action="store_true",
                     help="score fold networks trained before session 25 (whose checkpoints do not smooth) with the smoothing")
+    ap.add_argument("--speed-gate-rule", action="store_true",
+                    help="score fold networks trained before session 32 with its rule 24 (the flight-speed gate shut on "
+                         "multirotor and hand-held logs: AnchorConfig.speed_gate_shut_for as shipped)")
     args = ap.parse_args()
 
     trials = sorted((Path(args.shared) / "broad").glob("broad_*.hdf5"))
@@ -120,6 +124,12 @@ def main() -> int:
         nets[fold] = TepinnEstimator.from_checkpoint(runs / fold / "model.pt", "tepinn")
         if args.smooth and not nets[fold].fusion.smoother:
             nets[fold] = TepinnEstimator(nets[fold].model, dataclasses.replace(nets[fold].fusion, smoother=True), "tepinn")
+        if args.speed_gate_rule:
+            from tepinn_flight.model.anchor import AnchorConfig
+
+            shut = AnchorConfig().speed_gate_shut_for
+            nets[fold] = TepinnEstimator(nets[fold].model, dataclasses.replace(nets[fold].fusion, speed_gate_shut_for=shut),
+                                         "tepinn")  # fmt: skip
     vqf = VqfEstimator()
     causal = {f: e.unsmoothed() for f, e in nets.items() if e.unsmoothed() is not None} if args.no_smooth else {}
     rows = []
