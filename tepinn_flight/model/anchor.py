@@ -13,7 +13,9 @@ and its rate ``â``. Each enters only where there is run-time evidence that VQF'
   aircraft at tens of m/s reads ``ω × v + v̇`` besides gravity, for seconds on end in a turn or a
   loop; VQF's low-pass takes that for gravity. The gate removes ``ω × v̂ + â`` from the
   accelerometer VQF sees (per sample, with the current gyro) and pulls VQF's tilt toward the
-  network's. Hand-held and multirotor motion stays far below the gate (|v̂| < 10 m/s).
+  network's. Hand-held and multirotor motion stays below the gate (|v̂| < 10 m/s typically, on the training
+  multirotors 0.2 % of windows above it: misreadings), and a record that names such a vehicle keeps it shut
+  (``speed_gate_shut_for``, rule 24).
 - **gyro saturation** (at least ``clip_min_s`` of samples with the gyro clipped within ``clip_hold_s``:
   the ``clipped`` argument of :meth:`AnchoredVQF.update`, a record's ``gyr_clipped``): the integrated
   rate is wrong, so VQF's tilt is pulled toward the network's window tilt (its physics inputs are
