@@ -137,3 +137,36 @@ def test_the_worker_tells_the_estimator_what_the_vehicle_is():
             os.close(fd)
     assert est.told == [MULTIROTOR, UNKNOWN, FIXED_WING]
     assert len(pack_sample(1, 0.0, 0.0, (0, 0, 0), (0, 0, 0), None, 0, None)) == len(vehicle_record("plane"))
+
+
+@pytest.mark.parametrize("vehicle, cls", [("multirotor", MULTIROTOR), ("fixed-wing", FIXED_WING)])
+def test_the_bridge_tells_its_estimator_the_vehicle_the_heartbeat_names_before_any_sample(vehicle, cls):
+    """A record replayed as a vehicle (its heartbeat's MAV_TYPE from the record's vehicle_type) through the bridge:
+    the estimator learns the vehicle's class before its first sample, once."""
+    import time
+
+    from tepinn_flight.live.replay import record_stream
+    from tepinn_flight.model.fusion import FusionConfig
+    from tests.test_bridge import FakeAutopilot, UdpListener, _bridge, _finish, _small_model
+
+    calls = []
+
+    class Told(StreamingEstimator):
+        def set_vehicle(self, v):
+            calls.append((v, self.t_prev))  # t_prev None: no sample pushed yet
+            super().set_vehicle(v)
+
+    rec = synthetic_record(seed=4, duration_s=1.5, rate_hz=200.0)
+    rec = FlightRecord(rec.data, {**rec.meta, "vehicle_type": vehicle})
+    gcs = UdpListener()
+    b, stop, th, box = _bridge(gcs.port, make_estimator=lambda: Told(_small_model(), FusionConfig()), min_imu_rate_hz=0)
+    ap = FakeAutopilot(b.master.local_port())
+    try:
+        ap.play(list(record_stream(rec)), time.monotonic())
+        time.sleep(0.5)
+    finally:
+        s = _finish(stop, th, box)
+        gcs.close()
+        ap.close()
+    assert s["imu"]["samples"] > 200
+    assert calls == [(cls, None)]
