@@ -170,3 +170,13 @@ def test_the_bridge_tells_its_estimator_the_vehicle_the_heartbeat_names_before_a
         ap.close()
     assert s["imu"]["samples"] > 200
     assert calls == [(cls, None)]
+
+
+def test_info_says_what_the_estimator_does_with_the_vehicle_a_log_names():
+    from tepinn_flight.cli.summary import render_info
+
+    line = lambda v: next(x for x in render_info("log", {"vehicle_type": v}).splitlines() if x.strip().startswith("vehicle"))  # noqa: E731
+    assert line("copter").endswith("copter (class multirotor: TE-PINN's flight-speed gate stays shut)")
+    assert line("handheld-imu").endswith("(class handheld: TE-PINN's flight-speed gate stays shut)")
+    assert line("fixed_wing").endswith("(class fixed-wing: TE-PINN's flight-speed gate may open)")
+    assert line(None).endswith("unknown (not named: TE-PINN's gates as for any vehicle)")

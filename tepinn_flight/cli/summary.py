@@ -16,11 +16,23 @@ def record_summary_line(rec) -> str:
     return s
 
 
+def _vehicle(vehicle_type) -> str:
+    """The log's vehicle and its class (:mod:`..vehicle_class`), with what the shipped estimator does with it."""
+    from ..model.anchor import AnchorConfig, speed_gate_allowed
+    from ..vehicle_class import UNKNOWN, vehicle_class
+
+    cls = vehicle_class(vehicle_type)
+    if cls == UNKNOWN:
+        return f"{vehicle_type or 'unknown'} (not named: TE-PINN's gates as for any vehicle)"
+    gate = "may open" if speed_gate_allowed(AnchorConfig(), vehicle_type) else "stays shut"
+    return f"{vehicle_type} (class {cls}: TE-PINN's flight-speed gate {gate})"
+
+
 def render_info(path, s: dict) -> str:
     lines = [f"{path}"]
     add = lambda k, v: lines.append(f"  {k:<20} {v}")  # noqa: E731
     add("format", s.get("format"))
-    add("vehicle", s.get("vehicle_type"))
+    add("vehicle", _vehicle(s.get("vehicle_type")))
     add("autopilot/firmware", f"{s.get('autopilot')} / {s.get('firmware')}")
     bridged_s = sum(g["gap_s"] for g in s.get("gaps", []) if g.get("bridged"))
     add("duration", f"{s.get('duration_s', 0):.1f} s in segments"
