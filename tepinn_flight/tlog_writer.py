@@ -36,6 +36,7 @@ import numpy as np
 
 from .conventions import GRAVITY_M_S2
 from .mavlink_dialect import dialect
+from .vehicle_class import mav_type_suffix
 from .quat import quat_to_euler_zyx
 from .record import GYR_BIAS_COLS, FlightRecord, atomic_write
 
@@ -68,15 +69,6 @@ class TlogWriter:
         self.f.write(struct.pack(">Q", int(t_unix_us)) + buf)
         name = msg.get_type()
         self.counts[name] = self.counts.get(name, 0) + 1
-
-
-def _mav_type(m, vehicle_type: str | None) -> int:
-    v = (vehicle_type or "").lower()
-    if v in ("multirotor", "quadrotor", "copter", "quad"):
-        return m.MAV_TYPE_QUADROTOR
-    if v in ("fixed-wing", "fixed_wing", "plane", "fixedwing"):
-        return m.MAV_TYPE_FIXED_WING
-    return m.MAV_TYPE_GENERIC
 
 
 def _i16(x: np.ndarray) -> np.ndarray:
@@ -132,7 +124,7 @@ def _write_messages(w: TlogWriter, rec: FlightRecord, start_unix_s, boot_offset_
     raw_mag = _i16(np.where(has_mag[:, None], mag, 0.0) * 10.0)  # µT → mGauss
     hr_mag = np.where(has_mag[:, None], mag, 0.0) / 100.0  # µT → gauss
     temp_c = int(round(_TEMPERATURE_C * 100))
-    mav_type = _mav_type(m, rec.meta.get("vehicle_type"))
+    mav_type = getattr(m, "MAV_TYPE_" + mav_type_suffix(rec.meta.get("vehicle_type")))
     base_mode = m.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | m.MAV_MODE_FLAG_SAFETY_ARMED
     enc = w.mav
     for i in range(n):

@@ -4,8 +4,10 @@ Readers write what the log says into a record's ``vehicle_type``: a DataFlash lo
 (``copter``, ``plane``, ``sub``…), a ULog or a tlog the autopilot's ``MAV_TYPE`` (``quadrotor``,
 ``fixed-wing`` / ``fixed_wing``, ``vtol-fixedrotor``…), our simulations ``multirotor`` or ``fixed-wing``,
 BROAD ``handheld-imu``; the live bridge the heartbeat's ``MAV_TYPE`` the same way. :func:`vehicle_class`
-folds those into the few classes the estimator's gates ask about (``AnchorConfig.speed_gate_shut_for``).
-A name it does not know, or none, is :data:`UNKNOWN`: the gates then act as they always did.
+folds those into the few classes the estimator's gates ask about (``AnchorConfig.speed_gate_shut_for``),
+the fine-tuning's grouping of logs by vehicle reads, and :func:`mav_type_suffix` turns back into a heartbeat's
+MAV_TYPE (a record replayed or written as a tlog). A name it does not know, or none, is :data:`UNKNOWN`: the
+gates then act as they always did.
 """
 
 from __future__ import annotations
@@ -18,8 +20,8 @@ UNKNOWN = "unknown"
 CLASSES = (MULTIROTOR, FIXED_WING, HANDHELD, OTHER, UNKNOWN)
 
 _MULTIROTOR = ("copter", "quadrotor", "hexarotor", "octorotor", "tricopter", "coaxial", "dodecarotor", "decarotor",
-               "multirotor")  # fmt: skip
-_FIXED_WING = ("plane", "fixed-wing", "glider")
+               "multirotor", "quad")  # fmt: skip
+_FIXED_WING = ("plane", "fixed-wing", "fixedwing", "glider")
 _HANDHELD = ("handheld-imu", "handheld")
 _UNKNOWN = ("", "unknown", "generic", "synthetic")
 
@@ -38,3 +40,9 @@ def vehicle_class(vehicle_type: str | None) -> str:
     if name in _HANDHELD:
         return HANDHELD
     return OTHER
+
+
+def mav_type_suffix(vehicle_type: str | None) -> str:
+    """The MAV_TYPE a heartbeat gives ``vehicle_type`` (``MAV_TYPE_`` + this): a multirotor ``QUADROTOR``, a fixed
+    wing ``FIXED_WING``, anything else ``GENERIC``."""
+    return {MULTIROTOR: "QUADROTOR", FIXED_WING: "FIXED_WING"}.get(vehicle_class(vehicle_type), "GENERIC")

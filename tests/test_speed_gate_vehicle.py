@@ -18,7 +18,7 @@ from tepinn_flight.model.estimate import estimate_anchored
 from tepinn_flight.model.streaming import StreamingEstimator
 from tepinn_flight.model.synthetic import synthetic_record
 from tepinn_flight.record import FlightRecord
-from tepinn_flight.vehicle_class import FIXED_WING, HANDHELD, MULTIROTOR, OTHER, UNKNOWN, vehicle_class
+from tepinn_flight.vehicle_class import FIXED_WING, HANDHELD, MULTIROTOR, OTHER, UNKNOWN, mav_type_suffix, vehicle_class
 
 Q = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
 
@@ -27,7 +27,7 @@ Q = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
     # what the readers write (the shared logs, our simulations, BROAD) and the live heartbeat's MAV_TYPE names
     ("copter", MULTIROTOR), ("quadrotor", MULTIROTOR), ("hexarotor", MULTIROTOR), ("octorotor", MULTIROTOR),
     ("multirotor", MULTIROTOR), ("QUADROTOR", MULTIROTOR), ("plane", FIXED_WING), ("fixed-wing", FIXED_WING),
-    ("fixed_wing", FIXED_WING), ("handheld-imu", HANDHELD), ("vtol-fixedrotor", OTHER), ("vtol_tailsitter", OTHER),
+    ("fixed_wing", FIXED_WING), ("fixedwing", FIXED_WING), ("quad", MULTIROTOR), ("handheld-imu", HANDHELD), ("vtol-fixedrotor", OTHER), ("vtol_tailsitter", OTHER),
     ("helicopter", OTHER), ("submarine", OTHER), ("sub", OTHER), ("surface_boat", OTHER), ("rover", OTHER),
     (None, UNKNOWN), ("", UNKNOWN), ("unknown", UNKNOWN), ("generic", UNKNOWN), ("synthetic", UNKNOWN),
     ("mav_type_99", UNKNOWN), ("mav-type-99", UNKNOWN), ("99", UNKNOWN),
@@ -36,6 +36,19 @@ Q = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
 ])  # fmt: skip
 def test_the_class_of_each_vehicle_name(name, cls):
     assert vehicle_class(name) == cls
+
+
+def test_a_record_replayed_or_written_as_a_tlog_reads_back_as_its_class():
+    """mav_type_suffix gives the heartbeat a MAV_TYPE whose name (as the tlog reader and the bridge spell it) has the
+    record's class again — for every class that has one."""
+    from tepinn_flight.ingest.tlog import _enum_name
+    from tepinn_flight.mavlink_dialect import dialect
+
+    m = dialect()
+    for name in ("copter", "hexarotor", "multirotor", "plane", "fixed-wing", "handheld-imu", "vtol-fixedrotor", None):
+        back = _enum_name("MAV_TYPE", getattr(m, "MAV_TYPE_" + mav_type_suffix(name)))
+        want = vehicle_class(name)
+        assert vehicle_class(back) == (want if want in (MULTIROTOR, FIXED_WING) else UNKNOWN), (name, back)
 
 
 def test_the_setting_names_classes_and_old_checkpoints_open_the_gate_on_any_vehicle():

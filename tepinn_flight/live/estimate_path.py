@@ -23,6 +23,7 @@ from .status import RateMeter, latency_histogram
 from .worker import COUNTERS, ProcessWorker, ThreadWorker, pack_sample, reset_record, unpack_estimate, vehicle_record
 
 RESTART_BACKOFF_S = (2.0, 4.0, 8.0, 16.0, 30.0)
+_NOT_TOLD = object()  # EstimatorFeed.vehicle_told before the worker was told anything (None: told "not known")
 _ZERO = (0, 0, 0, 0, 0, 0.0, 0.0)  # the worker's counters: processed, stale, resets, errors, model runs, model s, step s
 
 
@@ -46,7 +47,7 @@ class EstimatorFeed:
         self.dropped_queue = 0
         self.no_worker_samples = 0
         self.seq = 0
-        self.vehicle_told = False, None  # (told the current worker?, what: the vehicle's MAV_TYPE name)
+        self.vehicle_told = _NOT_TOLD  # what the current worker was told the vehicle is (its MAV_TYPE name)
         self.controls = 0  # reset and vehicle records the current worker was sent (not samples: never processed)
 
     # ------------------------------------------------------------------ lifecycle
@@ -58,7 +59,7 @@ class EstimatorFeed:
             self.worker = ThreadWorker(self.make_estimator, c.rate_hz, c.max_sample_age_s)
         self.worker_ready = False
         self.wc = list(_ZERO)
-        self.vehicle_told = False, None  # a new worker knows nothing of the vehicle
+        self.vehicle_told = _NOT_TOLD  # a new worker knows nothing of the vehicle
         self.controls = 0
 
     def _died(self, now: float) -> None:
@@ -159,8 +160,8 @@ class EstimatorFeed:
         if w is None or not self.worker_ready:
             self.no_worker_samples += 1
             return
-        if self.vehicle_told != (True, vehicle) and w.submit(vehicle_record(vehicle)):
-            self.vehicle_told = True, vehicle
+        if (self.vehicle_told is _NOT_TOLD or self.vehicle_told != vehicle) and w.submit(vehicle_record(vehicle)):
+            self.vehicle_told = vehicle
             self.controls += 1
         in_flight = w.submitted - self.controls - self.wc[0] - self.wc[1] - self.wc[3]
         if in_flight >= self.cfg.queue_samples:

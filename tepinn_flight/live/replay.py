@@ -34,6 +34,7 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from ..errors import CorruptLog, NoImuData
+from ..vehicle_class import mav_type_suffix
 from . import MAV_COMP_ID_AUTOPILOT1, mavutil
 from .messages import (
     Encoder,
@@ -226,8 +227,6 @@ def schedule(frames: Iterable[Frame], backstep_s: float = BACKSTEP_S, max_gap_s:
 
 
 # ---------------------------------------------------------------------------- records as a stream
-_MAV_TYPES = {"multirotor": "QUADROTOR", "quadrotor": "QUADROTOR", "copter": "QUADROTOR",
-              "fixed-wing": "FIXED_WING", "fixed_wing": "FIXED_WING", "plane": "FIXED_WING"}  # fmt: skip
 _AUTOPILOTS = {"ardupilot": "ARDUPILOTMEGA", "px4": "PX4"}
 
 
@@ -248,7 +247,7 @@ def record_stream(rec, imu_message: str = "highres", attitude_rate_hz: float = A
     rates = gyr - rec.data[GYR_BIAS_COLS].to_numpy(float) if all(c in rec.data for c in GYR_BIAS_COLS) else gyr
     has_q = np.all(np.isfinite(q), axis=1)
     has_mag = np.all(np.isfinite(mag), axis=1)
-    mav_type = getattr(m, "MAV_TYPE_" + _MAV_TYPES.get(str(rec.meta.get("vehicle_type", "")).lower(), "GENERIC"))
+    mav_type = getattr(m, "MAV_TYPE_" + mav_type_suffix(rec.meta.get("vehicle_type")))
     autopilot = getattr(m, "MAV_AUTOPILOT_" + _AUTOPILOTS.get(str(rec.meta.get("autopilot", "")).lower(), "GENERIC"))
     enc = Encoder(sysid, MAV_COMP_ID_AUTOPILOT1)
     t0 = float(t[0])

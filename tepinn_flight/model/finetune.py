@@ -32,6 +32,7 @@ import numpy as np
 
 from ..errors import ConfigError, TepinnError
 from ..record import FlightRecord, atomic_write, estimation_ok
+from ..vehicle_class import FIXED_WING, MULTIROTOR, vehicle_class
 from .losses import LossConfig
 from .train_config import DataConfig, OptimConfig, TrainConfig
 
@@ -79,10 +80,15 @@ def collect_logs(items) -> list[Path]:
     return sorted(set(out))
 
 
-#: vehicle types as the readers name them → one name per kind (a DataFlash log says "copter", a tlog "quadrotor")
-_KIND = {"copter": "multirotor", "quadrotor": "multirotor", "hexarotor": "multirotor", "octorotor": "multirotor",
-         "tricopter": "multirotor", "coaxial": "multirotor", "sub": "submarine", "plane": "fixed wing",
-         "fixed_wing": "fixed wing"}  # fmt: skip
+#: vehicle classes (:mod:`..vehicle_class`: a DataFlash log says "copter", a tlog "quadrotor") → one name per kind;
+#: other names as the log gives them, a DataFlash "sub" as a tlog's "submarine"
+_KIND = {MULTIROTOR: "multirotor", FIXED_WING: "fixed wing"}
+_OTHER_KIND = {"sub": "submarine"}
+
+
+def _kind(vehicle_type) -> str:
+    low = str(vehicle_type).lower()
+    return _KIND.get(vehicle_class(vehicle_type), _OTHER_KIND.get(low, low))
 
 
 def vehicle_of(rec: FlightRecord) -> str | None:
@@ -92,7 +98,7 @@ def vehicle_of(rec: FlightRecord) -> str | None:
     ap, kind, hw = m.get("autopilot"), m.get("vehicle_type"), m.get("hardware")
     if not ap and not kind:
         return None
-    kind = _KIND.get(str(kind).lower(), str(kind).lower()) if kind else None
+    kind = _kind(kind) if kind else None
     return " ".join(str(x) for x in (ap, kind, hw) if x)
 
 
