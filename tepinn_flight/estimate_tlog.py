@@ -36,15 +36,13 @@ import numpy as np
 import pandas as pd
 
 from .errors import TepinnError
-from .record import FlightRecord, atomic_write
+from .record import EST_BIAS_COLS, EST_Q_COLS, FlightRecord, atomic_write
 
 #: Estimate messages a tlog can carry: ATTITUDE (rad), ATTITUDE_QUATERNION (w, x, y, z),
 #: NAMED_VALUE_FLOAT tp_roll/tp_pitch/tp_yaw (deg), DEBUG_VECT TP_RPY (deg).
 TLOG_MESSAGES = ("attitude_quaternion", "attitude", "debug_vect", "named_value")
 DEFAULT_TLOG_MESSAGES = ("attitude_quaternion", "debug_vect")
 DEFAULT_TLOG_RATE_HZ = 50.0
-EST_COLS = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
-BIAS_EST_COLS = ["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]
 
 
 def parse_messages(spec: str) -> tuple[str, ...]:
@@ -104,8 +102,8 @@ def write_estimate_tlog(
     if len(est) != len(rec):
         raise ValueError("the estimate must have one row per record row")
     t = rec.t_s
-    q = est[EST_COLS].to_numpy(np.float64)
-    bias = est[BIAS_EST_COLS].to_numpy(np.float64) if all(c in est for c in BIAS_EST_COLS) else np.zeros((len(t), 3))
+    q = est[EST_Q_COLS].to_numpy(np.float64)
+    bias = est[EST_BIAS_COLS].to_numpy(np.float64) if all(c in est for c in EST_BIAS_COLS) else np.zeros((len(t), 3))
     rates = rec.gyr_rad_s - np.nan_to_num(bias)
     counts: dict[str, int] = {}
     if len(t) == 0:

@@ -52,6 +52,9 @@ QREF_COLS = ["q_ref_w", "q_ref_x", "q_ref_y", "q_ref_z"]
 GYR_BIAS_COLS = ["gyr_bias_x_rad_s", "gyr_bias_y_rad_s", "gyr_bias_z_rad_s"]
 ACC_BIAS_COLS = ["acc_bias_x_m_s2", "acc_bias_y_m_s2", "acc_bias_z_m_s2"]
 GNSS_VEL_COLS = ["gnss_vel_n_m_s", "gnss_vel_e_m_s"]
+# an estimate's columns (``estimate`` writes them, the harness reads them): attitude body FRD → NED and gyro bias
+EST_Q_COLS = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
+EST_BIAS_COLS = ["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]
 
 REQUIRED_COLUMNS = ["t_s", "segment", *GYR_COLS, *ACC_COLS, *MAG_COLS, *QREF_COLS, "clipped"]
 OPTIONAL_COLUMNS = ["valid", "gyr_clipped", *GYR_BIAS_COLS, *ACC_BIAS_COLS, *GNSS_VEL_COLS]

@@ -21,10 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..record import FlightRecord, segment_slices
-
-EST_Q_COLS = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
-EST_BIAS_COLS = ["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]
+from ..record import EST_BIAS_COLS, EST_Q_COLS, FlightRecord, segment_slices
 
 
 def estimate_frame(t_s, q, sigma=None, bias=None) -> pd.DataFrame:

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..record import GYR_BIAS_COLS, FlightRecord
+from ..record import EST_BIAS_COLS, EST_Q_COLS, GYR_BIAS_COLS, FlightRecord
 from .checkpoint import save_checkpoint
 from .estimate import estimate_record
 from .fusion import FusionConfig
@@ -49,13 +49,13 @@ def calibrate_fusion(model: TEPINN, records: list[FlightRecord], base: FusionCon
         errs, sig, berr = [], [], []
         for r, w in zip(recs, wins):
             est = estimate_record(model, r, cand, windows=w)
-            q = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+            q = est[EST_Q_COLS].to_numpy()
             ok = np.all(np.isfinite(q), 1) & np.all(np.isfinite(r.q_ref_wxyz), 1) & (est["sigma_rad"].to_numpy() > 0)
             inc, _ = inclination_heading_split(quat_mul(q[ok], quat_conj(r.q_ref_wxyz[ok])))
             errs.append(inc)
             sig.append(est["sigma_rad"].to_numpy()[ok])
             if GYR_BIAS_COLS[0] in r.data:
-                b = est[["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]].to_numpy()[ok]
+                b = est[EST_BIAS_COLS].to_numpy()[ok]
                 berr.append(np.sqrt(np.mean(np.sum((b - r.data[GYR_BIAS_COLS].to_numpy()[ok]) ** 2, 1))))
         return errs, sig, berr
 

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import TepinnError
-from ..record import ACC_COLS, FlightRecord, segment_slices
+from ..record import ACC_COLS, EST_BIAS_COLS, EST_Q_COLS, FlightRecord, segment_slices
 from ..record_gaps import GAP_PERIODS, bridge_gaps
 from ..vehicle_class import vehicle_class
 from .anchor import (AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows, q_nb_from_vqf, speed_gate_allowed, to_sensor,
@@ -35,8 +35,6 @@ from .tokens import tokenize, tokenize_record
 if TYPE_CHECKING:
     from .network import TEPINN
 
-EST_Q_COLS = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
-EST_BIAS_COLS = ["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]
 #: What the anchored estimate reads from the whole record (offline only): each one line in the
 #: result's ``attrs`` under this key, ending with "; applied" where it changed the estimate
 OFFLINE_STEPS = ("accel_scale_selfcal", "gyro_selfcal", "gnss_aid", "smoother")

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, TepinnError
-from ..record import FlightRecord, atomic_write, estimation_ok
+from ..record import EST_Q_COLS, FlightRecord, atomic_write, estimation_ok
 from ..vehicle_class import FIXED_WING, MULTIROTOR, vehicle_class
 from .losses import LossConfig
 from .train_config import DataConfig, OptimConfig, TrainConfig
@@ -200,7 +200,7 @@ def inclination_rmse_deg(rec: FlightRecord, est, warmup_s: float = 5.0) -> float
     from ..evaluation.harness import scoring_mask
     from ..evaluation.metrics import error_quat_earth, inclination_error_rad
 
-    q = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+    q = est[EST_Q_COLS].to_numpy()
     m = scoring_mask(rec, warmup_s) & np.all(np.isfinite(q), axis=1)
     if not m.any():
         return float("nan")

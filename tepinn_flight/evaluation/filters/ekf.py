@@ -285,6 +285,7 @@ def tune(records, grid: dict | None = None, base: EkfParams | None = None, warmu
     (``valid``, finite reference, after ``warmup_s`` of every segment) — one common parameter set
     for all records, BROAD's TAGP idea. Returns the best parameters and one row per grid point.
     """
+    from ...record import EST_Q_COLS
     from ..estimators import FilterEstimator
     from ..harness import scoring_mask
     from ..metrics import error_quat_earth, inclination_error_rad, rmse
@@ -313,7 +314,7 @@ def tune(records, grid: dict | None = None, base: EkfParams | None = None, warmu
         est = FilterEstimator(Ekf(params))
         errs = []
         for rec, m in zip(records, masks):
-            q = est.estimate(rec)[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+            q = est.estimate(rec)[EST_Q_COLS].to_numpy()
             errs.append(rmse(inclination_error_rad(error_quat_earth(q, rec.q_ref_wxyz)), m))
         rows.append({**dict(zip(names, combo)), "mean_inclination_rmse_deg": float(np.degrees(np.nanmean(errs)))})
     best = min(range(len(rows)), key=lambda i: (np.nan_to_num(rows[i]["mean_inclination_rmse_deg"], nan=np.inf)))
