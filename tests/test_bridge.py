@@ -74,11 +74,13 @@ def _parse(frames: bytes):
 class StderrWatcher:
     def __init__(self, proc):
         self.lines: list[str] = []
+        self.times: list[float] = []  # when each line came (time.monotonic)
         self.t = threading.Thread(target=self._run, args=(proc,), daemon=True)
         self.t.start()
 
     def _run(self, proc):
         for line in proc.stderr:
+            self.times.append(time.monotonic())
             self.lines.append(line.rstrip("\n"))
 
     def wait_for(self, text: str, timeout: float) -> bool:
@@ -129,7 +131,10 @@ def _offline_estimates(model_path, tlog_path):
 
 
 def _run_chain(tmp_path, model, tlog, speed, mavproxy=False):
-    """replay → bridge → (MAVProxy →) listener; returns (listener datagrams, summary, stderr)."""
+    """replay → bridge → (MAVProxy →) listener; returns (listener datagrams, summary, stderr). ``summary``
+    also gets ``"lost_during_replay"``: the bridge's "autopilot … silent" notes that came before the replay
+    ended (after it, the autopilot *is* silent: a bridge still draining its queue on a loaded machine may
+    rightly say so before it stops)."""
     lis = UdpListener()
     bridge_port = free_udp_port()
     procs = []
@@ -162,10 +167,14 @@ def _run_chain(tmp_path, model, tlog, speed, mavproxy=False):
         r = subprocess.run([*CLI, "replay", str(tlog), "--to", f"udpout:127.0.0.1:{bridge_port}", "--speed", str(speed)],
                            capture_output=True, text=True, timeout=120)  # fmt: skip
         assert r.returncode == 0, r.stderr
+        replay_done = time.monotonic()
         time.sleep(2.0)  # let a busy estimator drain its (bounded) queue before stopping
         _stop(bridge)
         bridge.stdout.read()
         summary = json.loads(summary_path.read_text())
+        watch.t.join(5)
+        summary["lost_during_replay"] = sum("silent for" in ln and t < replay_done
+                                            for t, ln in zip(watch.times, watch.lines))  # fmt: skip
     finally:
         for p in procs:
             _stop(p)
@@ -243,7 +252,12 @@ def test_replay_bridge_listener_end_to_end(tmp_path, model_path):
     assert est["dropped_stale"] == est["dropped_queue_full"] == est["samples_without_estimator"] == 0
     assert est["rate_hz"] > 0 and est["count"] >= len(ms)  # the wall-clock rate is the benchmark's business
     assert summary["imu"]["message"] == "HIGHRES_IMU" and summary["imu"]["rate_hz"] == pytest.approx(400.0, rel=1e-3)
-    assert summary["autopilot"] == {"sysid": 1, "autopilot": "ardupilotmega", "vehicle_type": "quadrotor", "lost": 0}
+    ap = summary["autopilot"]
+    assert {k: ap[k] for k in ("sysid", "autopilot", "vehicle_type")} == {"sysid": 1, "autopilot": "ardupilotmega",
+                                                                          "vehicle_type": "quadrotor"}  # fmt: skip
+    # never lost while the replay ran (once it ended the autopilot is silent: a loss then is the truth)
+    assert summary["lost_during_replay"] == 0 and ap["lost"] <= 1, (summary["lost_during_replay"], ap["lost"])
+    assert ap["lost"] == sum("silent for" in ln for ln in err)  # each loss said once, as the summary counts it
     lat = summary["latency_ms"]
     assert lat["n"] == len(aq) and 0 < lat["p50"] <= lat["p99"] <= lat["max"]
     assert any("estimator ready" in ln for ln in err)
@@ -305,7 +319,7 @@ def _bridge(lis_port, make_estimator=None, **kw):
     box = {}
     th = threading.Thread(target=lambda: box.setdefault("summary", b.run(stop)), daemon=True)
     th.start()
-    assert b.ready.wait(30), "estimator did not start"
+    assert b.ready.wait(180), "estimator did not start"  # (a first numba compile on a loaded 2-core machine: tens of s)
     return b, stop, th, box
 
 
