@@ -560,8 +560,12 @@ def test_early_stop_on_a_run_that_cannot_improve(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_time_limit_stops_at_an_epoch_end(tmp_path):
-    res = quiet_train(small_cfg("optim.epochs=50", "optim.max_minutes=1e-5", "optim.early_stop_patience=100"), tmp_path / "run")
+    said = []
+    res = T.train(small_cfg("optim.epochs=50", "optim.max_minutes=1e-5", "optim.early_stop_patience=100"), tmp_path / "run",
+                  config_base=TINY.parent, progress=False, log=said.append)  # fmt: skip
     assert res["stop_reason"] == "time_limit" and res["epochs"] == 1
+    # it says how far the budget got, and how to train longer (a slower machine trains fewer epochs within it)
+    assert any("time limit" in x and "after 1 of 50 epochs" in x and "optim.max_minutes" in x for x in said), said
     assert metric_epochs(tmp_path / "run") == [1]
     assert (tmp_path / "run" / "model.pt").is_file()
     res = quiet_train(small_cfg("optim.epochs=2", "optim.max_minutes=30.0", "optim.early_stop_patience=100"), tmp_path / "r2")
