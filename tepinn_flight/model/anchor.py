@@ -505,8 +505,9 @@ class AnchoredVQF:
         out = self.f.updateBatch(g_v, a_s, m)
         q6, sig, bias = np.empty((n, 4)), np.empty(n), np.empty((n, 3))
         sp = self._sp
-        sp[0] = vqf_outputs(_rows(out["quat6D"]), _rows(out["bias"]), a_s, g_s, self.gyr_corr, float(sp[0]),
-                            float(sp[1]), float(sp[2]), float(sp[3]), float(sp[4]), self._var_net(), q6, bias, sig)  # fmt: skip
+        e, alpha, var0, gain, samp, var_net = sp.tolist()  # (var_net: _var_net(), kept current by correct)
+        sp[0] = vqf_outputs(_rows(out["quat6D"]), _rows(out["bias"]), a_s, g_s, self.gyr_corr, e, alpha, var0, gain, samp,
+                            var_net, q6, bias, sig)  # fmt: skip
         if self.clip_gain_dt > 0 and (self.e_clip > 0 or (cl is not None and cl.size)):  # the saturation term
             flags = np.zeros(n, np.bool_)
             if cl is not None:
