@@ -339,9 +339,14 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
         q_out[on] = with_fusion_tilt(q_out[on], q_fusion[on])
     done = None
     if anchor.smoother:
-        q_out, s_out, done = smooth(t, q_out, s_out, gate, rec.segment, smoother or SmootherConfig(),
-                                    lambda sl: offline_vqf(anchor, t[sl], gyr[sl], cols[2][sl]), cols[4],
-                                    relevel_i)  # fmt: skip
+        scale = np.asarray(anchor.gyro_scale, np.float64)
+
+        def offline(sl, extra=None):  # extra: rates added to the filter's gyro (a clipping's missed turn)
+            g = gyr[sl] if extra is None else gyr[sl] + extra[sl] / scale
+            return offline_vqf(anchor, t[sl], g, cols[2][sl])
+
+        q_out, s_out, done = smooth(t, q_out, s_out, gate, rec.segment, smoother or SmootherConfig(), offline, cols[4],
+                                    relevel_i, imu=(gyr * scale, cols[2], b_out))  # fmt: skip
     df = _frame(t, q_out, s_out, b_out)
     for key, found in (("accel_scale_selfcal", acal), ("gyro_selfcal", cal), ("gnss_aid", aid), ("smoother", done)):
         if found is not None:

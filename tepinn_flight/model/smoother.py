@@ -32,12 +32,13 @@ With every gate shut on a whole segment of ≥ ``min_free_stretch_s``, its tilt 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..config import check_range
 from .anchor_kernels import blend_tilt_rows, tilt_angle_rows
+from .clip_turn import describe_clip_turns, fit_clip_turns
 from ..record import segment_slices
 
 
@@ -63,6 +64,18 @@ class SmootherConfig:
     # 1.76 / 5.36 -> 1.73 / 1.96 where smoothed, 98.1 / 87.2 -> 98.2 / 97.0 % within 3σ; docs/design-log.md)
     sigma_disagreement_gain: float = 0.5
     sigma_disagreement_window_s: float = 1.0
+    # A clipped gyro's missed turn put back before VQF runs both ways (:mod:`.clip_turn`, rule 25, session 34): per
+    # episode of clipping (runs less than merge_s apart), one excess rate per clipped axis (0 .. max_excess × the
+    # range) fitted so that the mean specific force over window_s before and after it (at least min_window_s each)
+    # points the same way; taken where it leaves at most accept_ratio of gravity's disagreement and removes at least
+    # min_gain_deg of it. Set on the flip probe's design flights (seeds 101-103); False: as before session 34
+    clip_turn: bool = True
+    clip_turn_window_s: float = 10.0
+    clip_turn_min_window_s: float = 2.0
+    clip_turn_merge_s: float = 0.25
+    clip_turn_max_excess: float = 1.0
+    clip_turn_accept_ratio: float = 0.5
+    clip_turn_min_gain_deg: float = 5.0
 
     def __post_init__(self):
         check_range("min_stretch_s", self.min_stretch_s, 0, None)
@@ -71,6 +84,12 @@ class SmootherConfig:
         check_range("sigma_scale", self.sigma_scale, 0, 1, lo_open=True)
         check_range("sigma_disagreement_gain", self.sigma_disagreement_gain, 0, None)
         check_range("sigma_disagreement_window_s", self.sigma_disagreement_window_s, 0, None)
+        check_range("clip_turn_window_s", self.clip_turn_window_s, 0, None, lo_open=True)
+        check_range("clip_turn_min_window_s", self.clip_turn_min_window_s, 0, self.clip_turn_window_s)
+        check_range("clip_turn_merge_s", self.clip_turn_merge_s, 0, None)
+        check_range("clip_turn_max_excess", self.clip_turn_max_excess, 0, 10, lo_open=True)
+        check_range("clip_turn_accept_ratio", self.clip_turn_accept_ratio, 0, 1)
+        check_range("clip_turn_min_gain_deg", self.clip_turn_min_gain_deg, 0, None)
 
 
 @dataclass(frozen=True)
@@ -83,6 +102,7 @@ class Smoothing:
     n_gated: int  # samples where a gate acts
     min_stretch_s: float  # the settings it ran with (to say why nothing was smoothed)
     min_free_s: float = 0.0
+    clip_turns: tuple = ()  # (ClipTurn, ...): the clippings inside smoothed stretches and what their fit found
 
     @property
     def applied(self) -> bool:
@@ -96,8 +116,9 @@ class Smoothing:
             why = (f"no stretch of {self.min_stretch_s:g} s without a gate" if self.n_gated
                    else f"no segment of {self.min_free_s:g} s")  # fmt: skip
             return f"{head}: none ({why}); not applied"
+        turns = describe_clip_turns(list(self.clip_turns))
         return (f"{head}: {pct:.0f} % of the samples in {self.n_stretches} stretch(es)"
-                f"{f'; gates act on {gated:.0f} %' if self.n_gated else ''}; applied")  # fmt: skip
+                f"{f'; gates act on {gated:.0f} %' if self.n_gated else ''}{f'; {turns}' if turns else ''}; applied")  # fmt: skip
 
 
 def ungated_stretches(t_s: np.ndarray, gate: np.ndarray, min_s: float) -> list[slice]:
@@ -132,7 +153,7 @@ def blend_tilt(q_nb: np.ndarray, q_smooth_nb: np.ndarray, w: np.ndarray) -> np.n
 
 
 def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
-           gyr_clipped=None, relevel=None) -> tuple[np.ndarray, np.ndarray, Smoothing]:  # fmt: skip
+           gyr_clipped=None, relevel=None, imu=None) -> tuple[np.ndarray, np.ndarray, Smoothing]:  # fmt: skip
     """The causal estimate ``q_nb`` (σ ``sigma_rad``) with its tilt smoothed on every ungated stretch
     of every segment → (q_nb, σ, what was done). ``offline(slice)`` gives the smoothed attitude
     (body→NED) of the samples of one stretch, run on those samples alone.
@@ -151,8 +172,30 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
     cut runs above also end at re-levellings, and the samples from a re-levelling after a stretch's last
     clip to its end take a run starting there (its weight ramping in from the causal tilt), or the
     causal tilt where that run is too short (:func:`smoothed_stretches`). A stretch without a clipped or
-    re-levelled sample is smoothed as a whole."""
-    out, sig, info = _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg, offline, gyr_clipped, relevel)
+    re-levelled sample is smoothed as a whole.
+
+    ``imu`` (``(gyr, acc, bias)``, per sample: the gyro as the filter integrates it, the accelerometer it
+    corrects with, the filter's gyro bias; None: not done) with ``cfg.clip_turn``: each clipping inside a
+    smoothed stretch has its missed turn fitted from gravity before and after it (:mod:`.clip_turn`), and where
+    one is taken ``offline(slice, extra)`` is given the (n, 3) rates to add to the filter's gyro (0 elsewhere)."""
+    turns, exempt = [], None
+    if imu is not None and cfg.clip_turn and gyr_clipped is not None and np.any(gyr_clipped):
+        runs = [st for s in segment_slices(seg) for st in smoothed_stretches(np.asarray(t_s, np.float64),
+                                                                              np.asarray(gate, np.float64),
+                                                                              np.asarray(gate, np.float64), s, cfg)]
+        clipped = np.asarray(gyr_clipped, bool)
+        if any(clipped[r].any() for r in runs):
+            fitted, turns = fit_clip_turns(t_s, imu[0], imu[1], clipped, imu[2], runs, cfg)
+            if any(c.accepted for c in turns):
+                extra = fitted - np.asarray(imu[0], np.float64)
+                base = offline
+                offline = lambda sl: base(sl, extra)  # noqa: E731
+                exempt = np.zeros(len(clipped), bool)  # a clipping whose turn was put back takes the whole run
+                for c in turns:
+                    if c.accepted:
+                        exempt[c.start : c.stop] = True
+    out, sig, info = _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg, offline, gyr_clipped, relevel, exempt)
+    info = replace(info, clip_turns=tuple(turns))
     if cfg.sigma_disagreement_gain > 0 and info.applied:
         floor = cfg.sigma_disagreement_gain * disagreement_sigma(t_s, q_nb, out, seg, cfg.sigma_disagreement_window_s)
         sig = np.where(np.isfinite(floor), np.maximum(sig, floor), sig)
@@ -183,8 +226,9 @@ def disagreement_sigma(t_s, q_a, q_b, seg, window_s: float) -> np.ndarray:
     return out
 
 
-def _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, gyr_clipped, relevel):
-    """:func:`smooth` without the disagreement's σ floor."""
+def _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, gyr_clipped, relevel, exempt=None):
+    """:func:`smooth` without the disagreement's σ floor. ``exempt`` (None: none): samples that keep the whole
+    stretch's run though runs before them end there (a clipping whose missed turn ``offline`` puts back)."""
     t_s = np.asarray(t_s, np.float64)
     gate = np.asarray(gate, np.float64)
     n = len(t_s)
@@ -213,6 +257,8 @@ def _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, 
         keep = np.zeros(n, bool)
         for a, last in upto:
             keep[a:last] = True
+        if exempt is not None:
+            keep &= ~exempt
         out_c, sig_c, done_c, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(keep, cut, 1.0), seg, cfg, offline, gate)
         out[keep], sig[keep], done[keep] = out_c[keep], sig_c[keep], done_c[keep]
     if after:  # from a re-levelling on: a run of its own (the causal tilt where it is too short)
