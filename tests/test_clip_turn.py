@@ -147,3 +147,13 @@ def test_the_shipped_offline_estimate_after_a_flip_past_the_range():
     off = estimate_anchored(model, rec, anchor, smoother=SmootherConfig(clip_turn=False))
     assert "missed turn read from gravity on 1 of 1 clipping" in on.attrs["smoother"]
     assert err(on) < 3.0 and err(off) > 3 * err(on)
+
+
+def test_a_sample_marked_but_not_at_the_range_is_not_an_episode():
+    # a DataFlash log marks an unhealthy gyro's samples clipped too: they read no range, so there is no turn to put back
+    t, gyr, acc, clipped, _ = rest_roll_rest(1500.0, 90.0)  # within the range: nothing clipped
+    assert not clipped.any()
+    marked = np.zeros(len(t), bool)
+    marked[len(t) - 2000 : len(t) - 1960] = True  # marked during the rest after the roll
+    out, turns = fit_clip_turns(t, gyr, acc, marked, np.zeros_like(gyr), [slice(0, len(t))], SmootherConfig())
+    assert turns == [] and np.array_equal(out, gyr)

@@ -115,17 +115,23 @@ def _steps(t_s: np.ndarray) -> np.ndarray:
 def fit_clip_turns(t_s, gyr_rad_s, acc_m_s2, clipped, bias_rad_s, bounds: list[slice], cfg) -> tuple[np.ndarray, list[ClipTurn]]:
     """The gyro with each clipping's missed turn put back where the fit is taken → (gyro, what was done).
 
-    ``clipped``: (n,) the gyro at its range; ``bias_rad_s``: (n, 3) the gyro's bias (the causal filter's estimate,
+    ``clipped``: (n,) the gyro marked clipped (a marked sample's axes at the record's largest reading are the clipped
+    ones); ``bias_rad_s``: (n, 3) the gyro's bias (the causal filter's estimate,
     NaN read as 0); ``bounds``: the runs of samples the windows may use (each episode's are cut at its run's
     ends and at the neighbouring episodes); ``cfg``: :class:`.smoother.SmootherConfig` (its ``clip_turn_*``)."""
     t = np.asarray(t_s, np.float64)
     g_raw = np.asarray(gyr_rad_s, np.float64)
     out = np.array(g_raw, copy=True)
-    clip = np.asarray(clipped, bool) & np.all(np.isfinite(g_raw), 1)
+    finite = np.all(np.isfinite(g_raw), 1)
+    if not np.any(np.asarray(clipped, bool) & finite):
+        return out, []
+    rng = float(np.max(np.abs(g_raw[finite])))  # the range: the largest reading (a clipped axis reads it)
+    # an axis counts as clipped where the sample is marked and that axis reads the range (a sample marked for another
+    # reason — a DataFlash log's unhealthy gyro — has no turn to put back)
+    axis_clip = (np.asarray(clipped, bool) & finite)[:, None] & (np.abs(g_raw) >= 0.98 * rng)
+    clip = axis_clip.any(1)
     if not clip.any():
         return out, []
-    rng = float(np.max(np.abs(g_raw[clip])))  # the range: what a clipped axis reads
-    axis_clip = clip[:, None] & (np.abs(g_raw) >= 0.98 * rng)
     sgn = np.ascontiguousarray(np.sign(g_raw) * axis_clip)
     acc = np.ascontiguousarray(np.nan_to_num(np.asarray(acc_m_s2, np.float64)))
     turns = []
