@@ -102,6 +102,15 @@ def _angle_across(gyr, sgn, dt, a, b, ex, ey, ez, pre, post):
     return math.acos(min(1.0, max(-1.0, c / n)))
 
 
+@njit(cache=True)
+def _angle_grid(gyr, sgn, dt, a, b, pre, post, cand):
+    """:func:`_angle_across` for each row (ex, ey, ez) of ``cand``."""
+    out = np.empty(cand.shape[0])
+    for i in range(cand.shape[0]):
+        out[i] = _angle_across(gyr, sgn, dt, a, b, cand[i, 0], cand[i, 1], cand[i, 2], pre, post)
+    return out
+
+
 def _steps(t_s: np.ndarray) -> np.ndarray:
     """Each sample's step to the next (the last one's and any non-finite or > 5 median steps: the median)."""
     dt = np.diff(np.asarray(t_s, np.float64))
@@ -123,15 +132,16 @@ def fit_clip_turns(t_s, gyr_rad_s, acc_m_s2, clipped, bias_rad_s, bounds: list[s
     g_raw = np.asarray(gyr_rad_s, np.float64)
     out = np.array(g_raw, copy=True)
     finite = np.all(np.isfinite(g_raw), 1)
-    if not np.any(np.asarray(clipped, bool) & finite):
-        return out, []
-    rng = float(np.max(np.abs(g_raw[finite])))  # the range: the largest reading (a clipped axis reads it)
-    # an axis counts as clipped where the sample is marked and that axis reads the range (a sample marked for another
-    # reason — a DataFlash log's unhealthy gyro — has no turn to put back)
-    axis_clip = (np.asarray(clipped, bool) & finite)[:, None] & (np.abs(g_raw) >= 0.98 * rng)
-    clip = axis_clip.any(1)
+    clip = np.asarray(clipped, bool) & finite
     if not clip.any():
         return out, []
+    # each axis's range: its largest reading (a clipped axis reads it; a log's calibration or board rotation can make
+    # the plateau differ between axes), for the axes that reach half the largest of them
+    top = np.max(np.abs(g_raw[finite]), 0)
+    rng = float(np.max(top))
+    # an episode is a run of marked samples; the excess goes on the axes that read their range there (a sample marked
+    # for another reason — a DataFlash log's unhealthy gyro, an average of clipped and unclipped readings — has none)
+    axis_clip = clip[:, None] & (np.abs(g_raw) >= 0.98 * top[None, :]) & (top >= 0.5 * rng)[None, :]
     sgn = np.ascontiguousarray(np.sign(g_raw) * axis_clip)
     acc = np.ascontiguousarray(np.nan_to_num(np.asarray(acc_m_s2, np.float64)))
     turns = []
@@ -149,6 +159,10 @@ def fit_clip_turns(t_s, gyr_rad_s, acc_m_s2, clipped, bias_rad_s, bounds: list[s
                 turns.append(ClipTurn(a, b, float(t[a]), (0.0, 0.0, 0.0), math.nan, math.nan, False,
                                       f"less than {cfg.clip_turn_min_window_s:g} s without clipping on a side"))
                 continue
+            if not axis_clip[a:b].any():
+                turns.append(ClipTurn(a, b, float(t[a]), (0.0, 0.0, 0.0), math.nan, math.nan, False,
+                                      "no axis at the range"))
+                continue
             turns.append(_fit_one(t, g_raw, acc, sgn, bias_rad_s, a, b, lo, hi, rng, cfg))
             if turns[-1].accepted:
                 out[a:b] += np.asarray(turns[-1].excess_rad_s)[None, :] * sgn[a:b]
@@ -165,27 +179,31 @@ def _fit_one(t, g_raw, acc, sgn, bias_rad_s, a, b, lo, hi, rng, cfg) -> ClipTurn
     pre = np.array(_mean_force(g, ac, dt, 0, A, True))  # in the frame of the body at a
     post = np.array(_mean_force(g, ac, dt, B, hi - lo, False))  # in the frame of the body at b
 
-    def angle(e) -> float:
-        return _angle_across(g, s, dt, A, B, e[0], e[1], e[2], pre, post)
-
-    e = np.zeros(3)
-    r0 = angle(e)
     top = cfg.clip_turn_max_excess * rng
     axes = [k for k in range(3) if np.any(s[A:B, k] != 0)]
-    best = r0
-    for _ in range(2 if len(axes) > 1 else 1):  # axis by axis, twice where several clipped
+    pre, post = np.ascontiguousarray(pre), np.ascontiguousarray(post)
+    # a grid over the clipped axes together (several axes: the turn they missed is one rotation, and axis by axis a
+    # search can settle on another that gravity cannot tell apart), then a finer one per axis around the best, twice
+    side = {1: 101, 2: 41, 3: 21}[len(axes)]
+    mesh = np.meshgrid(*[np.linspace(0.0, top, side)] * len(axes), indexing="ij")
+    cand = np.zeros((mesh[0].size, 3))
+    for j, k in enumerate(axes):
+        cand[:, k] = mesh[j].ravel()
+    vals = _angle_grid(g, s, dt, A, B, pre, post, cand)
+    r0 = float(vals[0])  # the first candidate: no excess
+    i = int(np.argmin(vals))
+    e, best = cand[i].copy(), float(vals[i])
+    step = top / (side - 1)
+    for _ in range(2):
         for k in axes:
-            grid = np.linspace(0.0, top, 101)
-            for fine in (False, True):
-                if fine:
-                    step = grid[1] - grid[0]
-                    grid = np.linspace(max(0.0, e[k] - step), min(top, e[k] + step), 41)
-                vals = []
-                for v in grid:
-                    e[k] = v
-                    vals.append(angle(e))
-                i = int(np.argmin(vals))
-                e[k], best = grid[i], vals[i]
+            fine = np.linspace(max(0.0, e[k] - step), min(top, e[k] + step), 41)
+            cand = np.tile(e, (len(fine), 1))
+            cand[:, k] = fine
+            vals = _angle_grid(g, s, dt, A, B, pre, post, cand)
+            i = int(np.argmin(vals))
+            if vals[i] < best:
+                e[k], best = fine[i], float(vals[i])
+        step /= 10.0
     before, after = math.degrees(r0), math.degrees(best)
     ok = after <= cfg.clip_turn_accept_ratio * before and before - after >= cfg.clip_turn_min_gain_deg
     return ClipTurn(a, b, float(t[a]), tuple(float(v) for v in e) if ok else (0.0, 0.0, 0.0), before, after, bool(ok))
