@@ -6,10 +6,12 @@ and every filter carries that error until its accelerometer correction has taken
 offline run both ways blurs it into the seconds before and after). Gravity does not turn. So the mean
 specific force over ``window_s`` before the clipping, carried by the (bias-corrected) gyro into the frame of
 the body at the clipping's start, and the mean over ``window_s`` after it, carried there through the clipped
-samples, point the same way once the missed turn is put back. Per clipped axis one excess rate (the sign of
-the clip's, ``0 .. max_excess × the gyro's range``) is fitted to make the two agree (a grid, then a finer one
-around its best, axis by axis); the fit is taken where it removes most of their disagreement
-(``accept_ratio``, ``min_gain_deg``), else the gyro is left as it read.
+samples, point the same way once the missed turn is put back. Per clipped axis (one reading its own range, the
+largest in the record) one excess rate (the sign of the clip's, ``0 .. max_excess × the gyro's range``) is
+fitted to make the two agree (a grid over the clipped axes together, then finer ones per axis around its best);
+the fit is taken where it removes most of their disagreement (``accept_ratio``, ``min_gain_deg``), else the gyro
+is left as it read. Gravity fixes the missed turn's horizontal part only: a part about the vertical (the heading)
+it cannot see, nor therefore how a turn about several axes splits between them along the vertical.
 
 The offline smoothing (:mod:`.smoother`) runs VQF both ways on the gyro with the fitted turns put back
 (rule 25, session 34). The causal estimate (and the live bridge) never sees the future, and stays as it was.
@@ -39,7 +41,7 @@ class ClipTurn:
     angle_before_deg: float  # gravity's disagreement across the episode as the gyro read it
     angle_after_deg: float  # ... with the excess put back
     accepted: bool
-    why: str = ""  # where no fit was tried (windows too short)
+    why: str = ""  # why no fit was tried (too little unclipped time beside it, no axis at its range)
 
 
 def clip_episodes(t_s: np.ndarray, clipped: np.ndarray, merge_s: float) -> list[tuple[int, int]]:
@@ -124,8 +126,8 @@ def _steps(t_s: np.ndarray) -> np.ndarray:
 def fit_clip_turns(t_s, gyr_rad_s, acc_m_s2, clipped, bias_rad_s, bounds: list[slice], cfg) -> tuple[np.ndarray, list[ClipTurn]]:
     """The gyro with each clipping's missed turn put back where the fit is taken → (gyro, what was done).
 
-    ``clipped``: (n,) the gyro marked clipped (a marked sample's axes at the record's largest reading are the clipped
-    ones); ``bias_rad_s``: (n, 3) the gyro's bias (the causal filter's estimate,
+    ``clipped``: (n,) the gyro marked clipped (runs of marked samples are the episodes; the axes reading their own
+    range there, the clipped ones); ``bias_rad_s``: (n, 3) the gyro's bias (the causal filter's estimate,
     NaN read as 0); ``bounds``: the runs of samples the windows may use (each episode's are cut at its run's
     ends and at the neighbouring episodes); ``cfg``: :class:`.smoother.SmootherConfig` (its ``clip_turn_*``)."""
     t = np.asarray(t_s, np.float64)
@@ -170,6 +172,7 @@ def fit_clip_turns(t_s, gyr_rad_s, acc_m_s2, clipped, bias_rad_s, bounds: list[s
 
 
 def _fit_one(t, g_raw, acc, sgn, bias_rad_s, a, b, lo, hi, rng, cfg) -> ClipTurn:
+    """The excess of episode [a, b) from the windows [lo, a) and [b, hi)."""
     b0 = np.nan_to_num(np.asarray(bias_rad_s, np.float64)[a])
     sl = slice(lo, hi)
     g = np.ascontiguousarray(g_raw[sl] - b0)
