@@ -137,7 +137,7 @@ def test_the_shipped_offline_estimate_after_a_flip_past_the_range():
     spec = importlib.util.spec_from_file_location("flip_probe", Path(__file__).parents[1] / "benchmarks" / "flip_probe.py")
     probe = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(probe)
-    rec, t0, t1 = probe.with_flip(synthetic_record(seed=2, duration_s=40.0, rate_hz=200.0), 20.0, 2400.0)
+    rec, t0, t1 = probe.with_flip(synthetic_record(seed=2, duration_s=30.0, rate_hz=100.0), 14.0, 2400.0)
     model, anchor = load_model(default_model_path())[:2]
     cols = ["q_est_w", "q_est_x", "q_est_y", "q_est_z"]
     near = (rec.t_s >= t0) & (rec.t_s <= t1 + 5.0)
