@@ -173,3 +173,13 @@ def test_an_axis_whose_plateau_differs_still_counts_as_clipped():
     # (gravity fixes the missed turn's horizontal part only: how it splits between the axes along the vertical it cannot
     # tell, so no per-axis figure is asserted; with one range for both axes, y's 2200-°/s plateau would not count and x
     # alone leaves 3.5° apart)
+
+
+def test_holes_in_the_windows_are_no_turn_and_the_fit_still_holds():
+    t, gyr, acc, clipped, _ = rest_roll_rest(3000.0, 180.0)
+    g, a = gyr.copy(), acc.copy()
+    g[1000:1010] = np.nan  # a hole before the roll, and one after it
+    a[7000:7005] = np.nan
+    out, (c,) = fit_clip_turns(t, g, a, clipped, np.zeros_like(g), [slice(0, len(t))], SmootherConfig())
+    assert c.accepted and c.angle_after_deg < 0.5 and math.degrees(c.excess_rad_s[0]) == pytest.approx(1000.0, abs=5.0)
+    assert np.isnan(out[1000:1010]).all()  # the holes stay holes

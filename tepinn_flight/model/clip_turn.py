@@ -175,7 +175,7 @@ def _fit_one(t, g_raw, acc, sgn, bias_rad_s, a, b, lo, hi, rng, cfg) -> ClipTurn
     """The excess of episode [a, b) from the windows [lo, a) and [b, hi)."""
     b0 = np.nan_to_num(np.asarray(bias_rad_s, np.float64)[a])
     sl = slice(lo, hi)
-    g = np.ascontiguousarray(g_raw[sl] - b0)
+    g = np.ascontiguousarray(np.nan_to_num(g_raw[sl] - b0))  # a hole (non-finite sample) turns nothing
     dt = _steps(t[sl])
     s, A, B = np.ascontiguousarray(sgn[sl]), a - lo, b - lo
     ac = acc[sl]
