@@ -13,7 +13,12 @@ record's rate and decimated to 50 Hz (averaging): inclination RMSE of TE-PINN an
 roll and the 10 s after, and over the whole flight after a 5 s warm-up, with TE-PINN's median σ, the
 mean NEES of its 2-D tilt error and the share within 3σ over the roll and the 10 s.
 
-    python benchmarks/flip_probe.py [--seeds 101 102 103] [--rate 2400] [--at 30] [--thrust 0.3]
+Given ``records`` (flight records or logs `ingest` reads, e.g. the BROAD trials with their optical truth), the roll
+goes into each of them instead of the simulated flights, 30 s in (those shorter than ``--at`` + 15 s are skipped).
+``--no-clip-turn`` adds TE-PINN without session 34's fit of the clipped gyro's missed turn (rule 25) beside it.
+
+    python benchmarks/flip_probe.py [--seeds 101 102 103] [--rate 2400] [--at 30] [--thrust 0.3] [--no-clip-turn]
+    python benchmarks/flip_probe.py ../shared/broad/*.hdf5 --no-clip-turn
 """
 
 from __future__ import annotations
@@ -76,7 +81,10 @@ def with_flip(rec: FlightRecord, at_s: float, rate_dps: float, thrust_g: float =
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("records", nargs="*", help="records or logs to insert the roll into (default: simulated flights)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[101, 102, 103], help="F450 consumer flights, 60 s")
+    ap.add_argument("--no-clip-turn", action="store_true",
+                    help="add TE-PINN without the fit of the clipped gyro's missed turn (SmootherConfig.clip_turn, rule 25)")
     ap.add_argument("--rate", type=float, default=2400.0, help="roll rate, deg/s")
     ap.add_argument("--at", type=float, default=30.0, help="the roll's start, s into the flight")
     ap.add_argument("--thrust", type=float, default=0.3, help="specific force along the body's -z axis during the roll, g")
@@ -85,34 +93,67 @@ def main(argv=None) -> int:
 
     tp = TepinnEstimator.from_checkpoint(default_model_path(), "tepinn")
     vqf = make_peer("vqf", [])
+    ests = [("TE-PINN", tp)]
+    if args.no_clip_turn:
+        ests.append(("no fit", _without_clip_turn(tp)))
+    ests.append(("VQF", vqf))
+    if args.records:
+        from tepinn_flight.ingest import ingest_log
+
+        flights = [(Path(p).name[:28], ingest_log(p)) for p in args.records]
+        flights = [(n, r) for n, r in flights if r.t_s[-1] - r.t_s[0] >= args.at + 15.0]
+    else:
+        flights = [(f"F450 consumer seed {s:4d}", simulate_record("F450", 60.0, 400.0, s, "consumer")) for s in args.seeds]
     print(f"a 360 deg roll at {args.rate:.0f} deg/s, {args.at:.0f} s into the flight; inclination RMSE (deg): "
           "the roll and the 10 s after | the whole flight after 5 s | TE-PINN's median sigma over the 10 s")  # fmt: skip
     rows = []
-    for s in args.seeds:
-        rec0, t0, t1 = with_flip(simulate_record("F450", 60.0, 400.0, s, "consumer"), args.at, args.rate, args.thrust, seed=s)
+    for k, (label0, base) in enumerate(flights):
+        s = args.seeds[k] if not args.records else k
+        rec0, t0, t1 = with_flip(base, args.at, args.rate, args.thrust, seed=s)
         for fac in (1, 8):
             rec = rec0 if fac == 1 else decimate_record(rec0, fac)
             hz = 1.0 / float(np.median(np.diff(rec.t_s)))
             near = (rec.t_s >= t0) & (rec.t_s <= t1 + 10.0)
             whole = rec.t_s > rec.t_s[0] + 5.0
             out = {}
-            for label, est in (("TE-PINN", tp), ("VQF", vqf)):
+            for label, est in ests:
                 df = est.estimate(rec)
                 q = df[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
                 e = np.degrees(inclination_error_rad(error_quat_earth(q, rec.q_ref_wxyz)))
-                out[label] = tuple(float(np.sqrt(np.mean(e[m] ** 2))) for m in (near, whole))
+                out[label] = tuple(float(np.sqrt(np.mean(e[m & np.isfinite(e)] ** 2))) for m in (near, whole))  # (an optical
+                # truth's dropouts: left out)
                 if label == "TE-PINN":
                     sig = float(np.degrees(np.median(df["sigma_rad"].to_numpy()[near])))
                     u = uncertainty_metrics(tilt_error_vector_rad(error_quat_earth(q, rec.q_ref_wxyz)),
                                             df["sigma_rad"].to_numpy(), near)  # fmt: skip
-            rows.append((*out["TE-PINN"], *out["VQF"]))
-            print(f"  F450 consumer seed {s:4d}, {hz:4.0f} Hz: TE-PINN {out['TE-PINN'][0]:6.2f} | {out['TE-PINN'][1]:5.2f} "
-                  f"| sigma {sig:5.2f} NEES {u['nees']:6.2f} in 3 sigma {100 * u['coverage_3sigma']:5.1f} %   VQF {out['VQF'][0]:6.2f} | {out['VQF'][1]:5.2f}")  # fmt: skip
+            rows.append((*out["TE-PINN"], *out["VQF"], *out.get("no fit", (np.nan, np.nan))))
+            nofit = f"   no fit {out['no fit'][0]:6.2f} | {out['no fit'][1]:5.2f}" if "no fit" in out else ""
+            print(f"  {label0}, {hz:4.0f} Hz: TE-PINN {out['TE-PINN'][0]:6.2f} | {out['TE-PINN'][1]:5.2f} "
+                  f"| sigma {sig:5.2f} NEES {u['nees']:6.2f} in 3 sigma {100 * u['coverage_3sigma']:5.1f} %   VQF {out['VQF'][0]:6.2f} | {out['VQF'][1]:5.2f}{nofit}")  # fmt: skip
     a = np.array(rows)
+    if not len(a):
+        print("no record long enough for the roll")
+        return 2
     print(f"mean over {len(a)} cases, the roll and the 10 s after: TE-PINN {a[:, 0].mean():.2f} deg, VQF {a[:, 2].mean():.2f} "
           f"deg, TE-PINN worse on {int(np.sum(a[:, 0] > a[:, 2]))}; the whole flight: TE-PINN {a[:, 1].mean():.2f}, VQF "
-          f"{a[:, 3].mean():.2f}")  # fmt: skip
+          f"{a[:, 3].mean():.2f}" + (f"; without the clip-turn fit {a[:, 4].mean():.2f} | {a[:, 5].mean():.2f}"
+                                     if args.no_clip_turn else ""))  # fmt: skip
     return 0
+
+
+def _without_clip_turn(tp):
+    """``tp`` (the shipped TE-PINN) with the offline smoothing's clip-turn fit off (as before session 34)."""
+    from tepinn_flight.model.smoother import SmootherConfig
+
+    class NoFit:
+        name = "tepinn-no-clip-turn"
+
+        def estimate(self, rec):
+            from tepinn_flight.model.estimate import estimate_anchored
+
+            return estimate_anchored(tp.model, rec, tp.fusion, smoother=SmootherConfig(clip_turn=False))
+
+    return NoFit()
 
 
 if __name__ == "__main__":
