@@ -123,7 +123,8 @@ def _steps(t_s: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(dt)
 
 
-def fit_clip_turns(t_s, gyr_rad_s, acc_m_s2, clipped, bias_rad_s, bounds: list[slice], cfg) -> tuple[np.ndarray, list[ClipTurn]]:
+def fit_clip_turns(t_s, gyr_rad_s, acc_m_s2, clipped, bias_rad_s, bounds: list[slice],
+                   cfg) -> tuple[np.ndarray, list[ClipTurn]]:  # fmt: skip
     """The gyro with each clipping's missed turn put back where the fit is taken → (gyro, what was done).
 
     ``clipped``: (n,) the gyro marked clipped (runs of marked samples are the episodes; the axes reading their own
@@ -221,5 +222,6 @@ def describe_clip_turns(turns: list[ClipTurn]) -> str:
     if took:
         c = max(took, key=lambda c: float(np.max(np.abs(c.excess_rad_s))))
         head += (f" (largest: {math.degrees(float(np.max(np.abs(c.excess_rad_s)))):.0f} °/s past the range at "
-                 f"t = {c.t_s:.1f} s; gravity before and after it {c.angle_before_deg:.0f}° → {c.angle_after_deg:.0f}° apart)")
+                 f"t = {c.t_s:.1f} s; gravity before and after it {c.angle_before_deg:.0f}° → "
+                 f"{c.angle_after_deg:.0f}° apart)")
     return head
