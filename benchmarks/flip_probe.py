@@ -148,10 +148,10 @@ def _without_clip_turn(tp):
     class NoFit:
         name = "tepinn-no-clip-turn"
 
-        def estimate(self, rec):
-            from tepinn_flight.model.estimate import estimate_anchored
+        def estimate(self, rec):  # as TepinnEstimator.estimate, its gaps bridged the same way
+            from tepinn_flight.model.estimate import estimate_record
 
-            return estimate_anchored(tp.model, rec, tp.fusion, smoother=SmootherConfig(clip_turn=False))
+            return estimate_record(tp.model, rec, tp.fusion, smoother=SmootherConfig(clip_turn=False))
 
     return NoFit()
 

@@ -345,8 +345,9 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
             g = gyr[sl] if extra is None else gyr[sl] + extra[sl] / scale
             return offline_vqf(anchor, t[sl], g, cols[2][sl])
 
+        clips = cols[4] is not None and bool(np.any(cols[4]))  # the clip-turn fit's inputs only where the gyro clipped
         q_out, s_out, done = smooth(t, q_out, s_out, gate, rec.segment, smoother or SmootherConfig(), offline, cols[4],
-                                    relevel_i, imu=(gyr * scale, cols[2], b_out))  # fmt: skip
+                                    relevel_i, imu=(gyr * scale, cols[2], b_out) if clips else None)  # fmt: skip
     df = _frame(t, q_out, s_out, b_out)
     for key, found in (("accel_scale_selfcal", acal), ("gyro_selfcal", cal), ("gnss_aid", aid), ("smoother", done)):
         if found is not None:

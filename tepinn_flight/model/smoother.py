@@ -180,9 +180,8 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
     one is taken ``offline(slice, extra)`` is given the (n, 3) rates to add to the filter's gyro (0 elsewhere)."""
     turns, exempt = [], None
     if imu is not None and cfg.clip_turn and gyr_clipped is not None and np.any(gyr_clipped):
-        runs = [st for s in segment_slices(seg) for st in smoothed_stretches(np.asarray(t_s, np.float64),
-                                                                              np.asarray(gate, np.float64),
-                                                                              np.asarray(gate, np.float64), s, cfg)]
+        t_a, g_a = np.asarray(t_s, np.float64), np.asarray(gate, np.float64)
+        runs = [st for s in segment_slices(seg) for st in smoothed_stretches(t_a, g_a, g_a, s, cfg)]
         clipped = np.asarray(gyr_clipped, bool)
         if any(clipped[r].any() for r in runs):
             fitted, turns = fit_clip_turns(t_s, imu[0], imu[1], clipped, imu[2], runs, cfg)
