@@ -280,7 +280,12 @@ _WORKER = {}  # in a worker process: the runner and settings its initializer loa
 
 
 def _init_worker(ckpt_path, runtime, fusion) -> None:
+    import os
+
+    from ..model import beside
     from ..model.runtime import load_runner
+
+    os.environ[beside.ENV] = "0"  # the workers keep the cores busy: no helper process per record beside them
 
     _WORKER["model"] = load_runner(ckpt_path, runtime, 1)[0]
     _WORKER["fusion"] = fusion

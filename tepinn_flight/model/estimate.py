@@ -23,6 +23,7 @@ from ..vehicle_class import vehicle_class
 from .anchor import (AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows, q_nb_from_vqf, speed_gate_allowed, to_sensor,
                      with_fusion_tilt)  # fmt: skip
 from .anchor_kernels import step_weights
+from .beside import Beside, BesideFailed, worth_it
 from .fusion import FusionConfig, FusionRun, feedback_bias
 from .accel_scale import AccelScale, read_accel_scale
 from .gnss_aid import GnssAidConfig, motion_acc_body, summarize
@@ -312,10 +313,50 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     shipped ones): ``attrs["smoother"]``."""
     anchor = anchor or AnchorConfig()
     rec, acal = prepared(rec, anchor)
-    anchor, cal = self_calibrated(anchor, rec)
-    if windows is None:  # on the record as prepared: its accelerometer scale is not read a second time
+    side = Beside(_beside_work(anchor, rec)) if worth_it(len(rec)) else None
+    try:
+        return _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, side)
+    finally:
+        if side is not None:
+            side.close()
+
+
+def _beside_work(anchor: AnchorConfig, rec: FlightRecord):
+    """What a helper process (:mod:`.beside`) does for :func:`estimate_anchored` on a long record while the
+    anchored pass runs: the gyro's self-calibration, then (with the smoothing on, and where no receiver's velocity
+    will change the accelerometer) VQF forward and backward over each whole segment — the run the smoothing asks for
+    wherever no gate acts in a segment → yields ``(anchor, cal)``, then ``{(start, stop): q_nb}``."""
+
+    def work():
+        cal = self_calibrated(anchor, rec)
+        yield cal
+        done = {}
+        if anchor.smoother and not (anchor.gnss_aid and rec.gnss_vel_ne_m_s is not None):
+            a2 = cal[0]
+            t, gyr, acc = rec.t_s, np.ascontiguousarray(rec.gyr_rad_s), np.ascontiguousarray(rec.acc_m_s2)
+            for sl in segment_slices(rec.segment):
+                if sl.stop - sl.start >= 2:
+                    done[(sl.start, sl.stop)] = offline_vqf(a2, t[sl], gyr[sl], acc[sl])
+        yield done
+
+    return work
+
+
+def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, side):
+    """:func:`estimate_anchored` on the record as :func:`prepared` made it; ``side``: a helper process running
+    :func:`_beside_work` (None: everything here)."""
+    if side is None:
+        anchor, cal = self_calibrated(anchor, rec)
+    if windows is None:  # on the record as prepared: its accelerometer scale is not read a second time (the
+        # windows read nothing the gyro's self-calibration sets: they may be made before it is known)
         windows = anchored_windows(model, rec, batch_size, anchor.fusion_config or FusionConfig(),
                                    replace(anchor, accel_scale_selfcal=False))  # fmt: skip
+    if side is not None:
+        try:
+            anchor, cal = side.next()
+        except BesideFailed:
+            side = None
+            anchor, cal = self_calibrated(anchor, rec)
     idx, out = windows
     use_mag = wants_mag(anchor, rec)
     # row-major once: the passes hand the filter a window's rows at a time, and a column-major
@@ -340,8 +381,16 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     done = None
     if anchor.smoother:
         scale = np.asarray(anchor.gyro_scale, np.float64)
+        ready = {}  # the helper's runs over whole segments, on the accelerometer as the record read it
+        if side is not None and cols[2] is acc:
+            try:
+                ready = side.next()
+            except BesideFailed:
+                pass
 
         def offline(sl, extra=None):  # extra: rates added to the filter's gyro (a clipping's missed turn)
+            if extra is None and (sl.start, sl.stop) in ready:
+                return ready[(sl.start, sl.stop)]
             g = gyr[sl] if extra is None else gyr[sl] + extra[sl] / scale
             return offline_vqf(anchor, t[sl], g, cols[2][sl])
 

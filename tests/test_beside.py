@@ -1,0 +1,137 @@
+"""The helper process beside a long record's offline estimate (model/beside.py): its results come back in order, a
+helper that fails or dies leaves the work to the caller, and the estimate is the same bits with it as without it —
+on a real trial, on a flight whose receiver changes the accelerometer, and where the helper dies."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from tepinn_flight.model import beside, estimate
+from tepinn_flight.model.beside import Beside, BesideFailed
+
+from .conftest import broad_trial
+
+pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="no os.fork on this platform: the helper is never used")
+
+
+def test_results_come_back_in_order_and_a_helper_that_raises_gives_the_rest_to_the_caller():
+    def work():
+        yield 1
+        yield np.arange(5.0)
+        raise ValueError("broken")
+
+    with Beside(work) as side:
+        assert side.next() == 1
+        np.testing.assert_array_equal(side.next(), np.arange(5.0))
+        with pytest.raises(BesideFailed):
+            side.next()
+        with pytest.raises(BesideFailed):  # and stays failed
+            side.next()
+
+
+def test_leaving_it_stops_a_child_still_running_and_reaps_it():
+    def work():
+        time.sleep(60)
+        yield 1
+
+    t0 = time.perf_counter()
+    side = Beside(work)
+    pid = side.pid
+    side.close()
+    assert time.perf_counter() - t0 < 10
+    with pytest.raises(ChildProcessError):  # reaped: no zombie left
+        os.waitpid(pid, os.WNOHANG)
+
+
+def test_used_only_where_it_pays_and_not_when_switched_off(monkeypatch):
+    monkeypatch.setenv(beside.ENV, "1")
+    if beside.usable_cores() >= 2:
+        assert beside.worth_it(beside.MIN_SAMPLES)
+    assert not beside.worth_it(beside.MIN_SAMPLES - 1)
+    monkeypatch.setenv(beside.ENV, "0")
+    assert not beside.worth_it(10 * beside.MIN_SAMPLES)
+
+
+def _both(monkeypatch, rec, work=None):
+    """The shipped estimate of ``rec`` without the helper, and with it (forced on, however short the record;
+    ``work``: what the helper does instead of its own work) → (without, with, helpers started)."""
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+
+    model, settings, _ = load_model(default_model_path())
+    monkeypatch.setenv(beside.ENV, "0")
+    off = estimate.estimate_record(model, rec, settings)
+    started = []
+
+    class Counted(Beside):
+        def __init__(self, w):
+            started.append(1)
+            super().__init__(w)
+
+    monkeypatch.setenv(beside.ENV, "1")
+    monkeypatch.setattr(beside, "usable_cores", lambda: 2)
+    monkeypatch.setattr(estimate, "Beside", Counted)
+    monkeypatch.setattr(estimate, "worth_it", lambda n: beside.worth_it(n, min_samples=1))
+    if work is not None:
+        monkeypatch.setattr(estimate, "_beside_work", work)
+    on = estimate.estimate_record(model, rec, settings)
+    return off, on, len(started)
+
+
+def _same(off, on):
+    assert list(off.columns) == list(on.columns)
+    assert np.array_equal(off.to_numpy(), on.to_numpy(), equal_nan=True)
+    assert off.attrs == on.attrs
+
+
+@pytest.mark.slow
+def test_the_estimate_of_a_real_trial_is_the_same_bits_with_the_helper(monkeypatch):
+    from tepinn_flight.ingest import ingest_log
+
+    rec = ingest_log(broad_trial("broad_08_*.hdf5"))  # the gyro self-calibration applies here (the helper's part)
+    off, on, started = _both(monkeypatch, rec)
+    assert started == 1
+    assert "applied" in off.attrs["gyro_selfcal"] and "applied" in off.attrs["smoother"]
+    _same(off, on)
+
+
+@pytest.mark.slow
+def test_a_helper_that_dies_or_raises_leaves_the_estimate_as_it_was(monkeypatch):
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    rec = synthetic_record(seed=3, duration_s=40.0, rate_hz=200.0)
+
+    def dies(anchor, rec):
+        def work():
+            yield estimate.self_calibrated(anchor, rec)
+            os.kill(os.getpid(), signal.SIGKILL)  # before the smoothing's runs
+            yield {}
+
+        return work
+
+    def raises(anchor, rec):
+        def work():
+            raise RuntimeError("no")
+            yield  # noqa: unreachable - a generator
+
+        return work
+
+    for work in (dies, raises):
+        off, on, started = _both(monkeypatch, rec, work)
+        assert started == 1
+        _same(off, on)
+
+
+@pytest.mark.slow
+def test_with_a_receiver_the_smoothing_runs_here_on_the_aided_accelerometer(monkeypatch):
+    from tepinn_flight.sim.simulate import simulate_record
+
+    rec = simulate_record("F450", 30.0, rate_hz=200.0, seed=4)
+    assert rec.gnss_vel_ne_m_s is not None
+    off, on, started = _both(monkeypatch, rec)
+    assert started == 1
+    _same(off, on)
