@@ -24,15 +24,18 @@ and the anchored filter between and at them (``estimate_anchored`` given those w
 ``AnchoredVQF.update`` on each window's samples and ``correct``), each per window.
 
 Since session 25 the shipped estimate smooths its tilt offline where no gate acts (VQF run backward
-too); ``--no-smooth`` also times it without that, in the same run.
+too); ``--no-smooth`` also times it without that, in the same run. Since session 35 a record of 100 k samples or
+more gets a helper process on the second core (``model/beside.py``; "per CPU s" counts this process only);
+``--no-beside`` also times it without one, in the same run.
 
 Usage: python benchmarks/estimate_speed.py [--record PATH] [--tile-s 3600 | --tile-s 0 --seconds 120] [--stream-seconds 120]
-       [--runtime onnx] [--split] [--busy-stride N] [--no-smooth]
+       [--runtime onnx] [--split] [--busy-stride N] [--no-smooth] [--no-beside]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -147,6 +150,9 @@ def main() -> int:
                     help="run every N-th window of busy blocks (estimate --busy-stride; default: the model's)")
     ap.add_argument("--no-smooth", action="store_true",
                     help="offline: also time the estimate without the offline tilt smoothing (estimate --no-smooth)")
+    ap.add_argument("--no-beside", action="store_true",
+                    help="offline: also time the estimate without its helper process (model/beside.py: the gyro "
+                         "self-calibration and the smoothing's VQF run on the second core; TEPINN_FLIGHT_BESIDE=0)")
     ap.add_argument("--split", action="store_true",
                     help="offline: also time the windows (network) and the anchored filter between them apart")
     args = ap.parse_args()
@@ -191,6 +197,13 @@ def main() -> int:
 
             s, s_cpu = offline(r, dataclasses.replace(settings, smoother=False), off_rec)
             print(f"  ... --no-smooth      {s:12.0f} {s_cpu:12.0f} {s / rate:12.0f} {v_off / s:9.1f}")
+        if args.no_beside:
+            from tepinn_flight.model import beside
+
+            os.environ[beside.ENV] = "0"
+            s, s_cpu = offline(r, settings, off_rec)
+            os.environ.pop(beside.ENV)
+            print(f"  ... no helper        {s:12.0f} {s_cpu:12.0f} {s / rate:12.0f} {v_off / s:9.1f}")
     if args.split:
         from tepinn_flight.model.anchor import AnchorConfig
 

@@ -59,7 +59,8 @@ def test_used_only_where_it_pays_and_not_when_switched_off(monkeypatch):
 
 def _both(monkeypatch, rec, work=None):
     """The shipped estimate of ``rec`` without the helper, and with it (forced on, however short the record;
-    ``work``: what the helper does instead of its own work) → (without, with, helpers started)."""
+    ``work``: what the helper does instead of its own work; its results waited for) → (without, with, the results
+    each helper gave)."""
     from tepinn_flight.model.checkpoint import default_model_path, load_model
 
     model, settings, _ = load_model(default_model_path())
@@ -69,8 +70,13 @@ def _both(monkeypatch, rec, work=None):
 
     class Counted(Beside):
         def __init__(self, w):
-            started.append(1)
+            started.append(0)
             super().__init__(w)
+
+        def take(self, wait_s=0.0):  # waits for the child however loaded the machine is, and counts what it gave
+            got = self.next()
+            started[-1] += 1
+            return got
 
     monkeypatch.setenv(beside.ENV, "1")
     monkeypatch.setattr(beside, "usable_cores", lambda: 2)
@@ -79,7 +85,7 @@ def _both(monkeypatch, rec, work=None):
     if work is not None:
         monkeypatch.setattr(estimate, "_beside_work", work)
     on = estimate.estimate_record(model, rec, settings)
-    return off, on, len(started)
+    return off, on, started
 
 
 def _same(off, on):
@@ -94,7 +100,7 @@ def test_the_estimate_of_a_real_trial_is_the_same_bits_with_the_helper(monkeypat
 
     rec = ingest_log(broad_trial("broad_08_*.hdf5"))  # the gyro self-calibration applies here (the helper's part)
     off, on, started = _both(monkeypatch, rec)
-    assert started == 1
+    assert started == [2]  # the self-calibration and the smoothing's run came from the helper
     assert "applied" in off.attrs["gyro_selfcal"] and "applied" in off.attrs["smoother"]
     _same(off, on)
 
@@ -120,9 +126,9 @@ def test_a_helper_that_dies_or_raises_leaves_the_estimate_as_it_was(monkeypatch)
 
         return work
 
-    for work in (dies, raises):
+    for work, gave in ((dies, [1]), (raises, [0])):
         off, on, started = _both(monkeypatch, rec, work)
-        assert started == 1
+        assert started == gave
         _same(off, on)
 
 
@@ -133,5 +139,24 @@ def test_with_a_receiver_the_smoothing_runs_here_on_the_aided_accelerometer(monk
     rec = simulate_record("F450", 30.0, rate_hz=200.0, seed=4)
     assert rec.gnss_vel_ne_m_s is not None
     off, on, started = _both(monkeypatch, rec)
-    assert started == 1
+    assert started == [1]  # the self-calibration; the smoothing ran here, on the accelerometer the aid changed
     _same(off, on)
+
+
+def test_a_result_not_ready_when_asked_for_stops_the_child_and_is_computed_by_the_caller():
+    def work():
+        yield 1
+        time.sleep(60)
+        yield 2
+
+    with Beside(work) as side:
+        t0 = time.perf_counter()
+        while not side.ready() and time.perf_counter() - t0 < 30:
+            time.sleep(0.01)
+        assert side.take() == 1
+        pid = side.pid
+        with pytest.raises(BesideFailed):  # still sleeping: not waited for
+            side.take()
+        assert time.perf_counter() - t0 < 30
+        with pytest.raises(ChildProcessError):  # stopped and reaped
+            os.waitpid(pid, os.WNOHANG)

@@ -107,3 +107,19 @@ def test_bridge_worker_runs_the_stride_and_the_config_checks_it():
         model_estimator_factory(str(default_lstm_path()), "torch", "", 2)()
     with pytest.raises(ConfigError, match="busy_stride"):
         BridgeConfig(master="udpin:127.0.0.1:14550", busy_stride=-1)
+
+
+def test_the_offline_rule_on_arrays_is_the_live_rule_window_by_window():
+    """``runs_windows`` (offline, a block's windows at once) decides as ``runs_window`` (live, one window) for every
+    block, window, busy and saturated case, strides 1 and 6."""
+    import dataclasses
+
+    for stride in (1, 6):
+        cfg = dataclasses.replace(AnchorConfig(), busy_stride=stride)
+        j = np.arange(25)
+        for block in (0, cfg.quiet_after_blocks - 1, cfg.quiet_after_blocks, 40):
+            for busy in (False, True):
+                sat = np.random.default_rng(block + 7 * busy).random(25) < 0.3
+                want = [cfg.runs_window(block, int(k), busy, bool(s)) for k, s in zip(j, sat)]
+                got = cfg.runs_windows(block, j, busy, sat)
+                assert got.dtype == bool and got.tolist() == want

@@ -319,12 +319,21 @@ class AnchorConfig:
 
     def runs_window(self, block: int, j: int, busy: bool, saturated: bool) -> bool:
         """Whether the ``j``-th window (0: first) of block ``block`` runs, in a busy block or a quiet
-        one, holding a saturated token or not (offline and live decide by this)."""
+        one, holding a saturated token or not (the live estimator decides by this; offline by
+        :meth:`runs_windows`, the same rule on arrays)."""
         if j == 0 or saturated:
             return True
         if not busy:
             return False
         return block < self.quiet_after_blocks or j % self.busy_stride == 0
+
+    def runs_windows(self, block: int, j: np.ndarray, busy: bool, saturated: np.ndarray) -> np.ndarray:
+        """:meth:`runs_window` of the windows ``j`` (ints) of one block, ``saturated`` (bools) each → (bool array)."""
+        j = np.asarray(j, np.int64)
+        run = (j == 0) | np.asarray(saturated, bool)
+        if busy:
+            run |= (j % self.busy_stride == 0) if block >= self.quiet_after_blocks else True
+        return run
 
     @property
     def learned_off(self) -> "AnchorConfig":

@@ -4,9 +4,11 @@ The offline estimate of one long record has parts that wait on nothing the ancho
 self-calibration, and VQF run forward and backward over each whole segment, which is what the offline smoothing asks
 for wherever no gate acts (every shared real file). ``vqf.offlineVQF`` holds Python's GIL, so a thread would not run
 it beside the pass; a forked process does, on its own core, from the same arrays (copy-on-write: nothing is sent to
-it). The caller reads the results back as they come (pickled through a pipe) and, where the helper failed, was killed
-or is not available, computes them itself: the results are the same bits either way (the same code on the same
-inputs), so the helper changes how long an estimate takes, never what it is.
+it). After its first result it runs at the lowest priority, on what the caller's own threads (the network's) leave
+idle. The caller reads the results back (pickled through a pipe) where they are ready when it needs them or soon
+after and, where the helper had not finished (a machine busy with other work), failed or was killed, computes them
+itself: the results are the same bits either way (the same code on the same inputs), so the helper changes how long
+an estimate takes, never what it is.
 
 Used only where it pays (:func:`worth_it`): a record of at least ``min_samples``, a machine that lets this process run
 on two cores or more, ``os.fork`` there, and not switched off (``TEPINN_FLIGHT_BESIDE=0``; ``estimate --workers N``
@@ -17,7 +19,9 @@ from __future__ import annotations
 
 import os
 import pickle
+import select
 import signal
+import struct
 import warnings
 from collections.abc import Callable, Iterator
 
@@ -26,6 +30,15 @@ ENV = "TEPINN_FLIGHT_BESIDE"
 #: records shorter than this are estimated in one process (the fork and the pipe cost ~10 ms; offline VQF on
 #: 100 k samples ~0.15 s)
 MIN_SAMPLES = 100_000
+#: the child's niceness after its first result (before it: the caller's): the rest runs on what the caller's threads
+#: leave idle (a result not ready when the caller needs it is computed there instead, :meth:`Beside.take`). Session 35,
+#: the one-hour default log, three rounds each: lowest priority throughout 212–221 k samples/s, the first result at the
+#: caller's 215–238 k, at the caller's throughout 186–259 k, no helper 155–166 k
+NICE = 19
+#: how long the caller waits for a result not yet there, per sample of the record, before it computes it itself: a
+#: fraction of what that costs it (the smoothing's VQF run both ways 1.3–1.5 µs a sample on this 2-core machine, the
+#: self-calibration ~0.6 µs), so a helper that falls behind costs little and one about to finish is not wasted
+WAIT_S_PER_SAMPLE = 0.3e-6
 
 
 class BesideFailed(RuntimeError):
@@ -46,8 +59,9 @@ def worth_it(n_samples: int, min_samples: int = MIN_SAMPLES) -> bool:
 
 
 class Beside:
-    """``work()`` (a generator) run in a forked child; :meth:`next` reads its results in the order it yields them.
-    Use as a context manager: leaving it stops a child still running."""
+    """``work()`` (a generator) run in a forked child (at the lowest priority after its first result); :meth:`next`
+    reads its results in the order it yields them, :meth:`ready` says whether the next one is there. Use as a context manager: leaving it stops
+    a child still running."""
 
     def __init__(self, work: Callable[[], Iterator]):
         r, w = os.pipe()
@@ -62,10 +76,11 @@ class Beside:
                 # the parent's handlers (a CLI's cleanup of its partial outputs) are not the child's to run
                 signal.signal(signal.SIGTERM, signal.SIG_DFL)
                 signal.signal(signal.SIGINT, signal.SIG_DFL)
-                with os.fdopen(w, "wb") as f:
-                    for item in work():
-                        pickle.dump(item, f, protocol=pickle.HIGHEST_PROTOCOL)
-                        f.flush()
+                for k, item in enumerate(work()):
+                    data = pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL)
+                    _write_all(w, struct.pack("<Q", len(data)) + data)
+                    if k == 0:  # the first result was wanted soon; the rest fills what the caller leaves idle
+                        os.nice(NICE)
                 code = 0
             except BaseException:  # noqa: BLE001 - the parent sees a short stream and computes it itself
                 pass
@@ -73,23 +88,47 @@ class Beside:
                 os._exit(code)
         os.close(w)
         self.pid = pid
-        self._f = os.fdopen(r, "rb")
+        self._fd = r
+
+    def ready(self, wait_s: float = 0.0) -> bool:
+        """Whether :meth:`next` would return (or fail) without waiting for the child to compute (waiting for that
+        at most ``wait_s``)."""
+        return self._fd >= 0 and bool(select.select([self._fd], [], [], max(0.0, wait_s))[0])
 
     def next(self):
         """The child's next result (:class:`BesideFailed` where it gave none)."""
-        if self._f is None:
+        if self._fd < 0:
             raise BesideFailed("the helper process was closed")
         try:
-            return pickle.load(self._f)
+            (size,) = struct.unpack("<Q", self._read(8))
+            return pickle.loads(self._read(size))
         except Exception as e:  # EOF: it raised or was killed before this result
             self.close()
             raise BesideFailed(f"the helper process gave no result ({type(e).__name__})") from None
 
+    def take(self, wait_s: float = 0.0):
+        """The next result where it is :meth:`ready` within ``wait_s``; else the child is stopped
+        (:class:`BesideFailed`): the caller computes it sooner than a child at the lowest priority on a busy machine
+        would."""
+        if not self.ready(wait_s):
+            self.close()
+            raise BesideFailed("the helper process had not finished")
+        return self.next()
+
+    def _read(self, n: int) -> bytearray:
+        buf = bytearray()
+        while len(buf) < n:
+            chunk = os.read(self._fd, min(n - len(buf), 1 << 22))
+            if not chunk:
+                raise EOFError
+            buf += chunk
+        return buf
+
     def close(self) -> None:
         """Stop the child (if still running) and reap it."""
-        if self._f is not None:
-            self._f.close()
-            self._f = None
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
         if self.pid:
             try:
                 os.kill(self.pid, signal.SIGKILL)
@@ -106,3 +145,9 @@ class Beside:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view) :]

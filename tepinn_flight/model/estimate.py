@@ -23,7 +23,7 @@ from ..vehicle_class import vehicle_class
 from .anchor import (AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows, q_nb_from_vqf, speed_gate_allowed, to_sensor,
                      with_fusion_tilt)  # fmt: skip
 from .anchor_kernels import step_weights
-from .beside import Beside, BesideFailed, worth_it
+from .beside import WAIT_S_PER_SAMPLE, Beside, BesideFailed, worth_it
 from .fusion import FusionConfig, FusionRun, feedback_bias
 from .accel_scale import AccelScale, read_accel_scale
 from .gnss_aid import GnssAidConfig, motion_acc_body, summarize
@@ -240,12 +240,12 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
                 rest = sel[1:]
                 speed = max(float(np.linalg.norm(o["vel"][0])), max(v_blocks, default=0.0))
                 busy = anchor.block_busy(bi, speed, run.fusion.bias)
-                rest = rest[[anchor.runs_window(bi, int(r - s0), busy, bool(clip_win[pos[r]])) for r in rest]]
+                rest = rest[anchor.runs_windows(bi, rest - s0, busy, clip_win[pos[rest]])]
                 if len(rest):
                     fb = None if off is None else np.tile(off, (len(rest), 1))
                     o2 = network_outputs(model, tok, e_seg[rest], fb, batch_size)
                     o = {k: np.concatenate([o[k], o2[k]]) for k in o}
-                sel = np.r_[s0, rest]
+                sel = np.concatenate(([s0], rest))
                 v_blocks.append(float(np.linalg.norm(o["vel"], axis=1).max()))
             else:
                 fb = None if off is None else np.tile(off, (len(sel), 1))
@@ -353,7 +353,7 @@ def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, 
                                    replace(anchor, accel_scale_selfcal=False))  # fmt: skip
     if side is not None:
         try:
-            anchor, cal = side.next()
+            anchor, cal = side.take(WAIT_S_PER_SAMPLE * len(rec))
         except BesideFailed:
             side = None
             anchor, cal = self_calibrated(anchor, rec)
@@ -384,7 +384,7 @@ def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, 
         ready = {}  # the helper's runs over whole segments, on the accelerometer as the record read it
         if side is not None and cols[2] is acc:
             try:
-                ready = side.next()
+                ready = side.take(WAIT_S_PER_SAMPLE * len(t))
             except BesideFailed:
                 pass
 
