@@ -130,8 +130,9 @@ def _offline_estimates(model_path, tlog_path):
     return out
 
 
-def _run_chain(tmp_path, model, tlog, speed, mavproxy=False):
-    """replay → bridge → (MAVProxy →) listener; returns (listener datagrams, summary, stderr). ``summary``
+def _run_chain(tmp_path, model, tlog, speed, mavproxy=False, bridge_cli=None):
+    """replay → bridge → (MAVProxy →) listener; returns (listener datagrams, summary, stderr). ``bridge_cli``:
+    the command that runs the bridge (default: this environment's ``tepinn-flight``). ``summary``
     also gets ``"lost_during_replay"``: the bridge's "autopilot … silent" notes that came before the replay
     ended (after it, the autopilot *is* silent: a bridge still draining its queue on a loaded machine may
     rightly say so before it stops)."""
@@ -154,7 +155,7 @@ def _run_chain(tmp_path, model, tlog, speed, mavproxy=False):
             out_port = mp_port
         summary_path = tmp_path / "summary.json"
         bridge = subprocess.Popen(
-            [*CLI, "bridge", "--master", f"udpin:127.0.0.1:{bridge_port}", "--out", f"udpout:127.0.0.1:{out_port}",
+            [*(bridge_cli or CLI), "bridge", "--master", f"udpin:127.0.0.1:{bridge_port}", "--out", f"udpout:127.0.0.1:{out_port}",
              "--model", str(model), "--max-age", "5", "--tlog", str(tmp_path / "session.tlog"),
              "--summary-json", str(summary_path), "--status-interval", "1", "--estimate-as", "attitude_quaternion"],
             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

@@ -225,7 +225,11 @@ def _index_reachable(tmp: Path) -> str | None:
 
 @pytest.mark.slow
 def test_fresh_venv_runtime_extra_without_torch(tmp_path, exported):
-    """`pip install ".[runtime]"` into a plain venv: no torch, and `estimate --runtime onnx` works."""
+    """`pip install ".[runtime]"` into a plain venv: no torch; `estimate --runtime onnx` works there and gives the torch
+    path's estimates, and so does the bridge end to end (replay → the venv's bridge on the .onnx → listener: every
+    autopilot frame forwarded, estimates on the 50 Hz grid, equal to the torch StreamingEstimator's on the same
+    samples). Where pip cannot reach the package index it is skipped; the live estimator without torch is still tested
+    in-process (test_estimate_and_live_worker_run_without_torch)."""
     why = _index_reachable(tmp_path)
     if why:
         pytest.skip(f"pip cannot reach the package index ({why})")
@@ -258,16 +262,13 @@ def test_fresh_venv_runtime_extra_without_torch(tmp_path, exported):
     ref = estimate_record(model, rec, settings)
     got = pd.read_parquet(tmp_path / "e.parquet")
     np.testing.assert_allclose(got.to_numpy(), ref.to_numpy(), rtol=0, atol=1e-5, equal_nan=True)
-
-
-@pytest.mark.slow
-def test_bridge_end_to_end_with_the_onnx_model(tmp_path, exported):
-    """replay → bridge (worker process on the .onnx, onnxruntime) → listener: the estimates are the
-    torch StreamingEstimator's for the same samples."""
+    # the bridge, run by the venv without torch (its worker process on onnxruntime)
     from tests.test_bridge import _check_chain, _offline_estimates, _run_chain, _sim_tlog
 
-    _, tlog = _sim_tlog(tmp_path, 6.0, 400.0)
-    lis, summary, _ = _run_chain(tmp_path, exported, tlog, speed=1.0)
+    chain = tmp_path / "chain"
+    chain.mkdir()
+    _, tlog = _sim_tlog(chain, 6.0, 400.0)
+    lis, summary, _ = _run_chain(chain, exported, tlog, speed=1.0, bridge_cli=[str(exe)])
     aq, ms = _check_chain(lis, tlog, summary)
     ref = _offline_estimates(default_model_path(), tlog)  # torch
     q_live = np.array([[m.q1, m.q2, m.q3, m.q4] for m in aq])
