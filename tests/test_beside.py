@@ -160,3 +160,38 @@ def test_a_result_not_ready_when_asked_for_stops_the_child_and_is_computed_by_th
         assert time.perf_counter() - t0 < 30
         with pytest.raises(ChildProcessError):  # stopped and reaped
             os.waitpid(pid, os.WNOHANG)
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="reads /proc (Linux)")
+def test_the_child_dies_with_its_parent():
+    """A parent killed outright (no cleanup runs) takes its helper with it: nothing is left computing."""
+    import subprocess
+    import sys
+
+    code = (
+        "import os, sys, time\n"
+        "from tepinn_flight.model.beside import Beside\n"
+        "def work():\n"
+        "    time.sleep(60)\n"
+        "    yield 1\n"
+        "side = Beside(work)\n"
+        "print(side.pid, flush=True)\n"
+        "time.sleep(0.5)\n"
+        "os.kill(os.getpid(), 9)\n"
+    )
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert p.returncode == -9, p.stderr
+    pid = int(p.stdout.split()[0])
+
+    def running() -> bool:
+        try:
+            with open(f"/proc/{pid}/status") as f:
+                state = next(ln for ln in f if ln.startswith("State:"))
+        except (FileNotFoundError, ProcessLookupError):
+            return False
+        return "Z" not in state.split()[1]  # a zombie computes nothing (its reaper may be slow in a container)
+
+    t0 = time.perf_counter()
+    while running() and time.perf_counter() - t0 < 10:
+        time.sleep(0.05)
+    assert not running()

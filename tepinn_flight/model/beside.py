@@ -22,6 +22,7 @@ import pickle
 import select
 import signal
 import struct
+import sys
 import warnings
 from collections.abc import Callable, Iterator
 
@@ -60,11 +61,12 @@ def worth_it(n_samples: int, min_samples: int = MIN_SAMPLES) -> bool:
 
 class Beside:
     """``work()`` (a generator) run in a forked child (at the lowest priority after its first result); :meth:`next`
-    reads its results in the order it yields them, :meth:`ready` says whether the next one is there. Use as a context manager: leaving it stops
-    a child still running."""
+    reads its results in the order it yields them, :meth:`ready` says whether the next one is there. Use as a context
+    manager: leaving it stops a child still running; the child dies with its parent."""
 
     def __init__(self, work: Callable[[], Iterator]):
         r, w = os.pipe()
+        parent = os.getpid()
         with warnings.catch_warnings():  # Python ≥ 3.12 warns of fork() beside threads (the network runtime's idle
             # pool): the child runs none of their code, only numpy, numba and VQF on arrays it was given
             warnings.simplefilter("ignore", DeprecationWarning)
@@ -72,6 +74,7 @@ class Beside:
         if pid == 0:  # the child: never returns into the caller's code
             code = 1
             try:
+                _die_with_parent(parent)
                 os.close(r)
                 # the parent's handlers (a CLI's cleanup of its partial outputs) are not the child's to run
                 signal.signal(signal.SIGTERM, signal.SIG_DFL)
@@ -145,6 +148,20 @@ class Beside:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _die_with_parent(parent: int) -> None:
+    """In the child: be killed when the parent dies (Linux: ``PR_SET_PDEATHSIG``; elsewhere the child ends when its
+    work is done and its pipe has no reader), and end now where it already has."""
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent:
+        os._exit(1)
 
 
 def _write_all(fd: int, data: bytes) -> None:
