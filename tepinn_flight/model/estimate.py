@@ -310,7 +310,9 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     run again (:func:`gnss_aided_acc`; offline only): ``attrs["gnss_aid"]``. With ``anchor.smoother``
     the tilt of every long enough stretch where no gate acts is then VQF's run forward and backward
     on the same inputs (:mod:`.smoother`; offline only, its settings ``smoother``, default the
-    shipped ones): ``attrs["smoother"]``."""
+    shipped ones): ``attrs["smoother"]``. On a long record (:func:`.beside.worth_it`) the self-calibration and the
+    smoothing's runs over whole segments are made in a helper process beside the anchored pass (:func:`_beside_work`;
+    the same bits as made here, which they are where the helper is not done in time)."""
     anchor = anchor or AnchorConfig()
     rec, acal = prepared(rec, anchor)
     side = Beside(_beside_work(anchor, rec)) if worth_it(len(rec)) else None
