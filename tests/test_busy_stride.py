@@ -123,3 +123,43 @@ def test_the_offline_rule_on_arrays_is_the_live_rule_window_by_window():
                 want = [cfg.runs_window(block, int(k), busy, bool(s)) for k, s in zip(j, sat)]
                 got = cfg.runs_windows(block, j, busy, sat)
                 assert got.dtype == bool and got.tolist() == want
+
+
+def test_the_windows_made_ahead_in_a_thread_are_the_one_call_s_bits_and_errors_reach_the_reader(record):
+    """The quiet blocks' first windows, made a batch at a time in a thread ahead of the blocks (``_Ahead``), are those
+    one ``network_outputs`` call makes (the same batches), row by row across batch edges; a failing network call
+    raises where its row is read."""
+    import threading
+
+    from tepinn_flight.model import estimate as E
+    from tepinn_flight.model.tokens import tokenize_record
+
+    model, _, _ = load_model(default_model_path())
+    tok = tokenize_record(record[0], model.config.token_rate_hz)
+    ends = tok.windows_ending(model.config.window_tokens)[::3][:20]
+    assert len(ends) == 20
+    whole = E.network_outputs(model, tok, ends, None, 7)
+    ahead = E._Ahead(model, tok, ends, 7, threading.Lock())
+    try:
+        for i in range(len(ends)):
+            row = ahead.row(i)
+            assert set(row) == set(whole)
+            for k in whole:
+                assert np.array_equal(row[k], whole[k][i : i + 1]), (i, k)
+    finally:
+        ahead.close()
+
+    from tepinn_flight.model.runtime import NetworkRunner
+
+    class Broken(NetworkRunner):
+        config = model.config
+
+        def run(self, *a):
+            raise RuntimeError("network down")
+
+    bad = E._Ahead(Broken(), tok, ends, 7, threading.Lock())
+    try:
+        with pytest.raises(RuntimeError, match="network down"):
+            bad.row(0)
+    finally:
+        bad.close()

@@ -9,6 +9,7 @@ with a :class:`FusionConfig`).
 from __future__ import annotations
 
 import math
+import threading
 from collections import deque
 from dataclasses import replace
 from typing import TYPE_CHECKING
@@ -220,40 +221,49 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
     b_old = np.full((n, 3), np.nan)
     parts, chosen = [], []
     t, gyr, clipped = rec.t_s, rec.gyr_rad_s, rec.clipped
+    lock = threading.Lock()  # one network call at a time (the thread ahead, the blocks' own)
     for sl in segment_slices(rec.segment):
         a, b = sl.start, sl.stop
         pos = np.flatnonzero((idx >= a) & (idx < b))
         e_seg, i_seg = ends[pos], idx[pos] - a
         run = FusionRun(t[a:b], gyr[a:b], fusion, clipped[a:b])
         step = fusion.bias_feedback_windows or max(len(e_seg), 1)
-        if quiet:  # the blocks' first windows with no feedback, batched (used where the feedback is zero)
-            first = network_outputs(model, tok, e_seg[::step], None, batch_size)
+        first = None
+        if quiet:  # the blocks' first windows with no feedback, batched (used where the feedback is zero), made a
+            # batch at a time in a thread ahead of the blocks that read them
+            first = _Ahead(model, tok, e_seg[::step], batch_size, lock)
             v_blocks = deque(maxlen=anchor.quiet_memory_blocks)  # the largest |v̂| of each recent block
-        for bi, s0 in enumerate(range(0, len(e_seg), step)):
-            sel = np.arange(s0, min(s0 + step, len(e_seg)))
-            off = feedback_bias(fusion, run.fusion.bias) if fusion.bias_feedback_windows else None
-            if quiet:
-                if off is not None and any(off):
-                    o = network_outputs(model, tok, e_seg[s0 : s0 + 1], np.atleast_2d(off), batch_size)
+        try:
+            for bi, s0 in enumerate(range(0, len(e_seg), step)):
+                sel = np.arange(s0, min(s0 + step, len(e_seg)))
+                off = feedback_bias(fusion, run.fusion.bias) if fusion.bias_feedback_windows else None
+                if quiet:
+                    if off is not None and any(off):
+                        with lock:
+                            o = network_outputs(model, tok, e_seg[s0 : s0 + 1], np.atleast_2d(off), batch_size)
+                    else:
+                        o = first.row(bi)
+                    rest = sel[1:]
+                    speed = max(float(np.linalg.norm(o["vel"][0])), max(v_blocks, default=0.0))
+                    busy = anchor.block_busy(bi, speed, run.fusion.bias)
+                    rest = rest[anchor.runs_windows(bi, rest - s0, busy, clip_win[pos[rest]])]
+                    if len(rest):
+                        fb = None if off is None else np.tile(off, (len(rest), 1))
+                        with lock:
+                            o2 = network_outputs(model, tok, e_seg[rest], fb, batch_size)
+                        o = {k: np.concatenate([o[k], o2[k]]) for k in o}
+                    sel = np.concatenate(([s0], rest))
+                    v_blocks.append(float(np.linalg.norm(o["vel"], axis=1).max()))
                 else:
-                    o = {k: v[bi : bi + 1] for k, v in first.items()}
-                rest = sel[1:]
-                speed = max(float(np.linalg.norm(o["vel"][0])), max(v_blocks, default=0.0))
-                busy = anchor.block_busy(bi, speed, run.fusion.bias)
-                rest = rest[anchor.runs_windows(bi, rest - s0, busy, clip_win[pos[rest]])]
-                if len(rest):
-                    fb = None if off is None else np.tile(off, (len(rest), 1))
-                    o2 = network_outputs(model, tok, e_seg[rest], fb, batch_size)
-                    o = {k: np.concatenate([o[k], o2[k]]) for k in o}
-                sel = np.concatenate(([s0], rest))
-                v_blocks.append(float(np.linalg.norm(o["vel"], axis=1).max()))
-            else:
-                fb = None if off is None else np.tile(off, (len(sel), 1))
-                o = network_outputs(model, tok, e_seg[sel], fb, batch_size)
-            parts.append(o)
-            chosen.append(pos[sel])
-            run.add(i_seg[sel], o["q"], o["sigma"], o["bias"])
-            run.advance(int(i_seg[sel][-1]) + 2)
+                    fb = None if off is None else np.tile(off, (len(sel), 1))
+                    o = network_outputs(model, tok, e_seg[sel], fb, batch_size)
+                parts.append(o)
+                chosen.append(pos[sel])
+                run.add(i_seg[sel], o["q"], o["sigma"], o["bias"])
+                run.advance(int(i_seg[sel][-1]) + 2)
+        finally:
+            if first is not None:
+                first.close()
         run.advance(b - a)
         q_old[a:b] = run.q
         b_old[a:b] = run.bias
@@ -270,6 +280,33 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
     out["bias_target"] = np.nan_to_num(b_old[idx])  # its gyro-bias estimate then (uncalibrated-gyro evidence)
     out["q_fusion"] = q_old  # per sample (not per window): its estimate at every sample, causal (NaN: none)
     return idx, out
+
+
+class _Ahead:
+    """:func:`network_outputs` of the windows ending at ``ends`` (no feedback), made a batch of ``batch_size`` at a
+    time in a thread ahead of the caller, who reads them in order with :meth:`row`: the network releases the GIL, so
+    the blocks' Python runs meanwhile. The same batches as one call would make: the same bits."""
+
+    def __init__(self, model, tok, ends: np.ndarray, batch_size: int, lock: threading.Lock):
+        from concurrent.futures import ThreadPoolExecutor
+
+        def one(e):
+            with lock:
+                return network_outputs(model, tok, e, None, batch_size)
+
+        self._bs = batch_size
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="tepinn-windows")
+        self._parts = [self._pool.submit(one, ends[k : k + batch_size]) for k in range(0, len(ends), batch_size)]
+
+    def row(self, i: int) -> dict:
+        """The outputs of the ``i``-th window (each a (1, ...) array)."""
+        part = self._parts[i // self._bs].result()
+        j = i % self._bs
+        return {k: v[j : j + 1] for k, v in part.items()}
+
+    def close(self) -> None:
+        """Stop making batches not yet begun (those of blocks an error left unread)."""
+        self._pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _clip_in_window(tok, ends: np.ndarray, window_tokens: int) -> np.ndarray:
