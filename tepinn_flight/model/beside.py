@@ -11,8 +11,9 @@ itself: the results are the same bits either way (the same code on the same inpu
 an estimate takes, never what it is.
 
 Used only where it pays (:func:`worth_it`): a record of at least ``min_samples``, a machine that lets this process run
-on two cores or more, ``os.fork`` there, and not switched off (``TEPINN_FLIGHT_BESIDE=0``; ``estimate --workers N``
-sets it in its workers, which already keep every core busy).
+on two cores or more, Linux (``fork`` without surprises in the child: macOS's system libraries may refuse to run after
+it; Windows has none), and not switched off (``TEPINN_FLIGHT_BESIDE=0``; ``estimate --workers N`` sets it in its
+workers, which already keep every core busy).
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ def usable_cores() -> int:
 
 def worth_it(n_samples: int, min_samples: int = MIN_SAMPLES) -> bool:
     """Whether a record of ``n_samples`` gets a helper process here."""
-    return (n_samples >= min_samples and hasattr(os, "fork") and os.environ.get(ENV, "1") != "0"
+    return (n_samples >= min_samples and sys.platform.startswith("linux") and os.environ.get(ENV, "1") != "0"
             and usable_cores() >= 2)  # fmt: skip
 
 
