@@ -200,9 +200,13 @@ def main() -> int:
         if args.no_beside:
             from tepinn_flight.model import beside
 
+            before = os.environ.get(beside.ENV)
             os.environ[beside.ENV] = "0"
             s, s_cpu = offline(r, settings, off_rec)
-            os.environ.pop(beside.ENV)
+            if before is None:
+                os.environ.pop(beside.ENV)
+            else:
+                os.environ[beside.ENV] = before
             print(f"  ... no helper        {s:12.0f} {s_cpu:12.0f} {s / rate:12.0f} {v_off / s:9.1f}")
     if args.split:
         from tepinn_flight.model.anchor import AnchorConfig
