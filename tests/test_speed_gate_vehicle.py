@@ -193,3 +193,58 @@ def test_info_says_what_the_estimator_does_with_the_vehicle_a_log_names():
     assert line("handheld-imu").endswith("(class handheld: TE-PINN's flight-speed gate stays shut)")
     assert line("fixed_wing").endswith("(class fixed-wing: TE-PINN's flight-speed gate may open)")
     assert line(None).endswith("unknown (not named: TE-PINN's gates as for any vehicle)")
+
+
+@pytest.mark.parametrize("needs_gate", [True, False])
+def test_speed_makes_a_block_busy_only_where_the_flight_speed_gate_may_open(needs_gate):
+    """Rule 26: |v̂| over the quiet threshold makes a block busy only where the flight-speed gate may open for the
+    vehicle (without the rule, on any vehicle); a segment's first blocks and the older fusion's bias still do."""
+    cfg = dataclasses.replace(AnchorConfig(), quiet_speed_needs_gate=needs_gate)
+    late, fast, slow, calm, biased = cfg.quiet_after_blocks, 30.0, 1.0, np.zeros(3), np.radians([0.0, 3.0, 0.0])
+    assert cfg.block_busy(late, fast, calm, speed_gate=True)
+    assert cfg.block_busy(late, fast, calm, speed_gate=False) is not needs_gate
+    assert not cfg.block_busy(late, slow, calm, speed_gate=True)
+    assert cfg.block_busy(late - 1, slow, calm, speed_gate=False)  # the start-up
+    assert cfg.block_busy(late, slow, biased, speed_gate=False)  # the uncalibrated-gyro gate may open
+
+
+def test_shipped_model_and_old_checkpoints_on_speed_and_busy_blocks():
+    assert ANCHOR_CONFIG_BEFORE["quiet_speed_needs_gate"] is False
+    raw = {k: v for k, v in dataclasses.asdict(AnchorConfig()).items() if k not in ("fusion_config", "quiet_speed_needs_gate")}
+    assert anchor_config_from({"anchor_config": raw}).quiet_speed_needs_gate is False
+    _, shipped, _ = load_model(default_model_path())
+    assert shipped.quiet_speed_needs_gate is True
+
+
+def test_a_fast_multirotor_log_runs_fewer_windows_and_live_runs_the_same_ones_as_offline():
+    """A fixed-wing flight (the network reads 15 m/s and more on most blocks) named a quadrotor: offline, the blocks
+    busy by |v̂| alone go quiet (far fewer windows than named a plane, or than without rule 26); live, told the
+    vehicle, runs exactly those windows and gives the offline estimate."""
+    from tepinn_flight.model.estimate import anchored_windows
+    from tepinn_flight.sim.simulate import simulate_record
+
+    model, settings, _ = load_model(default_model_path())
+    cfg = dataclasses.replace(settings, smoother=False, gnss_aid=False, quiet_speed_needs_gate=True)  # live: causal
+    rec = simulate_record("c172x", 40.0, 100.0, seed=3)
+    quad, plane = _with_vehicle(rec, "quadrotor"), _with_vehicle(rec, "plane")
+    idx_quad, _ = anchored_windows(model, quad, fusion=cfg.fusion_config, anchor=cfg)
+    idx_plane, _ = anchored_windows(model, plane, fusion=cfg.fusion_config, anchor=cfg)
+    before = dataclasses.replace(cfg, quiet_speed_needs_gate=False)
+    idx_before, _ = anchored_windows(model, quad, fusion=cfg.fusion_config, anchor=before)
+    np.testing.assert_array_equal(idx_before, idx_plane)
+    assert len(idx_quad) < 0.5 * len(idx_plane)
+    assert np.isin(idx_quad, idx_plane).all()
+    off = estimate_anchored(model, quad, cfg)[Q].to_numpy()
+    live = StreamingEstimator(model, cfg, vehicle="quadrotor")
+    q_live = np.full((len(rec), 4), np.nan)
+    ran = []
+    for i in range(len(rec)):
+        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
+        if e.model_ran:
+            ran.append(i - 1)  # a window is made when the next token's first sample arrives
+        if e.q_nb_wxyz is not None:
+            q_live[i] = e.q_nb_wxyz
+    np.testing.assert_array_equal(np.asarray(ran), idx_quad)
+    have = np.all(np.isfinite(q_live), 1)
+    assert have.sum() > len(rec) - 60
+    np.testing.assert_allclose(q_live[have], off[have], atol=1e-6)

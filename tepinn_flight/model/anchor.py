@@ -47,7 +47,8 @@ logger lost keeps its rotation, and jittered stamps are no gyro scale error. Reg
 windows say, so the network need not run there. Windows come in the older fusion's bias-feedback
 blocks (``bias_feedback_windows`` tokens, 1 s); a block whose first window and those of the last
 ``quiet_memory_blocks`` blocks show |v̂| below ``quiet_speed_m_s`` (the network reads a fixed wing's
-speed only while it turns) and the older fusion's gyro bias below ``quiet_bias_deg_s`` (so
+speed only while it turns; |v̂| is not read on a vehicle whose flight-speed gate stays shut, rule 26:
+``quiet_speed_needs_gate``) and the older fusion's gyro bias below ``quiet_bias_deg_s`` (so
 neither the flight-speed nor the bias gate can open before the next block) runs only that window,
 and those holding a saturated token (the clip gate); a segment's first ``quiet_after_blocks`` and any
 other block run every window (after the start-up, every ``busy_stride``-th, and every one holding a
@@ -239,6 +240,9 @@ class AnchorConfig:
     quiet_memory_blocks: int = 10
     quiet_bias_deg_s: float = 1.5
     quiet_after_blocks: int = 10  # a segment's first blocks run every window (the older fusion's bias converges)
+    # |v̂| makes a block busy only where the flight-speed gate may open for the record's vehicle (speed_gate_shut_for):
+    # it feeds nothing else (rule 26, session 36); False: on any vehicle (before it)
+    quiet_speed_needs_gate: bool = True
     # a busy block after those runs every busy_stride-th window (and every one holding a saturated token)
     busy_stride: int = 1
     # the vehicle's gyro calibration, per body axis (FRD): VQF integrates gyro × gyro_scale. The
@@ -308,12 +312,16 @@ class AnchorConfig:
         """Tokens per quiet block with the older fusion ``fusion`` alongside (0: no quiet blocks)."""
         return fusion.bias_feedback_windows if self.quiet_blocks else 0
 
-    def block_busy(self, block: int, speed_m_s: float, fusion_bias_rad_s) -> bool:
+    def block_busy(self, block: int, speed_m_s: float, fusion_bias_rad_s, speed_gate: bool = True) -> bool:
         """Whether block ``block`` (0: a segment's first) runs every window: too early in the segment,
         or |v̂| (``speed_m_s``: the largest on the windows of the last ``quiet_memory_blocks`` blocks and
         this block's first) or the older fusion's gyro bias then (body axes) say a gate may open in it
-        (never below the flight-speed gate's own threshold)."""
-        if block < self.quiet_after_blocks or speed_m_s >= min(self.quiet_speed_m_s, self.speed_lo_m_s):
+        (never below the flight-speed gate's own threshold). ``speed_gate``: whether that gate may open for the
+        record's vehicle (:func:`speed_gate_allowed`); where it may not, |v̂| counts only without
+        ``quiet_speed_needs_gate``."""
+        if block < self.quiet_after_blocks:
+            return True
+        if (speed_gate or not self.quiet_speed_needs_gate) and speed_m_s >= min(self.quiet_speed_m_s, self.speed_lo_m_s):
             return True
         return bool(np.max(np.abs(np.asarray(fusion_bias_rad_s, np.float64))) >= math.radians(self.quiet_bias_deg_s))
 

@@ -222,6 +222,7 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
     parts, chosen = [], []
     t, gyr, clipped = rec.t_s, rec.gyr_rad_s, rec.clipped
     lock = threading.Lock()  # one network call at a time (the thread ahead, the blocks' own)
+    speed_gate = anchor is None or speed_gate_allowed(anchor, rec.meta.get("vehicle_type"))  # |v̂| read (rule 26)
     for sl in segment_slices(rec.segment):
         a, b = sl.start, sl.stop
         pos = np.flatnonzero((idx >= a) & (idx < b))
@@ -245,7 +246,7 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
                         o = first.row(bi)
                     rest = sel[1:]
                     speed = max(float(np.linalg.norm(o["vel"][0])), max(v_blocks, default=0.0))
-                    busy = anchor.block_busy(bi, speed, run.fusion.bias)
+                    busy = anchor.block_busy(bi, speed, run.fusion.bias, speed_gate)
                     rest = rest[anchor.runs_windows(bi, rest - s0, busy, clip_win[pos[rest]])]
                     if len(rest):
                         fb = None if off is None else np.tile(off, (len(rest), 1))

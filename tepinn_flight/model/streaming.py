@@ -328,7 +328,8 @@ class StreamingEstimator:
                 block = (self.n_windows - 1) // fb_every
                 if block > 0:
                     self.speeds.append(self.block_speed)
-                self.busy = self.anchor_cfg.block_busy(block, max(speed, max(self.speeds, default=0.0)), self.fusion.bias)
+                self.busy = self.anchor_cfg.block_busy(block, max(speed, max(self.speeds, default=0.0)), self.fusion.bias,
+                                                       speed_gate_allowed(self.anchor_cfg, self.vehicle))  # fmt: skip
                 self.block_speed = speed
             else:
                 self.block_speed = max(self.block_speed, speed)
