@@ -350,6 +350,7 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     on the same inputs (:mod:`.smoother`; offline only, its settings ``smoother``, default the
     shipped ones): ``attrs["smoother"]``. On a long record (:func:`.beside.worth_it`) the self-calibration and the
     smoothing's runs over whole segments are made in a helper process beside the anchored pass (:func:`_beside_work`;
+    on a record whose receiver changed the accelerometer, by a second helper beside the last pass, :func:`_aided_work`;
     the same bits as made here, which they are where the helper is not done in time)."""
     anchor = anchor or AnchorConfig()
     rec, acal = prepared(rec, anchor)
@@ -372,19 +373,43 @@ def _beside_work(anchor: AnchorConfig, rec: FlightRecord):
         yield cal
         done = {}
         if anchor.smoother and not (anchor.gnss_aid and rec.gnss_vel_ne_m_s is not None):
-            a2 = cal[0]
-            t, gyr, acc = rec.t_s, np.ascontiguousarray(rec.gyr_rad_s), np.ascontiguousarray(rec.acc_m_s2)
-            for sl in segment_slices(rec.segment):
-                if sl.stop - sl.start >= 2:
-                    done[(sl.start, sl.stop)] = offline_vqf(a2, t[sl], gyr[sl], acc[sl])
+            done = segment_runs(cal[0], rec.t_s, np.ascontiguousarray(rec.gyr_rad_s), np.ascontiguousarray(rec.acc_m_s2),
+                                rec.segment)  # fmt: skip
         yield done
+
+    return work
+
+
+def segment_runs(anchor: AnchorConfig, t, gyr, acc, seg) -> dict:
+    """:func:`offline_vqf` over each whole segment (of two samples or more) → ``{(start, stop): q_nb}``: what the
+    smoothing asks for wherever no gate acts in a segment."""
+    return {(sl.start, sl.stop): offline_vqf(anchor, t[sl], gyr[sl], acc[sl])
+            for sl in segment_slices(seg) if sl.stop - sl.start >= 2}  # fmt: skip
+
+
+def _aided_work(anchor: AnchorConfig, t, gyr, acc_aided, seg):
+    """What a second helper process does on a long record whose receiver changed the accelerometer, beside the last
+    anchored pass: the smoothing's runs over whole segments on that accelerometer (:func:`segment_runs`)."""
+
+    def work():
+        yield segment_runs(anchor, t, gyr, acc_aided, seg)
 
     return work
 
 
 def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, side):
     """:func:`estimate_anchored` on the record as :func:`prepared` made it; ``side``: a helper process running
-    :func:`_beside_work` (None: everything here)."""
+    :func:`_beside_work` (None: everything here). Where the receiver's velocity changes the accelerometer, a second
+    helper (:func:`_aided_work`) makes the smoothing's runs on the new one beside the last anchored pass."""
+    aided_side = []
+    try:
+        return _estimate_anchored_with(model, rec, anchor, acal, batch_size, windows, smoother, side, aided_side)
+    finally:
+        for h in aided_side:
+            h.close()
+
+
+def _estimate_anchored_with(model, rec, anchor, acal, batch_size, windows, smoother, side, aided_side):
     if side is None:
         anchor, cal = self_calibrated(anchor, rec)
     if windows is None:  # on the record as prepared: its accelerometer scale is not read a second time (the
@@ -412,6 +437,8 @@ def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, 
         aid, acc_aided, out_aided = gnss_aided_acc(rec, q_out, anchor, idx, out, cols, use_mag)
         if acc_aided is not None:
             cols = (t, gyr, acc_aided, mag, cols[4])
+            if side is not None and anchor.smoother:  # a long record: the smoothing's runs beside the last pass
+                aided_side.append(Beside(_aided_work(anchor, t, gyr, acc_aided, rec.segment)))
             q_out, s_out, b_out, gate, relevel_t, relevel_i, gates_open, clip_gate = _anchored_pass(
                 anchor, rec.segment, cols, idx, out_aided, use_mag, vehicle)  # fmt: skip
     q_fusion = out.get("q_fusion")
@@ -422,9 +449,10 @@ def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, 
     if anchor.smoother:
         scale = np.asarray(anchor.gyro_scale, np.float64)
         ready = {}  # the helper's runs over whole segments, on the accelerometer as the record read it
-        if side is not None and cols[2] is acc:
+        helper = side if cols[2] is acc else aided_side[0] if aided_side else None
+        if helper is not None:
             try:
-                ready = side.take(WAIT_S_PER_SAMPLE * len(t))
+                ready = helper.take(WAIT_S_PER_SAMPLE * len(t))
             except BesideFailed:
                 pass
 
