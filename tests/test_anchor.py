@@ -12,6 +12,7 @@ import vqf
 from scipy.spatial.transform import Rotation
 
 from tests.conftest import broad_trial
+from tests.live_run import live_run
 from tepinn_flight.model.anchor import AnchorConfig, AnchoredVQF, WindowOutput, q_nb_from_vqf, tilt_pull_quat, to_sensor
 from tepinn_flight.model.checkpoint import default_model_path, load_model
 from tepinn_flight.model.estimate import estimate_anchored
@@ -28,13 +29,7 @@ def _shipped() -> AnchorConfig:
 
 def _live(model, cfg, rec) -> np.ndarray:
     """The live estimator pushed every sample of ``rec`` (no magnetometer) → (n, 4) its estimates, NaN where none."""
-    live = StreamingEstimator(model, cfg)
-    q_live = np.full((len(rec), 4), np.nan)
-    for i in range(len(rec)):
-        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
-        if e.q_nb_wxyz is not None:
-            q_live[i] = e.q_nb_wxyz
-    return q_live
+    return live_run(model, cfg, rec)[0]
 
 
 def _no_gates(cfg: AnchorConfig) -> AnchorConfig:
@@ -420,16 +415,8 @@ def test_live_equals_offline_with_quiet_blocks_busy_blocks_and_a_saturated_stret
         np.testing.assert_array_equal(idx[:start], every[:start])
         assert len(idx) < len(every) - 10
     full, _ = anchored_windows(model, rec, fusion=cfg.fusion_config)
-    live = StreamingEstimator(model, cfg)
-    q_live = np.full((len(rec), 4), np.nan)
-    ran = []
-    for i in range(len(rec)):
-        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
-        if e.model_ran:
-            ran.append(i - 1)  # a window is made when the next token's first sample arrives
-        if e.q_nb_wxyz is not None:
-            q_live[i] = e.q_nb_wxyz
-    np.testing.assert_array_equal(np.asarray(ran), idx)
+    q_live, ran = live_run(model, cfg, rec)
+    np.testing.assert_array_equal(ran, idx)
     blocks = -(-len(full) // cfg.fusion_config.bias_feedback_windows)
     assert blocks + 20 < len(idx) < len(full) - 50  # quiet blocks and busy ones
     t_win = rec.t_s[idx]

@@ -223,6 +223,8 @@ def test_a_fast_multirotor_log_runs_fewer_windows_and_live_runs_the_same_ones_as
     from tepinn_flight.model.estimate import anchored_windows
     from tepinn_flight.sim.simulate import simulate_record
 
+    from .live_run import live_run
+
     model, settings, _ = load_model(default_model_path())
     cfg = dataclasses.replace(settings, smoother=False, gnss_aid=False, quiet_speed_needs_gate=True)  # live: causal
     rec = simulate_record("c172x", 40.0, 100.0, seed=3)
@@ -235,16 +237,8 @@ def test_a_fast_multirotor_log_runs_fewer_windows_and_live_runs_the_same_ones_as
     assert len(idx_quad) < 0.5 * len(idx_plane)
     assert np.isin(idx_quad, idx_plane).all()
     off = estimate_anchored(model, quad, cfg)[Q].to_numpy()
-    live = StreamingEstimator(model, cfg, vehicle="quadrotor")
-    q_live = np.full((len(rec), 4), np.nan)
-    ran = []
-    for i in range(len(rec)):
-        e = live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], None, bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
-        if e.model_ran:
-            ran.append(i - 1)  # a window is made when the next token's first sample arrives
-        if e.q_nb_wxyz is not None:
-            q_live[i] = e.q_nb_wxyz
-    np.testing.assert_array_equal(np.asarray(ran), idx_quad)
+    q_live, ran = live_run(model, cfg, quad, vehicle="quadrotor")
+    np.testing.assert_array_equal(ran, idx_quad)
     have = np.all(np.isfinite(q_live), 1)
     assert have.sum() > len(rec) - 60
     np.testing.assert_allclose(q_live[have], off[have], atol=1e-6)
