@@ -3,13 +3,13 @@
 The offline estimate of one long record has parts that wait on nothing the anchored pass makes — the gyro's
 self-calibration, and VQF run forward and backward over each whole segment, which is what the offline smoothing asks
 for wherever no gate acts (every shared real file; on a record whose GNSS velocity changed the accelerometer, a second
-helper forked then makes those runs on the aided accelerometer beside the last anchored pass). ``vqf.offlineVQF`` holds Python's GIL, so a thread would not run
-it beside the pass; a forked process does, on its own core, from the same arrays (copy-on-write: nothing is sent to
-it). After its first result it runs at the lowest priority, on what the caller's own threads (the network's) leave
-idle. The caller reads the results back (pickled through a pipe) where they are ready when it needs them or soon
-after and, where the helper had not finished (a machine busy with other work), failed or was killed, computes them
-itself: the results are the same bits either way (the same code on the same inputs), so the helper changes how long
-an estimate takes, never what it is.
+helper forked then makes those runs on the aided accelerometer beside the last anchored pass). ``vqf.offlineVQF``
+holds Python's GIL, so a thread would not run it beside the pass; a forked process does, on its own core, from the
+same arrays (copy-on-write: nothing is sent to it). After its first result it runs at the lowest priority, on what
+the caller's own threads (the network's) leave idle. The caller reads the results back (pickled through a pipe)
+where they are ready when it needs them or soon after and, where the helper had not finished (a machine busy with
+other work), failed or was killed, computes them itself: the results are the same bits either way (the same code on
+the same inputs), so the helper changes how long an estimate takes, never what it is.
 
 Used only where it pays (:func:`worth_it`): a record of at least ``min_samples``, a machine that lets this process run
 on two cores or more, Linux (``fork`` without surprises in the child: macOS's system libraries may refuse to run after

@@ -448,7 +448,8 @@ def _estimate_anchored_with(model, rec, anchor, acal, batch_size, windows, smoot
     done = None
     if anchor.smoother:
         scale = np.asarray(anchor.gyro_scale, np.float64)
-        ready = {}  # the helper's runs over whole segments, on the accelerometer as the record read it
+        ready = {}  # a helper's runs over whole segments, on the accelerometer the last pass read (as the record read
+        # it: the first helper's; aided by the receiver: the second's)
         helper = side if cols[2] is acc else aided_side[0] if aided_side else None
         if helper is not None:
             try:
