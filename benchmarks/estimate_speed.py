@@ -202,11 +202,13 @@ def main() -> int:
 
             before = os.environ.get(beside.ENV)
             os.environ[beside.ENV] = "0"
-            s, s_cpu = offline(r, settings, off_rec)
-            if before is None:
-                os.environ.pop(beside.ENV)
-            else:
-                os.environ[beside.ENV] = before
+            try:
+                s, s_cpu = offline(r, settings, off_rec)
+            finally:  # the user's setting back
+                if before is None:
+                    os.environ.pop(beside.ENV)
+                else:
+                    os.environ[beside.ENV] = before
             print(f"  ... no helper        {s:12.0f} {s_cpu:12.0f} {s / rate:12.0f} {v_off / s:9.1f}")
     if args.split:
         from tepinn_flight.model.anchor import AnchorConfig

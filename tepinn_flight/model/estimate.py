@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import threading
+from contextlib import ExitStack
 from collections import deque
 from dataclasses import replace
 from typing import TYPE_CHECKING
@@ -354,12 +355,9 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     the same bits as made here, which they are where the helper is not done in time)."""
     anchor = anchor or AnchorConfig()
     rec, acal = prepared(rec, anchor)
-    side = Beside(_beside_work(anchor, rec)) if worth_it(len(rec)) else None
-    try:
-        return _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, side)
-    finally:
-        if side is not None:
-            side.close()
+    with ExitStack() as helpers:  # leaving stops any helper still running
+        side = helpers.enter_context(Beside(_beside_work(anchor, rec))) if worth_it(len(rec)) else None
+        return _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, side, helpers)
 
 
 def _beside_work(anchor: AnchorConfig, rec: FlightRecord):
@@ -397,19 +395,12 @@ def _aided_work(anchor: AnchorConfig, t, gyr, acc_aided, seg):
     return work
 
 
-def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, side):
+def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, side, helpers: ExitStack):
     """:func:`estimate_anchored` on the record as :func:`prepared` made it; ``side``: a helper process running
     :func:`_beside_work` (None: everything here). Where the receiver's velocity changes the accelerometer, a second
-    helper (:func:`_aided_work`) makes the smoothing's runs on the new one beside the last anchored pass."""
-    aided_side = []
-    try:
-        return _estimate_anchored_with(model, rec, anchor, acal, batch_size, windows, smoother, side, aided_side)
-    finally:
-        for h in aided_side:
-            h.close()
-
-
-def _estimate_anchored_with(model, rec, anchor, acal, batch_size, windows, smoother, side, aided_side):
+    helper (:func:`_aided_work`, entered into ``helpers``) makes the smoothing's runs on the new one beside the last
+    anchored pass."""
+    aided = None
     if side is None:
         anchor, cal = self_calibrated(anchor, rec)
     if windows is None:  # on the record as prepared: its accelerometer scale is not read a second time (the
@@ -438,7 +429,7 @@ def _estimate_anchored_with(model, rec, anchor, acal, batch_size, windows, smoot
         if acc_aided is not None:
             cols = (t, gyr, acc_aided, mag, cols[4])
             if side is not None and anchor.smoother:  # a long record: the smoothing's runs beside the last pass
-                aided_side.append(Beside(_aided_work(anchor, t, gyr, acc_aided, rec.segment)))
+                aided = helpers.enter_context(Beside(_aided_work(anchor, t, gyr, acc_aided, rec.segment)))
             q_out, s_out, b_out, gate, relevel_t, relevel_i, gates_open, clip_gate = _anchored_pass(
                 anchor, rec.segment, cols, idx, out_aided, use_mag, vehicle)  # fmt: skip
     q_fusion = out.get("q_fusion")
@@ -450,7 +441,7 @@ def _estimate_anchored_with(model, rec, anchor, acal, batch_size, windows, smoot
         scale = np.asarray(anchor.gyro_scale, np.float64)
         ready = {}  # a helper's runs over whole segments, on the accelerometer the last pass read (as the record read
         # it: the first helper's; aided by the receiver: the second's)
-        helper = side if cols[2] is acc else aided_side[0] if aided_side else None
+        helper = side if cols[2] is acc else aided
         if helper is not None:
             try:
                 ready = helper.take(WAIT_S_PER_SAMPLE * len(t))
