@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import math
 import threading
-from contextlib import ExitStack
 from collections import deque
+from contextlib import ExitStack
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
