@@ -15,15 +15,19 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 #: what the CLI prints (after its ``tepinn-flight VERB: note:`` prefix)
-COMPILE_NOTICE = ("compiling the estimators' loops once (numba, first run after installing: about 5-15 s; "
+COMPILE_NOTICE = ("compiling the estimators' loops once (numba, first run after installing: about 10-30 s; "
                   "cached afterwards)")  # fmt: skip
+
+
+#: the notices of the blocks open now, innermost last (:func:`announce`)
+_OPEN: list = []
 
 
 @contextmanager
 def compile_notice(say: Callable[[str], None] | None) -> Iterator[None]:
     """Within the block, call ``say(COMPILE_NOTICE)`` once, when numba starts compiling a function
-    of ``tepinn_flight`` (not on a cache load, not for other packages' functions). ``say=None``:
-    nothing (quiet mode), and numba is not even imported."""
+    of ``tepinn_flight`` (not on a cache load, not for other packages' functions) or when :func:`announce` says a
+    helper process will (:mod:`.jit_warmup`). ``say=None``: nothing (quiet mode), and numba is not even imported."""
     if say is None:
         yield
         return
@@ -38,11 +42,27 @@ def compile_notice(say: Callable[[str], None] | None) -> Iterator[None]:
             disp = (ev.data or {}).get("dispatcher")
             module = getattr(getattr(disp, "py_func", None), "__module__", None) or ""
             if module.startswith("tepinn_flight."):
+                self.say()
+
+        def say(self):
+            if not self.done:
                 self.done = True
                 say(COMPILE_NOTICE)
 
         def on_end(self, ev):
             pass
 
-    with event.install_listener("numba:compile", _Once()):
-        yield
+    once = _Once()
+    _OPEN.append(once)
+    try:
+        with event.install_listener("numba:compile", once):
+            yield
+    finally:
+        _OPEN.remove(once)
+
+
+def announce() -> None:
+    """The package's loops are about to compile elsewhere (the warm-up's helper process, whose compiles this
+    process does not see): the innermost open :func:`compile_notice` says so, once."""
+    if _OPEN:
+        _OPEN[-1].say()

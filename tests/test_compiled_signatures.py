@@ -17,7 +17,7 @@ import pytest
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 #: the anchored VQF's kernels (model/anchor_kernels.py)
-ANCHOR_KERNELS = ("q_nb_from_vqf_f", "q_nb_rows", "sigma_step", "clip_sigma_step", "clip_sigma_rows", "vqf_inputs",
+ANCHOR_KERNELS = ("q_nb_from_vqf_f", "q_nb_rows", "step_weights", "sigma_step", "clip_sigma_step", "clip_sigma_rows", "vqf_inputs",
                   "vqf_outputs", "horizontal_bias",
                   "tilt_pull_f", "up_in_earth_f", "turn_acc_state", "fusion_tilt_f")
 

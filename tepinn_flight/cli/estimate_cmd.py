@@ -151,6 +151,10 @@ def _run(args) -> int:
     opts = _Options(args.quiet, args.tlog_messages, args.tlog_rate, args.source_log, ckpt_path.name,
                     _settings_key(ckpt_path, fusion), args.resume)  # fmt: skip
     jobs = [(src, dst, tlogs[i] if tlogs else None) for i, (src, dst) in enumerate(zip(paths, outs))]
+    if jobs:  # a cold numba cache (the first run after installing): its loops compiled in two processes at once
+        from ..jit_warmup import warm_up
+
+        warm_up()
     n_workers = min(args.workers, len(jobs))
     if n_workers > 1:  # one record per worker process at a time, each with its own runtime on one thread
         results = _in_workers(jobs, opts, ckpt_path, args.runtime, fusion, n_workers)

@@ -135,6 +135,9 @@ def _run(args) -> int:
     names = {e.name for e in estimators}
     if len(names) < len(estimators):
         raise TepinnError("two estimators share a name; give the checkpoints different file names")
+    from ..jit_warmup import warm_up
+
+    warm_up(filters=True)  # a cold numba cache: the estimators' loops compiled in two processes at once
     result = evaluate(records, estimators, hcfg, progress=not args.quiet, notes=notes)
     if args.noise_sweep:
         result.noise_sweep = noise_sweep(records, estimators, hcfg, progress=not args.quiet, notes=result.notes)

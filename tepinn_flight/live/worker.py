@@ -114,6 +114,9 @@ def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, 
     except Exception as exc:  # noqa: BLE001 - reported to the bridge as one line
         out.send(b"F", _one_line(exc).encode()[:2000])
         return 3
+    from ..jit_warmup import warm_up as compile_loops
+
+    compile_loops()  # a cold numba cache (the first run after installing): compiled in two processes at once
     warm_up(est)
     info = {"pid": os.getpid()}
     cfg = getattr(getattr(est, "model", None), "config", None)

@@ -516,7 +516,7 @@ class AnchoredVQF:
         g_v = g_s  # what VQF integrates: over each sample's own step (gyro_step_weighting)
         if self.step_weighting and n:
             w = np.empty(n)
-            if step_weights(t_s, self.t_prev, self.ts, GAP_PERIODS, w):
+            if step_weights(_read_only(t_s), self.t_prev, self.ts, GAP_PERIODS, w):
                 g_v = g_s * w[:, None]
             self.t_prev = float(t_s[-1])
         out = self.f.updateBatch(g_v, a_s, m)
@@ -762,6 +762,15 @@ def with_fusion_tilt(q_nb: np.ndarray, q_fusion: np.ndarray) -> np.ndarray:
     out = np.empty_like(q_nb)
     fusion_tilt_rows(q_nb, np.ascontiguousarray(np.atleast_2d(q_fusion), np.float64), out)  # the live step, per row
     return out
+
+
+def _read_only(x) -> np.ndarray:
+    """``x`` C-contiguous and read-only (a view where it is C-contiguous already): a record's columns are read-only, so
+    that is the one signature a kernel reading them is compiled for, whoever calls it (a caller's writable array was
+    a second compile: tests/test_compiled_signatures.py)."""
+    v = np.ascontiguousarray(x).view()
+    v.flags.writeable = False
+    return v
 
 
 def _floats(v) -> list:
