@@ -37,7 +37,8 @@ def _dispatchers(filters: bool = False) -> list:
 
 def cold(dispatchers=None) -> bool:
     """Whether any of the loops has no entry in numba's cache (its index file is missing: never compiled here, or
-    its source changed line). Where numba's cache cannot be inspected: False (nothing is started)."""
+    the function moved in its file — the index is named by its line). Where numba's cache cannot be inspected:
+    False (nothing is started)."""
     try:
         return any(not os.path.exists(d._cache._cache_file._index_path) for d in (dispatchers or _dispatchers()))
     except AttributeError:  # another numba's internals: the warm-up is an optimisation, leave it out

@@ -62,8 +62,9 @@ def _run(args) -> int:
     say = (lambda s: None) if args.quiet else (lambda s: sys.stderr.write(s + "\n"))
     from ..jit_warmup import start
 
-    warm = start(filters=True)  # a cold numba cache: the estimators' loops compiled in a helper process beside the
-    records = []  # fusion's here and the flights
+    # a cold numba cache: the estimators' loops compile in a helper process beside the fusion's here and the flights
+    warm = start(filters=True)
+    records = []
     try:
         for aircraft, maneuvers, seed in DEMO_FLIGHTS:
             say(f"simulating {aircraft} ({maneuvers.replace(',', ', ')}), {args.duration:.0f} s at {args.rate:.0f} Hz ...")
