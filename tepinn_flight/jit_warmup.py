@@ -73,9 +73,14 @@ def start(filters: bool = False) -> WarmUp:
     from .jit_notice import announce
 
     announce()  # the helper's compiles are not seen here (the fusion's may load from the cache)
+    # the helper imports this very package (a checkout put on sys.path by a script, not installed, included): its
+    # compiles must be cached for these source files
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}
     try:
         helper = subprocess.Popen([sys.executable, "-m", "tepinn_flight.jit_warmup", *(["--filters"] if filters else [])],
-                                  stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+                                  stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                  env=env)  # fmt: skip
     except OSError:
         helper = None
     w = WarmUp(True, helper)
