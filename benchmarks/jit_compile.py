@@ -18,7 +18,8 @@ windows (``AnchoredVQF.update`` on a block, ``correct`` with every gate open, ``
 ``estimate`` and the live worker run; ``model/anchor_kernels.py``), ``features`` the token features the
 onnxruntime path computes for the network (``model/window_features.py``, session 11), ``gnss-aid``
 the GNSS-aided tilt's window sums and rotations (``model/gnss_aid_kernels.py``, session 21; a record
-with GNSS velocity).
+with GNSS velocity), ``estimate-cli`` the whole ``estimate`` command on a 20-s GNSS-aided F450 record, in the process
+(every loop it compiles; since session 37 a cold cache starts ``jit_warmup``'s helper process beside it).
 
 Usage: python benchmarks/jit_compile.py [--compare /path/to/other/checkout] [--only fusion,filters]
 Wall-clock seconds; the machine may be shared, so compare the two checkouts within one run.
@@ -120,6 +121,16 @@ acc = np.column_stack([np.sin(t), np.cos(t), np.full(n, -9.81)])
 vel = np.column_stack([-np.cos(t), np.sin(t)])
 def call():
     motion_acc_body(t, q, acc, vel, GnssAidConfig())
+""",
+    "estimate-cli": """
+import os, tempfile
+from tepinn_flight.cli.main import main
+from tepinn_flight.record import write_record
+from tepinn_flight.sim.simulate import simulate_record
+d = tempfile.mkdtemp()
+write_record(simulate_record("F450", 20.0, rate_hz=200.0, seed=2), os.path.join(d, "r.parquet"))  # GNSS-aided
+def call():
+    assert main(["estimate", os.path.join(d, "r.parquet"), "-o", os.path.join(d, "e.parquet"), "-q"]) == 0
 """,
     "tlog-sync": f"""
 from tepinn_flight.ingest.mavlink_scan import scan_tlog
