@@ -47,18 +47,25 @@ def cold(dispatchers=None) -> bool:
 
 class WarmUp:
     """The warm-up under way (:func:`start`): ``ran`` whether it found the cache cold; :meth:`join` waits for its
-    helper process (at most ``wait_s``; then what it has not compiled yet compiles where first used)."""
+    helper process (at most ``wait_s``; then what it has not compiled yet compiles where first used), :meth:`stop`
+    ends it at once (the caller stops: an error, Ctrl-C)."""
 
     def __init__(self, ran: bool, helper: subprocess.Popen | None = None):
         self.ran, self.helper = ran, helper
 
     def join(self, wait_s: float = HELPER_WAIT_S) -> None:
-        h, self.helper = self.helper, None
+        h = self.helper
         if h is None:
             return
         try:
             h.wait(timeout=wait_s)
         except subprocess.TimeoutExpired:
+            pass
+        self.stop()
+
+    def stop(self) -> None:
+        h, self.helper = self.helper, None
+        if h is not None and h.poll() is None:
             h.kill()
             h.wait()
 
@@ -87,7 +94,7 @@ def start(filters: bool = False) -> WarmUp:
     try:
         warm_fusion()
     except BaseException:
-        w.join()
+        w.stop()
         raise
     return w
 
@@ -95,7 +102,11 @@ def start(filters: bool = False) -> WarmUp:
 def warm_up(filters: bool = False, wait_s: float = HELPER_WAIT_S) -> bool:
     """:func:`start`, then wait for its helper → whether it ran."""
     w = start(filters)
-    w.join(wait_s)
+    try:
+        w.join(wait_s)
+    except BaseException:
+        w.stop()
+        raise
     return w.ran
 
 

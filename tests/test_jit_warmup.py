@@ -87,3 +87,21 @@ def test_after_the_warm_up_an_estimate_and_the_live_estimator_compile_nothing(tm
     assert out[3] == "cold False", p.stdout
     assert lines["after"] == "", f"compiled after the warm-up: {lines['after']}"
     assert out[-1] == "ran False", p.stdout  # a warm cache: nothing started
+
+
+def test_a_helper_past_its_time_or_a_stopped_caller_leaves_no_process_behind():
+    """``join`` waits at most its time, then ends the helper; ``stop`` (an error or Ctrl-C in the caller) ends it at
+    once instead of waiting for its compiles."""
+    import time
+
+    from tepinn_flight.jit_warmup import WarmUp
+
+    for end in (lambda w: w.join(wait_s=0.2), lambda w: w.stop()):
+        p = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+        t0 = time.perf_counter()
+        end(WarmUp(True, p))
+        assert p.poll() is not None and time.perf_counter() - t0 < 10
+    done = subprocess.Popen([sys.executable, "-c", "pass"])
+    w = WarmUp(True, done)
+    w.join()
+    assert done.returncode == 0 and w.helper is None  # a helper that finished: reaped, not killed

@@ -72,8 +72,9 @@ def _run(args) -> int:
             rec.meta["name"] = f"{aircraft}-demo"
             write_record(rec, out / "records" / f"{aircraft}.parquet")
             records.append(rec)
-    finally:
         warm.join()
+    finally:
+        warm.stop()  # (an error or Ctrl-C while simulating: the helper ends with the demo)
     notes: list[str] = []
     estimators = [TepinnEstimator.from_checkpoint(args.model, "tepinn")] if args.model else default_learned(notes)
     estimators += baseline_estimators()
