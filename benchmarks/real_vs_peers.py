@@ -11,7 +11,8 @@ fly them; `--no-real` leaves the real files out).
 Inclination RMSE per file (5 s warm-up, the same samples for every estimator), the files where
 TE-PINN's gyro self-calibration applied (with what it read), the mean per kind,
 ratios to VQF side by side, the per-file check of the issue (TE-PINN ≤ max(1.5× VQF, VQF + 0.5°)),
-and TE-PINN's σ calibration by kind (mean NEES, share within 3σ, per file averaged; the target is
+and TE-PINN's σ calibration by kind (mean NEES, share within 3σ, Spearman's rank correlation of σ with the
+error — does σ rise where the error does —, each per file averaged; the NEES and 3σ target is
 set for the real files — the simulated line shows σ in sustained manoeuvres).
 TE-PINN is the model as it ships: offline, its tilt smoothed where no gate acts (session 25).
 `--no-smooth` adds it without the smoothing (`estimate --no-smooth`, the live bridge's tilt) as its own
@@ -145,14 +146,15 @@ def run(args) -> int:
                 nees = [r[f"nees:{n}"] for r in sel if np.isfinite(r.get(f"nees:{n}", np.nan))]
                 if nees:
                     print(f"{'':<10} σ of {display_name(n)}: mean NEES {np.mean(nees):.2f} (target 1.5–2.5), within 3σ "
-                          f"{100 * np.mean([r[f'in3:{n}'] for r in sel if f'in3:{n}' in r]):.1f} % (target ≥ 97 %), per file averaged")
+                          f"{100 * np.mean([r[f'in3:{n}'] for r in sel if f'in3:{n}' in r]):.1f} % (target ≥ 97 %), "
+                          f"Spearman(σ, |e|) {np.nanmean([r.get(f'rho:{n}', np.nan) for r in sel]):.2f}, per file averaged")
     return 0
 
 
 def score_file(ests, rec) -> dict:
     """Each estimator of ``ests`` on ``rec`` → {name: inclination RMSE (deg), 5 s warm-up, the same samples
     for all}, and for TE-PINN estimators ``nees:NAME`` / ``in3:NAME`` (σ of the 2-D tilt error: mean NEES,
-    share within 3σ) and what its whole-record steps did (``selfcal``, ``gnss``, ``smooth``). Short
+    share within 3σ; ``rho:NAME``: Spearman's rank correlation of σ with |e|, NaN where σ is constant) and what its whole-record steps did (``selfcal``, ``gnss``, ``smooth``). Short
     logging dropouts are bridged for every estimator, as ``evaluate`` does."""
     from tepinn_flight.evaluation.harness import scoring_mask
     from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad, tilt_error_vector_rad, uncertainty_metrics
@@ -173,7 +175,7 @@ def score_file(ests, rec) -> dict:
             r["gnss"] = df.attrs["gnss_aid"]
         if e.name.startswith("tepinn") and "sigma_rad" in df:  # σ on every kind (the issue's target: real)
             u = uncertainty_metrics(tilt_error_vector_rad(qe), df["sigma_rad"].to_numpy()[mm])
-            r[f"nees:{e.name}"], r[f"in3:{e.name}"] = u["nees"], u["coverage_3sigma"]
+            r[f"nees:{e.name}"], r[f"in3:{e.name}"], r[f"rho:{e.name}"] = u["nees"], u["coverage_3sigma"], u["spearman"]
         if e.name in ("tepinn", "tepinn-smooth") and str(df.attrs.get("smoother", "")).endswith("; applied"):
             r["smooth"] = df.attrs["smoother"]
     return r
