@@ -155,7 +155,8 @@ def score_file(ests, rec) -> dict:
     """Each estimator of ``ests`` on ``rec`` → {name: inclination RMSE (deg), 5 s warm-up, the same samples
     for all}, and for TE-PINN estimators ``nees:NAME`` / ``in3:NAME`` (σ of the 2-D tilt error: mean NEES,
     share within 3σ; ``rho:NAME``: Spearman's rank correlation of σ with |e|, NaN where σ is constant) and what
-    its whole-record steps did (``selfcal``, ``gnss``, ``smooth``). Short logging dropouts are bridged for every estimator, as ``evaluate`` does."""
+    its whole-record steps did (``selfcal``, ``gnss``, ``smooth``). Short logging dropouts are bridged for every
+    estimator, as ``evaluate`` does."""
     from tepinn_flight.evaluation.harness import scoring_mask
     from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad, tilt_error_vector_rad, uncertainty_metrics
     from tepinn_flight.record_gaps import bridge_gaps
