@@ -1,6 +1,7 @@
 """The helper process beside a long record's offline estimate (model/beside.py): its results come back in order, a
 helper that fails or dies leaves the work to the caller, and the estimate is the same bits with it as without it —
-on a real trial, on a flight whose receiver changes the accelerometer, and where the helper dies."""
+on a real trial, on a real log whose receiver leaves the accelerometer as read, on a flight whose receiver changes
+it, and where the helper dies."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ import pytest
 from tepinn_flight.model import beside, estimate
 from tepinn_flight.model.beside import Beside, BesideFailed
 
-from .conftest import broad_trial
+from .conftest import broad_trial, real_log
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the helper runs on Linux only")
 
@@ -61,13 +62,13 @@ def test_used_only_where_it_pays_and_not_when_switched_off(monkeypatch):
 def _both(monkeypatch, rec, work=None):
     """The shipped estimate of ``rec`` without the helper, and with it (forced on, however short the record;
     ``work``: what the helper does instead of its own work; its results waited for) → (without, with, the results
-    each helper gave)."""
+    each helper gave, what the helpers gave in order)."""
     from tepinn_flight.model.checkpoint import default_model_path, load_model
 
     model, settings, _ = load_model(default_model_path())
     monkeypatch.setenv(beside.ENV, "0")
     off = estimate.estimate_record(model, rec, settings)
-    started = []
+    started, given = [], []
 
     class Counted(Beside):
         def __init__(self, w):
@@ -77,6 +78,7 @@ def _both(monkeypatch, rec, work=None):
         def take(self, wait_s=0.0):  # waits for the child however loaded the machine is, and counts what it gave
             got = self.next()
             started[-1] += 1
+            given.append(got)
             return got
 
     monkeypatch.setenv(beside.ENV, "1")
@@ -86,7 +88,7 @@ def _both(monkeypatch, rec, work=None):
     if work is not None:
         monkeypatch.setattr(estimate, "_beside_work", work)
     on = estimate.estimate_record(model, rec, settings)
-    return off, on, started
+    return off, on, started, given
 
 
 def _same(off, on):
@@ -100,9 +102,26 @@ def test_the_estimate_of_a_real_trial_is_the_same_bits_with_the_helper(monkeypat
     from tepinn_flight.ingest import ingest_log
 
     rec = ingest_log(broad_trial("broad_08_*.hdf5"))  # the gyro self-calibration applies here (the helper's part)
-    off, on, started = _both(monkeypatch, rec)
+    off, on, started, given = _both(monkeypatch, rec)
     assert started == [2]  # the self-calibration and the smoothing's run came from the helper
     assert "applied" in off.attrs["gyro_selfcal"] and "applied" in off.attrs["smoother"]
+    _same(off, on)
+
+
+@pytest.mark.slow
+def test_with_a_receiver_whose_aid_does_not_apply_the_smoothing_run_comes_from_the_helper(monkeypatch):
+    """A PX4 log with GNSS velocity where the aid leaves the accelerometer as read: the helper's runs on it are the
+    smoothing's (before session 39 the helper made none on such a record, and the caller ran VQF both ways itself)."""
+    from tepinn_flight.ingest import ingest_log
+
+    rec = ingest_log(real_log("pyulog_sample_px4_events.ulg"))
+    assert rec.gnss_vel_ne_m_s is not None
+    off, on, started, given = _both(monkeypatch, rec)
+    assert "not applied" in off.attrs["gnss_aid"] and "applied" in off.attrs["smoother"]
+    assert started == [2]  # the self-calibration and the smoothing's run came from the helper
+    from tepinn_flight.record import segment_slices
+
+    assert set(given[1]) == {(s.start, s.stop) for s in segment_slices(rec.segment)}  # ... over each whole segment
     _same(off, on)
 
 
@@ -128,7 +147,7 @@ def test_a_helper_that_dies_or_raises_leaves_the_estimate_as_it_was(monkeypatch)
         return work
 
     for work, gave in ((dies, [1]), (raises, [0])):
-        off, on, started = _both(monkeypatch, rec, work)
+        off, on, started, given = _both(monkeypatch, rec, work)
         assert started == gave
         _same(off, on)
 
@@ -139,10 +158,10 @@ def test_with_a_receiver_a_second_helper_runs_the_smoothing_on_the_aided_acceler
 
     rec = simulate_record("F450", 30.0, rate_hz=200.0, seed=4)
     assert rec.gnss_vel_ne_m_s is not None
-    off, on, started = _both(monkeypatch, rec)
+    off, on, started, given = _both(monkeypatch, rec)
     assert "applied" in off.attrs["gnss_aid"] and "applied" in off.attrs["smoother"]
     # the first helper gave the self-calibration (its smoothing runs, on the accelerometer as read, are not asked
-    # for); a second, forked once the aid had changed the accelerometer, the smoothing's runs on it
+    # for: it is stopped); a second, forked once the aid had changed the accelerometer, the smoothing's runs on it
     assert started == [1, 1]
     _same(off, on)
 

@@ -362,15 +362,17 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
 
 def _beside_work(anchor: AnchorConfig, rec: FlightRecord):
     """What a helper process (:mod:`.beside`) does for :func:`estimate_anchored` on a long record while the
-    anchored pass runs: the gyro's self-calibration, then (with the smoothing on, and where no receiver's velocity
-    will change the accelerometer) VQF forward and backward over each whole segment — the run the smoothing asks for
-    wherever no gate acts in a segment → yields ``(anchor, cal)``, then ``{(start, stop): q_nb}``."""
+    anchored pass runs: the gyro's self-calibration, then (with the smoothing on) VQF forward and backward over each
+    whole segment — the run the smoothing asks for wherever no gate acts in a segment → yields ``(anchor, cal)``, then
+    ``{(start, stop): q_nb}``. On a record with a receiver's velocity those runs are on the accelerometer as read, and
+    used only where the GNSS aid then leaves it as it is (most real logs: session 39, a PX4 log's hour 142–169 k →
+    see PROFILE.md); where the aid changes it, this helper is stopped and a second one makes them on the new one."""
 
     def work():
         cal = self_calibrated(anchor, rec)
         yield cal
         done = {}
-        if anchor.smoother and not (anchor.gnss_aid and rec.gnss_vel_ne_m_s is not None):
+        if anchor.smoother:
             done = segment_runs(cal[0], rec.t_s, np.ascontiguousarray(rec.gyr_rad_s), np.ascontiguousarray(rec.acc_m_s2),
                                 rec.segment)  # fmt: skip
         yield done
@@ -429,6 +431,8 @@ def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, 
         if acc_aided is not None:
             cols = (t, gyr, acc_aided, mag, cols[4])
             if side is not None and anchor.smoother:  # a long record: the smoothing's runs beside the last pass
+                side.close()  # its runs are on the accelerometer as read: not wanted now, nor its core
+                side = None
                 aided = helpers.enter_context(Beside(_aided_work(anchor, t, gyr, acc_aided, rec.segment)))
             q_out, s_out, b_out, gate, relevel_t, relevel_i, gates_open, clip_gate = _anchored_pass(
                 anchor, rec.segment, cols, idx, out_aided, use_mag, vehicle)  # fmt: skip
