@@ -61,8 +61,8 @@ def test_used_only_where_it_pays_and_not_when_switched_off(monkeypatch):
 
 def _both(monkeypatch, rec, work=None):
     """The shipped estimate of ``rec`` without the helper, and with it (forced on, however short the record;
-    ``work``: what the helper does instead of its own work; its results waited for) → (without, with, the results
-    each helper gave, what the helpers gave in order)."""
+    ``work``: what the helper does instead of its own work; its results waited for) → (without, with, how many
+    results each helper gave, those results in order)."""
     from tepinn_flight.model.checkpoint import default_model_path, load_model
 
     model, settings, _ = load_model(default_model_path())
@@ -113,14 +113,13 @@ def test_with_a_receiver_whose_aid_does_not_apply_the_smoothing_run_comes_from_t
     """A PX4 log with GNSS velocity where the aid leaves the accelerometer as read: the helper's runs on it are the
     smoothing's (before session 39 the helper made none on such a record, and the caller ran VQF both ways itself)."""
     from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.record import segment_slices
 
     rec = ingest_log(real_log("pyulog_sample_px4_events.ulg"))
     assert rec.gnss_vel_ne_m_s is not None
     off, on, started, given = _both(monkeypatch, rec)
     assert "not applied" in off.attrs["gnss_aid"] and "applied" in off.attrs["smoother"]
     assert started == [2]  # the self-calibration and the smoothing's run came from the helper
-    from tepinn_flight.record import segment_slices
-
     assert set(given[1]) == {(s.start, s.stop) for s in segment_slices(rec.segment)}  # ... over each whole segment
     _same(off, on)
 

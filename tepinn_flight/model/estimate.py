@@ -366,7 +366,7 @@ def _beside_work(anchor: AnchorConfig, rec: FlightRecord):
     whole segment — the run the smoothing asks for wherever no gate acts in a segment → yields ``(anchor, cal)``, then
     ``{(start, stop): q_nb}``. On a record with a receiver's velocity those runs are on the accelerometer as read, and
     used only where the GNSS aid then leaves it as it is (session 39: a PX4 log's hour, where it does, 137–162 k →
-    175–190 k samples/s); where the aid changes it, this helper is stopped and a second one makes them on the new one."""
+    175–206 k samples/s); where the aid changes it, this helper is stopped and a second one makes them on the new one."""
 
     def work():
         cal = self_calibrated(anchor, rec)
