@@ -35,7 +35,7 @@ def add_arguments(p) -> None:
     p.add_argument("--busy-stride", type=busy_stride, default=0, metavar="N",
                    help="where the network stays busy (fixed wing), run every N-th window after the first 10 s "
                         "(windows holding a saturated sample always run): less CPU, some accuracy (estimate "
-                        "--busy-stride; README, Speed); default: the model's (1: every window)")
+                        "--busy-stride; docs/results.md, Speed); default: the model's (1: every window)")
     p.add_argument("--runtime", choices=["auto", "torch", "onnx"], default="auto",
                    help="run the network in PyTorch or onnxruntime (auto: onnx for an .onnx model, for a checkpoint "
                         "whose export made from it lies beside it — the shipped model — or where torch is not "

@@ -49,29 +49,28 @@ def add_arguments(p) -> None:
     p.add_argument("--threads", type=threads, default=0, metavar="N", help="CPU threads of the runtime (default: its own choice)")
     p.add_argument("--workers", type=workers, default=1, metavar="N",
                    help="estimate N records at a time in N processes, each running the network on one thread (many logs "
-                        "on a multi-core machine: README, Speed); default 1")
+                        "on a multi-core machine: docs/results.md, Speed); default 1")
     p.add_argument("--busy-stride", type=busy_stride, default=0, metavar="N",
                    help="where the network stays busy (fixed wing: flight-speed evidence), run every N-th window "
                         "after a segment's first 10 s (windows holding a saturated sample always run): about N "
                         "times less network time there, at some accuracy (held-out simulated fixed wing 6.76 -> "
-                        "7.40 deg at 6; README, Speed); default: the model's (1: every window)")
+                        "7.40 deg at 6; docs/results.md, Speed); default: the model's (1: every window)")
     p.add_argument("--no-accel-scale", action="store_true",
                    help="do not read the accelerometer's scale from the record's quiet, steady samples (by default it is "
-                        "divided out where it reads 10 %% or more off 1 g; the live bridge reads it causally: README, the "
-                        "shipped estimator)")
+                        "divided out where it reads 10 %% or more off 1 g; the live bridge reads it causally: docs/estimator.md)")
     p.add_argument("--no-gyro-selfcal", action="store_true",
                    help="do not read the gyro's per-axis scale from the record's rests (the estimate the live bridge "
-                        "gives; by default it is read and applied where the record shows one: README, the shipped estimator)")
+                        "gives; by default it is read and applied where the record shows one: docs/estimator.md)")
     p.add_argument("--no-gnss-aid", action="store_true",
                    help="do not take the motion acceleration the record's GNSS velocity shows out of the accelerometer "
                         "(the estimate the live bridge gives; by default it is, where the record has a receiver's "
-                        "velocity and it agrees with the accelerometer: README, the shipped estimator)")
+                        "velocity and it agrees with the accelerometer: docs/estimator.md)")
     smooth = p.add_mutually_exclusive_group()
     smooth.add_argument("--no-smooth", action="store_true",
                         help="do not smooth the tilt offline (the causal estimate the live bridge gives; by default every "
                              "stretch of 30 s or more where no gate of the network acts (5 s where none acts next to it) takes "
                              "the tilt of VQF run forward and backward on the same inputs, heading kept: nearer the true "
-                             "attitude, farther from an autopilot's own causal estimate: README, the shipped estimator)")
+                             "attitude, farther from an autopilot's own causal estimate: docs/estimator.md)")
     smooth.add_argument("--smooth", action="store_true",
                         help="smooth the tilt offline with a checkpoint that does not (one written before session 25)")
     p.add_argument("--tlog", default=None, metavar="FILE|DIR",

@@ -6,7 +6,7 @@ that reads its *magnitude* in m/s² does: the GNSS aid (:mod:`.gnss_aid`) takes 
 acceleration, in m/s², out of the accelerometer — on a board at 0.8 g it removes 1/0.8 of what the
 board shows of it — and the network, trained on accelerometers within a few per cent of true,
 estimates the body velocity and the centripetal term from the specific force's size (a simulated
-c172x flight with the accelerometer × 0.8: 2.84° → 24.4°, README).
+c172x flight with the accelerometer × 0.8: 2.84° → 24.4°, docs/design-log.md).
 
 Where the vehicle is neither turning nor shaking — at rest, hovering, flying straight and level — the
 accelerometer's low-passed norm is g times its scale. So over ``avg_s`` the rate's norm is averaged

@@ -270,7 +270,7 @@ class AnchorConfig:
     # gives the causal estimate the bridge gives). Opt-in from session 15 (farther from an autopilot's own
     # causal estimate on the held-out drone logs: 0.37 -> 0.38°); the shipped default since session 25, on
     # accuracy against a true attitude: the BROAD trials each by a network that never saw it 0.633 -> 0.511°
-    # (VQF 0.683), training flights 3.84 -> 3.59°, crash and flip probes better on all 18 (README, rule 10)
+    # (VQF 0.683), training flights 3.84 -> 3.59°, crash and flip probes better on all 18 (docs/estimator.md, rule 10)
     smoother: bool = True
     # the older fusion's settings (the checkpoint's fusion_config; filled in when loaded)
     fusion_config: FusionConfig | None = field(default=None, compare=False)
@@ -799,7 +799,7 @@ def with_busy_stride(settings, n: int | None, label: str = "this model"):
     """``settings`` running every ``n``-th window of a busy block (after a segment's first
     ``quiet_after_blocks``; every window holding a saturated token still runs): the speed knob of
     ``estimate``/``evaluate``/``bridge --busy-stride`` for flights that keep the network busy (fixed
-    wing), at some accuracy (README, "Speed"). ``n`` None or 0: unchanged. Only the anchored
+    wing), at some accuracy (docs/results.md, "Speed"). ``n`` None or 0: unchanged. Only the anchored
     estimator has busy blocks: for the older network-centred fusion, a :class:`ConfigError`."""
     if not n:
         return settings
