@@ -105,6 +105,18 @@ def test_every_command_module_imports_and_every_verb_is_in_the_parser():
     assert cli_main.command_names(parser) == VERBS
 
 
+
+@pytest.mark.parametrize("verb", ["train", "ablate"])
+def test_data_takes_several_paths_after_one_flag_and_repeats(verb):
+    """``train --init default --data LOG_OR_DIR... -o RUN_DIR`` (the issue's form): several paths after one ``--data``,
+    and ``--data`` given again adds to them, in order."""
+    from tepinn_flight.cli import main as cli_main
+
+    extra = ["--init", "default"] if verb == "train" else ["--config", "train/ablation.toml"]
+    args = cli_main.build_parser().parse_args([verb, *extra, "--data", "a.BIN", "b.ulg", "--data", "logs/", "-o", "r"])
+    assert args.data == ["a.BIN", "b.ulg", "logs/"]
+    assert args.output == "r"
+
 @pytest.mark.parametrize("verb", VERBS)
 def test_every_verb_has_working_help(verb, capsys):
     with pytest.raises(SystemExit) as exc:

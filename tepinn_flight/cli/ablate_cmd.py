@@ -19,7 +19,8 @@ def add_arguments(p) -> None:
                  'tepinn-flight ablate --config train/ablation.toml -o ablation/ --eval sims/test/')
     p.add_argument("--config", required=True, metavar="TOML", help="training recipe shared by all variants")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="folder for the runs and the table")
-    p.add_argument("--data", action="append", default=[], metavar="DIR", help="training records (added to the recipe's)")
+    p.add_argument("--data", action="extend", nargs="+", default=[], metavar="DIR",
+                   help="folder(s) of training records, added to the recipe's (one or more; repeatable)")
     p.add_argument("--eval", nargs="+", default=None, metavar="RECORD",
                    help="held-out records or folders (default: flight_sims/campaigns/heldout.toml flown into DIR/heldout)")
     p.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated subset of {', '.join(VARIANTS)}")

@@ -28,9 +28,9 @@ def add_arguments(p) -> None:
                    help="training recipe, e.g. train/tiny.toml (without it: --init fine-tunes with the built-in recipe)")
     p.add_argument("--init", default=None, metavar="MODEL",
                    help="start from this checkpoint ('default': the shipped model); without --config, fine-tune it on --data")
-    p.add_argument("--data", action="append", default=[], metavar="DIR",
+    p.add_argument("--data", action="extend", nargs="+", default=[], metavar="PATH",
                    help="folder(s) of flight records (added to the recipe's); with --init alone: logs or folders of logs "
-                        "in any format ingest reads")
+                        "in any format ingest reads (one or more after --data, and --data may be repeated)")
     p.add_argument("--minutes", type=float, default=6.0, help="fine-tuning: training time limit (default 6)")
     p.add_argument("-o", "--output", required=True, metavar="RUN_DIR", help="run folder (checkpoints, metrics)")
     p.add_argument("--resume", action="store_true", help="continue from RUN_DIR/last.pt")
