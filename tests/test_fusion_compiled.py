@@ -69,6 +69,28 @@ def test_compiled_fusion_equals_the_reference_on_a_simulated_flight(name):
     _assert_equal(a, b)
 
 
+
+def test_windows_added_one_at_a_time_up_to_the_segment_s_last_sample_equal_the_reference():
+    """As the quiet blocks add them: one window per ``add``, a bias read between, and the last one ending at the
+    segment's last sample (applied at a sample the segment does not have: dropped, as the reference drops it)."""
+    rec = synthetic_record(seed=5, duration_s=8.0, rate_hz=200.0, max_rate_rad_s=4.0)
+    idx, q, sigma, bias = _simulated_windows(rec, every=16, seed=1)
+    idx = np.append(idx, len(rec) - 1)
+    q, sigma, bias = np.vstack([q, q[-1:]]), np.append(sigma, sigma[-1]), np.vstack([bias, bias[-1:]])
+    cfg = CONFIGS["bias-states"]
+    out = []
+    for cls in (ref.FusionRun, FusionRun):
+        run, biases = cls(rec.t_s, rec.gyr_rad_s, cfg, np.zeros(len(rec), bool)), []
+        for k in range(len(idx)):
+            run.add(idx[k : k + 1], q[k : k + 1], sigma[k : k + 1], bias[k : k + 1])
+            run.advance(int(idx[k]) + 2)
+            biases.append(run.fusion.bias)
+        run.advance(len(rec))
+        out.append(((run.q, run.sigma, run.bias), biases))
+    _assert_equal(*(o[0] for o in out))
+    np.testing.assert_allclose(out[1][1], out[0][1], rtol=0, atol=1e-9)
+    assert all(type(b) is tuple and len(b) == 3 and all(type(x) is float for x in b) for b in out[1][1])
+
 def test_compiled_fusion_sample_by_sample_equals_the_reference():
     """The live path: :class:`AttitudeFusion.step` one sample at a time (here on the bias states)."""
     rec = synthetic_record(seed=4, duration_s=6.0, rate_hz=200.0)

@@ -6,6 +6,7 @@ each vehicle name the readers write."""
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 
 import numpy as np
@@ -207,6 +208,25 @@ def test_speed_makes_a_block_busy_only_where_the_flight_speed_gate_may_open(need
     assert cfg.block_busy(late - 1, slow, calm, speed_gate=False)  # the start-up
     assert cfg.block_busy(late, slow, biased, speed_gate=False)  # the uncalibrated-gyro gate may open
 
+
+
+def test_a_block_s_bias_test_is_numpy_s_max_of_the_absolute_bias():
+    """:meth:`AnchorConfig.block_busy`'s bias test on three Python floats equals numpy's ``max(abs(b)) >= threshold``
+    (its former form) for tuples and arrays, at the threshold, with NaN (numpy's max: NaN, not busy) and inf; and
+    :meth:`AnchorConfig.reads_speed` says where a speed is read at all."""
+    cfg = AnchorConfig()
+    late, thr = cfg.quiet_after_blocks, math.radians(cfg.quiet_bias_deg_s)
+    rng = np.random.default_rng(0)
+    cases = [rng.normal(0, thr, 3) for _ in range(200)]
+    cases += [np.array([thr, 0.0, 0.0]), np.array([0.0, -thr, 0.0]), np.array([np.nextafter(thr, 0), 0, 0]),
+              np.array([np.nan, 1.0, 0.0]), np.array([1.0, np.nan, 0.0]), np.array([0.0, 0.0, -np.inf])]
+    for b in cases:
+        expect = bool(np.max(np.abs(b)) >= thr)
+        assert cfg.block_busy(late, 0.0, tuple(b.tolist()), speed_gate=False) is expect, b
+        assert cfg.block_busy(late, 0.0, b, speed_gate=True) is expect, b
+    assert sum(bool(np.max(np.abs(b)) >= thr) for b in cases) > 20  # both outcomes are exercised
+    assert cfg.reads_speed(True) and not cfg.reads_speed(False)
+    assert dataclasses.replace(cfg, quiet_speed_needs_gate=False).reads_speed(False)
 
 def test_shipped_model_and_old_checkpoints_on_speed_and_busy_blocks():
     assert ANCHOR_CONFIG_BEFORE["quiet_speed_needs_gate"] is False

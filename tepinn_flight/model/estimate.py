@@ -224,6 +224,7 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
     t, gyr, clipped = rec.t_s, rec.gyr_rad_s, rec.clipped
     lock = threading.Lock()  # one network call at a time (the thread ahead, the blocks' own)
     speed_gate = anchor is None or speed_gate_allowed(anchor, rec.meta.get("vehicle_type"))  # |v̂| read (rule 26)
+    reads_speed = bool(quiet) and anchor.reads_speed(speed_gate)  # else no block reads |v̂|: not computed
     for sl in segment_slices(rec.segment):
         a, b = sl.start, sl.stop
         pos = np.flatnonzero((idx >= a) & (idx < b))
@@ -246,7 +247,7 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
                     else:
                         o = first.row(bi)
                     rest = sel[1:]
-                    speed = max(float(np.linalg.norm(o["vel"][0])), max(v_blocks, default=0.0))
+                    speed = max(float(np.linalg.norm(o["vel"][0])), max(v_blocks, default=0.0)) if reads_speed else 0.0
                     busy = anchor.block_busy(bi, speed, run.fusion.bias, speed_gate)
                     rest = rest[anchor.runs_windows(bi, rest - s0, busy, clip_win[pos[rest]])]
                     if len(rest):
@@ -255,7 +256,8 @@ def anchored_windows(model: TEPINN, rec: FlightRecord, batch_size: int = 256, fu
                             o2 = network_outputs(model, tok, e_seg[rest], fb, batch_size)
                         o = {k: np.concatenate([o[k], o2[k]]) for k in o}
                     sel = np.concatenate(([s0], rest))
-                    v_blocks.append(float(np.linalg.norm(o["vel"], axis=1).max()))
+                    if reads_speed:
+                        v_blocks.append(float(np.linalg.norm(o["vel"], axis=1).max()))
                 else:
                     fb = None if off is None else np.tile(off, (len(sel), 1))
                     o = network_outputs(model, tok, e_seg[sel], fb, batch_size)

@@ -529,7 +529,7 @@ class AttitudeFusion:
 
     @property
     def bias(self) -> tuple:
-        return tuple(float(v) for v in self.s[_S_B : _S_B + 3])
+        return tuple(self.s[_S_B : _S_B + 3].tolist())  # the same floats (tolist is exact), one conversion
 
     @property
     def P(self) -> float:
@@ -629,8 +629,11 @@ class FusionRun:
         self._est_bias[k0:k1] = np.asarray(est_bias, np.float64).reshape(-1, 3)
         self.n_est = k1
         at = est_index + 1
-        keep = at < len(self.t_s)
-        self.est_at[at[keep]] = k0 + np.flatnonzero(keep)
+        if at.max() < len(self.t_s):  # every one applies at a sample of the segment (the common case: one index op)
+            self.est_at[at] = np.arange(k0, k1)
+        else:
+            keep = at < len(self.t_s)
+            self.est_at[at[keep]] = k0 + np.flatnonzero(keep)
 
     def advance(self, stop: int) -> None:
         stop = min(stop, len(self.t_s))
