@@ -323,13 +323,15 @@ class StreamingEstimator:
         sigma = float(out["sigma"][0])
         bias = [v + fb[i] for i, v in enumerate(out["bias"][0].tolist())]
         if self.quiet:
-            speed = float(np.linalg.norm(out["vel"][0]))
+            speed_gate = speed_gate_allowed(self.anchor_cfg, self.vehicle)
+            # |v̂| only where a block reads it (as offline: a multirotor's or a hand-held log's blocks do not)
+            speed = float(np.linalg.norm(out["vel"][0])) if self.anchor_cfg.reads_speed(speed_gate) else 0.0
             if first:
                 block = (self.n_windows - 1) // fb_every
                 if block > 0:
                     self.speeds.append(self.block_speed)
                 self.busy = self.anchor_cfg.block_busy(block, max(speed, max(self.speeds, default=0.0)), self.fusion.bias,
-                                                       speed_gate_allowed(self.anchor_cfg, self.vehicle))  # fmt: skip
+                                                       speed_gate)  # fmt: skip
                 self.block_speed = speed
             else:
                 self.block_speed = max(self.block_speed, speed)
