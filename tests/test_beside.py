@@ -15,6 +15,7 @@ import pytest
 
 from tepinn_flight.model import beside, estimate
 from tepinn_flight.model.beside import Beside, BesideFailed
+from tepinn_flight.model.gnss_aid import GnssEvidence
 
 from .conftest import broad_trial, real_log
 
@@ -35,6 +36,26 @@ def test_results_come_back_in_order_and_a_helper_that_raises_gives_the_rest_to_t
         with pytest.raises(BesideFailed):  # and stays failed
             side.next()
 
+
+
+def test_a_large_result_waiting_in_the_pipe_does_not_hold_up_the_next():
+    """After its first result the child hands each to a writer thread: a result larger than the pipe holds waits there
+    for the caller while the child goes on to the next (session 40: the GNSS aid's evidence, read only after the
+    anchored pass, had held up the smoothing's VQF runs behind it), and each still arrives whole and in order."""
+    big = np.arange(2_000_000, dtype=np.float64)  # 16 MB: far more than a pipe holds
+
+    def work():
+        yield 1
+        yield big
+        yield time.time()  # when the child got past the large result
+
+    with Beside(work) as side:
+        assert side.next() == 1
+        t0 = time.time()
+        time.sleep(1.5)  # the caller busy elsewhere, reading nothing
+        np.testing.assert_array_equal(side.next(), big)
+        past = side.next()
+    assert past - t0 < 1.0  # not blocked until the caller read the large one
 
 def test_leaving_it_stops_a_child_still_running_and_reaps_it():
     def work():
@@ -117,10 +138,17 @@ def test_with_a_receiver_whose_aid_does_not_apply_the_smoothing_run_comes_from_t
 
     rec = ingest_log(real_log("pyulog_sample_px4_events.ulg"))
     assert rec.gnss_vel_ne_m_s is not None
+    made_here = []
+    real = estimate.gnss_evidences
+    monkeypatch.setattr(estimate, "gnss_evidences", lambda *a: made_here.append(1) or real(*a))  # in this process only
     off, on, started, given = _both(monkeypatch, rec)
     assert "not applied" in off.attrs["gnss_aid"] and "applied" in off.attrs["smoother"]
-    assert started == [2]  # the self-calibration and the smoothing's run came from the helper
-    assert set(given[1]) == {(s.start, s.stop) for s in segment_slices(rec.segment)}  # ... over each whole segment
+    # the self-calibration, the GNSS aid's evidence from the receiver (session 40) and the smoothing's run came from
+    # the helper: the caller made the evidence only in the run without it
+    assert started == [3] and made_here == [1]
+    segments = {(s.start, s.stop) for s in segment_slices(rec.segment)}
+    assert set(given[1]) == segments and all(isinstance(e, GnssEvidence) for e in given[1].values())
+    assert set(given[2]) == segments  # the smoothing's runs over each whole segment
     _same(off, on)
 
 
@@ -159,9 +187,10 @@ def test_with_a_receiver_a_second_helper_runs_the_smoothing_on_the_aided_acceler
     assert rec.gnss_vel_ne_m_s is not None
     off, on, started, given = _both(monkeypatch, rec)
     assert "applied" in off.attrs["gnss_aid"] and "applied" in off.attrs["smoother"]
-    # the first helper gave the self-calibration (its smoothing runs, on the accelerometer as read, are not asked
-    # for: it is stopped); a second, forked once the aid had changed the accelerometer, the smoothing's runs on it
-    assert started == [1, 1]
+    # the first helper gave the self-calibration and the aid's evidence from the receiver (its smoothing runs, on the
+    # accelerometer as read, are not asked for: it is stopped); a second, forked once the aid had changed the
+    # accelerometer, the smoothing's runs on it
+    assert started == [2, 1]
     _same(off, on)
 
 

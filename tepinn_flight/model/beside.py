@@ -1,7 +1,7 @@
 """Work for the second core: a generator run in a forked process beside this one, its results read back in order.
 
 The offline estimate of one long record has parts that wait on nothing the anchored pass makes — the gyro's
-self-calibration, and VQF run forward and backward over each whole segment, which is what the offline smoothing asks
+self-calibration, what the GNSS aid reads from the receiver alone (session 40), and VQF run forward and backward over each whole segment, which is what the offline smoothing asks
 for wherever no gate acts (every shared real file; on a record whose GNSS velocity changed the accelerometer, a second
 helper forked then makes those runs on the aided accelerometer beside the last anchored pass). ``vqf.offlineVQF``
 holds Python's GIL, so a thread would not run it beside the pass; a forked process does, on its own core, from the
@@ -81,12 +81,20 @@ class Beside:
                 # the parent's handlers (a CLI's cleanup of its partial outputs) are not the child's to run
                 signal.signal(signal.SIGTERM, signal.SIG_DFL)
                 signal.signal(signal.SIGINT, signal.SIG_DFL)
-                for k, item in enumerate(work()):
-                    data = pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL)
-                    _write_all(w, struct.pack("<Q", len(data)) + data)
-                    if k == 0:  # the first result was wanted soon; the rest fills what the caller leaves idle
-                        os.nice(NICE)
-                code = 0
+                later = _Writer(w)  # results after the first: written by a thread, so that the next is computed while a
+                # large one waits in the pipe for the caller to read it (a pipe holds 64 KB)
+                try:
+                    for k, item in enumerate(work()):
+                        data = pickle.dumps(item, protocol=pickle.HIGHEST_PROTOCOL)
+                        frame = struct.pack("<Q", len(data)) + data
+                        if k == 0:  # the first result was wanted soon; the rest fills what the caller leaves idle
+                            _write_all(w, frame)
+                            os.nice(NICE)
+                        else:
+                            later.put(frame)
+                    code = 0
+                finally:
+                    later.close()  # what was made is written (or the caller has gone) before the child ends
             except BaseException:  # noqa: BLE001 - the parent sees a short stream and computes it itself
                 pass
             finally:
@@ -164,6 +172,34 @@ def _die_with_parent(parent: int) -> None:
             pass
     if os.getppid() != parent:
         os._exit(1)
+
+
+class _Writer:
+    """In the child: frames written to the pipe in order by one thread (blocked in ``write`` without the GIL while the
+    caller has not read the one before), so that the child computes meanwhile."""
+
+    def __init__(self, fd: int):
+        import queue
+        import threading
+
+        self._q = queue.Queue()
+        self._fd = fd
+        self._t = threading.Thread(target=self._run, daemon=True)
+        self._t.start()
+
+    def _run(self) -> None:
+        try:
+            while (frame := self._q.get()) is not None:
+                _write_all(self._fd, frame)
+        except OSError:  # the caller closed its end (it stopped reading): nothing more to write
+            pass
+
+    def put(self, frame: bytes) -> None:
+        self._q.put(frame)
+
+    def close(self) -> None:
+        self._q.put(None)
+        self._t.join()
 
 
 def _write_all(fd: int, data: bytes) -> None:

@@ -28,7 +28,7 @@ from .anchor_kernels import step_weights
 from .beside import WAIT_S_PER_SAMPLE, Beside, BesideFailed, worth_it
 from .fusion import FusionConfig, FusionRun, feedback_bias
 from .accel_scale import AccelScale, read_accel_scale
-from .gnss_aid import GnssAidConfig, motion_acc_body, summarize
+from .gnss_aid import GnssAidConfig, gnss_evidence, motion_acc_body, summarize
 from .gyro_selfcal import GyroSelfCal, self_calibrate
 from .runtime import as_runner
 from .smoother import SmootherConfig, smooth
@@ -351,7 +351,7 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     run again (:func:`gnss_aided_acc`; offline only): ``attrs["gnss_aid"]``. With ``anchor.smoother``
     the tilt of every long enough stretch where no gate acts is then VQF's run forward and backward
     on the same inputs (:mod:`.smoother`; offline only, its settings ``smoother``, default the
-    shipped ones): ``attrs["smoother"]``. On a long record (:func:`.beside.worth_it`) the self-calibration and the
+    shipped ones): ``attrs["smoother"]``. On a long record (:func:`.beside.worth_it`) the self-calibration, the GNSS aid's evidence from the receiver and the
     smoothing's runs over whole segments are made in a helper process beside the anchored pass (:func:`_beside_work`;
     on a record whose receiver changed the accelerometer, by a second helper beside the last pass, :func:`_aided_work`;
     the same bits as made here, which they are where the helper is not done in time)."""
@@ -366,13 +366,16 @@ def _beside_work(anchor: AnchorConfig, rec: FlightRecord):
     """What a helper process (:mod:`.beside`) does for :func:`estimate_anchored` on a long record while the
     anchored pass runs: the gyro's self-calibration, then (with the smoothing on) VQF forward and backward over each
     whole segment — the run the smoothing asks for wherever no gate acts in a segment → yields ``(anchor, cal)``, then
-    ``{(start, stop): q_nb}``. On a record with a receiver's velocity those runs are on the accelerometer as read, and
+    ``{(start, stop): q_nb}``; on a record with a receiver's velocity, between the two, the GNSS aid's evidence from the
+    receiver alone (:func:`gnss_evidences`, session 40). On a record with a receiver's velocity those runs are on the accelerometer as read, and
     used only where the GNSS aid then leaves it as it is (session 39: a PX4 log's hour, where it does, 137–162 k →
     175–206 k samples/s); where the aid changes it, this helper is stopped and a second one makes them on the new one."""
 
     def work():
         cal = self_calibrated(anchor, rec)
         yield cal
+        if reads_gnss(anchor, rec):  # the GNSS aid's evidence from the receiver alone (session 40)
+            yield gnss_evidences(rec, aid_settings(anchor)[0])
         done = {}
         if anchor.smoother:
             done = segment_runs(cal[0], rec.t_s, np.ascontiguousarray(rec.gyr_rad_s), np.ascontiguousarray(rec.acc_m_s2),
@@ -429,7 +432,13 @@ def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, 
                                                                                              idx, out, use_mag, vehicle)  # fmt: skip
     aid = None
     if anchor.gnss_aid:
-        aid, acc_aided, out_aided = gnss_aided_acc(rec, q_out, anchor, idx, out, cols, use_mag)
+        evidence = None
+        if side is not None and reads_gnss(anchor, rec):
+            try:
+                evidence = side.take(WAIT_S_PER_SAMPLE * len(rec))
+            except BesideFailed:
+                side = None
+        aid, acc_aided, out_aided = gnss_aided_acc(rec, q_out, anchor, idx, out, cols, use_mag, evidence=evidence)
         if acc_aided is not None:
             cols = (t, gyr, acc_aided, mag, cols[4])
             if side is not None and anchor.smoother:  # a long record: the smoothing's runs beside the last pass
@@ -606,17 +615,37 @@ def _piecewise(starts: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     return np.where(k >= 0, values[np.maximum(k, 0)], 0.0)
 
 
+def aid_settings(anchor: AnchorConfig, cfg: GnssAidConfig | None = None) -> tuple[GnssAidConfig, float]:
+    """The GNSS aid's settings as the anchored estimator runs it (``cfg``, default the shipped ones; no speed limit
+    with ``anchor.gnss_aid_in_flight``) and the ground speed from which the flight-speed gate acts beside it."""
+    cfg = cfg or GnssAidConfig()
+    fast_m_s = cfg.max_speed_m_s
+    if anchor.gnss_aid_in_flight:
+        cfg = replace(cfg, max_speed_m_s=float("inf"))
+    return cfg, fast_m_s
+
+
+def reads_gnss(anchor: AnchorConfig, rec: FlightRecord) -> bool:
+    """Whether the GNSS aid reads ``rec``'s receiver (asked for, and the record has its velocity)."""
+    return bool(anchor.gnss_aid) and rec.gnss_vel_ne_m_s is not None
+
+
+def gnss_evidences(rec: FlightRecord, cfg: GnssAidConfig) -> dict:
+    """:func:`.gnss_aid.gnss_evidence` of each segment of ``rec`` (its receiver's velocity and its gyro's clipping)
+    → ``{(start, stop): GnssEvidence or None}``: what every pass of :func:`gnss_aided_acc` reads without the attitude."""
+    t, vel, clipped = rec.t_s, rec.gnss_vel_ne_m_s, rec.gyr_clipped
+    return {(sl.start, sl.stop): gnss_evidence(t[sl], vel[sl], cfg, clipped[sl]) for sl in segment_slices(rec.segment)}
+
+
 def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, idx, out, cols, use_mag: bool,
-                   cfg: GnssAidConfig | None = None):  # fmt: skip
+                   cfg: GnssAidConfig | None = None, evidence: dict | None = None):  # fmt: skip
     """The accelerometer (``cols[2]``) with the motion acceleration the record's GNSS velocity shows
     taken out (:mod:`.gnss_aid`), from the estimate ``q_nb`` and ``cfg.passes`` rounds of
     re-estimation → (the :class:`GnssAid` found, the aided accelerometer or None where it does not
     apply, the windows' outputs for the aided filter: each window marked where the aid holds at its
-    end, :class:`.anchor.WindowOutput`'s ``gnss_aided``)."""
-    cfg = cfg or GnssAidConfig()
-    fast_m_s = cfg.max_speed_m_s  # at this ground speed and above, the flight-speed gate acts beside the aid
-    if anchor.gnss_aid_in_flight:
-        cfg = replace(cfg, max_speed_m_s=float("inf"))
+    end, :class:`.anchor.WindowOutput`'s ``gnss_aided``). ``evidence``: :func:`gnss_evidences` of the record with
+    these settings where already made (a helper process's); else made here, once for all the passes."""
+    cfg, fast_m_s = aid_settings(anchor, cfg)  # at fast_m_s and above, the flight-speed gate acts beside the aid
     t, acc = cols[0], cols[2]
     vel = rec.gnss_vel_ne_m_s
     n = len(acc)
@@ -629,10 +658,12 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
     fast = np.hypot(vel[at, 0], vel[at, 1]) >= fast_m_s  # the windows' ends (NaN: no fix, not fast)
     found = (none, none, np.zeros((n, 3)))  # the masks and correction of the last pass that applied
     aided, out_aided = None, out
+    ev = evidence if evidence is not None else gnss_evidences(rec, cfg)  # the receiver's part: the same every pass
     for p in range(cfg.passes):
         a_b, trusted, covered = np.zeros((n, 3)), none.copy(), none.copy()
         for sl in segment_slices(seg):
-            a_b[sl], trusted[sl], covered[sl] = motion_acc_body(t[sl], q_nb[sl], acc[sl], vel[sl], cfg, gyr_clipped[sl])
+            a_b[sl], trusted[sl], covered[sl] = motion_acc_body(t[sl], q_nb[sl], acc[sl], vel[sl], cfg, gyr_clipped[sl],
+                                                                ev[(sl.start, sl.stop)])  # fmt: skip
         if not trusted.any():
             if aided is None:  # nothing applies: say why from this pass's masks
                 found = (trusted, covered, a_b)

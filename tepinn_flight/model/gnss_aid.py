@@ -142,31 +142,62 @@ def motion_acc_ne(t_s: np.ndarray, vel_ne_m_s: np.ndarray, cfg: GnssAidConfig) -
     return out
 
 
-def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig, gyr_clipped=None):
-    """The motion acceleration in body axes (N, 3) to take out of the accelerometer, for one segment
-    estimated as ``q_nb_wxyz`` (any heading origin), and the per-sample mask where it is applied.
-    ``gyr_clipped``: the samples where the gyro read its range (:attr:`GnssAidConfig.clip_guard`;
-    None: none did)."""
+@dataclass(frozen=True)
+class GnssEvidence:
+    """What :func:`motion_acc_body` reads from the receiver (and the gyro's clipping) alone on one segment, without
+    the attitude: the same for every pass of the aid, so made once per record (:func:`gnss_evidence`) — on a long
+    record by the helper process beside the anchored pass (``estimate._beside_work``)."""
+
+    dt: float  # the segment's median sample step
+    covered: np.ndarray  # (N,) where the horizontal motion acceleration (:func:`motion_acc_ne`) is finite
+    za: np.ndarray  # (N,) that acceleration as complex numbers (north + i east), NaN where no fix
+    za_pow: np.ndarray  # (N,) |za|²
+    clip_ok: np.ndarray | None  # (N,) where heading evidence may be read (:attr:`GnssAidConfig.clip_guard`); None: all
+    near_wild: np.ndarray  # (N,) within margin_s of ground speed ≥ max_speed_m_s
+
+
+def gnss_evidence(t_s, vel_ne_m_s, cfg: GnssAidConfig, gyr_clipped=None) -> GnssEvidence | None:
+    """:class:`GnssEvidence` of one segment (``gyr_clipped``: as :func:`motion_acc_body`'s); None under 3 samples."""
     n = len(t_s)
     if n < 3:
-        return np.zeros((n, 3)), np.zeros(n, bool), np.zeros(n, bool)
+        return None
     dt = float(np.median(np.diff(t_s)))
     k = max(1, int(round(cfg.smooth_s / dt)))
     a_ne = motion_acc_ne(t_s, vel_ne_m_s, cfg)
     covered = np.all(np.isfinite(a_ne), axis=1)
+    za = a_ne[:, 0] + 1j * a_ne[:, 1]
+    clip_ok = None
+    if cfg.clip_guard and gyr_clipped is not None and np.any(gyr_clipped):
+        m_clip = k + 2 * int(round(cfg.latency_s / dt))  # the averages' span, the fixes' latency on each side
+        clip_ok = ~(_centred_mean(np.asarray(gyr_clipped, float), m_clip) > 0)
+    speed = np.hypot(vel_ne_m_s[:, 0], vel_ne_m_s[:, 1])
+    wild = ~(speed < cfg.max_speed_m_s)  # NaN (no fix): only where covered, below
+    m = max(1, int(round(2 * cfg.margin_s / dt)) + 1)
+    near_wild = _centred_mean((wild & covered).astype(float), m) > 0
+    return GnssEvidence(dt, covered, za, np.abs(za) ** 2, clip_ok, near_wild)
+
+
+def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig, gyr_clipped=None,
+                    evidence: GnssEvidence | None = None):  # fmt: skip
+    """The motion acceleration in body axes (N, 3) to take out of the accelerometer, for one segment
+    estimated as ``q_nb_wxyz`` (any heading origin), and the per-sample mask where it is applied.
+    ``gyr_clipped``: the samples where the gyro read its range (:attr:`GnssAidConfig.clip_guard`;
+    None: none did). ``evidence``: the segment's :func:`gnss_evidence` where already made (the same bits)."""
+    n = len(t_s)
+    if n < 3:
+        return np.zeros((n, 3)), np.zeros(n, bool), np.zeros(n, bool)
+    ev = evidence if evidence is not None else gnss_evidence(t_s, vel_ne_m_s, cfg, gyr_clipped)
+    k = max(1, int(round(cfg.smooth_s / ev.dt)))
+    covered, za = ev.covered, ev.za
     rows = (np.require(x, np.float64, "CW") for x in (q_nb_wxyz, acc_b))  # the kernels' one signature
     f_ne = _centred_mean(rotate_rows(*rows)[:, :2], k)  # specific force in the filter's earth frame
     zf = f_ne[:, 0] + 1j * f_ne[:, 1]
-    za = a_ne[:, 0] + 1j * a_ne[:, 1]
     usable = covered & np.isfinite(zf)  # where a correction can be made
-    use = usable  # where the heading's evidence is read
-    if cfg.clip_guard and gyr_clipped is not None and np.any(gyr_clipped):
-        m_clip = k + 2 * int(round(cfg.latency_s / dt))  # the averages' span, the fixes' latency on each side
-        use = use & ~(_centred_mean(np.asarray(gyr_clipped, float), m_clip) > 0)
-    w = max(1, int(round(cfg.heading_window_s / dt)))
+    use = usable if ev.clip_ok is None else usable & ev.clip_ok  # where the heading's evidence is read
+    w = max(1, int(round(cfg.heading_window_s / ev.dt)))
     c = _centred_mean(np.where(use, zf * np.conj(za), 0), w)
     pf = _centred_mean(np.where(use, np.abs(zf) ** 2, 0.0), w)
-    pa = _centred_mean(np.where(use, np.abs(za) ** 2, 0.0), w)
+    pa = _centred_mean(np.where(use, ev.za_pow, 0.0), w)
     frac = _centred_mean(use.astype(float), w)
     with np.errstate(invalid="ignore", divide="ignore"):
         coh = np.abs(c) / np.sqrt(pf * pa)
@@ -174,11 +205,7 @@ def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig, gyr_c
     trusted = usable & (frac > 0.5) & (coh >= cfg.min_coherence) & (rms_a >= cfg.min_accel_m_s2)
     rot = np.exp(1j * np.angle(c))
     za_e = rot * za  # the GNSS acceleration in the filter's earth frame
-    speed = np.hypot(vel_ne_m_s[:, 0], vel_ne_m_s[:, 1])
-    wild = ~(speed < cfg.max_speed_m_s)  # NaN (no fix): only where covered, below
-    m = max(1, int(round(2 * cfg.margin_s / dt)) + 1)
-    near_wild = _centred_mean((wild & covered).astype(float), m) > 0
-    trusted &= ~near_wild
+    trusted &= ~ev.near_wild
     a_n = np.zeros((n, 3))
     za_t = za_e[trusted]
     za_t = za_t * np.minimum(1.0, cfg.max_accel_m_s2 / np.maximum(np.abs(za_t), 1e-12))
