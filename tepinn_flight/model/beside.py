@@ -1,9 +1,10 @@
 """Work for the second core: a generator run in a forked process beside this one, its results read back in order.
 
 The offline estimate of one long record has parts that wait on nothing the anchored pass makes — the gyro's
-self-calibration, what the GNSS aid reads from the receiver alone (session 40), and VQF run forward and backward over each whole segment, which is what the offline smoothing asks
-for wherever no gate acts (every shared real file; on a record whose GNSS velocity changed the accelerometer, a second
-helper forked then makes those runs on the aided accelerometer beside the last anchored pass). ``vqf.offlineVQF``
+self-calibration, what the GNSS aid reads from the receiver alone (session 40), and VQF run forward and backward over
+each whole segment, which is what the offline smoothing asks for wherever no gate acts (every shared real file; on a
+record whose GNSS velocity changed the accelerometer, a second helper forked then makes those runs on the aided
+accelerometer beside the last anchored pass). ``vqf.offlineVQF``
 holds Python's GIL, so a thread would not run it beside the pass; a forked process does, on its own core, from the
 same arrays (copy-on-write: nothing is sent to it). After its first result it runs at the lowest priority, on what
 the caller's own threads (the network's) leave idle. The caller reads the results back (pickled through a pipe)

@@ -351,8 +351,9 @@ def estimate_anchored(model: TEPINN, rec: FlightRecord, anchor: AnchorConfig | N
     run again (:func:`gnss_aided_acc`; offline only): ``attrs["gnss_aid"]``. With ``anchor.smoother``
     the tilt of every long enough stretch where no gate acts is then VQF's run forward and backward
     on the same inputs (:mod:`.smoother`; offline only, its settings ``smoother``, default the
-    shipped ones): ``attrs["smoother"]``. On a long record (:func:`.beside.worth_it`) the self-calibration, the GNSS aid's evidence from the receiver and the
-    smoothing's runs over whole segments are made in a helper process beside the anchored pass (:func:`_beside_work`;
+    shipped ones): ``attrs["smoother"]``. On a long record (:func:`.beside.worth_it`) the self-calibration, the GNSS
+    aid's evidence from the receiver and the smoothing's runs over whole segments are made in a helper process beside
+    the anchored pass (:func:`_beside_work`;
     on a record whose receiver changed the accelerometer, by a second helper beside the last pass, :func:`_aided_work`;
     the same bits as made here, which they are where the helper is not done in time)."""
     anchor = anchor or AnchorConfig()
@@ -367,8 +368,8 @@ def _beside_work(anchor: AnchorConfig, rec: FlightRecord):
     anchored pass runs: the gyro's self-calibration, then (with the smoothing on) VQF forward and backward over each
     whole segment — the run the smoothing asks for wherever no gate acts in a segment → yields ``(anchor, cal)``, then
     ``{(start, stop): q_nb}``; on a record with a receiver's velocity, between the two, the GNSS aid's evidence from the
-    receiver alone (:func:`gnss_evidences`, session 40). On a record with a receiver's velocity those runs are on the accelerometer as read, and
-    used only where the GNSS aid then leaves it as it is (session 39: a PX4 log's hour, where it does, 137–162 k →
+    receiver alone (:func:`gnss_evidences`, session 40). On such a record those runs are on the accelerometer as read,
+    and used only where the GNSS aid then leaves it as it is (session 39: a PX4 log's hour, where it does, 137–162 k →
     175–206 k samples/s); where the aid changes it, this helper is stopped and a second one makes them on the new one."""
 
     def work():
