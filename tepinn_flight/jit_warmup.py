@@ -23,10 +23,11 @@ HELPER_WAIT_S = 600.0
 
 def _dispatchers(filters: bool = False) -> list:
     """The loops whose cache state says whether the warm-up is needed (one or two per module it warms)."""
-    from .model import accel_scale_kernels, anchor_kernels, fusion, gnss_aid_kernels, gyro_selfcal, window_features
+    from .model import accel_scale_kernels, anchor_kernels, fusion, gnss_aid_kernels, gyro_selfcal, head_physics, window_features
 
     found = [fusion._run, fusion._step, anchor_kernels.vqf_outputs, anchor_kernels.vqf_output_one,
-             anchor_kernels.blend_tilt_rows, window_features._features, gnss_aid_kernels.window_sums,
+             anchor_kernels.blend_tilt_rows, window_features._features, head_physics._attitude,
+             gnss_aid_kernels.window_sums,
              gyro_selfcal.attitude_at, accel_scale_kernels.track_step]  # fmt: skip
     if filters:
         from .evaluation.filters import complementary, ekf, madgwick
@@ -167,6 +168,7 @@ def warm_kernels() -> None:
     from .model.config import ModelConfig
     from .model.gnss_aid import GnssAidConfig, motion_acc_body
     from .model.gyro_selfcal import self_calibrate
+    from .model.head_physics import window_attitude
     from .model.smoother import blend_tilt, disagreement_sigma
     from .model.window_features import SensorValues, window_features
 
@@ -196,9 +198,11 @@ def warm_kernels() -> None:
     self_calibrate(t, gyr, acc, np.zeros(n, np.int64), clipped)
     cfg = ModelConfig()
     k = cfg.window_tokens
-    window_features(cfg, SensorValues.identity(), np.zeros((1, k, 3)), np.tile([0.0, 0.0, -9.81], (1, k, 1)),
-                    np.full((1, k), 8.0), np.zeros((1, k)), np.full((1, k), 0.04), np.ones((1, k, 3)),
-                    np.zeros((1, k)))  # fmt: skip
+    feats = window_features(cfg, SensorValues.identity(), np.zeros((1, k, 3)), np.tile([0.0, 0.0, -9.81], (1, k, 1)),
+                            np.full((1, k), 8.0), np.zeros((1, k)), np.full((1, k), 0.04), np.ones((1, k, 3)),
+                            np.zeros((1, k)))  # fmt: skip
+    window_attitude(cfg, {"q_head": np.float32([[1, 0, 0, 0]]), "pool": np.zeros((1, k), np.float32),
+                          "vel": np.zeros((1, 3), np.float32), "acc_v": np.zeros((1, 3), np.float32)}, feats)
     tracker = AccelScaleTracker()
     for i in range(3):
         tracker.update(float(t[i]), gyr[i], acc[i])

@@ -505,10 +505,15 @@ def test_export_the_shipped_model(tmp_path):
     from tepinn_flight.model.export import sensor_values
     from tepinn_flight.model.window_features import window_features
 
-    # the graph takes the windows' features, computed outside it with the trained sensor model
+    # the graph takes the windows' features, computed outside it with the trained sensor model, and ends at the
+    # heads' linear layers: the attitude is computed from its outputs and the features (the physics head)
+    from tepinn_flight.model.head_physics import window_attitude
+
     features = window_features(model.config, sensor_values(model), *(feed[n] for n in ("gyr", "acc", "count", "t_rel", "dt", "mag", "clip")))
     names = [i.name for i in sess.get_inputs()]
-    q_onnx = sess.run(["q"], {n: features[n] for n in names})[0]
+    outs = [o.name for o in sess.get_outputs()]
+    graph = dict(zip(outs, sess.run(outs, {n: features[n] for n in names})))
+    q_onnx = window_attitude(model.config, graph, features)
     with torch.inference_mode():
         q_torch = model(*[torch.as_tensor(feed[n], dtype=torch.float32) for n in
                           ("gyr", "acc", "count", "t_rel", "dt", "mag", "clip")])["q"].numpy()  # fmt: skip

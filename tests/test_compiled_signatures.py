@@ -87,6 +87,14 @@ _CALLS = textwrap.dedent("""
         wf.window_features(cfg, sv, *w)
         wf.window_features(cfg, sv, *(None if a is None else np.asarray(a, np.float32)[:1] for a in w[:5]),
                            np.ones((1, k, 3)), np.zeros((1, k), np.float32))  # fmt: skip
+    from tepinn_flight.model import head_physics as hp
+
+    for cfg in (ModelConfig(), ModelConfig(physics=False, centripetal=False, centripetal_rate=False)):
+        for b in (1, 2):  # the physics head after a run of the graph: its outputs and the features
+            feats = wf.window_features(cfg, wf.SensorValues.identity(), *(None if a is None else np.asarray(a)[:b] for a in w))
+            graph = {"q_head": np.tile(np.float32([1, 0, 0, 0]), (b, 1)), "pool": np.zeros((b, k), np.float32),
+                     "vel": np.zeros((b, 3), np.float32), "acc_v": np.ones((b, 3), np.float32)}
+            hp.window_attitude(cfg, graph, feats)
     from tepinn_flight.model import gyro_selfcal as gs
     from tests.test_gyro_selfcal import turns_with_rests
 
@@ -114,7 +122,7 @@ _CALLS = textwrap.dedent("""
     tr.update(np.float64(0.01), rec.gyr_rad_s[0], rec.acc_m_s2[0])
     tr.update(0.02, [0.0, 0.0, 0.0], np.array([0, 0, -9.81], np.float32))
     for name, d in (("ask.track_step", ask.track_step), ("fusion._run", fusion._run), ("fusion._step", fusion._step), ("wf._features", wf._features),
-                    ("gs.attitude_at", gs.attitude_at), ("gk.window_sums", gk.window_sums),
+                    ("hp._attitude", hp._attitude), ("gs.attitude_at", gs.attitude_at), ("gk.window_sums", gk.window_sums),
                     ("gk.rotate_rows", gk.rotate_rows),
                     ("complementary._run", complementary._run), ("madgwick._run", madgwick._run),
                     ("ekf._loop", ekf._loop)) + tuple((f"ak.{k}", getattr(ak, k)) for k in ANCHOR_KERNELS):
@@ -129,6 +137,6 @@ def test_every_loop_is_compiled_for_one_signature(tmp_path):
     p = subprocess.run([sys.executable, "-c", _CALLS], capture_output=True, text=True, env=env, cwd=REPO, timeout=600)
     assert p.returncode == 0, p.stderr
     counts = dict(line.split() for line in p.stdout.splitlines())
-    assert counts == {k: "1" for k in ("ask.track_step", "fusion._run", "fusion._step", "wf._features", "gs.attitude_at", "complementary._run", "madgwick._run",
+    assert counts == {k: "1" for k in ("ask.track_step", "fusion._run", "fusion._step", "wf._features", "hp._attitude", "gs.attitude_at", "complementary._run", "madgwick._run",
                                        "ekf._loop", "gk.window_sums", "gk.rotate_rows")
                       + tuple(f"ak.{k}" for k in ANCHOR_KERNELS)}, p.stdout  # fmt: skip

@@ -54,7 +54,7 @@ def _random_windows(config, batch, seed):
 def test_export_metadata_and_settings_match_the_checkpoint(exported):
     model, settings, ckpt = load_model(default_model_path())
     meta = read_onnx_metadata(exported)
-    assert meta["format"] == "tepinn-flight-onnx" and meta["version"] == 2 and meta["opset"] == 17
+    assert meta["format"] == "tepinn-flight-onnx" and meta["version"] == 3 and meta["opset"] == 17
     assert meta["model_config"] == ckpt["model_config"]
     as_json = lambda d: json.loads(json.dumps(d))  # noqa: E731  (JSON metadata: tuples come back as lists)
     assert meta["anchor_config"] == as_json(ckpt["anchor_config"]) and meta["fusion_config"] == as_json(ckpt["fusion_config"])

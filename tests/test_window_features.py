@@ -104,7 +104,7 @@ def test_feature_export_equals_torch_from_the_windows(tmp_path, name):
     m = _model(config)
     path = _export(m, tmp_path, "m")
     meta = read_onnx_metadata(path)
-    assert meta["version"] == 2 and meta["graph_inputs"] == list(feature_names(config))
+    assert meta["version"] == 3 and meta["graph_inputs"] == ["x", "t_rel"]  # (the physics head reads the others)
     x = _windows(config, 6, 4)
     a, b = OnnxRunner(path).run(*x), TorchRunner(m.float()).run(*x)
     for k in OUTPUTS:
@@ -122,6 +122,52 @@ class _WindowsGraph(torch.nn.Module):
     def forward(self, gyr, acc, count, t_rel, dt, mag, clip):
         out = self.model(gyr, acc, count, t_rel, dt, mag, clip)
         return out["q"], out["sigma"], out["bias"], out["vel"], out["acc_v"]
+
+
+class _FeaturesGraph(torch.nn.Module):
+    """The version-2 graph: the features in, the attitude out (the physics head inside)."""
+
+    def __init__(self, model):
+        super().__init__()
+        self.model = model
+
+    def forward(self, *features):
+        f = dict(zip(feature_names(self.model.config), features))
+        out = self.model.head(f["x"], f["t_rel"], f.get("v"), f.get("u"), f.get("cen"), f.get("cen_rate"))
+        return out["q"], out["sigma"], out["bias"], out["vel"], out["acc_v"]
+
+
+def test_a_version_2_export_still_runs(tmp_path):
+    import onnx
+
+    from tepinn_flight.model.export import example_features
+    from tepinn_flight.model.runtime import OUTPUTS, OnnxRunner, TorchRunner
+
+    config = CONFIGS["small"]
+    m = _model(config).float()
+    v3 = onnx.load(_export(m, tmp_path, "v3"))
+    names = list(feature_names(config))
+    buf = io.BytesIO()
+    torch.backends.mha.set_fastpath_enabled(False)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            torch.onnx.export(_FeaturesGraph(m).eval(), example_features(m), buf, input_names=names,
+                              output_names=list(OUTPUTS), dynamic_axes={n: {0: "batch"} for n in names + list(OUTPUTS)},
+                              opset_version=17, dynamo=False)  # fmt: skip
+    finally:
+        torch.backends.mha.set_fastpath_enabled(True)
+    v2 = onnx.load_from_string(buf.getvalue())
+    for p in v3.metadata_props:
+        if p.key != "graph_outputs":
+            value = {"version": "2", "graph_inputs": json.dumps(names)}.get(p.key, p.value)
+            v2.metadata_props.add(key=p.key, value=value)
+    runner = OnnxRunner(v2.SerializeToString())
+    assert not runner.physics_head and {"v", "cen", "cen_rate"} <= set(runner.input_names) and "q" in runner.output_names
+    x = _windows(config, 3, 6)
+    a, b = runner.run(*x), TorchRunner(m).run(*x)
+    for k in OUTPUTS:
+        np.testing.assert_allclose(a[k], b[k], rtol=0, atol=ATOL[k], err_msg=k)
 
 
 def test_a_version_1_export_still_runs(tmp_path):
@@ -145,7 +191,7 @@ def test_a_version_1_export_still_runs(tmp_path):
         torch.backends.mha.set_fastpath_enabled(True)
     v1 = onnx.load_from_string(buf.getvalue())
     for p in v2.metadata_props:
-        if p.key not in ("graph_inputs", "sensor_model"):
+        if p.key not in ("graph_inputs", "graph_outputs", "sensor_model"):
             v1.metadata_props.add(key=p.key, value="1" if p.key == "version" else p.value)
     runner = OnnxRunner(v1.SerializeToString())
     assert runner.sensor is None and "gyr" in runner.input_names

@@ -6,11 +6,12 @@ from .helptext import add_examples
 
 HELP = "export a TE-PINN checkpoint (the shipped model by default) to ONNX for onnxruntime (no torch needed to run it)"
 DESCRIPTION = (
-    "Writes the network as an ONNX graph (export version 2, opset 17, float32): the network after its token "
-    "features (inputs x, t_rel and, as the model has them, v, u, cen, cen_rate, with a dynamic batch axis and the "
-    "window length fixed by the model config; outputs q, sigma, bias, vel, acc_v), with the checkpoint's "
-    "model_config, anchor_config/fusion_config, conventions and trained sensor model (sensor_model) as JSON in its "
-    "metadata; tepinn-flight's runtime computes the features from the windows. "
+    "Writes the network as an ONNX graph (export version 3, opset 17, float32): the network from its token "
+    "features to its heads' linear layers (inputs x, t_rel, with a dynamic batch axis and the window length fixed "
+    "by the model config; outputs q_head, pool, sigma, bias, vel, acc_v), with the checkpoint's model_config, "
+    "anchor_config/fusion_config, conventions and trained sensor model (sensor_model) as JSON in its metadata; "
+    "tepinn-flight's runtime computes the features from the windows and the attitude from the heads' outputs "
+    "(compiled). Exports of versions 1 and 2 still run. "
     "`estimate --model MODEL.onnx` and `bridge --model MODEL.onnx` run it with onnxruntime. Needs torch and onnx."
 )
 

@@ -1,19 +1,21 @@
 """Export a TE-PINN checkpoint to ONNX for onnxruntime (no torch at run time).
 
-The graph (export version 2) is the network after its token features,
-:meth:`~tepinn_flight.model.network.TEPINN.head`: inputs the features
-(:func:`~.window_features.feature_names`: ``x`` (B, K, n_inputs) before normalisation, ``t_rel``
-(B, K), and as the model has them ``v`` (B, K, 3), ``u`` (B, K), ``cen``, ``cen_rate`` (B, K, 3, 3)),
-float32; outputs ``q`` (B, 4), ``sigma`` (B,), ``bias``, ``vel``, ``acc_v`` (B, 3), float32. The
-runner computes the features from the windows (:mod:`.window_features`, compiled: the sensor model,
-RK4 rotations and rotated forces were half of a batch-1 run as graph operators) with the trained
-sensor model stored in the metadata (``sensor_model``). The batch axis B is dynamic; the window
-length K is fixed by the model config (``window_tokens``). Opset :data:`OPSET`. (Version 1 exports,
-whose graph took the windows themselves, still run.)
+The graph (export version 3) is the network from its token features to its heads' linear layers
+(:meth:`~tepinn_flight.model.network.TEPINN.encode`, :meth:`~tepinn_flight.model.network.TEPINN.linear_heads`):
+inputs the features it reads, ``x`` (B, K, n_inputs) before normalisation and ``t_rel`` (B, K),
+float32; outputs :data:`~.runtime.GRAPH_OUTPUTS`: ``q_head`` (B, 4), ``pool`` (B, K), ``sigma`` (B,),
+``bias``, ``vel``, ``acc_v`` (B, 3), float32. The runner computes the features from the windows
+(:mod:`.window_features`, compiled: the sensor model, RK4 rotations and rotated forces were half of a
+batch-1 run as graph operators) with the trained sensor model stored in the metadata
+(``sensor_model``), and the window's attitude from the heads' outputs and the physics features
+(:mod:`.head_physics`, compiled: the pooled gravity and the correction layer were a quarter of a batch-1
+run as graph operators, session 41). The batch axis B is dynamic; the window length K is fixed by the
+model config (``window_tokens``). Opset :data:`OPSET`. (Version 1 exports, whose graph took the windows
+themselves, and version 2, whose graph took all the features and gave ``q``, still run.)
 
 ``metadata_props`` carry, as JSON strings: ``format`` ("tepinn-flight-onnx"), ``version``,
 ``model_config``, ``fusion_config``, ``anchor_config`` (when the checkpoint has one),
-``conventions``, ``graph_inputs``, ``sensor_model``, ``outputs_present`` (the heads the model has: the others are zeros in the graph
+``conventions``, ``graph_inputs``, ``graph_outputs``, ``sensor_model``, ``outputs_present`` (the heads the model has: the others are zeros in the graph
 and the runner replaces them with the estimators' defaults), ``opset``, ``source`` (checkpoint
 file name), ``source_sha256`` (of the checkpoint file: a checkpoint with an export of the same name
 beside it runs that export only while they match), ``training`` and ``metrics`` where
@@ -36,7 +38,7 @@ from torch import nn
 
 from ..record import atomic_write
 from .checkpoint import load_model
-from .runtime import INPUTS, ONNX_FORMAT, ONNX_VERSION, OUTPUTS
+from .runtime import GRAPH_OUTPUTS, INPUTS, ONNX_FORMAT, ONNX_VERSION, OUTPUTS
 from .window_features import SensorValues, feature_names
 
 #: ONNX opset of the exported graph
@@ -44,9 +46,11 @@ OPSET = 17
 
 
 class ExportWrapper(nn.Module):
-    """The network after its token features (:meth:`~.network.TEPINN.head`) with a fixed output tuple
-    ``(q, sigma, bias, vel, acc_v)``; heads the model does not have are zeros. Its inputs are
-    :func:`~.window_features.feature_names`, in that order."""
+    """The network from its token features to its heads' linear layers (:meth:`~.network.TEPINN.encode`,
+    :meth:`~.network.TEPINN.linear_heads`) with a fixed output tuple :data:`~.runtime.GRAPH_OUTPUTS`
+    ``(q_head, pool, sigma, bias, vel, acc_v)``; heads the model does not have are zeros. Its inputs are
+    :func:`~.window_features.feature_names`, in that order (the export keeps those the graph reads:
+    ``x`` and ``t_rel``; the runner's compiled tail reads the others, :mod:`.head_physics`)."""
 
     def __init__(self, model: nn.Module):
         super().__init__()
@@ -54,11 +58,12 @@ class ExportWrapper(nn.Module):
 
     def forward(self, *features):
         f = dict(zip(feature_names(self.model.config), features))
-        out = self.model.head(f["x"], f["t_rel"], f.get("v"), f.get("u"), f.get("cen"), f.get("cen_rate"))
-        q = out["q"]
+        out = self.model.linear_heads(self.model.encode(f["x"], f["t_rel"]))
+        q = out["q_head"]
         zeros3 = torch.zeros_like(q[:, :3])
         sigma = out["sigma"] if "sigma" in out else torch.zeros_like(q[:, 0])
-        return (q, sigma, out["bias"], out.get("vel", zeros3), out.get("acc_v", zeros3))
+        pool = out["pool"] if "pool" in out else torch.zeros_like(f["t_rel"])
+        return (q, pool, sigma, out["bias"], out.get("vel", zeros3), out.get("acc_v", zeros3))
 
 
 def sensor_values(model: nn.Module) -> SensorValues:
@@ -120,7 +125,8 @@ def _metadata(ckpt: dict, model: nn.Module, source: str, opset: int, source_sha2
         "source": source,
         "source_sha256": source_sha256,
         "inputs": list(INPUTS),
-        "graph_inputs": list(feature_names(model.config)),  # the features window_features computes
+        "graph_inputs": list(feature_names(model.config)),  # (export_bytes: those the graph reads)
+        "graph_outputs": list(GRAPH_OUTPUTS),
         "sensor_model": sensor_values(model).to_json(),
         "outputs": list(OUTPUTS),
     }
@@ -146,7 +152,7 @@ def export_bytes(ckpt_path: str | os.PathLike, opset: int = OPSET) -> bytes:
     buf = io.BytesIO()
     batch = {0: "batch"}
     names = list(feature_names(model.config))
-    dyn = {n: batch for n in names} | {n: batch for n in OUTPUTS}
+    dyn = {n: batch for n in names} | {n: batch for n in GRAPH_OUTPUTS}
     # the transformer's fused inference kernel (taken under no_grad/inference_mode) has no ONNX
     # form: trace the layer-by-layer path (the same math)
     fast = torch.backends.mha.get_fastpath_enabled()
@@ -155,14 +161,17 @@ def export_bytes(ckpt_path: str | os.PathLike, opset: int = OPSET) -> bytes:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # tracer notes on Python-level shape checks (K is fixed)
             torch.onnx.export(wrapper, example_features(model), buf, input_names=names,
-                              output_names=list(OUTPUTS), dynamic_axes=dyn, opset_version=opset, dynamo=False)  # fmt: skip
+                              output_names=list(GRAPH_OUTPUTS), dynamic_axes=dyn, opset_version=opset, dynamo=False)  # fmt: skip
     finally:
         torch.backends.mha.set_fastpath_enabled(fast)
     proto = onnx.load_from_string(buf.getvalue())
+    graph_inputs = [i.name for i in proto.graph.input]  # (the features the graph reads)
     del proto.metadata_props[:]
     from .runtime import file_sha256
 
-    for k, v in _metadata(ckpt, model, Path(ckpt_path).name, opset, file_sha256(ckpt_path)).items():
+    meta = _metadata(ckpt, model, Path(ckpt_path).name, opset, file_sha256(ckpt_path))
+    meta["graph_inputs"] = json.dumps(graph_inputs)
+    for k, v in meta.items():
         proto.metadata_props.add(key=k, value=v)
     proto.producer_name = "tepinn-flight"
     return proto.SerializeToString()

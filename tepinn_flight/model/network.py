@@ -263,6 +263,11 @@ class TEPINN(nn.Module):
         """Everything after :meth:`features`: normalisation, timestamp encoding, encoder and heads
         (what an ONNX export holds; :mod:`.window_features` computes the features outside it).
         ``v``, ``u`` with physics; ``cen`` with the centripetal term, ``cen_rate`` with its rate."""
+        return self.physics_head(self.linear_heads(self.encode(x, t_rel)), v, u, cen, cen_rate)
+
+    def encode(self, x: torch.Tensor, t_rel: torch.Tensor) -> torch.Tensor:
+        """Token features ``x`` (B, K, n_inputs) before normalisation and their times ``t_rel`` (B, K)
+        → the encoder's output (B, K, d): normalisation, input layer, timestamp encoding, encoder."""
         c = self.config
         h = self.inp((x - self.in_mean) / self.in_std) + self.pe(t_rel)  # (B, K, d)
         if c.encoder == "lstm":
@@ -275,44 +280,60 @@ class TEPINN(nn.Module):
                 h = encoder_layer(layer, h, k, c.d_model, c.n_heads)
         else:  # the MLP; and the transformer's inference in PyTorch, where its fused kernel is faster
             h = self.encoder(h)  # (batch 256: 72–86 ms against 115–135 ms as written above; the same math)
+        return h
+
+    def linear_heads(self, h: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The heads' linear layers on the encoder's output ``h`` (B, K, d): the head quaternion
+        ``q_head`` (normalised), ``bias``, per-token ``torque``, and as the model has them ``sigma``,
+        the body velocity ``vel`` and its rate ``acc_v`` (the centripetal term), the pooling logits
+        ``pool`` (B, K). Where an ONNX export (version 3) ends: :meth:`physics_head` is its runner's
+        compiled tail (:mod:`.head_physics`)."""
+        c = self.config
         last = h[:, -1]  # (B, d)
-        q = quat_normalize(self.head_q(last))  # (B, 4)
+        out = {
+            "q_head": quat_normalize(self.head_q(last)),  # (B, 4)
+            "bias": BIAS_SCALE_RAD_S * self.head_bias(last),
+            "torque": self.head_torque(h),
+        }
+        if c.physics and c.centripetal:
+            hv = self.head_vel(last)
+            out["vel"] = VEL_SCALE_M_S * hv[:, :3]  # (B, 3) m/s in body(t_K)
+            # v(t) = v̂ + (t − t_K)·â (centripetal_rate), â in m/s² in body(t_K)
+            out["acc_v"] = ACC_SCALE_M_S2 * hv[:, 3:] if c.centripetal_rate else torch.zeros_like(out["vel"])
+        if c.physics and c.learned_pooling:
+            out["pool"] = self.head_pool(h)[..., 0]  # (B, K)
+        if c.uncertainty:
+            # σ reads the representation but does not shape it (its NLL would swamp early training)
+            out["sigma"] = F.softplus(self.head_sigma(last.detach()))[..., 0] + 1e-4
+        return out
+
+    def physics_head(self, out, v=None, u=None, cen=None, cen_rate=None) -> dict[str, torch.Tensor]:
+        """The window's attitude ``q`` from :meth:`linear_heads`' outputs ``out`` (updated in place and
+        returned) and the physics features: with physics, the pooled gravity (``f_mean``, ``f_spread``)
+        corrected by the head quaternion; without, the head quaternion (yaw zeroed by the correction
+        layer)."""
+        c = self.config
+        q = out["q_head"]
         if v is not None:
             if cen is not None:  # gravity = a − f with a ≈ ω × v̂: compensate each token
-                hv = self.head_vel(last)
-                vel = VEL_SCALE_M_S * hv[:, :3]  # (B, 3) m/s in body(t_K)
+                vel, acc_v = out["vel"], out["acc_v"]
                 if c.centripetal_rate:  # v(t) = v̂ + (t − t_K)·â: a = ω × v̂ + (t − t_K)·ω × â + â
-                    acc_v = ACC_SCALE_M_S2 * hv[:, 3:]  # (B, 3) m/s² in body(t_K)
                     v = v - torch.einsum("bjkc,bk->bjc", cen_rate, acc_v)
-                else:
-                    acc_v = torch.zeros_like(vel)
                 v = v - torch.einsum("bjkc,bk->bjc", cen, vel)
             if c.learned_pooling:  # learned weights (u is an input the logits can use)
-                wts = torch.softmax(self.head_pool(h)[..., 0], dim=1)[..., None]
+                wts = torch.softmax(out["pool"], dim=1)[..., None]
             else:
                 wts = (u / u.sum(dim=1, keepdim=True))[..., None]  # (B, K, 1)
             f_mean = (wts * v).sum(dim=1)  # pooled specific force in body(t_K), in g
             if c.correction_layer:  # zero_yaw(q_base ⊗ δq), q_base = gravity_tilt(−f): its gravity in body
                 # axes is −f, so the product's is δq* turning −f — one rotation instead of a second
-                # tilt and a product (the same numbers to round-off, tests/test_model.py; a fifth of
-                # the exported graph's time at batch 1)
+                # tilt and a product (the same numbers to round-off, tests/test_model.py)
                 q = gravity_tilt(quat_rotate(quat_conj(q), -f_mean))
             else:
                 q = quat_mul(gravity_tilt(-f_mean), q)  # correction of the physics baseline
+            out["f_mean"] = f_mean  # (compensated, centripetal on)
+            out["f_spread"] = (wts[..., 0] * (v - f_mean[:, None]).pow(2).sum(-1)).sum(dim=1).sqrt()
         elif c.correction_layer:
             q = zero_yaw(q)
-        out = {
-            "q": q,
-            "bias": BIAS_SCALE_RAD_S * self.head_bias(last),
-            "torque": self.head_torque(h),
-        }
-        if v is not None:
-            out["f_mean"] = f_mean  # (compensated, centripetal on)
-            if cen is not None:
-                out["vel"] = vel
-                out["acc_v"] = acc_v
-            out["f_spread"] = (wts[..., 0] * (v - f_mean[:, None]).pow(2).sum(-1)).sum(dim=1).sqrt()
-        if c.uncertainty:
-            # σ reads the representation but does not shape it (its NLL would swamp early training)
-            out["sigma"] = F.softplus(self.head_sigma(last.detach()))[..., 0] + 1e-4
+        out["q"] = q
         return out

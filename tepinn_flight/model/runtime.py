@@ -42,9 +42,12 @@ RUNTIMES = ("auto", "torch", "onnx")
 #: σ of a model without the σ head (rad)
 DEFAULT_SIGMA_RAD = math.radians(2.0)
 ONNX_FORMAT = "tepinn-flight-onnx"
-ONNX_VERSION = 2
-#: export versions this runner reads: 1 (the graph takes the windows), 2 (it takes their features)
-ONNX_VERSIONS_READ = (1, 2)
+ONNX_VERSION = 3
+#: export versions this runner reads: 1 (the graph takes the windows), 2 (it takes their features),
+#: 3 (it takes their features and ends at the heads' linear layers: GRAPH_OUTPUTS)
+ONNX_VERSIONS_READ = (1, 2, 3)
+#: a version-3 graph's outputs; the runner computes ``q`` from them (:mod:`.head_physics`)
+GRAPH_OUTPUTS = ("q_head", "pool", "sigma", "bias", "vel", "acc_v")
 
 
 def torch_available() -> bool:
@@ -156,7 +159,8 @@ class OnnxRunner(NetworkRunner):
         self.present = set(self.meta.get("outputs_present", OUTPUTS))
         self.input_names = [i.name for i in self.session.get_inputs()]
         self.output_names = [o.name for o in self.session.get_outputs()]
-        self.sensor = None  # version 2: the features are computed here, with the trained sensor model
+        self.sensor = None  # version 2 on: the features are computed here, with the trained sensor model
+        self.physics_head = self.meta["version"] >= 3  # version 3: and the attitude from the heads' outputs
         if self.meta["version"] >= 2:
             from .window_features import SensorValues
 
@@ -194,6 +198,7 @@ class OnnxRunner(NetworkRunner):
             from .window_features import window_features
 
             arrays = window_features(self.config, self.sensor, gyr, acc, count, t_rel, dt, mag, clip)
+            # (a version-3 graph takes x and t_rel only: the physics features are read by its tail, below)
         else:
             arrays = dict(zip(INPUTS, (gyr, acc, count, t_rel, dt, mag, clip)))
         b = len(gyr)
@@ -238,7 +243,12 @@ class OnnxRunner(NetworkRunner):
             outs = [self.session.run(self.output_names, feeds[0])]  # the first slice in this thread
             outs += [f.result() for f in futures]
             res = [np.concatenate([o[i] for o in outs]) for i in range(len(self.output_names))]
-        return _complete(dict(zip(self.output_names, res)), self.present, b)
+        out = dict(zip(self.output_names, res))
+        if self.physics_head:
+            from .head_physics import window_attitude
+
+            out["q"] = window_attitude(self.config, out, arrays)
+        return _complete(out, self.present, b)
 
 
 def resolve_runtime(path, runtime: str = "auto") -> str:
