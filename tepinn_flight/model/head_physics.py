@@ -13,6 +13,7 @@ changes them, ``tests/test_head_physics.py``); the quaternion ones are :mod:`..q
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -22,29 +23,53 @@ from ..quat_scalar import down_in_body, euler_zyx_half_angles, qmul, qrot
 from .config import ModelConfig
 
 
+#: stand-ins for the features a model without them does not have (never read: the switches say so)
+_NONE2 = np.zeros((0, 0), np.float32)
+_NONE3 = np.zeros((0, 0, 3), np.float32)
+_NONE4 = np.zeros((0, 0, 3, 3), np.float32)
+
+
+def _f32(a) -> np.ndarray:
+    return a if type(a) is np.ndarray and a.dtype == np.float32 and a.flags.c_contiguous else np.ascontiguousarray(a, np.float32)
+
+
+@functools.lru_cache(maxsize=16)
+def _switches(config: ModelConfig) -> tuple[bool, bool, bool, bool, bool]:
+    """(physics, centripetal, its rate term, learned pooling, correction layer) as the model has them."""
+    physics = bool(config.physics)
+    centripetal = physics and bool(config.centripetal)
+    return (physics, centripetal, centripetal and bool(config.centripetal_rate), physics and bool(config.learned_pooling),
+            bool(config.correction_layer))  # fmt: skip
+
+
 def window_attitude(config: ModelConfig, graph: dict, features: dict) -> np.ndarray:
     """(B, 4) float64 attitude ``q`` of each window from an export's outputs ``graph`` (``q_head``
     (B, 4), ``pool`` (B, K), ``vel``, ``acc_v`` (B, 3)) and the runner's token features ``features``
     (``v`` (B, K, 3), ``u`` (B, K), ``cen``, ``cen_rate`` (B, K, 3, 3) as the model has them)."""
-    c = config
-    q_head = np.ascontiguousarray(graph["q_head"], dtype=np.float32)
-    b = len(q_head)
-    none3, none4 = np.zeros((b, 0, 3), np.float32), np.zeros((b, 0, 3, 3), np.float32)
-
-    def arr(name, empty, ok=True):
-        a = features.get(name) if ok else None
-        return empty if a is None else np.ascontiguousarray(a, dtype=np.float32)
-
-    physics = bool(c.physics)
-    centripetal = physics and bool(c.centripetal)
-    rate = centripetal and bool(c.centripetal_rate)
-    learned = physics and bool(c.learned_pooling)
-    pool = np.ascontiguousarray(graph["pool"], dtype=np.float32) if learned else np.zeros((b, 0), np.float32)
-    return _attitude(q_head, pool, np.ascontiguousarray(graph["vel"], dtype=np.float32),
-                     np.ascontiguousarray(graph["acc_v"], dtype=np.float32),
-                     arr("v", none3, physics), arr("u", np.zeros((b, 0), np.float32), physics and not learned),
-                     arr("cen", none4, centripetal), arr("cen_rate", none4, rate),
-                     physics, centripetal, rate, learned, bool(c.correction_layer))  # fmt: skip
+    physics, centripetal, rate, learned, correction = _switches(config)
+    q_head = _f32(graph["q_head"])
+    b = q_head.shape[0]
+    vel, acc_v = _f32(graph["vel"]), _f32(graph["acc_v"])
+    pool, v, u, cen, cen_rate = _NONE2, _NONE3, _NONE2, _NONE4, _NONE4
+    if physics:  # (the compiled loop does not check its indices: the shapes are checked here)
+        v, u = _f32(features["v"]), _f32(features["u"])
+        k = v.shape[1]
+        ok = v.shape == (b, k, 3) and u.shape == (b, k) and vel.shape == (b, 3) and acc_v.shape == (b, 3)
+        if learned:
+            pool = _f32(graph["pool"])
+            ok = ok and pool.shape == (b, k)
+        if centripetal:
+            cen = _f32(features["cen"])
+            ok = ok and cen.shape == (b, k, 3, 3)
+        if rate:
+            cen_rate = _f32(features["cen_rate"])
+            ok = ok and cen_rate.shape == (b, k, 3, 3)
+        if not ok:
+            raise ValueError(f"physics head: mismatched shapes (q_head {q_head.shape}, v {v.shape}, u {u.shape}, "
+                             f"pool {pool.shape}, cen {cen.shape}, cen_rate {cen_rate.shape})")  # fmt: skip
+    if q_head.shape != (b, 4):
+        raise ValueError(f"physics head: q_head of shape {q_head.shape}")
+    return _attitude(q_head, pool, vel, acc_v, v, u, cen, cen_rate, physics, centripetal, rate, learned, correction)
 
 
 @njit(cache=True)
@@ -59,7 +84,9 @@ def _gravity_tilt(gx, gy, gz):
 @njit(cache=True)
 def _attitude(q_head, pool, vel, acc_v, v, u, cen, cen_rate, physics, centripetal, rate, learned, correction):
     b = q_head.shape[0]
+    k = v.shape[1]
     out = np.empty((b, 4))
+    w = np.empty(k)
     for i in range(b):
         qw, qx, qy, qz = float(q_head[i, 0]), float(q_head[i, 1]), float(q_head[i, 2]), float(q_head[i, 3])
         if not physics:
@@ -67,15 +94,19 @@ def _attitude(q_head, pool, vel, acc_v, v, u, cen, cen_rate, physics, centripeta
                 qw, qx, qy, qz = _gravity_tilt(*down_in_body(qw, qx, qy, qz))
             out[i, 0], out[i, 1], out[i, 2], out[i, 3] = qw, qx, qy, qz
             continue
-        k = v.shape[1]
         # pooling weights: the softmax of the logits (shifted by their largest), or the trust's share
-        top = -np.inf
+        total = 0.0
         if learned:
+            top = -np.inf
             for j in range(k):
                 top = max(top, float(pool[i, j]))
-        total = 0.0
-        for j in range(k):
-            total += math.exp(float(pool[i, j]) - top) if learned else float(u[i, j])
+            for j in range(k):
+                w[j] = math.exp(float(pool[i, j]) - top)
+                total += w[j]
+        else:
+            for j in range(k):
+                w[j] = float(u[i, j])
+                total += w[j]
         fx = fy = fz = 0.0
         for j in range(k):
             vx, vy, vz = float(v[i, j, 0]), float(v[i, j, 1]), float(v[i, j, 2])
@@ -90,10 +121,10 @@ def _attitude(q_head, pool, vel, acc_v, v, u, cen, cen_rate, physics, centripeta
                         vx -= float(cen_rate[i, j, kk, 0]) * r
                         vy -= float(cen_rate[i, j, kk, 1]) * r
                         vz -= float(cen_rate[i, j, kk, 2]) * r
-            w = (math.exp(float(pool[i, j]) - top) if learned else float(u[i, j])) / total
-            fx += w * vx
-            fy += w * vy
-            fz += w * vz
+            wj = w[j] / total
+            fx += wj * vx
+            fy += wj * vy
+            fz += wj * vz
         if correction:  # zero_yaw(q_base ⊗ δq) = the tilt of −f turned by δq*
             gx, gy, gz = qrot(qw, -qx, -qy, -qz, -fx, -fy, -fz)
             qw, qx, qy, qz = _gravity_tilt(gx, gy, gz)
