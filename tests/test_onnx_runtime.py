@@ -88,6 +88,27 @@ def test_a_batch_in_slices_on_threads_equals_one_run(exported):
     assert np.abs(three.run(*y)["q"][::-1] - a["q"]).max() < 1e-6 < np.abs(three.run(*y)["q"] - a["q"]).max()
 
 
+@pytest.mark.parametrize("threads", [1, 2])
+def test_a_large_batch_runs_in_chunks_equal_to_one_window_at_a_time(exported, threads):
+    # a batch larger than CHUNK_WINDOWS (per thread) runs CHUNK_WINDOWS windows at a time: each window's outputs
+    # as its own run's (float32 round-off), in the batch's order
+    from tepinn_flight.model import runtime
+
+    model, _, _ = load_model(default_model_path())
+    b = 2 * runtime.CHUNK_WINDOWS * threads + 5
+    x = _random_windows(model.config, b, 7)
+    runner, single = OnnxRunner(exported, threads=threads), OnnxRunner(exported, threads=1)
+    calls = []
+    run = runner.session.run
+    runner.session = type("Counted", (), {"run": lambda self, names, feed: calls.append(len(feed["x"])) or run(names, feed)})()
+    a = runner.run(*x)
+    assert max(calls) == runtime.CHUNK_WINDOWS and sum(calls) == b and len(calls) >= 3 * threads
+    for i in range(b):
+        one = single.run(*(v[i : i + 1] for v in x))
+        for k in OUTPUTS:
+            np.testing.assert_allclose(a[k][i], one[k][0], rtol=0, atol=1e-6, err_msg=f"{k} window {i}")
+
+
 def test_runs_through_the_kept_binding_equal_fresh_sessions_and_leave_earlier_outputs_alone(exported):
     # one thread: runs of one shape reuse their binding (inputs copied into its buffers, outputs read from
     # buffers bound once); each run's outputs are those of a fresh session's own run, bit for bit, and a new

@@ -46,6 +46,13 @@ ONNX_VERSION = 3
 #: export versions this runner reads: 1 (the graph takes the windows), 2 (it takes their features),
 #: 3 (it takes their features and ends at the heads' linear layers: GRAPH_OUTPUTS)
 ONNX_VERSIONS_READ = (1, 2, 3)
+#: onnxruntime runs a large batch this many windows at a time: a window's intermediate arrays (its 80 × 80
+#: attention per head among them) then stay in the core's cache. A window cost 17–22 % less in chunks of 4–32 than
+#: in one run of 128 (session 41, `runs/exp41/chunk_sweep.py`: one thread 529 → 433–456 µs, two threads side by
+#: side 292 → 226–237 µs a window). A window's outputs are those of one run to float32 round-off (in that check
+#: the same bits in chunks of 16 and 64; σ's one-column product 1e-8 off in batches of 1 and 7;
+#: tests/test_onnx_runtime.py)
+CHUNK_WINDOWS = 16
 #: a version-3 graph's outputs; the runner computes ``q`` from them (:mod:`.head_physics`)
 GRAPH_OUTPUTS = ("q_head", "pool", "sigma", "bias", "vel", "acc_v")
 
@@ -203,7 +210,10 @@ class OnnxRunner(NetworkRunner):
             arrays = dict(zip(INPUTS, (gyr, acc, count, t_rel, dt, mag, clip)))
         b = len(gyr)
         parts = min(self.workers, b)
-        if parts < 2:  # one run: through an I/O binding (the live path's batch of one: ~10 % of a window's run was
+        if parts < 2 and b > CHUNK_WINDOWS:  # one thread, a large batch: in chunks
+            feed = {k: np.ascontiguousarray(arrays[k], dtype=np.float32) for k in self.input_names}
+            res = self._run_chunks(feed)
+        elif parts < 2:  # one run: through an I/O binding (the live path's batch of one: ~10 % of a window's run was
             # run()'s own conversion of the feed and the outputs; the same kernels, the same bits). The binding is
             # made once per thread and input shapes, on buffers of its own: later runs of those shapes copy the
             # inputs into them and read the outputs from buffers bound once (binding anew cost ~15 µs a window)
@@ -239,8 +249,8 @@ class OnnxRunner(NetworkRunner):
                 self._pool = ThreadPoolExecutor(self.workers - 1, thread_name_prefix="onnx")
             cuts = np.linspace(0, b, parts + 1).round().astype(int)
             feeds = [{k: v[i:j] for k, v in feed.items()} for i, j in zip(cuts[:-1], cuts[1:])]
-            futures = [self._pool.submit(self.session.run, self.output_names, f) for f in feeds[1:]]
-            outs = [self.session.run(self.output_names, feeds[0])]  # the first slice in this thread
+            futures = [self._pool.submit(self._run_chunks, f) for f in feeds[1:]]
+            outs = [self._run_chunks(feeds[0])]  # the first slice in this thread
             outs += [f.result() for f in futures]
             res = [np.concatenate([o[i] for o in outs]) for i in range(len(self.output_names))]
         out = dict(zip(self.output_names, res))
@@ -249,6 +259,16 @@ class OnnxRunner(NetworkRunner):
 
             out["q"] = window_attitude(self.config, out, arrays)
         return _complete(out, self.present, b)
+
+
+    def _run_chunks(self, feed: dict) -> list:
+        """The session's outputs for the batch ``feed``, run :data:`CHUNK_WINDOWS` windows at a time."""
+        b = len(next(iter(feed.values())))
+        if b <= CHUNK_WINDOWS:
+            return self.session.run(self.output_names, feed)
+        outs = [self.session.run(self.output_names, {k: v[i : i + CHUNK_WINDOWS] for k, v in feed.items()})
+                for i in range(0, b, CHUNK_WINDOWS)]  # fmt: skip
+        return [np.concatenate([o[j] for o in outs]) for j in range(len(self.output_names))]
 
 
 def resolve_runtime(path, runtime: str = "auto") -> str:
