@@ -4,6 +4,8 @@ heads' outputs and token features it gives the same attitude; and each input it 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -13,19 +15,14 @@ from tepinn_flight.model.config import ModelConfig  # noqa: E402
 from tepinn_flight.model.export import sensor_values  # noqa: E402
 from tepinn_flight.model.head_physics import window_attitude  # noqa: E402
 from tepinn_flight.model.window_features import window_features  # noqa: E402
+from tests.test_window_features import CONFIGS as WF_CONFIGS  # noqa: E402
 from tests.test_window_features import SMALL, _model, _windows  # noqa: E402
 
-CONFIGS = {
-    "shipped": ModelConfig(),
-    "small": ModelConfig(**SMALL),
-    "no rate term": ModelConfig(**SMALL, centripetal_rate=False),
-    "no centripetal": ModelConfig(**SMALL, centripetal=False, centripetal_rate=False),
+CONFIGS = {k: WF_CONFIGS[k] for k in ("shipped", "small", "no rate term", "no centripetal", "physics off")} | {
     "mean pooling": ModelConfig(**SMALL, learned_pooling=False),
     "mean pooling, not clip-aware": ModelConfig(**SMALL, learned_pooling=False, clip_aware=False),
     "no correction layer": ModelConfig(**SMALL, correction_layer=False),
-    "physics off": ModelConfig(**SMALL, physics=False, centripetal=False, centripetal_rate=False),
-    "physics and correction off": ModelConfig(**SMALL, physics=False, centripetal=False, centripetal_rate=False,
-                                              correction_layer=False),
+    "physics and correction off": replace(WF_CONFIGS["physics off"], correction_layer=False),
 }
 
 
