@@ -85,3 +85,17 @@ def test_each_input_it_reads_moves_the_attitude():
     assert f["u"][1].min() == 1  # (the first window's saturated token cut the trust of half its tokens already)
     f["u"][1, : config.window_tokens // 3] = 0.0
     assert np.abs(window_attitude(config, graph, f)[1] - base[1]).max() > 1e-5
+
+
+def test_a_window_without_trust_gives_nan_as_the_network_does():
+    # mean pooling over tokens none of which is trusted: 0/0 in PyTorch's pooling, NaN here too (not an exception)
+    config = CONFIGS["mean pooling"]
+    m, lin, graph, feats = _heads(config, batch=2)
+    f = dict(feats, u=np.array(feats["u"]))
+    f["u"][0] = 0.0
+    got = window_attitude(config, graph, f)
+    t = {k: None if k not in f else torch.as_tensor(f[k], dtype=torch.float64) for k in ("v", "u", "cen", "cen_rate")}
+    with torch.no_grad():
+        want = m.physics_head(lin, t["v"], t["u"], t["cen"], t["cen_rate"])["q"].numpy()
+    assert np.isnan(want[0]).all() and np.isnan(got[0]).all()
+    np.testing.assert_allclose(got[1], want[1], rtol=0, atol=1e-6)

@@ -81,7 +81,7 @@ def _gravity_tilt(gx, gy, gz):
                                  math.cos(0.5 * pitch), math.sin(0.5 * pitch), 1.0, 0.0)  # fmt: skip
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")  # (a division by zero gives inf or NaN, as in the graph, not an exception)
 def _attitude(q_head, pool, vel, acc_v, v, u, cen, cen_rate, physics, centripetal, rate, learned, correction):
     b = q_head.shape[0]
     k = v.shape[1]
