@@ -260,7 +260,6 @@ class OnnxRunner(NetworkRunner):
             out["q"] = window_attitude(self.config, out, arrays)
         return _complete(out, self.present, b)
 
-
     def _run_chunks(self, feed: dict) -> list:
         """The session's outputs for the batch ``feed``, run :data:`CHUNK_WINDOWS` windows at a time."""
         b = len(next(iter(feed.values())))

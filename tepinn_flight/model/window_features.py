@@ -1,8 +1,8 @@
 """The network's token features computed outside the graph: :meth:`.network.TEPINN.features` for a
 trained (frozen) sensor model, compiled with numba, one window per loop pass.
 
-Used by :class:`~.runtime.OnnxRunner`: an export (``ONNX_VERSION`` 2) holds the encoder and the
-heads (:meth:`.network.TEPINN.head`); the physics features — the sensor model, the per-token RK4
+Used by :class:`~.runtime.OnnxRunner`: an export (version 2 on) holds the encoder and the heads
+(version 3: their linear layers; :mod:`.head_physics` computes the attitude from them); the physics features — the sensor model, the per-token RK4
 rotations and their prefix products, the specific forces and the centripetal matrices turned into
 the window's last body frame — are a few hundred tiny tensor operators in a graph (about half of a
 batch-1 run in onnxruntime, session 11) and a few microseconds here. Computed in float64 and handed
