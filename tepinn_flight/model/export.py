@@ -113,7 +113,8 @@ def example_inputs(config, batch: int = 2, seed: int = 0) -> tuple:
     return gyr, acc, count, t_rel, dt, mag, clip
 
 
-def _metadata(ckpt: dict, model: nn.Module, source: str, opset: int, source_sha256: str) -> dict[str, str]:
+def _metadata(ckpt: dict, model: nn.Module, source: str, opset: int, source_sha256: str,
+              graph_inputs: list[str]) -> dict[str, str]:  # fmt: skip
     meta = {
         "format": ONNX_FORMAT,
         "version": ONNX_VERSION,
@@ -125,7 +126,7 @@ def _metadata(ckpt: dict, model: nn.Module, source: str, opset: int, source_sha2
         "source": source,
         "source_sha256": source_sha256,
         "inputs": list(INPUTS),
-        "graph_inputs": list(feature_names(model.config)),  # (export_bytes: those the graph reads)
+        "graph_inputs": graph_inputs,  # the features the graph reads (x, t_rel; the physics head reads the others)
         "graph_outputs": list(GRAPH_OUTPUTS),
         "sensor_model": sensor_values(model).to_json(),
         "outputs": list(OUTPUTS),
@@ -165,13 +166,11 @@ def export_bytes(ckpt_path: str | os.PathLike, opset: int = OPSET) -> bytes:
     finally:
         torch.backends.mha.set_fastpath_enabled(fast)
     proto = onnx.load_from_string(buf.getvalue())
-    graph_inputs = [i.name for i in proto.graph.input]  # (the features the graph reads)
+    graph_inputs = [i.name for i in proto.graph.input]  # (the export keeps the inputs the graph reads)
     del proto.metadata_props[:]
     from .runtime import file_sha256
 
-    meta = _metadata(ckpt, model, Path(ckpt_path).name, opset, file_sha256(ckpt_path))
-    meta["graph_inputs"] = json.dumps(graph_inputs)
-    for k, v in meta.items():
+    for k, v in _metadata(ckpt, model, Path(ckpt_path).name, opset, file_sha256(ckpt_path), graph_inputs).items():
         proto.metadata_props.add(key=k, value=v)
     proto.producer_name = "tepinn-flight"
     return proto.SerializeToString()
