@@ -291,3 +291,49 @@ def test_the_receiver_s_part_made_apart_gives_the_formula_s_bits(max_speed):
         for g, w in zip(got, want):
             assert np.array_equal(g, w)
         assert 0.03 < want[1].mean() < 0.99  # trusted in part: the masks are exercised
+
+
+def test_a_record_with_no_acceleration_to_read_skips_the_aid_with_the_formula_s_masks():
+    """A receiver showing no acceleration (a hover: constant velocity): :func:`gnss_evidence` says no sample may be
+    trusted, and the passes (which then skip the aid's arithmetic) give the formula's masks and a zero correction."""
+    from tests import gnss_aid_reference as ref
+
+    rec, q_nb = accelerating_flight(90.0)
+    t = rec.t_s
+    vel = np.where(np.isfinite(rec.gnss_vel_ne_m_s), 1.5, np.nan) + np.random.default_rng(2).normal(0, 0.01, (len(t), 2))
+    cfg = GnssAidConfig()
+    ev = gnss_evidence(t, vel, cfg)
+    assert not ev.may_trust
+    got = motion_acc_body(t, q_nb, rec.acc_m_s2, vel, cfg, None, ev)
+    want = ref.motion_acc_body(t, q_nb, rec.acc_m_s2, vel, cfg)
+    for g, w in zip(got, want):
+        assert np.array_equal(g, w)
+    assert want[2].mean() > 0.9 and not want[1].any()  # covered, none trusted
+    # the record's own receiver (a figure eight) may be trusted
+    assert gnss_evidence(t, rec.gnss_vel_ne_m_s, cfg).may_trust
+
+
+def test_the_receiver_s_bound_never_misses_a_sample_a_pass_would_trust():
+    """:func:`may_trust_any` is a necessary condition of the formula's mask: over a sweep of the least acceleration
+    (``min_accel_m_s2``) on a record whose fixes cover ~60 % of each heading window (the bound's ``frac > 0.5``
+    matters: a bound without it says "nothing" where the formula trusts), with a clipped gyro and fast stretches,
+    wherever the formula trusts a sample the evidence says it may; and the bound does say "nothing" within ~2× of the
+    largest setting the formula trusts at (not vacuous)."""
+    from tests import gnss_aid_reference as ref
+
+    rec, q_nb = accelerating_flight(120.0, v0_ne=(14.0, 9.0))
+    t, vel = rec.t_s, rec.gnss_vel_ne_m_s.copy()
+    vel[(t % 10.0) > 6.0] = np.nan  # 6 s of fixes in every 10
+    q = quat_normalize(q_nb + np.random.default_rng(1).normal(0, 0.02, q_nb.shape))
+    hit = (t >= 45.0) & (t < 46.0)
+    trusts, may = [], []
+    settings = np.geomspace(0.5, 12.0, 40)
+    for m in settings:
+        cfg = dataclasses.replace(GnssAidConfig(), min_accel_m_s2=float(m))
+        trusts.append(bool(ref.motion_acc_body(t, q, rec.acc_m_s2, vel, cfg, hit)[1].any()))
+        may.append(gnss_evidence(t, vel, cfg, hit).may_trust)
+    trusts, may = np.array(trusts), np.array(may)
+    assert trusts[0] and not trusts[-1]  # the sweep crosses the formula's own threshold
+    assert np.all(may[trusts])
+    top = settings[trusts].max()
+    assert not may[-1] and settings[~may].min() < 2.5 * top

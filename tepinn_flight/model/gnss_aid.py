@@ -154,6 +154,8 @@ class GnssEvidence:
     za_pow: np.ndarray  # (N,) |za|²
     clip_ok: np.ndarray | None  # (N,) where heading evidence may be read (:attr:`GnssAidConfig.clip_guard`); None: all
     near_wild: np.ndarray  # (N,) within margin_s of ground speed ≥ max_speed_m_s
+    # whether any sample may be trusted, whatever the attitude (:func:`may_trust_any`); False: the passes skip the aid
+    may_trust: bool = True
 
 
 def gnss_evidence(t_s, vel_ne_m_s, cfg: GnssAidConfig, gyr_clipped=None) -> GnssEvidence | None:
@@ -174,7 +176,29 @@ def gnss_evidence(t_s, vel_ne_m_s, cfg: GnssAidConfig, gyr_clipped=None) -> Gnss
     wild = ~(speed < cfg.max_speed_m_s)  # NaN (no fix): only where covered, below
     m = max(1, int(round(2 * cfg.margin_s / dt)) + 1)
     near_wild = _centred_mean((wild & covered).astype(float), m) > 0
-    return GnssEvidence(dt, covered, za, np.abs(za) ** 2, clip_ok, near_wild)
+    za_pow = np.abs(za) ** 2
+    may = may_trust_any(covered, za_pow, clip_ok, near_wild, dt, cfg)
+    return GnssEvidence(dt, covered, za, za_pow, clip_ok, near_wild, may)
+
+
+def may_trust_any(covered, za_pow, clip_ok, near_wild, dt: float, cfg: GnssAidConfig) -> bool:
+    """Whether :func:`motion_acc_body` may trust any sample of the segment, read from the receiver alone: False
+    where, whatever the attitude, no sample has the acceleration to read a heading from (a hovering or hand-held
+    record: every pass would then compute the whole aid to find nothing to correct).
+
+    A necessary condition of its mask: the samples whose evidence a pass reads (``use``) are the covered ones where
+    the specific force's average is finite (the attitude's part) and the clipping guard allows — at most
+    ``use_max = covered & clip_ok``. With the window sums over ``use_max``, ``frac ≤ frac_max`` and ``pa ≤ pa_max``
+    (sums of non-negative terms over fewer samples); a trusted sample has ``frac > 0.5`` and
+    ``pa / frac ≥ min_accel²``, so ``2 pa_max > min_accel²``. It is tested at twice that (``4 pa_max``) so that the
+    running sums' rounding cannot make it miss a sample a pass would trust."""
+    use = covered if clip_ok is None else covered & clip_ok
+    if not use.any():
+        return False
+    w = max(1, int(round(cfg.heading_window_s / dt)))
+    frac = _centred_mean(use.astype(float), w)
+    pa = _centred_mean(np.where(use, za_pow, 0.0), w)
+    return bool(np.any(use & ~near_wild & (frac > 0.5) & (4.0 * pa >= cfg.min_accel_m_s2**2)))
 
 
 def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig, gyr_clipped=None,
@@ -187,6 +211,8 @@ def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig, gyr_c
     if n < 3:
         return np.zeros((n, 3)), np.zeros(n, bool), np.zeros(n, bool)
     ev = evidence if evidence is not None else gnss_evidence(t_s, vel_ne_m_s, cfg, gyr_clipped)
+    if not ev.may_trust:  # nothing to correct, whatever the attitude (:func:`may_trust_any`): the same masks, no rotation
+        return np.zeros((n, 3)), np.zeros(n, bool), ev.covered
     k = max(1, int(round(cfg.smooth_s / ev.dt)))
     covered, za = ev.covered, ev.za
     rows = (np.require(x, np.float64, "CW") for x in (q_nb_wxyz, acc_b))  # the kernels' one signature
