@@ -14,8 +14,9 @@ With quiet blocks (the shipped estimator) a segment's first blocks run the netwo
 the streaming figures are printed for all pushes after the first window and for the steady state
 after those blocks. Offline, the record's first ``--seconds`` include that start.
 
-By default the offline figure is for a one-hour log (the record repeated end to end, ``--tile-s
-3600``) and the streaming one for the record's first 120 s.
+By default the offline figure is for a one-hour log (the record played forward and backward in turn, ``--tile-s
+3600``, ``--tiling forth-back``: no attitude jump at the joins; ``--tiling repeat``, each copy forward, as before session
+42) and the streaming one for the record's first 120 s.
 
 ``--split`` also times the offline estimate's two parts on the same record (where the network stays
 busy, e.g. a fixed wing or a saturating multirotor, it runs on most windows): the windows
@@ -28,7 +29,8 @@ too); ``--no-smooth`` also times it without that, in the same run. Since session
 more gets a helper process on the second core (``model/beside.py``; "per CPU s" counts this process only);
 ``--no-beside`` also times it without one, in the same run.
 
-Usage: python benchmarks/estimate_speed.py [--record PATH] [--tile-s 3600 | --tile-s 0 --seconds 120] [--stream-seconds 120]
+Usage: python benchmarks/estimate_speed.py [--record PATH] [--tile-s 3600 [--tiling repeat] | --tile-s 0 --seconds 120]
+       [--stream-seconds 120]
        [--runtime onnx] [--split] [--busy-stride N] [--no-smooth] [--no-beside]
 """
 
@@ -60,16 +62,35 @@ def head(rec: FlightRecord, seconds: float) -> FlightRecord:
     return FlightRecord(rec.data.iloc[:n].reset_index(drop=True), dict(rec.meta))
 
 
-def tiled(rec: FlightRecord, seconds: float) -> FlightRecord:
-    """The record repeated end to end, one sample period apart, up to ``seconds``: a long flight at the
-    record's rate (speed only: the copies' joins are attitude jumps)."""
+#: how ``tiled`` makes a long flight of a record (``--tiling``)
+TILINGS = ("forth-back", "repeat")
+
+
+def tiled(rec: FlightRecord, seconds: float, mode: str = "forth-back") -> FlightRecord:
+    """The record repeated up to ``seconds``, each copy one sample period after the last: a long flight at the
+    record's rate (speed only). ``"forth-back"`` (the default since session 42): played forward, then backward, and so
+    on. Backward, the samples come in reverse order, the gyro's rates (and a simulation's true gyro bias) and the
+    receiver's velocity negated — time reversed: the attitude retraces its path (``q_ref`` read backward), the
+    specific force and the magnetic field are the same — so the copies join with no attitude jump. ``"repeat"``: each
+    copy forward, as before session 42. Its joins are attitude jumps no gyro reading explains: on a 50 Hz ArduCopter
+    log the older fusion took each for gyro bias for minutes, its blocks then ran every window, and the hour cost
+    four times what the same log played forth and back costs (on 250–400 Hz logs the two cost the same)."""
     import pandas as pd
 
+    if mode not in TILINGS:
+        raise ValueError(f"tiling must be one of {TILINGS}, got {mode!r}")
     t = rec.t_s
     span = float(t[-1] - t[0] + np.median(np.diff(t)))
+    back = rec.data.iloc[::-1].reset_index(drop=True)
+    back["t_s"] = t[0] + (t[-1] - back["t_s"].to_numpy())  # the steps in reverse order
+    seg = back["segment"].to_numpy()
+    back["segment"] = seg.min() + seg.max() - seg  # non-decreasing again
+    for c in back.columns:
+        if (c.startswith("gyr_") and c.endswith("_rad_s")) or c.startswith("gnss_vel_"):
+            back[c] = -back[c]
     parts = []
     for k in range(int(np.ceil(seconds / span))):
-        df = rec.data.copy()
+        df = (back if mode == "forth-back" and k % 2 else rec.data).copy()
         df["t_s"] = df["t_s"] + k * span
         parts.append(df)
     data = pd.concat(parts, ignore_index=True)
@@ -143,8 +164,11 @@ def main() -> int:
     ap.add_argument("--stream-seconds", type=float, default=120.0, help="streaming: the record's first seconds")
     ap.add_argument("--runtime", choices=["torch", "onnx", "both"], default="both")
     ap.add_argument("--tile-s", type=float, default=3600.0,
-                    help="offline: the record repeated end to end up to this many seconds, the issue's one-hour log "
+                    help="offline: the record repeated up to this many seconds, the issue's one-hour log "
                          "(0: the record's first --seconds)")
+    ap.add_argument("--tiling", choices=TILINGS, default=TILINGS[0],
+                    help="how the record is repeated: forward then backward in turn (no attitude jump at the joins; "
+                         "default) or each copy forward (before session 42)")
     ap.add_argument("--model", default=None, help="checkpoint (default: shipped; onnx: its export beside it, if in sync)")
     ap.add_argument("--busy-stride", type=int, default=0, metavar="N",
                     help="run every N-th window of busy blocks (estimate --busy-stride; default: the model's)")
@@ -173,7 +197,7 @@ def main() -> int:
         runners["torch"] = TorchRunner(model)
     if args.runtime in ("onnx", "both") and onnx_path is not None:
         runners["onnx"] = OnnxRunner(onnx_path)
-    off_rec = tiled(rec, args.tile_s) if args.tile_s > 0 else head(rec, args.seconds)
+    off_rec = tiled(rec, args.tile_s, args.tiling) if args.tile_s > 0 else head(rec, args.seconds)
     st_rec = head(rec, args.stream_seconds)
     rate = float(1.0 / np.median(np.diff(rec.t_s)))
     skip = int(rate * (model.config.window_tokens / model.config.token_rate_hz + 0.5))
@@ -181,7 +205,7 @@ def main() -> int:
     for r in runners.values():  # compile / cache-load the compiled loops, warm the runtimes
         estimate_record(r, warm, settings)
         streaming(r, settings, warm, 1)
-    tile = f" (the record repeated to {args.tile_s:.0f} s)" if args.tile_s > 0 else ""
+    tile = f" (the record repeated to {args.tile_s:.0f} s, {args.tiling})" if args.tile_s > 0 else ""
     print(f"{Path(args.record).name}: {rate:.0f} Hz; offline {len(off_rec)} samples{tile}, streaming {len(st_rec)} "
           f"(first {skip} left out)")  # fmt: skip
     torch.set_num_threads(2)

@@ -26,7 +26,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "benchmarks"))
 
-from estimate_speed import tiled  # noqa: E402  (the record repeated end to end, as estimate_speed.py times it)
+from estimate_speed import tiled  # noqa: E402  (the record played forth and back, as estimate_speed.py times it)
 from tepinn_flight.evaluation.peers import VqfEstimator  # noqa: E402
 from tepinn_flight.model.gyro_selfcal import self_calibrate  # noqa: E402
 
