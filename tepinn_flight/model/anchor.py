@@ -730,12 +730,14 @@ class AnchoredVQF:
     def _thrust_cos(self) -> float:
         """Cosine of the angle between the body's −z axis and the accelerometer's mean, the last sample
         of each window low-passed over :data:`THRUST_TAU_S` (1 while that mean is zero)."""
-        a = [float(v) for v in self.last_imu[1]]
+        a = self.last_imu[1]  # (a row of update's, or update_one's floats)
+        a = a.tolist() if isinstance(a, np.ndarray) else [float(v) for v in a]
         if self.acc_mean is None:
             self.acc_mean = a
         else:
             k = min(1.0, max(0.0, self.t - self.t_acc_mean) / THRUST_TAU_S)
-            self.acc_mean = [m + k * (x - m) for m, x in zip(self.acc_mean, a)]
+            m0, m1, m2 = self.acc_mean
+            self.acc_mean = [m0 + k * (a[0] - m0), m1 + k * (a[1] - m1), m2 + k * (a[2] - m2)]
         self.t_acc_mean = self.t
         n = _norm3(self.acc_mean)
         return -self.acc_mean[2] / n if n > 0 else 1.0

@@ -551,6 +551,8 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag, vehicle: 
     filter's gates, 0 where the estimate is VQF's) is each window's from the sample after it. ``vehicle``: the
     record's ``vehicle_type`` (:class:`.anchor.AnchoredVQF`)."""
     t = cols[0]
+    if cols[4] is not None and not cols[4].any():  # no sample clipped: the filter need not look for one, window by window
+        cols = (*cols[:4], None)
     q_pull = out.get("q_target", out["q"])
     b_fus = out.get("bias_target")
     aided = out.get("gnss_aided", np.zeros(len(idx), bool))
@@ -694,7 +696,8 @@ def self_calibrated(anchor: AnchorConfig, rec: FlightRecord) -> tuple[AnchorConf
 
 def _put(flt, cols, a, b, q_out, s_out, b_out, use_mag):
     t, gyr, acc, mag, clipped = cols
-    q6, q9, s, bias = flt.update(t[a:b], gyr[a:b], acc[a:b], mag[a:b] if use_mag else None, clipped[a:b])
+    q6, q9, s, bias = flt.update(t[a:b], gyr[a:b], acc[a:b], mag[a:b] if use_mag else None,
+                                 None if clipped is None else clipped[a:b])  # fmt: skip
     q_out[a:b] = q9 if use_mag else q6
     s_out[a:b] = s
     b_out[a:b] = bias
