@@ -96,7 +96,7 @@ def _both(monkeypatch, rec, work=None):
             started.append(0)
             super().__init__(w)
 
-        def take(self, wait_s=0.0):  # waits for the child however loaded the machine is, and counts what it gave
+        def take(self, wait_s=0.0, max_wait_s=None):  # waits for the child however loaded the machine is, and counts what it gave
             got = self.next()
             started[-1] += 1
             given.append(got)
@@ -209,6 +209,40 @@ def test_a_result_not_ready_when_asked_for_stops_the_child_and_is_computed_by_th
         with pytest.raises(BesideFailed):  # still sleeping: not waited for
             side.take()
         assert time.perf_counter() - t0 < 30
+        with pytest.raises(ChildProcessError):  # stopped and reaped
+            os.waitpid(pid, os.WNOHANG)
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="reads /proc (Linux)")
+def test_a_child_still_computing_is_waited_for_past_the_first_wait_and_a_stalled_one_is_not():
+    """Past ``wait_s`` the caller goes on waiting, up to ``max_wait_s``, only while the child's CPU time grows (session
+    42: a late helper's work had been thrown away and done again): a child computing for ~1 s gives its result; one
+    that has stopped computing (asleep, as one starved by a busy machine) is given up at once."""
+
+    def busy():
+        t_end = time.process_time() + 1.0
+        x = 0
+        while time.process_time() < t_end:  # CPU, not sleep
+            x += 1
+        yield x
+
+    with Beside(busy) as side:
+        t0 = time.perf_counter()
+        assert side.take(0.05, 20.0) > 0
+        assert 0.5 < time.perf_counter() - t0 < 15.0  # waited past wait_s, for the result
+        with pytest.raises(BesideFailed):
+            side.take(0.05, 20.0)  # no more results: the child has ended
+
+    def stalled():
+        time.sleep(60)
+        yield 1
+
+    with Beside(stalled) as side:
+        t0 = time.perf_counter()
+        pid = side.pid
+        with pytest.raises(BesideFailed):
+            side.take(0.05, 20.0)
+        assert time.perf_counter() - t0 < 2.0  # one slice past wait_s, not max_wait_s
         with pytest.raises(ChildProcessError):  # stopped and reaped
             os.waitpid(pid, os.WNOHANG)
 

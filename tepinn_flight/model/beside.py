@@ -26,6 +26,7 @@ import select
 import signal
 import struct
 import sys
+import time
 import warnings
 from collections.abc import Callable, Iterator
 
@@ -43,6 +44,15 @@ NICE = 19
 #: fraction of what that costs it (the smoothing's VQF run both ways 1.3–1.5 µs a sample on this 2-core machine, the
 #: self-calibration ~0.6 µs), so a helper that falls behind costs little and one about to finish is not wasted
 WAIT_S_PER_SAMPLE = 0.3e-6
+#: ... and, past that, how long it goes on waiting (in all, per sample of the record) while the child keeps computing:
+#: it then has the core the waiting caller leaves idle, and what it has done is not thrown away. Session 42: the busy
+#: GNSS-aided F450 hour's second helper (the smoothing's VQF runs on the aided accelerometer, ~3 s) had had the last
+#: anchored pass's 1.4 s beside it; the caller waited 0.4 s more, then ran those 3 s itself
+MAX_WAIT_S_PER_SAMPLE = 2.0e-6
+#: ... "computing": the child's CPU time grew by at least this share of each slice of ``PROGRESS_SLICE_S`` waited (a
+#: child starved by other work on a busy machine gives up its results to the caller as before)
+PROGRESS_SHARE = 0.5
+PROGRESS_SLICE_S = 0.1
 
 
 class BesideFailed(RuntimeError):
@@ -120,14 +130,29 @@ class Beside:
             self.close()
             raise BesideFailed(f"the helper process gave no result ({type(e).__name__})") from None
 
-    def take(self, wait_s: float = 0.0):
-        """The next result where it is :meth:`ready` within ``wait_s``; else the child is stopped
-        (:class:`BesideFailed`): the caller computes it sooner than a child at the lowest priority on a busy machine
-        would."""
-        if not self.ready(wait_s):
+    def take(self, wait_s: float = 0.0, max_wait_s: float | None = None):
+        """The next result where it is :meth:`ready` within ``wait_s``, or within ``max_wait_s`` in all while the child
+        keeps computing (:meth:`_computing`); else the child is stopped (:class:`BesideFailed`): the caller computes it
+        sooner than a child at the lowest priority on a busy machine would."""
+        t0 = time.perf_counter()
+        if not self.ready(wait_s) and not self._computing(t0 + (wait_s if max_wait_s is None else max_wait_s)):
             self.close()
             raise BesideFailed("the helper process had not finished")
         return self.next()
+
+    def _computing(self, until: float) -> bool:
+        """Wait for the next result, in slices of :data:`PROGRESS_SLICE_S` up to the clock time ``until``, while the
+        child's CPU time grows by :data:`PROGRESS_SHARE` of each slice → whether it came."""
+        cpu = _cpu_s(self.pid)
+        while cpu is not None and (left := until - time.perf_counter()) > 0:
+            t0 = time.perf_counter()
+            if self.ready(min(PROGRESS_SLICE_S, left)):
+                return True
+            now = _cpu_s(self.pid)
+            if now is None or now - cpu < PROGRESS_SHARE * (time.perf_counter() - t0):
+                return False
+            cpu = now
+        return False
 
     def _read(self, n: int) -> bytearray:
         buf = bytearray()
@@ -159,6 +184,16 @@ class Beside:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _cpu_s(pid: int) -> float | None:
+    """The CPU time (user and system, s) process ``pid`` has used so far (Linux's ``/proc``; None: not known)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            fields = f.read().rsplit(b")", 1)[1].split()  # (after the command's name, which may hold spaces)
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime and stime, in clock ticks
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def _die_with_parent(parent: int) -> None:

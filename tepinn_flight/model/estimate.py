@@ -25,7 +25,7 @@ from ..vehicle_class import vehicle_class
 from .anchor import (AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows, q_nb_from_vqf, speed_gate_allowed, to_sensor,
                      with_fusion_tilt)  # fmt: skip
 from .anchor_kernels import step_weights
-from .beside import WAIT_S_PER_SAMPLE, Beside, BesideFailed, worth_it
+from .beside import MAX_WAIT_S_PER_SAMPLE, WAIT_S_PER_SAMPLE, Beside, BesideFailed, worth_it
 from .fusion import FusionConfig, FusionRun, feedback_bias
 from .accel_scale import AccelScale, read_accel_scale
 from .gnss_aid import GnssAidConfig, gnss_evidence, motion_acc_body, summarize
@@ -417,7 +417,7 @@ def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, 
                                    replace(anchor, accel_scale_selfcal=False))  # fmt: skip
     if side is not None:
         try:
-            anchor, cal = side.take(WAIT_S_PER_SAMPLE * len(rec))
+            anchor, cal = side.take(WAIT_S_PER_SAMPLE * len(rec), MAX_WAIT_S_PER_SAMPLE * len(rec))
         except BesideFailed:
             side = None
             anchor, cal = self_calibrated(anchor, rec)
@@ -436,7 +436,7 @@ def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, 
         evidence = None
         if side is not None and reads_gnss(anchor, rec):
             try:
-                evidence = side.take(WAIT_S_PER_SAMPLE * len(rec))
+                evidence = side.take(WAIT_S_PER_SAMPLE * len(rec), MAX_WAIT_S_PER_SAMPLE * len(rec))
             except BesideFailed:
                 side = None
         aid, acc_aided, out_aided = gnss_aided_acc(rec, q_out, anchor, idx, out, cols, use_mag, evidence=evidence)
@@ -460,7 +460,7 @@ def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, 
         helper = side if cols[2] is acc else aided
         if helper is not None:
             try:
-                ready = helper.take(WAIT_S_PER_SAMPLE * len(t))
+                ready = helper.take(WAIT_S_PER_SAMPLE * len(t), MAX_WAIT_S_PER_SAMPLE * len(t))
             except BesideFailed:
                 pass
 
