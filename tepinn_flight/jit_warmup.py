@@ -28,7 +28,7 @@ def _dispatchers(filters: bool = False) -> list:
     found = [fusion._run, fusion._step, anchor_kernels.vqf_outputs, anchor_kernels.vqf_output_one,
              anchor_kernels.blend_tilt_rows, window_features._features, head_physics._attitude,
              gnss_aid_kernels.window_sums,
-             gyro_selfcal.attitude_at, accel_scale_kernels.track_step]  # fmt: skip
+             gyro_selfcal.attitude_at, accel_scale_kernels.track_step, accel_scale_kernels.quiet_rows]  # fmt: skip
     if filters:
         from .evaluation.filters import complementary, ekf, madgwick
 
@@ -162,7 +162,7 @@ def warm_kernels() -> None:
 
     import numpy as np
 
-    from .model.accel_scale import AccelScaleTracker
+    from .model.accel_scale import AccelScaleConfig, AccelScaleTracker, quiet_samples
     from .model.anchor import AnchorConfig, AnchoredVQF, WindowOutput, q_nb_from_vqf, with_fusion_tilt
     from .model.anchor_kernels import fusion_tilt_f
     from .model.config import ModelConfig
@@ -206,7 +206,7 @@ def warm_kernels() -> None:
     tracker = AccelScaleTracker()
     for i in range(3):
         tracker.update(float(t[i]), gyr[i], acc[i])
-
+    quiet_samples(t[:40], gyr[:40], acc[:40], AccelScaleConfig(avg_s=0.05, steady_s=0.1))  # the offline reading
 
 def warm_filters() -> None:
     """The baseline filters ``evaluate`` and ``demo`` run (complementary, Madgwick, the EKF; 6-D and 9-D)."""

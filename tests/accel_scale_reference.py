@@ -101,3 +101,37 @@ class AccelScaleTrackerReference:
                 self._quiet = []
                 return self.update(t, gyr, acc)
         return ax, ay, az
+
+
+def quiet_samples(t_s, gyr, acc, cfg: AccelScaleConfig | None = None):
+    """The offline reading's quiet samples as numpy computed them before session 42 compiled them
+    (:func:`tepinn_flight.model.accel_scale.quiet_samples`, :func:`..accel_scale_kernels.quiet_rows`), verbatim: the
+    compiled form must give the same mask and averaged accelerometer bit for bit (``tests/test_accel_scale.py``)."""
+    from tepinn_flight.model.accel_scale import noise_norms, quiet_threshold
+    from tepinn_flight.model.gyro_selfcal import _boxcar
+
+    cfg = cfg or AccelScaleConfig()
+    t_s = np.asarray(t_s, np.float64)
+    n = len(t_s)
+    step = float(np.median(np.diff(t_s))) if n > 1 else 0.0
+    if n < 3 or not (math.isfinite(step) and step > 0):
+        return None
+    gyr = np.asarray(gyr, np.float64)
+    acc = np.asarray(acc, np.float64)
+    ok = np.all(np.isfinite(gyr), axis=1) & np.all(np.isfinite(acc), axis=1)
+    k = max(1, int(round(cfg.avg_s / step)))
+    if ok.sum() < 2 * k:
+        return None
+    g_norm = np.sqrt(np.einsum("ij,ij->i", np.where(ok[:, None], gyr, 0.0), np.where(ok[:, None], gyr, 0.0)))
+    rate = _boxcar(g_norm[:, None], k)[:, 0]
+    acc_lp = _boxcar(np.where(ok[:, None], acc, 0.0), k)
+    whole = _boxcar(ok[:, None].astype(np.float64), k)[:, 0] > 1.0 - 1e-9  # the average saw no hole
+    a_norm = np.linalg.norm(acc_lp, axis=1)
+    m = max(1, int(round(cfg.steady_s / step)))  # the norm steady over steady_s: not accelerating
+    if n < m:  # shorter than one steadiness window
+        return None
+    mean = _boxcar(a_norm[:, None], m)[:, 0]
+    spread = np.sqrt(np.maximum(_boxcar((a_norm**2)[:, None], m)[:, 0] - mean**2, 0.0))
+    thr = quiet_threshold(_boxcar(noise_norms(gyr, ok)[:, None], k)[:, 0], cfg)  # a noisy gyro's floor (rule 21)
+    quiet = whole & (rate < thr) & (spread < cfg.steady_m_s2)
+    return quiet, acc_lp, step

@@ -266,3 +266,32 @@ def test_the_live_estimator_on_a_real_trial_read_as_a_board_at_1_25_g():
     fixed = live(anchor, 1.25)
     without = live(dataclasses.replace(anchor, accel_scale_selfcal=False), 1.25)
     assert fixed < logged + 0.1 and without > 2.0 * logged, (logged, fixed, without)
+
+
+@pytest.mark.parametrize("trial", [1, 6, 15])
+def test_the_compiled_quiet_samples_equal_the_numpy_form_bit_for_bit(trial):
+    """:func:`quiet_samples` (compiled in session 42: ``accel_scale_kernels.quiet_rows``) against the numpy form it
+    replaced (``tests/accel_scale_reference.py``), mask and averaged accelerometer bit for bit: on a real BROAD trial
+    as it is, with holes (a non-finite axis here and there) and a noisy gyro, given row- or column-ordered, and on a
+    synthetic board at rest."""
+    from tepinn_flight.model.accel_scale import quiet_samples
+
+    from .accel_scale_reference import quiet_samples as reference
+
+    from tepinn_flight.ingest import ingest_log
+
+    rec = ingest_log(broad_trial(f"broad_{trial:02d}_*.hdf5"))
+    rng = np.random.default_rng(trial)
+    t, gyr, acc = rec.t_s, rec.gyr_rad_s.copy(), rec.acc_m_s2.copy()
+    holes = np.flatnonzero(rng.random(len(t)) < 0.002)
+    noisy = gyr + rng.normal(0.0, np.radians(2.0), gyr.shape)
+    bad_gyr, bad_acc = gyr.copy(), acc.copy()
+    bad_gyr[holes[::2], 1] = np.nan
+    bad_acc[holes[1::2], 2] = np.inf
+    cases = [(gyr, acc), (bad_gyr, bad_acc), (noisy, acc), (np.ascontiguousarray(gyr), np.ascontiguousarray(acc)),
+             _imu(30.0, 200.0, 1.1)[1:]]  # fmt: skip
+    for i, (g, a) in enumerate(cases):
+        tt = t if i < 4 else _imu(30.0, 200.0, 1.1)[0]
+        got, want = quiet_samples(tt, g, a), reference(tt, g, a)
+        assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1]) and got[2] == want[2]
+        assert 0.05 < want[0].mean() < (1.0 if i < 4 else 1.01)  # the trial's mask is exercised: quiet and not

@@ -39,8 +39,7 @@ import numpy as np
 from ..config import check_range
 from ..conventions import GRAVITY_M_S2
 from .accel_scale_kernels import (AVG_HEAD, AVG_LEN, DECIDE, FULL, NORM_HEAD, NORM_LEN, QUIET_LEN, QUIET_S, new_state,
-                                  track_step)
-from .gyro_selfcal import _boxcar
+                                  quiet_rows, track_step)
 
 
 @dataclass(frozen=True)
@@ -115,25 +114,29 @@ def quiet_samples(t_s, gyr, acc, cfg: AccelScaleConfig | None = None):
     step = float(np.median(np.diff(t_s))) if n > 1 else 0.0
     if n < 3 or not (math.isfinite(step) and step > 0):
         return None
-    gyr = np.asarray(gyr, np.float64)
-    acc = np.asarray(acc, np.float64)
+    gyr, acc = _columns(gyr), _columns(acc)
     ok = np.all(np.isfinite(gyr), axis=1) & np.all(np.isfinite(acc), axis=1)
     k = max(1, int(round(cfg.avg_s / step)))
     if ok.sum() < 2 * k:
         return None
-    g_norm = np.sqrt(np.einsum("ij,ij->i", np.where(ok[:, None], gyr, 0.0), np.where(ok[:, None], gyr, 0.0)))
-    rate = _boxcar(g_norm[:, None], k)[:, 0]
-    acc_lp = _boxcar(np.where(ok[:, None], acc, 0.0), k)
-    whole = _boxcar(ok[:, None].astype(np.float64), k)[:, 0] > 1.0 - 1e-9  # the average saw no hole
-    a_norm = np.linalg.norm(acc_lp, axis=1)
     m = max(1, int(round(cfg.steady_s / step)))  # the norm steady over steady_s: not accelerating
     if n < m:  # shorter than one steadiness window
         return None
-    mean = _boxcar(a_norm[:, None], m)[:, 0]
-    spread = np.sqrt(np.maximum(_boxcar((a_norm**2)[:, None], m)[:, 0] - mean**2, 0.0))
-    thr = quiet_threshold(_boxcar(noise_norms(gyr, ok)[:, None], k)[:, 0], cfg)  # a noisy gyro's floor (rule 21)
-    quiet = whole & (rate < thr) & (spread < cfg.steady_m_s2)
+    acc_lp, quiet = np.empty((n, 3)), np.empty(n, np.bool_)
+    # the rate's norm and the averaged accelerometer over avg_s (no hole in the average), its norm's spread over
+    # steady_s, a noisy gyro's floor (rule 21): compiled, numpy's operations in its order (session 42; the numpy form
+    # is kept as tests/accel_scale_reference.quiet_samples)
+    quiet_rows(gyr, acc, k, m, cfg.quiet_rate_rad_s, cfg.quiet_rate_cap_rad_s, cfg.noise_floor_factor, cfg.steady_m_s2,
+               acc_lp, quiet)  # fmt: skip
     return quiet, acc_lp, step
+
+
+def _columns(x) -> np.ndarray:
+    """``x`` as a record's columns are, the compiled loop's one signature: float64, column-ordered, read-only (a view,
+    no copy, where it is so already)."""
+    v = np.asfortranarray(x, np.float64).view()
+    v.flags.writeable = False
+    return v
 
 
 def read_accel_scale(t_s, gyr, acc, cfg: AccelScaleConfig | None = None) -> AccelScale:
