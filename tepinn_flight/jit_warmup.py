@@ -208,6 +208,7 @@ def warm_kernels() -> None:
         tracker.update(float(t[i]), gyr[i], acc[i])
     quiet_samples(t[:40], gyr[:40], acc[:40], AccelScaleConfig(avg_s=0.05, steady_s=0.1))  # the offline reading
 
+
 def warm_filters() -> None:
     """The baseline filters ``evaluate`` and ``demo`` run (complementary, Madgwick, the EKF; 6-D and 9-D)."""
     import numpy as np

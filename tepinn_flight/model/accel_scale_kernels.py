@@ -111,7 +111,6 @@ def track_step(state, idx, avg, norms, quiet, cfg, t, gx, gy, gz, ax, ay, az):
     return PASS
 
 
-
 @njit(cache=True)
 def quiet_rows(gyr, acc, k, m, quiet_rate, rate_cap, floor_factor, steady, acc_lp, quiet):
     """:func:`.accel_scale.quiet_samples`' whole-record arithmetic: ``acc_lp`` (n, 3), the accelerometer averaged over

@@ -189,16 +189,16 @@ def may_trust_any(covered, za_pow, clip_ok, near_wild, dt: float, cfg: GnssAidCo
     A necessary condition of its mask: the samples whose evidence a pass reads (``use``) are the covered ones where
     the specific force's average is finite (the attitude's part) and the clipping guard allows — at most
     ``use_max = covered & clip_ok``. With the window sums over ``use_max``, ``frac ≤ frac_max`` and ``pa ≤ pa_max``
-    (sums of non-negative terms over fewer samples); a trusted sample has ``frac > 0.5`` and
-    ``pa / frac ≥ min_accel²``, so ``2 pa_max > min_accel²``. It is tested at twice that (``4 pa_max``) so that the
-    running sums' rounding cannot make it miss a sample a pass would trust."""
+    (sums of non-negative terms over fewer samples); a trusted sample is covered, not near a fast stretch, and has
+    ``frac > 0.5`` and ``pa / frac ≥ min_accel²``, so ``2 pa_max > min_accel²``. It is tested at twice that
+    (``4 pa_max``) so that the running sums' rounding cannot make it miss a sample a pass would trust."""
     use = covered if clip_ok is None else covered & clip_ok
     if not use.any():
         return False
     w = max(1, int(round(cfg.heading_window_s / dt)))
     frac = _centred_mean(use.astype(float), w)
     pa = _centred_mean(np.where(use, za_pow, 0.0), w)
-    return bool(np.any(use & ~near_wild & (frac > 0.5) & (4.0 * pa >= cfg.min_accel_m_s2**2)))
+    return bool(np.any(covered & ~near_wild & (frac > 0.5) & (4.0 * pa >= cfg.min_accel_m_s2**2)))
 
 
 def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig, gyr_clipped=None,
