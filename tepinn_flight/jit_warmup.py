@@ -23,12 +23,14 @@ HELPER_WAIT_S = 600.0
 
 def _dispatchers(filters: bool = False) -> list:
     """The loops whose cache state says whether the warm-up is needed (one or two per module it warms)."""
-    from .model import accel_scale_kernels, anchor_kernels, fusion, gnss_aid_kernels, gyro_selfcal, head_physics, window_features
+    from .model import (accel_scale_kernels, anchor_kernels, fusion, gnss_aid_kernels, gyro_selfcal, head_physics,
+                        tokens_kernels, window_features)
 
     found = [fusion._run, fusion._step, anchor_kernels.vqf_outputs, anchor_kernels.vqf_output_one,
              anchor_kernels.blend_tilt_rows, window_features._features, head_physics._attitude,
              gnss_aid_kernels.window_sums,
-             gyro_selfcal.attitude_at, accel_scale_kernels.track_step, accel_scale_kernels.quiet_rows]  # fmt: skip
+             gyro_selfcal.attitude_at, accel_scale_kernels.track_step, accel_scale_kernels.quiet_rows,
+             tokens_kernels.token_means]  # fmt: skip
     if filters:
         from .evaluation.filters import complementary, ekf, madgwick
 

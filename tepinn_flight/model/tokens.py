@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..record import FlightRecord
+from .tokens_kernels import token_means
 
 
 @dataclass
@@ -85,14 +86,8 @@ def _tokenize_segment(t, gyr, acc, mag, clip, delta, offset) -> dict:
     n_tok = int(k[-1]) + 1
     count = np.bincount(k, minlength=n_tok).astype(np.float64)
 
-    def mean(x):
-        out = np.empty((n_tok, x.shape[1]))
-        for c in range(x.shape[1]):
-            out[:, c] = np.bincount(k, weights=np.nan_to_num(x[:, c]), minlength=n_tok)
-        good = np.stack([np.bincount(k, weights=np.isfinite(x[:, c]).astype(float), minlength=n_tok)
-                         for c in range(x.shape[1])], 1)  # fmt: skip
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(good > 0, out / np.maximum(good, 1), np.nan)
+    def mean(x):  # per token: the finite samples' mean (NaN: none), compiled (tokens_kernels, session 42)
+        return token_means(k, _read_only(x), n_tok)
 
     g, a, m, cl = mean(gyr), mean(acc), mean(mag), mean(clip)[:, 0]
     last = np.full(n_tok, -1, np.int64)
@@ -116,6 +111,13 @@ def _tokenize_segment(t, gyr, acc, mag, clip, delta, offset) -> dict:
         "clip": np.nan_to_num(cl),
         "last_index": last,
     }
+
+
+def _read_only(x) -> np.ndarray:
+    """``x`` as float64 rows, read-only (a view where it is float64 already): the compiled means' one signature."""
+    v = np.asarray(x, np.float64).view()
+    v.flags.writeable = False
+    return v
 
 
 def decimate(t_s, segment, arrays: dict[str, np.ndarray], factor: int) -> tuple:
