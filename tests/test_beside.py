@@ -242,7 +242,7 @@ def test_a_child_still_computing_is_waited_for_past_the_first_wait_and_a_stalled
         pid = side.pid
         with pytest.raises(BesideFailed):
             side.take(0.05, 20.0)
-        assert time.perf_counter() - t0 < 2.0  # one slice past wait_s, not max_wait_s
+        assert time.perf_counter() - t0 < 3.0  # one slice past wait_s, not max_wait_s
         with pytest.raises(ChildProcessError):  # stopped and reaped
             os.waitpid(pid, os.WNOHANG)
 

@@ -50,9 +50,11 @@ WAIT_S_PER_SAMPLE = 0.3e-6
 #: anchored pass's 1.4 s beside it; the caller waited 0.4 s more, then ran those 3 s itself
 MAX_WAIT_S_PER_SAMPLE = 2.0e-6
 #: ... "computing": the child's CPU time grew by at least this share of each slice of ``PROGRESS_SLICE_S`` waited (a
-#: child starved by other work on a busy machine gives up its results to the caller as before)
-PROGRESS_SHARE = 0.5
-PROGRESS_SLICE_S = 0.1
+#: child starved by other work on a busy machine gives up its results to the caller as before). A quarter of a core:
+#: a late helper has most of its work behind it, and the kernel counts CPU time in 10-ms ticks (half of each 0.1 s
+#: failed a CI run where the other test worker shared the child's core)
+PROGRESS_SHARE = 0.25
+PROGRESS_SLICE_S = 0.2
 
 
 class BesideFailed(RuntimeError):
