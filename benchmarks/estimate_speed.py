@@ -81,16 +81,18 @@ def tiled(rec: FlightRecord, seconds: float, mode: str = "forth-back") -> Flight
         raise ValueError(f"tiling must be one of {TILINGS}, got {mode!r}")
     t = rec.t_s
     span = float(t[-1] - t[0] + np.median(np.diff(t)))
-    back = rec.data.iloc[::-1].reset_index(drop=True)
-    back["t_s"] = t[0] + (t[-1] - back["t_s"].to_numpy())  # the steps in reverse order
-    seg = back["segment"].to_numpy()
-    back["segment"] = seg.min() + seg.max() - seg  # non-decreasing again
-    for c in back.columns:
-        if (c.startswith("gyr_") and c.endswith("_rad_s")) or c.startswith("gnss_vel_"):
-            back[c] = -back[c]
+    back = rec.data
+    if mode == "forth-back":
+        back = rec.data.iloc[::-1].reset_index(drop=True)
+        back["t_s"] = t[0] + (t[-1] - back["t_s"].to_numpy())  # the steps in reverse order
+        seg = back["segment"].to_numpy()
+        back["segment"] = seg.min() + seg.max() - seg  # non-decreasing again
+        for c in back.columns:
+            if (c.startswith("gyr_") and c.endswith("_rad_s")) or c.startswith("gnss_vel_"):
+                back[c] = -back[c]
     parts = []
     for k in range(int(np.ceil(seconds / span))):
-        df = (back if mode == "forth-back" and k % 2 else rec.data).copy()
+        df = (back if k % 2 else rec.data).copy()
         df["t_s"] = df["t_s"] + k * span
         parts.append(df)
     data = pd.concat(parts, ignore_index=True)

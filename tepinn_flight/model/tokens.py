@@ -87,7 +87,7 @@ def _tokenize_segment(t, gyr, acc, mag, clip, delta, offset) -> dict:
     count = np.bincount(k, minlength=n_tok).astype(np.float64)
 
     def mean(x):  # per token: the finite samples' mean (NaN: none), compiled (tokens_kernels, session 42)
-        return token_means(k, _read_only(x), n_tok)
+        return token_means(k, np.asarray(x, np.float64), n_tok)
 
     g, a, m, cl = mean(gyr), mean(acc), mean(mag), mean(clip)[:, 0]
     last = np.full(n_tok, -1, np.int64)
@@ -111,13 +111,6 @@ def _tokenize_segment(t, gyr, acc, mag, clip, delta, offset) -> dict:
         "clip": np.nan_to_num(cl),
         "last_index": last,
     }
-
-
-def _read_only(x) -> np.ndarray:
-    """``x`` as float64 rows, read-only (a view where it is float64 already): the compiled means' one signature."""
-    v = np.asarray(x, np.float64).view()
-    v.flags.writeable = False
-    return v
 
 
 def decimate(t_s, segment, arrays: dict[str, np.ndarray], factor: int) -> tuple:

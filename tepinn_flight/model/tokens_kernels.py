@@ -3,8 +3,9 @@
 :func:`.tokens.tokenize` made each token's mean from two ``np.bincount`` runs per column (the values with
 ``nan_to_num``, and their finiteness) and their temporaries: 0.17–0.2 s of a one-hour log, before the network's
 first window (session 42). :func:`token_means` is the same arithmetic in the same order (bincount adds each sample's
-weight to its token's sum in the samples' order, from 0), so the same bits (``tests/test_tokens.py`` against the
-numpy form, kept there as the reference).
+weight to its token's sum in the samples' order, from 0), so the same bits (``tests/test_tokens_kernels.py`` against
+the numpy form, kept there as the reference). Its explicit signature takes any float64 rows (numba converts the
+layout and writability), so callers need no conversion of their own.
 """
 
 from __future__ import annotations
