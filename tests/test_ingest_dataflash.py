@@ -465,3 +465,13 @@ def test_the_text_kernels_split_lines_and_fields_as_python_does():
                 rest = lines[r][lines[r].index(b",") + 1 :]
                 parts = rest.split(b",", i if last else i + 1)
                 assert text[a:b] == (parts[i] if len(parts) > i else b""), (lines[r], i, last)
+
+
+def test_log_cut_before_its_first_imu_row_says_so(tmp_path):
+    """A text log cut short (logging stopped, a partial download) after its formats and parameters but before
+    any IMU row: the error names that possibility, not only a logging bitmask."""
+    src = real_log("aplogan_nan.log").read_bytes()
+    cut = tmp_path / "cut.log"
+    cut.write_bytes(src[: src.index(b"\nIMU,") + 1])  # everything before the first IMU row
+    with pytest.raises(NoImuData, match=r"holds no IMU rows \(.*ends before its first IMU row"):
+        ingest_log(cut)

@@ -417,7 +417,8 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     if not insts:
         bitmask = _param(src, "LOG_BITMASK")
         extra = f"; LOG_BITMASK={bitmask:g}" if bitmask is not None and np.isfinite(bitmask) else ""
-        raise NoImuData(f"the log defines IMU but holds no IMU rows (IMU logging disabled{extra})", path)
+        raise NoImuData(f"the log defines IMU but holds no IMU rows (IMU logging disabled, or the log ends before its "
+                        f"first IMU row{extra})", path)  # fmt: skip
     if imu is None:
         sel = insts[0]
     else:
