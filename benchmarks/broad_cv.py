@@ -62,6 +62,15 @@ def training_trials(trials: list[Path], fold: str) -> list[Path]:
     return [p for p in trials if trial_number(p) not in FOLDS[fold]]
 
 
+def fold_seed(path: Path) -> str:
+    """The seed a fold's network was trained with, as its checkpoint records it ('?' where it does not): with
+    ``--score-only`` the networks in ``--runs`` may come from another ``--seed`` than this run's."""
+    from tepinn_flight.model.checkpoint import read_checkpoint
+
+    seed = (read_checkpoint(path).get("training") or {}).get("seed")
+    return "?" if seed is None else str(seed)
+
+
 def train_command(trials: list[Path], fold: str, run_dir: Path, seed: int, extra: list[str]) -> list[str]:
     """``tepinn-flight train`` of the default recipe with only ``fold``'s training trials as real data."""
     listed = ",".join(json.dumps(str(Path(p).resolve())) for p in training_trials(trials, fold))
@@ -116,12 +125,13 @@ def main() -> int:
     from tepinn_flight.ingest import ingest_log
 
     torch.set_num_threads(1)
-    nets = {}
+    nets, seeds = {}, set()
     for fold in FOLDS:
         if not (runs / fold / "model.pt").exists():
             print(f"fold {fold}: no {runs / fold / 'model.pt'} (train it first: leave out --score-only)")
             return 2
         nets[fold] = TepinnEstimator.from_checkpoint(runs / fold / "model.pt", "tepinn")
+        seeds.add(fold_seed(runs / fold / "model.pt"))
         if args.smooth and not nets[fold].fusion.smoother:
             nets[fold] = TepinnEstimator(nets[fold].model, dataclasses.replace(nets[fold].fusion, smoother=True), "tepinn")
         if args.speed_gate_rule:
@@ -149,7 +159,7 @@ def main() -> int:
               flush=True)  # fmt: skip
     tp, vq = np.mean([r["tepinn"] for r in rows]), np.mean([r["vqf"] for r in rows])
     same = sum(abs(r["tepinn"] - r["vqf"]) < 0.005 for r in rows)
-    print(f"\n{len(rows)} trials, each by the network that never saw it (seed {args.seed}): TE-PINN {tp:.3f}° VQF {vq:.3f}° "
+    print(f"\n{len(rows)} trials, each by the network that never saw it (trained with seed {', '.join(sorted(seeds))}): TE-PINN {tp:.3f}° VQF {vq:.3f}° "
           f"ratio {tp / vq:.3f}; failing the per-file check {sum(not r['ok'] for r in rows)}; equal to VQF (< 0.005°) on "
           f"{same}; gyro self-calibration applied on {sum('selfcal' in r for r in rows)}")  # fmt: skip
     print(f"σ: mean NEES {np.mean([r['nees:tepinn'] for r in rows]):.2f} (target 1.5–2.5), within 3σ "

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 import time
 from pathlib import Path
@@ -89,10 +90,18 @@ def main() -> int:
             estimate_mod.FusionRun = compiled
         print(f"former fusion:    {r_total:7.1f} s  (network {r_net:6.1f} s, the rest {r_total - r_net:6.1f} s)")
         print(f"speed-up: {r_total / total:.1f}× in all, {(r_total - r_net) / max(total - net, 1e-9):.1f}× outside the network")
+        # the two fusions' Kalman updates differ by round-off (1e-14), and so may a fitted float: "the same" to 1e-9
         diff = {f.name: (getattr(fusion, f.name), getattr(r_fusion, f.name)) for f in dataclasses.fields(fusion)
-                if getattr(fusion, f.name) != getattr(r_fusion, f.name)}  # fmt: skip
-        print("same settings chosen" if not diff else f"settings that differ (compiled, former): {diff}")
+                if not _same(getattr(fusion, f.name), getattr(r_fusion, f.name))}  # fmt: skip
+        print("same settings chosen (floats to 1e-9 relative)" if not diff else f"settings that differ (compiled, former): {diff}")
     return 0
+
+
+def _same(a, b) -> bool:
+    """Settings equal, a float to 1e-9 of the other's magnitude (the two fusions' round-off)."""
+    if isinstance(a, float) and isinstance(b, float):
+        return math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12)
+    return a == b
 
 
 if __name__ == "__main__":
