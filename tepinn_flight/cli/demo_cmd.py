@@ -32,15 +32,9 @@ def add_arguments(p) -> None:
 
 
 def run(args) -> int:
-    import sys
+    from .notes import run_noting_compiles
 
-    from tqdm import tqdm
-
-    from ..jit_notice import compile_notice
-
-    say = None if args.quiet else (lambda line: tqdm.write(f"tepinn-flight demo: note: {line}", file=sys.stderr))
-    with compile_notice(say):  # the first run after installing compiles the loops: say so, once
-        return _run(args)
+    return run_noting_compiles("demo", args, _run)  # the first run after installing compiles the loops: say so, once
 
 
 def _run(args) -> int:
