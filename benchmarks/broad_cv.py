@@ -159,9 +159,9 @@ def main() -> int:
               flush=True)  # fmt: skip
     tp, vq = np.mean([r["tepinn"] for r in rows]), np.mean([r["vqf"] for r in rows])
     same = sum(abs(r["tepinn"] - r["vqf"]) < 0.005 for r in rows)
-    print(f"\n{len(rows)} trials, each by the network that never saw it (trained with seed {', '.join(sorted(seeds))}): TE-PINN {tp:.3f}° VQF {vq:.3f}° "
-          f"ratio {tp / vq:.3f}; failing the per-file check {sum(not r['ok'] for r in rows)}; equal to VQF (< 0.005°) on "
-          f"{same}; gyro self-calibration applied on {sum('selfcal' in r for r in rows)}")  # fmt: skip
+    print(f"\n{len(rows)} trials, each by the network that never saw it (trained with seed {', '.join(sorted(seeds))}): "
+          f"TE-PINN {tp:.3f}° VQF {vq:.3f}° ratio {tp / vq:.3f}; failing the per-file check {sum(not r['ok'] for r in rows)}; "
+          f"equal to VQF (< 0.005°) on {same}; gyro self-calibration applied on {sum('selfcal' in r for r in rows)}")  # fmt: skip
     print(f"σ: mean NEES {np.mean([r['nees:tepinn'] for r in rows]):.2f} (target 1.5–2.5), within 3σ "
           f"{100 * np.mean([r['in3:tepinn'] for r in rows]):.1f} % (target ≥ 97 %), per trial averaged")
     if causal:

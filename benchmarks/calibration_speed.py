@@ -93,7 +93,8 @@ def main() -> int:
         # the two fusions' Kalman updates differ by round-off (1e-14), and so may a fitted float: "the same" to 1e-9
         diff = {f.name: (getattr(fusion, f.name), getattr(r_fusion, f.name)) for f in dataclasses.fields(fusion)
                 if not _same(getattr(fusion, f.name), getattr(r_fusion, f.name))}  # fmt: skip
-        print("same settings chosen (floats to 1e-9 relative)" if not diff else f"settings that differ (compiled, former): {diff}")
+        print("same settings chosen (floats to 1e-9 relative)" if not diff
+              else f"settings that differ (compiled, former): {diff}")  # fmt: skip
     return 0
 
 

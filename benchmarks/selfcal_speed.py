@@ -56,7 +56,8 @@ def main() -> int:
     if not paths:
         paths = sorted((Path(args.shared) / "broad").glob("broad_08_*.hdf5"))
         sims = Path(args.sim)
-        found = sorted(sims.glob("*F450-agile-consumer-none*.parquet"))[:1] + sorted(sims.glob("*c172x-aerobatic*.parquet"))[:1]
+        found = [*sorted(sims.glob("*F450-agile-consumer-none*.parquet"))[:1],
+                 *sorted(sims.glob("*c172x-aerobatic*.parquet"))[:1]]
         if not found:
             print(f"note: no held-out simulated flights in {sims} (fly them: python benchmarks/real_vs_peers.py, or "
                   "pass --sim): the BROAD trial only", file=sys.stderr)  # fmt: skip
