@@ -103,11 +103,32 @@ class AccelScaleTrackerReference:
         return ax, ay, az
 
 
+def quiet_threshold(noise_floor, cfg: AccelScaleConfig):
+    """The averaged |ω| below which a sample is quiet, given the gyro's noise floor over the same window
+    (the mean of |ω_i − ω_(i−1)|/√2; rad/s): ``quiet_rate_rad_s``, raised to ``noise_floor_factor`` × the floor
+    where that is higher, at most ``quiet_rate_cap_rad_s`` (rule 21). The package computes it only in its compiled
+    loops (``accel_scale_kernels.track_step`` live, ``quiet_rows`` offline; moved here from ``accel_scale`` in session
+    43, when nothing in the package called it any more)."""
+    return np.maximum(cfg.quiet_rate_rad_s, np.minimum(cfg.quiet_rate_cap_rad_s, cfg.noise_floor_factor * noise_floor))
+
+
+def noise_norms(gyr, ok) -> np.ndarray:
+    """(n,) |ω_i − ω_(i−1)|/√2 per sample (0 at the first and next to a non-finite sample): what white
+    noise alone adds to |ω|, in distribution. (First differences, not the second differences of
+    ``record_stats.sample_noise``, which reports a per-axis σ: the norm of a first difference over √2 has the
+    distribution of the noise vector's own norm, and the live tracker needs only the previous sample.) The package
+    computes it only in its compiled loops, as :func:`quiet_threshold`."""
+    d = np.zeros(len(gyr))
+    if len(gyr) > 1:
+        step = np.diff(np.where(ok[:, None], gyr, 0.0), axis=0)
+        d[1:] = np.where(ok[1:] & ok[:-1], np.sqrt(np.einsum("ij,ij->i", step, step)) / math.sqrt(2.0), 0.0)
+    return d
+
+
 def quiet_samples(t_s, gyr, acc, cfg: AccelScaleConfig | None = None):
     """The offline reading's quiet samples as numpy computed them before session 42 compiled them
     (:func:`tepinn_flight.model.accel_scale.quiet_samples`, :func:`..accel_scale_kernels.quiet_rows`), verbatim: the
     compiled form must give the same mask and averaged accelerometer bit for bit (``tests/test_accel_scale.py``)."""
-    from tepinn_flight.model.accel_scale import noise_norms, quiet_threshold
     from tepinn_flight.model.gyro_selfcal import _boxcar
 
     cfg = cfg or AccelScaleConfig()

@@ -18,7 +18,9 @@ averages to |ω| ≈ 0.056 rad/s: no sample would be quiet), so the threshold is
 ``noise_floor_factor`` × the window's noise floor where that is higher, at most ``quiet_rate_cap_rad_s``
 (rule 21): the floor is the mean of |ω_i − ω_(i−1)|/√2 over the same window — for white noise a
 consecutive difference over √2 has the noise's own distribution, and a steady turn adds nothing to it,
-so a clean gyro turning at 0.08 rad/s is still not quiet (:func:`quiet_threshold`). The scale is
+so a clean gyro turning at 0.08 rad/s is still not quiet (the threshold
+``max(quiet_rate_rad_s, min(quiet_rate_cap_rad_s, noise_floor_factor × floor))``, computed by the compiled loops
+of :mod:`.accel_scale_kernels`; its numpy form is ``tests/accel_scale_reference.quiet_threshold``). The scale is
 **applied only where it is clearly not 1** (``|s − 1| ≥ tolerance``, beyond what calibrated boards
 and gentle turns show): then the accelerometer is divided by it before
 anything else reads it. Every record whose scale is within the tolerance is estimated bit for bit as
@@ -83,29 +85,9 @@ class AccelScale:
         return f"accelerometer scale: {self.read:.3f} g at {self.quiet_s:.0f} s of quiet, steady samples; {what}"
 
 
-def quiet_threshold(noise_floor, cfg: AccelScaleConfig):
-    """The averaged |ω| below which a sample is quiet, given the gyro's noise floor over the same window
-    (the mean of |ω_i − ω_(i−1)|/√2; rad/s): ``quiet_rate_rad_s``, raised to ``noise_floor_factor`` × the floor
-    where that is higher, at most ``quiet_rate_cap_rad_s`` (rule 21). The live tracker's compiled step
-    computes the same expression (:mod:`.accel_scale_kernels`)."""
-    return np.maximum(cfg.quiet_rate_rad_s, np.minimum(cfg.quiet_rate_cap_rad_s, cfg.noise_floor_factor * noise_floor))
-
-
-def noise_norms(gyr, ok) -> np.ndarray:
-    """(n,) |ω_i − ω_(i−1)|/√2 per sample (0 at the first and next to a non-finite sample): what white
-    noise alone adds to |ω|, in distribution. (First differences, not the second differences of
-    :func:`..record_stats.sample_noise`, which reports a per-axis σ: the norm of a first difference over √2 has the
-    distribution of the noise vector's own norm, and the live tracker needs only the previous sample.)"""
-    d = np.zeros(len(gyr))
-    if len(gyr) > 1:
-        step = np.diff(np.where(ok[:, None], gyr, 0.0), axis=0)
-        d[1:] = np.where(ok[1:] & ok[:-1], np.sqrt(np.einsum("ij,ij->i", step, step)) / math.sqrt(2.0), 0.0)
-    return d
-
-
 def quiet_samples(t_s, gyr, acc, cfg: AccelScaleConfig | None = None):
     """The samples where the vehicle is neither turning nor shaking (module docstring: the rate's norm,
-    averaged over ``avg_s``, below ``quiet_rate_rad_s`` or a noisy gyro's floor, :func:`quiet_threshold`; the
+    averaged over ``avg_s``, below ``quiet_rate_rad_s`` or a noisy gyro's floor (module docstring); the
     averaged accelerometer's norm steady over ``steady_s``) → (quiet mask (n,), the averaged accelerometer (n, 3), the sample step in s), or None
     where the record is too short to tell. There the accelerometer shows gravity alone."""
     cfg = cfg or AccelScaleConfig()

@@ -14,7 +14,8 @@ trailing windows as deques) cost about 9 µs a sample, a sixth of the live estim
 * ``avg`` (cap, 6): (t, |ω|, ax, ay, az, |ω − ω_prev|/√2) of the last ``avg_s``; ``norms`` (cap, 2): (t, |ā|) of the
   last ``steady_s``; ``quiet`` (cap,): the quiet samples' norms;
 * ``cfg`` (float64): avg_s, steady_s, quiet_rate_rad_s, steady_m_s2, min_quiet_s, max_step_s,
-  noise_floor_factor, quiet_rate_cap_rad_s (the quiet threshold: :func:`.accel_scale.quiet_threshold`).
+  noise_floor_factor, quiet_rate_cap_rad_s (the quiet threshold, :mod:`.accel_scale`'s docstring; its numpy form
+  ``tests/accel_scale_reference.quiet_threshold``).
 """
 
 from __future__ import annotations
@@ -101,7 +102,7 @@ def track_step(state, idx, avg, norms, quiet, cfg, t, gx, gy, gz, ax, ay, az):
     m = idx[NORM_LEN]
     mean = state[N1] / m
     spread = math.sqrt(max(state[N2] / m - mean * mean, 0.0))
-    thr = max(quiet_rate, min(rate_cap, floor_factor * (state[SUM_D] / n)))  # accel_scale.quiet_threshold
+    thr = max(quiet_rate, min(rate_cap, floor_factor * (state[SUM_D] / n)))  # the quiet threshold (accel_scale's docstring)
     if state[SUM_W] / n < thr and spread < steady_m_s2:
         quiet[idx[QUIET_LEN]] = norm
         idx[QUIET_LEN] += 1
@@ -147,7 +148,7 @@ def quiet_rows(gyr, acc, k, m, quiet_rate, rate_cap, floor_factor, steady, acc_l
                   and math.isfinite(ay) and math.isfinite(az))  # fmt: skip
             if not ok:
                 gx = gy = gz = ax = ay = az = 0.0
-            d = 0.0  # accel_scale.noise_norms: 0 at the first row and next to a non-finite one
+            d = 0.0  # the noise norm (reference: noise_norms): 0 at the first row and next to a non-finite one
             if r > 0 and ok and prev_ok:
                 dx, dy, dz = gx - px, gy - py, gz - pz
                 d = math.sqrt((dx * dx + dz * dz) + dy * dy) / SQRT2
@@ -165,7 +166,7 @@ def quiet_rows(gyr, acc, k, m, quiet_rate, rate_cap, floor_factor, steady, acc_l
         acc_lp[i, 0] = (ring[hi, 3] - ring[lo, 3]) / k
         acc_lp[i, 1] = (ring[hi, 4] - ring[lo, 4]) / k
         acc_lp[i, 2] = (ring[hi, 5] - ring[lo, 5]) / k
-        thr = max(quiet_rate, min(rate_cap, floor_factor * ((ring[hi, 2] - ring[lo, 2]) / k)))  # quiet_threshold
+        thr = max(quiet_rate, min(rate_cap, floor_factor * ((ring[hi, 2] - ring[lo, 2]) / k)))  # the quiet threshold
         whole = (ring[hi, 1] - ring[lo, 1]) / k > 1.0 - 1e-9  # the average saw no hole
         quiet[i] = whole and (ring[hi, 0] - ring[lo, 0]) / k < thr
     # the averaged accelerometer's norm steady over m rows: running sums of |ā| and |ā|², the same way
