@@ -625,7 +625,7 @@ def _crash_record(reading=6.9):
 def test_live_equals_offline_through_a_rest_after_a_saturation(reading):
     """The re-levelling at rest acts at the same window live and offline: a synthetic record with a
     tumble past the gyro's range (±400 °/s, the saturation pull on; ±2000 °/s, off and σ's saturation
-    term decaying at VQF's pace) and a rest appended, streamed and estimated offline, to 1e-6 (σ too)."""
+    term decaying at VQF's pace) and a rest appended, streamed and estimated offline: q to 1e-6, σ to 1e-5."""
     rec = _crash_record(reading)
     model, _, _ = load_model(default_model_path())
     cfg = dataclasses.replace(_shipped(), smoother=False)  # the causal estimate (the 8 s before the tumble are smoothed offline)
@@ -649,7 +649,9 @@ def test_live_equals_offline_through_a_rest_after_a_saturation(reading):
     assert n_off >= 1 and made.count(0.0) == 2 * n_off  # it acted, live as often as offline
     have = np.all(np.isfinite(q_live), 1)
     np.testing.assert_allclose(q_live[have], off[have], atol=1e-6)
-    np.testing.assert_allclose(s_live[have], s_off[have], rtol=1e-6)
+    # σ to 1e-5: while a gate acts it carries the network's float32 σ, and a window run alone (live) and in a batch
+    # (offline) round differently where the CPU's matrix kernels depend on the batch (an AVX-512 Xeon: 1.3e-6)
+    np.testing.assert_allclose(s_live[have], s_off[have], rtol=1e-5)
     assert s_off[have].max() > math.radians(10)  # the saturation term acted
 
 
