@@ -295,6 +295,40 @@ def test_estimate_resume_estimates_again_where_an_offline_step_s_own_settings_ch
     assert not skipped() and skipped()
 
 
+def test_estimate_to_csv_reads_back_as_the_parquet_output_and_other_names_are_refused(tmp_path, capsys):
+    """``-o FILE.csv`` writes the estimate as CSV (it wrote Parquet bytes under that name before): read back, the
+    same columns and the same float64s as the Parquet output (NaN: ``tests/test_csv_table.py``). A name ending in
+    neither is refused before any work, as is ``--resume`` with a CSV (it has no key); ``ingest`` and ``simulate``
+    write records as Parquet only."""
+    import numpy as np
+    import pandas as pd
+
+    pytest.importorskip("torch")
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    src = tmp_path / "s1.parquet"
+    write_record(synthetic_record(seed=1, duration_s=12.0, rate_hz=100.0), src)
+    assert main(["estimate", str(src), "-o", str(tmp_path / "e.parquet"), "--no-smooth", "-q"]) == 0
+    assert main(["estimate", str(src), "-o", str(tmp_path / "e.CSV"), "--no-smooth", "-q"]) == 0
+    want = pd.read_parquet(tmp_path / "e.parquet")
+    assert (tmp_path / "e.CSV").read_bytes()[:4] != b"PAR1"
+    got = pd.read_csv(tmp_path / "e.CSV")
+    assert list(got.columns) == list(want.columns) and len(got) == len(want)
+    for c in want.columns:
+        assert np.array_equal(got[c].to_numpy(np.float64), want[c].to_numpy(np.float64), equal_nan=True), c
+    capsys.readouterr()
+    for argv, what in ((["estimate", str(src), "-o", str(tmp_path / "e.txt")], "ends in neither"),
+                       (["estimate", str(src), "-o", str(tmp_path / "f.csv"), "--resume"], "--resume"),
+                       (["ingest", str(src), "-o", str(tmp_path / "r.csv")], "flight records as Parquet"),
+                       (["simulate", "--aircraft", "F450", "--duration", "2", "-o", str(tmp_path / "f.csv")],
+                        "flight records as Parquet")):  # fmt: skip
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and what in err[0] and err[0].startswith(f"tepinn-flight {argv[0]}: error:"), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["e.CSV", "e.parquet", "s1.parquet"]
+
+
 @pytest.mark.slow
 def test_estimate_workers_give_the_one_process_estimates_and_go_on_past_a_bad_record(tmp_path, capsys):
     """``--workers 2``: the same outputs as one process (to 1e-6: a worker runs the network on one thread),

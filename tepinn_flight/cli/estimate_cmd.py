@@ -26,6 +26,7 @@ DESCRIPTION = (
 def add_arguments(p) -> None:
     add_examples(p,
                  'tepinn-flight estimate flight.parquet -o flight_est.parquet',
+                 'tepinn-flight estimate flight.ulg -o flight_est.csv   # CSV: t_s, q_est_w..z, sigma_rad, gyro bias',
                  'tepinn-flight estimate 00000042.BIN -o est.parquet --mode auto   # a log: ingested on the fly',
                  'tepinn-flight estimate flight.tlog -o est.parquet --tlog flight_est.tlog   # overlay on ATT in MAVExplorer',
                  'tepinn-flight estimate records/*.parquet -o estimates/ --model runs/mine/model.pt',
@@ -33,7 +34,9 @@ def add_arguments(p) -> None:
     p.add_argument("records", nargs="+", metavar="RECORD",
                    help="flight records (.parquet) or logs (.tlog, .bin, .log, .ulg: ingested on the fly, as `ingest` would); "
                         "a folder stands for the records and logs in it")
-    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output file (one record) or folder")
+    p.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="output file (one record): Parquet (.parquet) or CSV (.csv: the same columns, for spreadsheets "
+                        "and MATLAB); or a folder (a .parquet per record)")
     p.add_argument("--model", default=None, metavar="CKPT",
                    help="checkpoint or .onnx export (`tepinn-flight export`; default: the shipped model)")
     p.add_argument("--runtime", choices=["auto", "torch", "onnx"], default="auto",
@@ -101,12 +104,12 @@ def _run(args) -> int:
     import sys
     from pathlib import Path
 
-    from ..errors import TepinnError
+    from ..errors import ConfigError, TepinnError
     from ..model.anchor import with_busy_stride
     from ..model.checkpoint import default_model_path
     from ..model.runtime import default_onnx_path, load_runner, resolve_runtime
     from ..record import check_output
-    from .paths import collect_records, output_paths
+    from .paths import collect_records, output_format, output_paths
 
     ckpt_path = Path(args.model) if args.model else default_model_path()
     if not args.model and resolve_runtime(ckpt_path, args.runtime) == "onnx" and default_onnx_path().is_file():
@@ -136,6 +139,9 @@ def _run(args) -> int:
     paths = collect_records(args.records, args.recursive)
     from_folder = any(Path(i).is_dir() for i in args.records)  # a folder's outputs go to a folder
     outs = output_paths(paths, args.output, from_folder)
+    if any(output_format(dst, "estimate", csv=True) == "csv" for dst in outs) and args.resume:
+        raise ConfigError("--resume reads the key a Parquet output carries (its source, model and settings); a CSV "
+                          "output has none: write .parquet to resume")  # fmt: skip
     tlogs = _tlog_paths(args, paths, from_folder)
     for dst in [*outs, *tlogs]:  # before any work: an output that cannot be written is a one-line error
         check_output(dst)
@@ -223,8 +229,10 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
     from ..errors import TepinnError
     from ..ingest import load_record
     from ..ingest.sniff import sniff
+    from ..csv_table import write_csv
     from ..model.estimate import REPORTED_STEPS, estimate_record
     from ..record import atomic_write
+    from .paths import output_format
 
     out, err = [], []
     key = _output_key(opts, src)
@@ -258,7 +266,10 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
     table = table.replace_schema_metadata({b"source_record": str(src.name).encode(), b"model": str(opts.model_name).encode(),
                                            b"estimate_key": key.encode(),
                                            **{k.encode(): v.encode() for k, v in found.items()}})  # fmt: skip
-    atomic_write(dst, lambda tmp: pq.write_table(table, tmp))
+    if output_format(dst, "estimate", csv=True) == "csv":  # the columns alone (the notes are printed below)
+        atomic_write(dst, lambda tmp: write_csv(table, tmp))
+    else:
+        atomic_write(dst, lambda tmp: pq.write_table(table, tmp))
     if not opts.quiet:
         ok = df["q_est_w"].notna().mean()
         out.append(f"{src} -> {dst}: {len(df)} rows, {100 * ok:.1f}% estimated" + "".join(f"; {v}" for v in found.values()))

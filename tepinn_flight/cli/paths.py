@@ -28,6 +28,24 @@ def output_paths(logs: list[Path], output: str | None, from_folder: bool = False
     return names
 
 
+#: an output file's name → the format written: Parquet (``.parquet``, ``.pq`` or no suffix) or CSV
+TABLE_SUFFIXES = {"": "parquet", ".parquet": "parquet", ".pq": "parquet", ".csv": "csv"}
+
+
+def output_format(path: Path, verb: str, csv: bool = False) -> str:
+    """The format ``path``'s name asks for: ``"parquet"``, or ``"csv"`` where the verb writes CSV (``csv``). Any other
+    suffix is a :class:`~..errors.ConfigError` before any work: a file named ``.csv`` (or ``.txt``) holding Parquet
+    bytes is of no use to whoever opens it."""
+    from ..errors import ConfigError
+
+    fmt = TABLE_SUFFIXES.get(Path(path).suffix.lower())
+    if fmt == "parquet" or (fmt == "csv" and csv):
+        return fmt
+    kinds = "Parquet (.parquet) or CSV (.csv)" if csv else "flight records as Parquet (.parquet)"
+    hint = "" if csv else "; `tepinn-flight estimate -o FILE.csv` writes an estimate as CSV"
+    raise ConfigError(f"-o {path}: {verb} writes {kinds}, and this name ends in neither{hint}")
+
+
 def add_recursive(p) -> None:
     """``-r/--recursive``: a folder stands for what its subfolders hold too (a PX4 SD card's dated folders)."""
     p.add_argument("-r", "--recursive", action="store_true",

@@ -76,6 +76,7 @@ def _single(args) -> int:
     from ..record import check_output, write_record
     from ..sim.sensors import DEFAULT_PRESET, load_sensor_config
     from ..sim.simulate import check_flight_args, simulate_record
+    from .paths import output_format
 
     duration = 60.0 if args.duration is None else args.duration
     rate = 400.0 if args.rate is None else args.rate
@@ -90,6 +91,7 @@ def _single(args) -> int:
     out = Path(args.output) if args.output else Path(f"{args.aircraft}_seed{seed}.parquet")
     if out.is_dir():
         raise ConfigError("is a folder; give a record file name for one flight", out)
+    output_format(out, "simulate")  # a record is Parquet, whatever the name says
     check_output(out)  # before the flight: a place that cannot be written is a one-line error
     if args.tlog:
         check_output(args.tlog)
