@@ -329,6 +329,40 @@ def test_estimate_to_csv_reads_back_as_the_parquet_output_and_other_names_are_re
     assert sorted(p.name for p in tmp_path.iterdir()) == ["e.CSV", "e.parquet", "s1.parquet"]
 
 
+def test_no_output_replaces_an_input(tmp_path, capsys):
+    """An output that is one of the run's inputs is refused (one line, exit 2) and every input is left as it was:
+    ``estimate r.parquet -o r.parquet`` and ``--tlog`` naming the log (both replaced them before), a folder
+    estimated into itself beside its records, ``--tlog`` naming the source tlog found next to a record (refused
+    for that record), ``ingest`` onto its input."""
+    import hashlib
+    import shutil
+
+    pytest.importorskip("torch")
+    log = tmp_path / "sub.tlog"
+    shutil.copy(real_log("ardusub_small.tlog"), log)
+    rec = tmp_path / "sub.parquet"
+    assert main(["ingest", str(log), "-o", str(rec), "-q"]) == 0
+
+    def digests():
+        return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in (log, rec)}
+
+    before = digests()
+    cases = ((["estimate", str(rec), "-o", str(rec)], f"-o {rec} is the input"),
+             (["estimate", str(log), "-o", str(tmp_path / "e1.parquet"), "--tlog", str(log)],
+              f"--tlog {log} is the input"),
+             (["estimate", str(tmp_path), "-o", str(tmp_path)], "is the input"),
+             (["estimate", str(rec), "-o", str(tmp_path / "e2.parquet"), "--tlog", str(tmp_path / "." / "sub.tlog")],
+              "is the source tlog"),
+             (["ingest", str(rec), "-o", str(rec)], "is the input"))  # fmt: skip
+    for argv, what in cases:
+        capsys.readouterr()
+        assert main([*argv, "-q"]) == 2, argv
+        err = [ln for ln in capsys.readouterr().err.splitlines() if ": warning: " not in ln]
+        assert len(err) == 1 and what in err[0] and "would replace it" in err[0], (argv, err)
+        assert digests() == before, argv
+    assert not (tmp_path / "e1.parquet").exists()  # refused before any work (the source next to a record: after)
+
+
 @pytest.mark.slow
 def test_estimate_workers_give_the_one_process_estimates_and_go_on_past_a_bad_record(tmp_path, capsys):
     """``--workers 2``: the same outputs as one process (to 1e-6: a worker runs the network on one thread),

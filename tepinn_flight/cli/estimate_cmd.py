@@ -109,7 +109,7 @@ def _run(args) -> int:
     from ..model.checkpoint import default_model_path
     from ..model.runtime import default_onnx_path, load_runner, resolve_runtime
     from ..record import check_output
-    from .paths import collect_records, output_format, output_paths
+    from .paths import collect_records, output_format, output_paths, refuse_overwriting_inputs
 
     ckpt_path = Path(args.model) if args.model else default_model_path()
     if not args.model and resolve_runtime(ckpt_path, args.runtime) == "onnx" and default_onnx_path().is_file():
@@ -143,6 +143,8 @@ def _run(args) -> int:
         raise ConfigError("--resume reads the key a Parquet output carries (its source, model and settings); a CSV "
                           "output has none: write .parquet to resume")  # fmt: skip
     tlogs = _tlog_paths(args, paths, from_folder)
+    refuse_overwriting_inputs([*(("-o", o) for o in outs), *(("--tlog", t) for t in tlogs)],
+                              [*paths, *([args.source_log] if args.source_log else [])])  # fmt: skip
     for dst in [*outs, *tlogs]:  # before any work: an output that cannot be written is a one-line error
         check_output(dst)
     from tqdm import tqdm
@@ -346,7 +348,9 @@ def _write_tlog(opts, src, rec, df, dst) -> tuple[list[str], list[str]]:
     """The estimate's tlog → (stdout lines, stderr lines)."""
     from pathlib import Path
 
+    from ..errors import ConfigError
     from ..estimate_tlog import parse_messages, write_estimate_tlog
+    from .paths import file_key
 
     out, err = [], []
     source = Path(opts.source_log) if opts.source_log else None
@@ -357,6 +361,8 @@ def _write_tlog(opts, src, rec, df, dst) -> tuple[list[str], list[str]]:
         else:
             err.append(f"tepinn-flight estimate: warning: {src}: source tlog {cand.name} not found next to the "
                        "record (pass --source-log); the tlog gets the record's IMU and reference instead")  # fmt: skip
+    if source is not None and file_key(source) == file_key(dst):  # (one found next to the record: checked here)
+        raise ConfigError(f"--tlog {dst} is the source tlog {source}: writing it would replace it; name another output")
     counts = write_estimate_tlog(dst, rec, df, source=source, messages=parse_messages(opts.tlog_messages),
                                  rate_hz=opts.tlog_rate)  # fmt: skip
     if not opts.quiet:

@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from .helptext import add_examples
-from .paths import add_recursive, output_format, output_paths  # noqa: F401 - output_paths also imported from here by estimate_cmd
+from .paths import add_recursive, output_format, output_paths, refuse_overwriting_inputs
 
 HELP = "turn real logs (tlog, DataFlash .bin/.log, ULog, BROAD .hdf5) into flight records"
 DESCRIPTION = (
@@ -48,6 +48,7 @@ def run(args) -> int:
     outs = output_paths(logs, args.output, from_folder=any(Path(i).is_dir() for i in args.logs))
     for out in outs:  # before any work: a record is Parquet, whatever the name says
         output_format(out, "ingest")
+    refuse_overwriting_inputs([("-o", o) for o in outs], logs)
     failures = 0
     progress = None
     if len(logs) > 1 and not args.quiet:

@@ -46,6 +46,36 @@ def output_format(path: Path, verb: str, csv: bool = False) -> str:
     raise ConfigError(f"-o {path}: {verb} writes {kinds}, and this name ends in neither{hint}")
 
 
+def file_key(path) -> tuple[int, int] | None:
+    """What makes a file itself, whatever path names it (links, ``./``, a folder's name for it): its device and
+    inode; None where there is no such file."""
+    import os
+
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
+def refuse_overwriting_inputs(outputs, inputs) -> None:
+    """A :class:`~..errors.ConfigError` before any work where an output is one of the inputs (``outputs``: pairs of
+    the option that names it and its path; ``inputs``: paths): writing it would replace a log or record the run
+    reads — ``estimate r.parquet -o r.parquet``, a folder estimated into itself beside its records, ``--tlog``
+    naming the source tlog."""
+    from ..errors import ConfigError
+
+    given = {}
+    for p in inputs:
+        k = file_key(p)
+        if k is not None:
+            given.setdefault(k, p)
+    for flag, out in outputs:
+        k = file_key(out)
+        if k is not None and k in given:
+            raise ConfigError(f"{flag} {out} is the input {given[k]}: writing it would replace it; name another output")
+
+
 def add_recursive(p) -> None:
     """``-r/--recursive``: a folder stands for what its subfolders hold too (a PX4 SD card's dated folders)."""
     p.add_argument("-r", "--recursive", action="store_true",
