@@ -380,6 +380,9 @@ def read_record(path: str | os.PathLike) -> FlightRecord:
         except ValueError:
             meta[key] = v.decode(errors="replace")
     if "format_version" not in meta:
+        if "estimate_key" in meta or "q_est_w" in table.column_names:  # a user's easy mix-up: say which file it is
+            raise RecordFormatError("an estimate written by `tepinn-flight estimate`, not a flight record: give the "
+                                    "record or log it was estimated from", path)  # fmt: skip
         raise RecordFormatError("Parquet file without 'format_version': not a flight record", path)
     if meta["format_version"] != FORMAT_VERSION:
         raise RecordFormatError(
