@@ -299,7 +299,7 @@ def test_estimate_to_csv_reads_back_as_the_parquet_output_and_other_names_are_re
     """``-o FILE.csv`` writes the estimate as CSV (it wrote Parquet bytes under that name before): read back, the
     same columns and the same float64s as the Parquet output (NaN: ``tests/test_csv_table.py``). A name ending in
     neither is refused before any work, as is ``--resume`` with a CSV (it has no key); ``ingest`` and ``simulate``
-    write records as Parquet only. An estimate given where a record is asked for is named as one."""
+    write records as Parquet only, ``--tlog`` a .tlog. An estimate given where a record is asked for is named as one."""
     import numpy as np
     import pandas as pd
 
@@ -320,6 +320,8 @@ def test_estimate_to_csv_reads_back_as_the_parquet_output_and_other_names_are_re
     capsys.readouterr()
     for argv, what in ((["estimate", str(src), "-o", str(tmp_path / "e.txt")], "ends in neither"),
                        (["info", str(tmp_path / "e.parquet")], "an estimate written by `tepinn-flight estimate`"),
+                       (["estimate", str(src), "-o", str(tmp_path / "g.parquet"), "--tlog", str(tmp_path / "g.parquet")],
+                        "name it .tlog"),
                        (["estimate", str(src), "-o", str(tmp_path / "f.csv"), "--resume"], "--resume"),
                        (["ingest", str(src), "-o", str(tmp_path / "r.csv")], "flight records as Parquet"),
                        (["simulate", "--aircraft", "F450", "--duration", "2", "-o", str(tmp_path / "f.csv")],

@@ -341,7 +341,11 @@ def _tlog_paths(args, paths, from_folder: bool = False) -> list:
     if not args.tlog_rate >= 0:
         raise ConfigError("--tlog-rate must be >= 0 (0: every sample)")
     many = len(paths) > 1 or from_folder
-    return [p.with_suffix(".tlog") if many else p for p in output_paths(paths, args.tlog, from_folder)]
+    tlogs = [p.with_suffix(".tlog") if many else p for p in output_paths(paths, args.tlog, from_folder)]
+    for t in tlogs:  # (a MAVLink log named .parquet or .csv would be opened by the wrong tool)
+        if t.suffix.lower() not in ("", ".tlog"):
+            raise ConfigError(f"--tlog {t}: writes a MAVLink telemetry log; name it .tlog")
+    return tlogs
 
 
 def _write_tlog(opts, src, rec, df, dst) -> tuple[list[str], list[str]]:
