@@ -75,8 +75,18 @@ def _ls(name: str) -> str:
 
 
 def _grid(plt, rows: int, shown: list, height: float):
+    """One column per showcased record; laid out so that the title, the panels' two-line captions and the legend
+    below (:func:`_legend_below`) do not overlap."""
     nc = max(1, len(shown))
-    return plt.subplots(rows, nc, figsize=(10 if nc == 1 else 6.5 * nc, height), sharex="col", squeeze=False)
+    return plt.subplots(rows, nc, figsize=(10 if nc == 1 else 6.5 * nc, height), sharex="col", squeeze=False,
+                        layout="constrained")  # fmt: skip
+
+
+def _legend_below(fig, axes) -> None:
+    """The estimators' legend under the panels, not on a panel's data (the first panel's lines name them all)."""
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="outside lower center", ncol=min(len(labels), 10), fontsize=8, frameon=False)
 
 
 def _caption(s: dict, cap: str) -> str:
@@ -104,8 +114,7 @@ def fig_quaternion(result, colours, path=None):
             axes[i][0].set_ylabel(f"q_{comp}")
         axes[0][c].set_title(_caption(s, cap), fontsize=9)
         axes[-1][c].set_xlabel("t [s]")
-    if shown:
-        axes[0][0].legend(fontsize=7, ncol=4, loc="upper right")
+    _legend_below(fig, axes)
     fig.suptitle("Quaternion components (6-D estimates heading-aligned)")
     return _finish(fig, path)
 
@@ -137,8 +146,7 @@ def fig_euler(result, colours, path=None):
         axes[-1][c].set_xlabel("t [s]")
     for i, lab in enumerate(("roll", "pitch", "yaw")):
         axes[i][0].set_ylabel(f"{lab} [°]")
-    if shown:
-        axes[0][0].legend(fontsize=7, ncol=4, loc="upper right")
+    _legend_below(fig, axes)
     fig.suptitle("Roll, pitch, yaw (6-D yaw after one constant alignment; lines break at ±180°)")
     return _finish(fig, path)
 
@@ -158,8 +166,7 @@ def fig_inclination_error(result, colours, path=None):
         ax.set_title(_caption(s, cap), fontsize=9)
         ax.set_xlabel("t [s]")
     axes[0][0].set_ylabel("inclination error [°]")
-    if shown:
-        axes[0][0].legend(fontsize=7, ncol=4)
+    _legend_below(fig, axes)
     fig.suptitle("Inclination error over scored samples")
     return _finish(fig, path)
 
