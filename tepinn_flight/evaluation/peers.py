@@ -114,7 +114,10 @@ class FusionEstimator(_PeerBase):
 
     Settings of x-io's own advanced example (gain 0.5, gyroscope range 2000 °/s, acceleration and
     magnetic rejection 10°, rejection timeout 5 s) plus its ``Bias`` module (stationary periods).
-    ``AhrsSettings()`` defaults instead switch rejection off, which fails on fast translations.
+    ``AhrsSettings()`` defaults instead switch rejection off, which fails on fast translations. The price in agile
+    flight: once a flip has taken its tilt away, an accelerometer that keeps leaving the 10° gate now and then keeps
+    its recovery from triggering, and it can stay tens of degrees off (the demo's F450: 49.5° inclination RMSE, 7.5°
+    with rejection off; session 44) — Fusion as x-io configures it, not as tuned for a drone.
     """
 
     q_ned_earth = Q_NED_NWU
