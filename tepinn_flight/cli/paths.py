@@ -41,9 +41,10 @@ def output_format(path: Path, verb: str, csv: bool = False) -> str:
     fmt = TABLE_SUFFIXES.get(Path(path).suffix.lower())
     if fmt == "parquet" or (fmt == "csv" and csv):
         return fmt
-    kinds = "Parquet (.parquet) or CSV (.csv)" if csv else "flight records as Parquet (.parquet)"
-    hint = "" if csv else "; `tepinn-flight estimate -o FILE.csv` writes an estimate as CSV"
-    raise ConfigError(f"-o {path}: {verb} writes {kinds}, and this name ends in neither{hint}")
+    if csv:
+        raise ConfigError(f"-o {path}: {verb} writes Parquet (.parquet) or CSV (.csv), and this name ends in neither")
+    raise ConfigError(f"-o {path}: {verb} writes flight records as Parquet: name it .parquet (`tepinn-flight "
+                      "estimate -o FILE.csv` writes an estimate as CSV)")  # fmt: skip
 
 
 def file_key(path) -> tuple[int, int] | None:
