@@ -264,8 +264,27 @@ def atomic_write(path: str | os.PathLike, write_fn) -> None:
 
     A place that cannot be written is an :class:`OutputError` (one line, exit code 2), as is an
     ``OSError`` while writing (disk full, ...). Temporaries of the same output left by a killed
-    writer (its process gone) are removed first."""
+    writer (its process gone) are removed first.
+
+    A symbolic link is followed: its target is replaced, the link stays. A device or a pipe (``-o /dev/null``, a
+    FIFO) gets the bytes copied into it from a file written in a temporary folder: renaming onto it would put a
+    plain file in its place, and a writer handed its path may delete it on failure (pyarrow's ``write_table``
+    does: it removed ``/dev/full``)."""
     path = Path(path)
+    if path.is_symlink():
+        path = Path(os.path.realpath(path))
+    if path.exists() and not path.is_file() and not path.is_dir():
+        import shutil
+
+        with tempfile.TemporaryDirectory(prefix="tepinn-out.") as d:
+            tmp = os.path.join(d, path.name)
+            write_fn(tmp)
+            try:
+                with open(tmp, "rb") as src, open(path, "wb") as dst:
+                    shutil.copyfileobj(src, dst)
+            except OSError as exc:
+                raise OutputError(f"cannot write ({_why(exc)})", path) from None
+        return
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

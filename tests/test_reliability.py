@@ -387,3 +387,118 @@ def test_kill_9_of_a_campaign_takes_its_workers_with_it(tmp_path):
     finally:
         for pid in _session_pids(proc.pid):
             os.kill(pid, signal.SIGKILL)
+
+
+@pytest.mark.slow
+def test_sigterm_of_estimate_with_workers_stops_them_and_leaves_no_partial_file(tmp_path):
+    """SIGTERM (what timeout, systemd and schedulers send) to ``estimate --workers 2``: it says so and exits 143, its
+    workers and the pool's helpers end with it (they were left orphaned, waiting on the pool's lock, holding the
+    caller's pipe open), no temporary is left, and ``--resume`` then finishes the folder."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("reads the session's processes from /proc")
+    src, out = tmp_path / "in", tmp_path / "out"
+    src.mkdir()
+    for seed in range(6):
+        write_record(synthetic_record(seed=seed, duration_s=60.0, rate_hz=100.0), src / f"s{seed}.parquet")
+    cmd = [sys.executable, "-m", "tepinn_flight", "estimate", str(src), "-o", str(out), "--workers", "2", "-q"]
+    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while len(_session_pids(proc.pid)) < 5 and time.monotonic() < deadline:  # main, tracker, forkserver, 2 workers
+            time.sleep(0.1)
+        assert len(_session_pids(proc.pid)) >= 5, "the estimate did not start its workers"
+        os.kill(proc.pid, signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)  # (returns once every process holding the pipes has ended)
+        assert proc.returncode == 143 and err.strip().endswith("tepinn-flight estimate: terminated"), err
+        deadline = time.monotonic() + 15
+        while _session_pids(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not _session_pids(proc.pid), "worker processes outlived the terminated estimate"
+    finally:
+        for pid in _session_pids(proc.pid):
+            os.kill(pid, signal.SIGKILL)
+    assert not (out.exists() and list(out.glob(".*"))), "a temporary was left"
+    done = len(list(out.glob("*.parquet"))) if out.exists() else 0
+    assert done < 6, "it finished before the signal: the test saw nothing"
+    r = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and len(list(out.glob("*.parquet"))) == 6, r.stderr
+
+
+def test_sigterm_in_a_command_removes_its_temporary_and_exits_143(tmp_path, capsys, monkeypatch):
+    """SIGTERM while an output is being written: the temporary is removed (it stayed, hidden, before), the output
+    is not made, and the command says it was terminated, exit 143; the handler before is put back."""
+    import signal
+
+    import tepinn_flight.record as rec_mod
+
+    before = signal.getsignal(signal.SIGTERM)
+    real = rec_mod.atomic_write
+
+    def write_then_signal(path, write_fn):
+        def fn(tmp):
+            write_fn(tmp)
+            assert Path(tmp).exists()
+            os.kill(os.getpid(), signal.SIGTERM)  # (delivered here: the main thread is running Python)
+
+        real(path, fn)
+
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    src = tmp_path / "a.parquet"
+    write_record(synthetic_record(seed=1, duration_s=6.0), src)
+    out = tmp_path / "out"
+    monkeypatch.setattr("tepinn_flight.record.atomic_write", write_then_signal)
+    capsys.readouterr()
+    rc = cli(["estimate", str(src), "-o", str(out / "e.parquet"), "--no-smooth"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 143 and err[-1] == "tepinn-flight estimate: terminated", err
+    assert not list(out.iterdir()), "the temporary or a partial output stayed"
+    assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_atomic_write_keeps_a_link_and_writes_into_a_pipe_without_replacing_either(tmp_path):
+    """``-o`` naming a symbolic link replaces its target and keeps the link; naming a FIFO (or a device, such as
+    /dev/null) writes into it and leaves it a FIFO, even where the writer deletes its path on failure as
+    pyarrow's ``write_table`` does (a rename onto it, before, made it a plain file; pyarrow removed /dev/full)."""
+    import stat
+    import threading
+
+    import pyarrow.parquet as pq
+
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    rec = synthetic_record(seed=1, duration_s=3.0)
+    target = tmp_path / "real.parquet"
+    target.write_text("old")
+    link = tmp_path / "link.parquet"
+    link.symlink_to(target.name)
+    write_record(rec, link)
+    assert link.is_symlink() and pq.read_table(target).num_rows == len(rec)
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(Path(fifo).read_bytes()), daemon=True)
+    reader.start()
+    write_record(rec, fifo)
+    reader.join(30)
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode) and got and got[0][:4] == b"PAR1"
+    (tmp_path / "copy.parquet").write_bytes(got[0])
+    assert pq.read_table(tmp_path / "copy.parquet").num_rows == len(rec)
+
+    def fails_like_pyarrow(p):
+        Path(p).write_bytes(b"x")
+        os.remove(p)
+        raise OSError(28, "No space left on device")
+
+    with pytest.raises(OSError):
+        atomic_write(fifo, fails_like_pyarrow)
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)

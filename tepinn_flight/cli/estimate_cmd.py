@@ -289,12 +289,14 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
 _WORKER = {}  # in a worker process: the runner and settings its initializer loaded
 
 
-def _init_worker(ckpt_path, runtime, fusion) -> None:
+def _init_worker(main_pid, ckpt_path, runtime, fusion) -> None:
     import os
 
     from ..model import beside
     from ..model.runtime import load_runner
+    from ..worker_processes import worker_init
 
+    worker_init(main_pid)  # Ctrl-C and SIGTERM are the main process's; gone with it, even after a kill -9
     os.environ[beside.ENV] = "0"  # the workers keep the cores busy: no helper process per record beside them
 
     _WORKER["model"] = load_runner(ckpt_path, runtime, 1)[0]
@@ -307,14 +309,23 @@ def _worker_one(job):
 
 
 def _in_workers(jobs, opts, ckpt_path, runtime, fusion, workers):
-    """The records' results in order, estimated by ``workers`` processes (``forkserver`` where there is one)."""
+    """The records' results in order, estimated by ``workers`` processes (``forkserver`` where there is one). Ctrl-C
+    or SIGTERM (``main`` turns it into a KeyboardInterrupt) terminates them at once: outputs are written atomically,
+    so those finished stay and ``--resume`` goes on from there."""
     import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
+    import os
 
     methods = multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
-    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_worker, initargs=(ckpt_path, runtime, fusion)) as ex:
-        yield from ex.map(_worker_one, [(opts, *job) for job in jobs])
+    pool = ctx.Pool(workers, initializer=_init_worker, initargs=(os.getpid(), ckpt_path, runtime, fusion))
+    try:
+        yield from pool.imap(_worker_one, [(opts, *job) for job in jobs])
+        pool.close()
+    except BaseException:
+        pool.terminate()
+        raise
+    finally:
+        pool.join()
 
 
 def _tlog_paths(args, paths, from_folder: bool = False) -> list:

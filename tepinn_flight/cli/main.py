@@ -15,6 +15,7 @@ import sys
 
 from .. import __version__
 from ..errors import TepinnError
+from ..worker_processes import Terminated, terminate_on_sigterm
 
 #: (command, module) in the order ``--help`` lists them. Every one is always listed: a module that
 #: fails to import leaves its command in place, marked BROKEN, and the command (its ``--help`` too)
@@ -110,12 +111,16 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     debug = os.environ.get("TEPINN_DEBUG") not in (None, "", "0")
     try:
-        return int(args._run(args) or 0)
+        with terminate_on_sigterm():  # SIGTERM (timeout, systemd, a scheduler) cleans up as Ctrl-C does
+            return int(args._run(args) or 0)
     except TepinnError as exc:
         if debug:
             raise
         sys.stderr.write(f"tepinn-flight {args.command}: error: {exc}\n")
         return 2
+    except Terminated:
+        sys.stderr.write(f"tepinn-flight {args.command}: terminated\n")
+        return 143
     except KeyboardInterrupt:
         sys.stderr.write(f"tepinn-flight {args.command}: interrupted\n")
         return 130

@@ -24,11 +24,8 @@ import math
 import multiprocessing
 import os
 import re
-import signal
 import sys
-import threading
 import time
-from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -37,6 +34,7 @@ import numpy as np
 from ..config import check, from_dict, load_toml, to_dict
 from ..errors import ConfigError, TepinnError
 from ..record import atomic_write
+from ..worker_processes import terminate_on_sigterm, worker_init
 
 MANIFEST = "campaign.json"
 #: A worker process is replaced after this many flights (bounds any memory growth in JSBSim).
@@ -238,44 +236,6 @@ def _fly_one_packed(args):
     return _fly_one(*args)
 
 
-def _worker_init(main_pid: int | None = None) -> None:
-    """Workers ignore Ctrl-C (the main process handles it and terminates them) and exit when the
-    main process is gone — a ``kill -9`` of the campaign must not leave them flying their flights
-    to the end. They are the forkserver's children, not the main process's, so a watchdog thread
-    polls the main process (every 0.5 s)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    if main_pid is not None:
-        threading.Thread(target=_exit_without, args=(main_pid,), daemon=True, name="campaign-watchdog").start()
-
-
-def _exit_without(pid: int) -> None:
-    while True:
-        time.sleep(0.5)
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
-            os._exit(1)
-        except PermissionError:  # alive, someone else's (cannot happen for our parent; keep waiting)
-            pass
-
-
-@contextmanager
-def _terminate_on_sigterm():
-    """Turn SIGTERM into KeyboardInterrupt while the pool runs, so the workers get stopped too."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum, frame):
-        raise KeyboardInterrupt
-
-    old = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, old)
-
-
 def _mp_context():
     methods = multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
@@ -382,8 +342,8 @@ def run_campaign(
             for s in specs:
                 done(*_fly_one(*s))
         elif specs:
-            with _terminate_on_sigterm():
-                pool = _mp_context().Pool(n_workers, initializer=_worker_init, initargs=(os.getpid(),),
+            with terminate_on_sigterm():
+                pool = _mp_context().Pool(n_workers, initializer=worker_init, initargs=(os.getpid(),),
                                           maxtasksperchild=MAX_TASKS_PER_WORKER)  # fmt: skip
                 try:
                     for result in pool.imap_unordered(_fly_one_packed, specs):
