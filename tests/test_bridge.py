@@ -863,3 +863,42 @@ def test_worker_warm_up_leaves_a_fresh_estimator():
                       if est.push(ti, g, a, None) and est.acc_scale.decided is not None)  # fmt: skip
         read.append((i_read, est.acc_scale.decided))
     assert read[0] == read[1] and read[0][1].applied and abs(read[0][1].read - 0.8) < 0.005
+
+
+def test_outputs_of_the_bridge_and_replay_replace_no_input_and_bad_values_are_refused(tmp_path, capsys, model_path):
+    """In process, before any link is opened: ``bridge --tlog``/``--summary-json`` naming the model, or named as
+    another kind of file, and ``replay --rrd`` naming the log it plays (each replaced it before: the model left at
+    0 bytes or turned into JSON, the log into a Rerun recording), a negative ``--imu``, ``--status-interval 0``
+    (a status line on every loop pass): one line each, exit 2, the model and the log as they were."""
+    import hashlib
+    import shutil
+
+    from tepinn_flight.cli.main import main
+
+    model = tmp_path / "m.pt"
+    shutil.copy(model_path[0], model)
+    log = tmp_path / "v.tlog"
+    write_tlog(log, synthetic_record(seed=1, duration_s=2.0, rate_hz=100.0))
+
+    def digests():
+        return [hashlib.sha256(p.read_bytes()).hexdigest() for p in (model, log)]
+
+    before = digests()
+    master = ("--master", f"udpin:127.0.0.1:{free_udp_port()}", "--model", str(model), "--duration", "1", "-q")
+    cases = [(("bridge", *master, "--tlog", str(model)), "name it .tlog"),
+             (("bridge", *master, "--summary-json", str(model)), "name it .json"),
+             (("bridge", *master, "--rrd", str(tmp_path / "m.rrd"), "--tlog", str(tmp_path / "m.rrd")), "name it .tlog"),
+             (("bridge", *master, "--imu", "-1"), "--imu -1"),
+             (("bridge", *master, "--status-interval", "0"), "--status-interval"),
+             (("replay", str(log), "--to", "udpout:127.0.0.1:14550", "--rrd", str(log)), "name it .rrd")]  # fmt: skip
+    for argv, words in cases:
+        capsys.readouterr()
+        assert main(list(argv)) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0] and ": error: " in err[0], (argv, err)
+        assert digests() == before, argv
+    rrd = tmp_path / "v.rrd"  # an input given under an output's own kind of name: still not replaced
+    shutil.copy(log, rrd)
+    capsys.readouterr()
+    assert main(["replay", str(rrd), "--to", "udpout:127.0.0.1:14550", "--rrd", str(rrd)]) == 2
+    assert "is the input" in capsys.readouterr().err and rrd.read_bytes() == log.read_bytes()

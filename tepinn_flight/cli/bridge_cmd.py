@@ -83,9 +83,20 @@ def run(args) -> int:
     from ..live.router import parse_endpoint
     from ..live.status import StatusPrinter
     from ..record import atomic_write
+    from .paths import check_suffix, refuse_overwriting_inputs
 
     for spec in [args.master, *args.out]:
         parse_endpoint(spec)
+    if args.imu < 0:
+        raise ConfigError(f"--imu {args.imu}: an IMU instance is 0 or more")
+    if args.status_interval is not None and not args.status_interval > 0:
+        raise ConfigError("--status-interval must be > 0")
+    outputs = [(f, v) for f, v in (("--tlog", args.tlog), ("--summary-json", args.summary_json), ("--rrd", args.rrd)) if v]
+    for flag, path, suffixes, what in (("--tlog", args.tlog, ("", ".tlog"), "a MAVLink telemetry log"),
+                                       ("--summary-json", args.summary_json, ("", ".json"), "JSON"),
+                                       ("--rrd", args.rrd, (".rrd",), "a Rerun recording")):  # fmt: skip
+        if path:
+            check_suffix(flag, path, suffixes, what)
     if args.model:
         model = Path(args.model)
         if not model.is_file():
@@ -102,6 +113,7 @@ def run(args) -> int:
     from ..model.runtime import resolve_runtime
 
     resolve_runtime(model, args.runtime)  # a runtime that cannot run this model: one line now, not in the worker
+    refuse_overwriting_inputs(outputs, [model])
     cfg = BridgeConfig(
         master=args.master, outs=tuple(args.out), model_path=str(model), runtime=args.runtime, mode=args.mode, busy_stride=args.busy_stride, tlog_path=args.tlog, rate_hz=args.rate,
         diag_rate_hz=args.diag_rate, imu_instance=args.imu, min_imu_rate_hz=args.min_imu_rate,

@@ -335,7 +335,7 @@ def _tlog_paths(args, paths, from_folder: bool = False) -> list:
 
     from ..errors import ConfigError
     from ..estimate_tlog import parse_messages
-    from .paths import output_paths
+    from .paths import check_suffix, output_paths
 
     if args.tlog is None:
         if args.source_log:
@@ -353,9 +353,8 @@ def _tlog_paths(args, paths, from_folder: bool = False) -> list:
         raise ConfigError("--tlog-rate must be >= 0 (0: every sample)")
     many = len(paths) > 1 or from_folder
     tlogs = [p.with_suffix(".tlog") if many else p for p in output_paths(paths, args.tlog, from_folder)]
-    for t in tlogs:  # (a MAVLink log named .parquet or .csv would be opened by the wrong tool)
-        if t.suffix.lower() not in ("", ".tlog"):
-            raise ConfigError(f"--tlog {t}: writes a MAVLink telemetry log; name it .tlog")
+    for t in tlogs:
+        check_suffix("--tlog", t, ("", ".tlog"), "a MAVLink telemetry log")
     return tlogs
 
 

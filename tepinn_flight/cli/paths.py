@@ -47,6 +47,16 @@ def output_format(path: Path, verb: str, csv: bool = False) -> str:
                       "estimate -o FILE.csv` writes an estimate as CSV)")  # fmt: skip
 
 
+def check_suffix(flag: str, path, suffixes: tuple[str, ...], what: str) -> None:
+    """A :class:`~..errors.ConfigError` where ``path``'s suffix is none of ``suffixes`` (lower case; ``""``: none):
+    a file of one kind under another kind's name is opened by the wrong tool, or replaces a file of that kind."""
+    from ..errors import ConfigError
+
+    if Path(path).suffix.lower() not in suffixes:
+        named = " or ".join(x for x in suffixes if x)
+        raise ConfigError(f"{flag} {path}: writes {what}; name it {named}")
+
+
 def file_key(path) -> tuple[int, int] | None:
     """What makes a file itself, whatever path names it (links, ``./``, a folder's name for it): its device and
     inode; None where there is no such file."""

@@ -43,12 +43,16 @@ def run(args) -> int:
     from ..live.replay import replay
     from ..live.router import parse_endpoint
     from ..live.view import ViewConfig
+    from .paths import check_suffix, refuse_overwriting_inputs
 
     if not args.speed > 0:
         raise ConfigError("--speed must be > 0")
     if args.duration is not None and not args.duration > 0:
         raise ConfigError("--duration must be > 0")
     parse_endpoint(args.to)  # a malformed endpoint fails before the log is read
+    if args.rrd:
+        check_suffix("--rrd", args.rrd, (".rrd",), "a Rerun recording")
+        refuse_overwriting_inputs([("--rrd", args.rrd)], [args.log])
     stop = threading.Event()
 
     def on_signal(signum, frame):  # noqa: ARG001
