@@ -426,6 +426,20 @@ def is_record(path: str | os.PathLike) -> bool:
         return False
 
 
+def is_flight_record(path: str | os.PathLike) -> bool:
+    """True for a Parquet file whose metadata says it is a flight record (``format_version``): not an estimate's
+    output or another table. Reads the schema only."""
+    import pyarrow.parquet as pq
+
+    if not is_record(path):
+        return False
+    try:
+        meta = pq.read_schema(path).metadata or {}
+    except Exception:  # noqa: BLE001 - a damaged file: whoever reads it says so
+        return True
+    return b"format_version" in meta
+
+
 def _json_default(v):
     if isinstance(v, (np.integer,)):
         return int(v)

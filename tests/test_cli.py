@@ -270,6 +270,27 @@ def test_estimate_resume_skips_only_outputs_of_the_same_source_model_and_setting
     assert run("--resume", "--no-smooth") == {"s1.parquet": False, "s2.parquet": True}
 
 
+def test_estimates_written_inside_the_folder_are_not_taken_as_records(tmp_path, capsys):
+    """``estimate -r DIR -o DIR/est``, then the same with ``--resume``: the folder's scan leaves the estimates it wrote
+    there out (it took them as inputs: the second run refused to replace them, so a killed run could not be resumed),
+    and ``info -r`` reads the records only."""
+    pytest.importorskip("torch")
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    (tmp_path / "sub").mkdir()
+    write_record(synthetic_record(seed=1, duration_s=12.0, rate_hz=100.0), tmp_path / "a.parquet")
+    write_record(synthetic_record(seed=2, duration_s=12.0, rate_hz=100.0), tmp_path / "sub" / "b.parquet")
+    est = tmp_path / "est"
+    assert main(["estimate", "-r", str(tmp_path), "-o", str(est), "--no-smooth", "-q"]) == 0
+    assert sorted(p.name for p in est.iterdir()) == ["a.parquet", "b.parquet"]
+    capsys.readouterr()
+    assert main(["estimate", "-r", str(tmp_path), "-o", str(est), "--no-smooth", "--resume"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert len(out) == 2 and all("skipped (--resume)" in ln for ln in out), out
+    assert main(["info", "-r", str(tmp_path)]) == 0
+
+
 def test_estimate_resume_estimates_again_where_an_offline_step_s_own_settings_changed(tmp_path, capsys, monkeypatch):
     """The offline steps' settings are module defaults no checkpoint carries (a rule changes them, as rule 21
     did the accelerometer-scale reading's): the resume key holds them, so an upgrade does not keep stale outputs."""

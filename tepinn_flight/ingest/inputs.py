@@ -5,7 +5,7 @@ told by their content (:func:`~tepinn_flight.ingest.sniff.sniff`), not by their 
 Files named on the command line are taken as given (the verb reports what it cannot read); only
 the files a folder holds are chosen here. Hidden files and files none of our readers know are left
 out silently: a log folder also holds ``LASTLOG.TXT``, parameter files and the ground station's
-notes.
+notes — and Parquet files that are not flight records, such as the estimates ``estimate`` wrote there.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ import os
 from pathlib import Path
 
 from ..errors import TepinnError
+from ..record import is_flight_record
 from .sniff import FORMATS, sniff
 
 #: formats of the logs ``ingest`` reads (a flight record, Parquet, is already ingested)
@@ -36,6 +37,8 @@ def files_in(folder: str | os.PathLike, formats: frozenset[str], recursive: bool
         try:
             fmt = sniff(f)
         except TepinnError:
+            continue
+        if fmt == "parquet" and not is_flight_record(f):  # an estimate written beside the records, another table
             continue
         if fmt in formats:
             out.append(f)
