@@ -270,6 +270,39 @@ def test_estimate_resume_skips_only_outputs_of_the_same_source_model_and_setting
     assert run("--resume", "--no-smooth") == {"s1.parquet": False, "s2.parquet": True}
 
 
+def test_several_inputs_go_to_a_folder_a_file_named_twice_is_read_once_and_tlog_takes_a_folder(tmp_path, capsys):
+    """Several inputs (or a folder) with ``-o`` named as a file are refused (a folder ``est.csv`` was made); one file
+    given twice (``a.parquet ./a.parquet``) is estimated once (twice before, into two outputs); ``--tlog DIR`` with
+    one record writes DIR/RECORD.tlog (it was refused, naming a ``.parquet`` the user never typed)."""
+    import os
+
+    pytest.importorskip("torch")
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+    from tepinn_flight.tlog_writer import write_tlog
+
+    rec = synthetic_record(seed=1, duration_s=12.0, rate_hz=100.0)
+    write_record(rec, tmp_path / "a.parquet")
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        for out in ("est.csv", "est.parquet", "est.tlog"):
+            capsys.readouterr()
+            assert main(["estimate", "a.parquet", "./a.parquet", "-o", out, "-q"]) == 2
+            assert "names a file" in capsys.readouterr().err and not (tmp_path / out).exists()
+        assert main(["estimate", "a.parquet", "./a.parquet", str(tmp_path / "a.parquet"), "-o", "est", "-q",
+                     "--no-smooth"]) == 0  # fmt: skip
+        assert sorted(p.name for p in (tmp_path / "est").iterdir()) == ["a.parquet"]
+    finally:
+        os.chdir(cwd)
+    log = tmp_path / "f.tlog"
+    write_tlog(log, rec)
+    (tmp_path / "tl").mkdir()
+    assert main(["estimate", str(log), "-o", str(tmp_path / "e.parquet"), "--tlog", str(tmp_path / "tl"), "-q",
+                 "--no-smooth"]) == 0  # fmt: skip
+    assert [p.name for p in (tmp_path / "tl").iterdir()] == ["f.tlog"]
+
+
 def test_estimates_written_inside_the_folder_are_not_taken_as_records(tmp_path, capsys):
     """``estimate -r DIR -o DIR/est``, then the same with ``--resume``: the folder's scan leaves the estimates it wrote
     there out (it took them as inputs: the second run refused to replace them, so a killed run could not be resumed),

@@ -137,7 +137,8 @@ def _run(args) -> int:
     if args.yaw and hasattr(fusion, "yaw"):  # the network-centred fusion only (the anchored one has VQF's heading)
         fusion = dataclasses.replace(fusion, yaw=args.yaw)
     paths = collect_records(args.records, args.recursive)
-    from_folder = any(Path(i).is_dir() for i in args.records)  # a folder's outputs go to a folder
+    # a folder's outputs go to a folder, and so do those of several inputs (one file named twice is read once)
+    from_folder = len(args.records) > 1 or any(Path(i).is_dir() for i in args.records)
     outs = output_paths(paths, args.output, from_folder)
     if any(output_format(dst, "estimate", csv=True) == "csv" for dst in outs) and args.resume:
         raise ConfigError("--resume reads the key a Parquet output carries (its source, model and settings); a CSV "
@@ -351,8 +352,8 @@ def _tlog_paths(args, paths, from_folder: bool = False) -> list:
         raise ConfigError(f"--tlog-messages: {exc}") from None
     if not args.tlog_rate >= 0:
         raise ConfigError("--tlog-rate must be >= 0 (0: every sample)")
-    many = len(paths) > 1 or from_folder
-    tlogs = [p.with_suffix(".tlog") if many else p for p in output_paths(paths, args.tlog, from_folder)]
+    into_folder = len(paths) > 1 or from_folder or Path(args.tlog).is_dir() or args.tlog.endswith(("/", "\\"))
+    tlogs = [p.with_suffix(".tlog") if into_folder else p for p in output_paths(paths, args.tlog, from_folder)]
     for t in tlogs:
         check_suffix("--tlog", t, ("", ".tlog"), "a MAVLink telemetry log")
     return tlogs

@@ -45,7 +45,7 @@ def run(args) -> int:
     from ..ingest.inputs import LOG_FORMATS, expand
 
     logs = expand(args.logs, LOG_FORMATS, recursive=args.recursive)
-    outs = output_paths(logs, args.output, from_folder=any(Path(i).is_dir() for i in args.logs))
+    outs = output_paths(logs, args.output, from_folder=len(args.logs) > 1 or any(Path(i).is_dir() for i in args.logs))
     for out in outs:  # before any work: a record is Parquet, whatever the name says
         output_format(out, "ingest")
     refuse_overwriting_inputs([("-o", o) for o in outs], logs)

@@ -6,12 +6,22 @@ from __future__ import annotations
 from pathlib import Path
 
 
+#: names that are files, not folders: several inputs' outputs under one of them would make a folder so named
+FILE_SUFFIXES = (".parquet", ".pq", ".csv", ".tlog")
+
+
 def output_paths(logs: list[Path], output: str | None, from_folder: bool = False) -> list[Path]:
     """One output per log: ``-o`` is a file for one log, a folder for several (or where ``from_folder``: the logs
-    came from a folder given on the command line, however many it held)."""
+    came from a folder, or from several items, given on the command line, however many it held). A name with a
+    file's suffix for a folder is a :class:`~..errors.ConfigError` (it made a folder named ``est.csv``)."""
     if (output is not None and len(logs) == 1 and not from_folder and not Path(output).is_dir()
             and not output.endswith(("/", "\\"))):
         return [Path(output)]
+    if output is not None and not Path(output).is_dir() and Path(output).suffix.lower() in FILE_SUFFIXES:
+        from ..errors import ConfigError
+
+        raise ConfigError(f"{output} names a file; the outputs of several inputs, or of a folder, go to a folder: give "
+                          "a folder name")  # fmt: skip
     folder = Path(output) if output is not None else Path.cwd()
     names: list[Path] = []
     seen: set[str] = set()

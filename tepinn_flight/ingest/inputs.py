@@ -64,4 +64,20 @@ def expand(items: list[str], formats: frozenset[str] = RECORD_OR_LOG_FORMATS, re
             out.append(p)
         else:
             raise TepinnError("no such file or folder", p)
+    return _once_each(out)
+
+
+def _once_each(paths: list[Path]) -> list[Path]:
+    """``paths`` with a file named twice (``a.BIN ./a.BIN``, a file and its folder, a link and its target) kept once,
+    at its first place: it would be read twice and give two outputs."""
+    seen, out = set(), []
+    for p in paths:
+        try:
+            st = p.stat()
+            key = (st.st_dev, st.st_ino)
+        except OSError:
+            key = p
+        if key not in seen:
+            seen.add(key)
+            out.append(p)
     return out
