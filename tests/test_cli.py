@@ -303,6 +303,31 @@ def test_several_inputs_go_to_a_folder_a_file_named_twice_is_read_once_and_tlog_
     assert [p.name for p in (tmp_path / "tl").iterdir()] == ["f.tlog"]
 
 
+def test_estimate_yaw_zero_keeps_the_tilt_and_sets_the_heading_to_zero(tmp_path):
+    """``--yaw zero`` with the shipped (filter-anchored) model: it was ignored (the output was the default one, its
+    heading VQF's). Now each row has the default output's roll and pitch (scipy's Euler angles) and a heading of 0;
+    ``--resume`` tells the two outputs apart."""
+    import numpy as np
+    import pandas as pd
+    from scipy.spatial.transform import Rotation
+
+    pytest.importorskip("torch")
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import EST_Q_COLS, write_record
+
+    src = tmp_path / "s.parquet"
+    write_record(synthetic_record(seed=3, duration_s=12.0, rate_hz=100.0), src)
+    assert main(["estimate", str(src), "-o", str(tmp_path / "d.parquet"), "-q"]) == 0
+    assert main(["estimate", str(src), "-o", str(tmp_path / "z.parquet"), "-q", "--yaw", "zero"]) == 0
+    d, z = (pd.read_parquet(tmp_path / n)[EST_Q_COLS].to_numpy() for n in ("d.parquet", "z.parquet"))
+    ed, ez = (Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_euler("ZYX") for q in (d, z))  # yaw, pitch, roll
+    assert np.abs(ed[:, 0]).max() > 0.1  # the default output has a heading to take out
+    assert np.abs(ez[:, 0]).max() < 1e-9
+    np.testing.assert_allclose(ez[:, 1:], ed[:, 1:], atol=1e-9)
+    assert main(["estimate", str(src), "-o", str(tmp_path / "d.parquet"), "-q", "--yaw", "zero", "--resume"]) == 0
+    np.testing.assert_allclose(pd.read_parquet(tmp_path / "d.parquet")[EST_Q_COLS].to_numpy(), z)  # estimated again
+
+
 def test_estimates_written_inside_the_folder_are_not_taken_as_records(tmp_path, capsys):
     """``estimate -r DIR -o DIR/est``, then the same with ``--resume``: the folder's scan leaves the estimates it wrote
     there out (it took them as inputs: the second run refused to replace them, so a killed run could not be resumed),

@@ -134,8 +134,10 @@ def _run(args) -> int:
         fusion = dataclasses.replace(fusion, smoother=True)
     if args.no_smooth and getattr(fusion, "smoother", False):
         fusion = dataclasses.replace(fusion, smoother=False)
-    if args.yaw and hasattr(fusion, "yaw"):  # the network-centred fusion only (the anchored one has VQF's heading)
+    if args.yaw and hasattr(fusion, "yaw"):  # the network-centred fusion's own setting
         fusion = dataclasses.replace(fusion, yaw=args.yaw)
+    # the anchored estimator's heading is VQF's: --yaw zero takes it out of the output (it was ignored)
+    yaw_zero = args.yaw == "zero" and not hasattr(fusion, "yaw")
     paths = collect_records(args.records, args.recursive)
     # a folder's outputs go to a folder, and so do those of several inputs (one file named twice is read once)
     from_folder = len(args.records) > 1 or any(Path(i).is_dir() for i in args.records)
@@ -151,7 +153,7 @@ def _run(args) -> int:
     from tqdm import tqdm
 
     opts = _Options(args.quiet, args.tlog_messages, args.tlog_rate, args.source_log, ckpt_path.name,
-                    _settings_key(ckpt_path, fusion), args.resume)  # fmt: skip
+                    _settings_key(ckpt_path, fusion) + ("|yaw=zero" if yaw_zero else ""), args.resume, yaw_zero)  # fmt: skip
     jobs = [(src, dst, tlogs[i] if tlogs else None) for i, (src, dst) in enumerate(zip(paths, outs))]
     if jobs:  # a cold numba cache (the first run after installing): its loops compiled in two processes at once
         from ..jit_warmup import warm_up
@@ -184,6 +186,7 @@ class _Options:
     model_name: str
     settings_key: str = ""  # the model file and the estimator's settings (:func:`_settings_key`)
     resume: bool = False
+    yaw_zero: bool = False  # the output's heading set to 0 (--yaw zero with the anchored estimator)
 
 
 def _settings_key(ckpt_path, fusion) -> str:
@@ -234,7 +237,8 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
     from ..ingest.sniff import sniff
     from ..csv_table import write_csv
     from ..model.estimate import REPORTED_STEPS, estimate_record
-    from ..record import atomic_write
+    from ..quat import quat_zero_yaw
+    from ..record import EST_Q_COLS, atomic_write
     from .paths import output_format
 
     out, err = [], []
@@ -260,6 +264,11 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
                        "the previous sample")  # fmt: skip
         with np.errstate(invalid="ignore"):
             df = estimate_record(model, rec, fusion)
+        if opts.yaw_zero:  # roll and pitch kept, the heading 0 (the paper's 6-D output)
+            q = df[EST_Q_COLS].to_numpy()
+            ok = np.all(np.isfinite(q), 1)
+            q[ok] = quat_zero_yaw(q[ok])
+            df[EST_Q_COLS] = q
     except TepinnError as exc:
         err.append(f"tepinn-flight estimate: error: {exc if exc.path else f'{src}: {exc}'}")
         return out, err, 1
