@@ -771,3 +771,27 @@ def test_demo_short(tmp_path):
     assert main(["demo", "-o", str(out), "--duration", "12", "--rate", "100", "-q"]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert "tepinn" in metrics["dataset"] and (out / "report.md").exists()
+
+
+def test_option_values_that_misbehaved_are_refused_in_one_line(tmp_path, capsys):
+    """``export --opset`` below 1 (0 silently wrote 17) or one torch cannot write (an internal error before), ``-o``
+    under a file, and ``estimate --tlog-rate inf`` (a tlog with one estimate): one line each, exit 2, nothing
+    written."""
+    pytest.importorskip("torch")
+    (tmp_path / "afile").write_text("x")
+    src = tmp_path / "s.parquet"
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    write_record(synthetic_record(seed=1, duration_s=6.0, rate_hz=100.0), src)
+    cases = ((["export", "-o", str(tmp_path / "m.onnx"), "--opset", "0"], "positive"),
+             (["export", "-o", str(tmp_path / "m.onnx"), "--opset", "7"], "torch cannot export the network at this opset"),
+             (["export", "-o", str(tmp_path / "afile" / "m.onnx")], "is a file, not a folder"),
+             (["estimate", str(src), "-o", str(tmp_path / "e.parquet"), "--tlog", str(tmp_path / "e.tlog"),
+               "--tlog-rate", "inf"], "--tlog-rate"))  # fmt: skip
+    for argv, words in cases:
+        capsys.readouterr()
+        assert main([*argv, "-q"]) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0] and ": error: " in err[0], (argv, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "s.parquet"]

@@ -359,8 +359,8 @@ def _tlog_paths(args, paths, from_folder: bool = False) -> list:
         parse_messages(args.tlog_messages)
     except ValueError as exc:
         raise ConfigError(f"--tlog-messages: {exc}") from None
-    if not args.tlog_rate >= 0:
-        raise ConfigError("--tlog-rate must be >= 0 (0: every sample)")
+    if not 0 <= args.tlog_rate < float("inf"):
+        raise ConfigError("--tlog-rate must be >= 0 and finite (0: every sample)")
     into_folder = len(paths) > 1 or from_folder or Path(args.tlog).is_dir() or args.tlog.endswith(("/", "\\"))
     tlogs = [p.with_suffix(".tlog") if into_folder else p for p in output_paths(paths, args.tlog, from_folder)]
     for t in tlogs:

@@ -41,7 +41,8 @@ def run(args) -> int:
     if not is_onnx_path(out):
         raise ConfigError(f"-o {out}: the output must end in .onnx")
     if not out.parent.is_dir():
-        raise ConfigError(f"-o {out}: folder {out.parent} does not exist")
+        what = "is a file, not a folder" if out.parent.exists() else "does not exist"
+        raise ConfigError(f"-o {out}: folder {out.parent} {what}")
     try:
         import onnx  # noqa: F401
         import torch  # noqa: F401
@@ -49,8 +50,17 @@ def run(args) -> int:
         raise TepinnError(f"export needs torch and onnx ({exc}); pip install 'tepinn-flight[torch]'") from None
     from ..model.export import OPSET, check_export, export_onnx
 
-    opset = args.opset or OPSET
-    export_onnx(src, out, opset)
+    if args.opset is not None and args.opset < 1:
+        raise ConfigError(f"--opset {args.opset}: an ONNX opset is a positive number (default {OPSET})")
+    opset = OPSET if args.opset is None else args.opset
+    try:
+        export_onnx(src, out, opset)
+    except Exception as exc:  # noqa: BLE001 - torch's exporter raises several types for an opset it cannot write
+        if opset == OPSET:
+            raise  # the tested opset failing is a bug: an internal error
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:160]
+        raise TepinnError(f"--opset {opset}: torch cannot export the network at this opset ({first}); "
+                          f"{OPSET} is the one tested") from None  # fmt: skip
     msg = f"{src} -> {out}: opset {opset}, {out.stat().st_size / 1024:.0f} KiB"
     if not args.no_check:
         err = check_export(src, out)
