@@ -103,6 +103,10 @@ def test_finetuning_needs_data_and_says_so_in_one_line(tmp_path, capsys):
     empty.mkdir()
     assert main(["train", "--init", "default", "--data", str(empty), "-o", str(tmp_path / "r")]) == 2
     assert "no logs" in capsys.readouterr().err
+    for extra in (["--set", "optim.epochs=3"], ["--resume"], ["--device", "cpu"]):  # (they were taken and ignored)
+        assert main(["train", "--init", "default", "--data", str(empty), "-o", str(tmp_path / "r"), *extra]) == 2
+        assert f"{extra[0]}: options of a recipe" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
 
 
 def test_finetuning_does_not_learn_from_a_reference_that_is_not_the_imus_attitude(tmp_path, capsys):

@@ -378,7 +378,8 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
         # epochs after the checkpoint (a killed run) are redone: drop their lines
         lines = "".join(json.dumps(r) + "\n" for r in history)
         atomic_write(out / "metrics.jsonl", lambda tmp: Path(tmp).write_text(lines))
-        log(f"training on {len(train_recs)} flights ({len(bank)} windows), validating on {len(val_recs)} "
+        held = f"validating on {len(val_recs)}" if va_idx else "no flight held out: validating on the training"
+        log(f"training on {len(train_recs)} flights ({len(bank)} windows), {held} "
             f"flights ({len(val_ends)} windows), {world} process(es)")  # fmt: skip
 
     t_start = time.monotonic()
@@ -470,7 +471,8 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
                 # the budget is wall time: a slower machine trains fewer epochs within it (session 33: 21-37 of the
                 # default recipe's 80 on a machine ~2.5x slower than the shipped run's 73)
                 log(f"stopping at the time limit ({cfg.optim.max_minutes} min) after {epoch + 1} of {cfg.optim.epochs} "
-                    "epochs (a slower machine trains fewer within it: --set optim.max_minutes=N to train longer)")
+                    "epochs (a slower machine trains fewer within it: to train longer, raise the limit — --set "
+                    "optim.max_minutes=N for a recipe, --minutes N when fine-tuning)")
             stop_reason = "time_limit"
             break
     if bar:
