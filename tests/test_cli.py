@@ -775,8 +775,8 @@ def test_demo_short(tmp_path):
 
 def test_option_values_that_misbehaved_are_refused_in_one_line(tmp_path, capsys):
     """``export --opset`` below 1 (0 silently wrote 17) or one torch cannot write (an internal error before), ``-o``
-    under a file, and ``estimate --tlog-rate inf`` (a tlog with one estimate): one line each, exit 2, nothing
-    written."""
+    under a file, ``estimate --tlog-rate inf`` (a tlog with one estimate) and ``evaluate`` with a warm-up longer
+    than the record (an empty report, exit 0, numpy's warnings): one line each, exit 2, nothing written."""
     pytest.importorskip("torch")
     (tmp_path / "afile").write_text("x")
     src = tmp_path / "s.parquet"
@@ -788,7 +788,9 @@ def test_option_values_that_misbehaved_are_refused_in_one_line(tmp_path, capsys)
              (["export", "-o", str(tmp_path / "m.onnx"), "--opset", "7"], "torch cannot export the network at this opset"),
              (["export", "-o", str(tmp_path / "afile" / "m.onnx")], "is a file, not a folder"),
              (["estimate", str(src), "-o", str(tmp_path / "e.parquet"), "--tlog", str(tmp_path / "e.tlog"),
-               "--tlog-rate", "inf"], "--tlog-rate"))  # fmt: skip
+               "--tlog-rate", "inf"], "--tlog-rate"),
+             (["evaluate", str(src), "-o", str(tmp_path / "rep"), "--no-peers", "--warmup-s", "1e9"],
+              "no sample left to score"))  # fmt: skip
     for argv, words in cases:
         capsys.readouterr()
         assert main([*argv, "-q"]) == 2, argv

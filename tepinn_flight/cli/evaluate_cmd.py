@@ -134,7 +134,14 @@ def _run(args) -> int:
     from ..jit_warmup import warm_up
 
     warm_up(filters=True)  # a cold numba cache: the estimators' loops compiled in two processes at once
-    result = evaluate(records, estimators, hcfg, progress=not args.quiet, notes=notes)
+    import warnings
+
+    with warnings.catch_warnings():  # (numpy's "All-NaN" where nothing is scored: said below in one line)
+        warnings.simplefilter("ignore", RuntimeWarning)
+        result = evaluate(records, estimators, hcfg, progress=not args.quiet, notes=notes)
+    if not any(r.get("n_scored_common", 0) for r in result.records):
+        raise TepinnError(f"no sample left to score: the {len(records)} record(s) are shorter than the warm-up "
+                          f"(--warmup-s {args.warmup_s:g}) or have no reference after it")  # fmt: skip
     if args.noise_sweep:
         result.noise_sweep = noise_sweep(records, estimators, hcfg, progress=not args.quiet, notes=result.notes)
     files = write_report(result, args.output)
