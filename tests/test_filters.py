@@ -225,3 +225,17 @@ def test_check_inputs_gives_the_loops_one_array_type_and_leaves_the_callers_arra
         for a, o in zip(args, originals):
             np.testing.assert_array_equal(a, o)  # NaN rows zeroed in copies, not in place
     assert want[0][3, 1] == 0.0 and np.all(want[1][5] == 0.0) and np.all(want[3][7] == 0.0)
+
+
+def test_ekf_settings_must_be_finite_but_the_gate_may_be_off():
+    """``--set ekf.acc_noise_m_s2=inf`` was taken (an EKF trusting no accelerometer, scored at 0 % coverage): every
+    setting is finite and ≥ 0, except the accelerometer gate, whose default, inf, means no gate."""
+    import math
+
+    from tepinn_flight.errors import ConfigError
+
+    for k in ("acc_noise_m_s2", "gyro_noise_rad_s_sqrt_hz", "rest_min_s"):
+        for bad in (math.inf, math.nan, -1.0):
+            with pytest.raises(ConfigError, match=f"ekf.{k} must be a finite number"):
+                EkfParams(**{k: bad})
+    assert EkfParams().acc_gate_m_s2 == math.inf and EkfParams(acc_gate_m_s2=3.0).acc_gate_m_s2 == 3.0

@@ -66,8 +66,10 @@ class EkfParams:
     def __post_init__(self):
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
-            if not (isinstance(v, (int, float)) and not math.isnan(v) and v >= 0):
-                raise ConfigError(f"ekf.{f.name} must be a number >= 0, got {v!r}")
+            # (inf only where it means "no limit"; a noise of inf made a filter that trusts nothing, scored as 0 %)
+            no_limit = f.name == "acc_gate_m_s2" and v == math.inf
+            if not (isinstance(v, (int, float)) and (math.isfinite(v) or no_limit) and v >= 0):
+                raise ConfigError(f"ekf.{f.name} must be a finite number >= 0, got {v!r}")
         if self.acc_noise_m_s2 <= 0 or self.init_attitude_sigma_rad <= 0:
             raise ConfigError("ekf.acc_noise_m_s2 and ekf.init_attitude_sigma_rad must be > 0")
 
