@@ -365,3 +365,27 @@ def test_per_record_dots_labelled_and_rate_bins_counted(baseline_result):
     counts = baseline_result.dataset["ekf"]["dynamic_error_n"]
     assert sum(counts) > 0 and ticks and all(f"n = {n}" in tk for tk, n in zip(ticks, counts))
     plt.close(fig)
+
+
+def test_a_report_stopped_half_way_leaves_no_report_md_and_no_earlier_figure_stays(baseline_result, tmp_path, monkeypatch):
+    """``report.md`` marks a complete report. Writing into a folder that holds an earlier one took its figures apart
+    one by one and left its ``report.md`` (describing other records) until the end: a run stopped half way left the
+    old Markdown beside new figures, and an earlier ``--noise-sweep`` figure stayed for good."""
+    import tepinn_flight.evaluation.report as rep
+
+    out = tmp_path / "rep"
+    rep.write_report(baseline_result, out)
+    (out / rep.FIGURES["error_vs_noise"]).write_bytes(b"an earlier run's noise sweep")
+    assert (out / "report.md").exists()
+
+    def stopped(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setitem(rep.write_report.__globals__, "fig_euler", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        rep.write_report(baseline_result, out)
+    left = {p.name for p in out.iterdir()}
+    assert "report.md" not in left and "metrics.json" not in left and rep.FIGURES["error_vs_noise"] not in left, left
+    monkeypatch.undo()
+    rep.write_report(baseline_result, out)
+    assert (out / "report.md").exists() and not (out / rep.FIGURES["error_vs_noise"]).exists()

@@ -454,9 +454,18 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
 
 
 def write_report(result: EvalResult, out_dir: str | os.PathLike, title: str = "Attitude estimation report") -> list[Path]:
-    """Write figures, ``metrics.json`` and (last) ``report.md`` into ``out_dir``; returns the paths."""
+    """Write figures, ``metrics.json`` and (last) ``report.md`` into ``out_dir``; returns the paths.
+
+    An earlier report in ``out_dir`` is taken apart first — its ``report.md`` before anything else, then its other
+    files — so that a run stopped half way leaves no ``report.md`` beside the new figures (it left the old one,
+    describing other records), and no figure of an earlier run stays (a ``--noise-sweep`` one)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    for name in ("report.md", HTML_REPORT, "metrics.json", *FIGURES.values()):
+        try:
+            (out / name).unlink()
+        except FileNotFoundError:
+            pass
     colours = colour_map(list(result.dataset))
     makers = {
         "quaternion": fig_quaternion, "euler": fig_euler, "inclination_error": fig_inclination_error,
