@@ -902,3 +902,15 @@ def test_outputs_of_the_bridge_and_replay_replace_no_input_and_bad_values_are_re
     capsys.readouterr()
     assert main(["replay", str(rrd), "--to", "udpout:127.0.0.1:14550", "--rrd", str(rrd)]) == 2
     assert "is the input" in capsys.readouterr().err and rrd.read_bytes() == log.read_bytes()
+
+
+def test_the_summary_blames_the_missing_estimates_not_the_autopilot_when_there_are_none():
+    """With no TE-PINN estimate (an IMU instance that never came, a 2 Hz telemetry IMU) the summary said the
+    autopilot sent no ATTITUDE, although it had: it now names the missing estimates; with estimates and no
+    ATTITUDE it still names the autopilot's."""
+    from tepinn_flight.live.status import format_summary
+
+    none = format_summary({"estimates": {"count": 0}})
+    assert "no TE-PINN estimates" in none and "from the autopilot" not in none
+    some = format_summary({"estimates": {"count": 12}})
+    assert "no ATTITUDE / ATTITUDE_QUATERNION from the autopilot" in some

@@ -206,6 +206,8 @@ def format_summary(s: dict) -> str:
             f"  vs EKF (incl.) : mean {dif['mean']:.2f} / p50 {dif['p50']:.2f} / p90 {dif['p90']:.2f} / "
             f"max {dif['max']:.2f} deg, rms {dif.get('rms', float('nan')):.2f} deg over {dif['n']} estimates"
         )
+    elif not est.get("count"):  # (the autopilot's attitude may well have come: nothing of ours to pair it with)
+        lines.append("  vs EKF (incl.) : no comparison (no TE-PINN estimates: see the IMU lines above)")
     else:
         lines.append("  vs EKF (incl.) : no comparison (no ATTITUDE / ATTITUDE_QUATERNION from the autopilot)")
     if s.get("tlog"):
