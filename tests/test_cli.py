@@ -776,7 +776,8 @@ def test_demo_short(tmp_path):
 def test_option_values_that_misbehaved_are_refused_in_one_line(tmp_path, capsys):
     """``export --opset`` below 1 (0 silently wrote 17) or one torch cannot write (an internal error before), ``-o``
     under a file, ``estimate --tlog-rate inf`` (a tlog with one estimate) and ``evaluate`` with a warm-up longer
-    than the record (an empty report, exit 0, numpy's warnings): one line each, exit 2, nothing written."""
+    than the record (an empty report, exit 0, numpy's warnings), ``--source-log`` for a record not from a tlog (the
+    estimate was written first): one line each, exit 2, nothing written."""
     pytest.importorskip("torch")
     (tmp_path / "afile").write_text("x")
     src = tmp_path / "s.parquet"
@@ -790,7 +791,9 @@ def test_option_values_that_misbehaved_are_refused_in_one_line(tmp_path, capsys)
              (["estimate", str(src), "-o", str(tmp_path / "e.parquet"), "--tlog", str(tmp_path / "e.tlog"),
                "--tlog-rate", "inf"], "--tlog-rate"),
              (["evaluate", str(src), "-o", str(tmp_path / "rep"), "--no-peers", "--warmup-s", "1e9"],
-              "no sample left to score"))  # fmt: skip
+              "no sample left to score"),
+             (["estimate", str(src), "-o", str(tmp_path / "e.parquet"), "--tlog", str(tmp_path / "e.tlog"),
+               "--source-log", str(src)], "was not ingested from a tlog"))  # fmt: skip
     for argv, words in cases:
         capsys.readouterr()
         assert main([*argv, "-q"]) == 2, argv

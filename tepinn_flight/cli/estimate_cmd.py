@@ -355,6 +355,9 @@ def _tlog_paths(args, paths, from_folder: bool = False) -> list:
         raise ConfigError("--source-log names the source of one record; give one record")
     if args.source_log and not Path(args.source_log).is_file():
         raise ConfigError(f"--source-log {args.source_log}: no such file")
+    if args.source_log and paths and _source_kind(paths[0]) not in ("tlog", None):  # (before any work, not after it)
+        raise ConfigError(f"--source-log: {paths[0]} was not ingested from a tlog ({_source_kind(paths[0])}); a tlog "
+                          "with the estimates is made from the tlog the record came from")  # fmt: skip
     try:
         parse_messages(args.tlog_messages)
     except ValueError as exc:
@@ -366,6 +369,28 @@ def _tlog_paths(args, paths, from_folder: bool = False) -> list:
     for t in tlogs:
         check_suffix("--tlog", t, ("", ".tlog"), "a MAVLink telemetry log")
     return tlogs
+
+
+def _source_kind(path) -> str | None:
+    """What a record or log came from: a log's own format, a record's ``source_kind`` (None: not told)."""
+    import json
+
+    from ..errors import TepinnError
+    from ..ingest.sniff import sniff
+
+    try:
+        fmt = sniff(path)
+    except TepinnError:
+        return None  # (whoever reads it says what is wrong)
+    if fmt != "parquet":
+        return fmt
+    import pyarrow.parquet as pq
+
+    try:
+        raw = (pq.read_schema(path).metadata or {}).get(b"source_kind")
+        return None if raw is None else str(json.loads(raw))
+    except (OSError, ValueError):
+        return None
 
 
 def _write_tlog(opts, src, rec, df, dst) -> tuple[list[str], list[str]]:
