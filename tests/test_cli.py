@@ -793,7 +793,8 @@ def test_option_values_that_misbehaved_are_refused_in_one_line(tmp_path, capsys)
              (["evaluate", str(src), "-o", str(tmp_path / "rep"), "--no-peers", "--warmup-s", "1e9"],
               "no sample left to score"),
              (["estimate", str(src), "-o", str(tmp_path / "e.parquet"), "--tlog", str(tmp_path / "e.tlog"),
-               "--source-log", str(src)], "was not ingested from a tlog"))  # fmt: skip
+               "--source-log", str(src)], "was not ingested from a tlog"),
+             (["evaluate", str(src), "-o", str(tmp_path / "report.md")], "evaluate writes a report folder"))  # fmt: skip
     for argv, words in cases:
         capsys.readouterr()
         assert main([*argv, "-q"]) == 2, argv

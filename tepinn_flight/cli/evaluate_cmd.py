@@ -70,10 +70,15 @@ def _run(args) -> int:
     from ..evaluation.report import write_report
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
     from ..ingest import load_record
+    from pathlib import Path
+
     from ..record import check_output
     from ..evaluation.left_out import left_out
     from .paths import collect_records, read_records
 
+    if Path(args.output).suffix.lower() in (".md", ".html", ".json", ".png") and not Path(args.output).is_dir():
+        raise ConfigError(f"-o {args.output} names a file; evaluate writes a report folder (report.md, report.html, "
+                          "metrics.json, figures): give a folder name")  # fmt: skip
     check_output(args.output, folder=True)  # before the (long) evaluation
     cfg = load_suite_config(args.config, args.set)
     try:
