@@ -354,6 +354,24 @@ def _session_pids(sid: int) -> list[int]:
     return out
 
 
+def _session_ends(sid: int, timeout_s: float = 15.0) -> bool:
+    """Whether every process of the session has ended within ``timeout_s``."""
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while _session_pids(sid) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    return not _session_pids(sid)
+
+
+def _kill_session(sid: int) -> None:
+    """SIGKILL to whatever of the session is left (a failed test leaves no process behind)."""
+    import signal
+
+    for pid in _session_pids(sid):
+        os.kill(pid, signal.SIGKILL)
+
+
 @pytest.mark.slow
 def test_kill_9_of_a_campaign_takes_its_workers_with_it(tmp_path):
     """kill -9 of a 2-worker campaign: its worker processes die too instead of flying their flights
@@ -380,13 +398,9 @@ def test_kill_9_of_a_campaign_takes_its_workers_with_it(tmp_path):
         time.sleep(1.0)  # the workers are flying
         os.kill(proc.pid, signal.SIGKILL)
         proc.wait()
-        deadline = time.monotonic() + 15
-        while _session_pids(proc.pid) and time.monotonic() < deadline:
-            time.sleep(0.2)
-        assert not _session_pids(proc.pid), "worker processes outlived the killed campaign"
+        assert _session_ends(proc.pid), "worker processes outlived the killed campaign"
     finally:
-        for pid in _session_pids(proc.pid):
-            os.kill(pid, signal.SIGKILL)
+        _kill_session(proc.pid)
 
 
 @pytest.mark.slow
@@ -418,13 +432,9 @@ def test_sigterm_of_estimate_with_workers_stops_them_and_leaves_no_partial_file(
         os.kill(proc.pid, signal.SIGTERM)
         _, err = proc.communicate(timeout=60)  # (returns once every process holding the pipes has ended)
         assert proc.returncode == 143 and err.strip().endswith("tepinn-flight estimate: terminated"), err
-        deadline = time.monotonic() + 15
-        while _session_pids(proc.pid) and time.monotonic() < deadline:
-            time.sleep(0.2)
-        assert not _session_pids(proc.pid), "worker processes outlived the terminated estimate"
+        assert _session_ends(proc.pid), "worker processes outlived the terminated estimate"
     finally:
-        for pid in _session_pids(proc.pid):
-            os.kill(pid, signal.SIGKILL)
+        _kill_session(proc.pid)
     assert not (out.exists() and list(out.glob(".*"))), "a temporary was left"
     done = len(list(out.glob("*.parquet"))) if out.exists() else 0
     assert done < 6, "it finished before the signal: the test saw nothing"
