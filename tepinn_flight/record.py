@@ -259,6 +259,16 @@ def check_output(path: str | os.PathLike, folder: bool = False) -> Path:
     return path
 
 
+def file_key(path) -> tuple[int, int] | None:
+    """What makes a file itself, whatever path names it (links, ``./``, a folder's name for it): its device and
+    inode; None where there is no such file."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
 def atomic_write(path: str | os.PathLike, write_fn) -> None:
     """Call ``write_fn(tmp_path)`` then rename onto ``path``; no partial file survives a crash.
 

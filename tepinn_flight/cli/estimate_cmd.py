@@ -399,7 +399,7 @@ def _write_tlog(opts, src, rec, df, dst) -> tuple[list[str], list[str]]:
 
     from ..errors import ConfigError
     from ..estimate_tlog import parse_messages, write_estimate_tlog
-    from .paths import file_key
+    from ..record import file_key
 
     out, err = [], []
     source = Path(opts.source_log) if opts.source_log else None

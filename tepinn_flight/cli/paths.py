@@ -67,24 +67,13 @@ def check_suffix(flag: str, path, suffixes: tuple[str, ...], what: str) -> None:
         raise ConfigError(f"{flag} {path}: writes {what}; name it {named}")
 
 
-def file_key(path) -> tuple[int, int] | None:
-    """What makes a file itself, whatever path names it (links, ``./``, a folder's name for it): its device and
-    inode; None where there is no such file."""
-    import os
-
-    try:
-        st = os.stat(path)
-    except OSError:
-        return None
-    return st.st_dev, st.st_ino
-
-
 def refuse_overwriting_inputs(outputs, inputs) -> None:
     """A :class:`~..errors.ConfigError` before any work where an output is one of the inputs (``outputs``: pairs of
     the option that names it and its path; ``inputs``: paths): writing it would replace a log or record the run
     reads — ``estimate r.parquet -o r.parquet``, a folder estimated into itself beside its records, ``--tlog``
     naming the source tlog."""
     from ..errors import ConfigError
+    from ..record import file_key
 
     given = {}
     for p in inputs:

@@ -14,7 +14,7 @@ import os
 from pathlib import Path
 
 from ..errors import TepinnError
-from ..record import is_flight_record
+from ..record import file_key, is_flight_record
 from .sniff import FORMATS, sniff
 
 #: formats of the logs ``ingest`` reads (a flight record, Parquet, is already ingested)
@@ -72,11 +72,7 @@ def _once_each(paths: list[Path]) -> list[Path]:
     at its first place: it would be read twice and give two outputs."""
     seen, out = set(), []
     for p in paths:
-        try:
-            st = p.stat()
-            key = (st.st_dev, st.st_ino)
-        except OSError:
-            key = p
+        key = file_key(p) or p
         if key not in seen:
             seen.add(key)
             out.append(p)
