@@ -40,6 +40,26 @@ def terminate_on_sigterm():
         signal.signal(signal.SIGTERM, old)
 
 
+@contextmanager
+def signals_held():
+    """Ctrl-C and SIGTERM held while the block runs — a pool being started, whose ``__init__`` cleans up after an
+    ``Exception`` but not after a ``KeyboardInterrupt``: workers half started were left behind, and a campaign
+    resumed and terminated at that moment hung. One that came is raised when the block has ended (in the main
+    thread; elsewhere nothing changes)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    came: list[int] = []
+    old = {s: signal.signal(s, lambda signum, frame: came.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+    if came:
+        raise Terminated if came[0] == signal.SIGTERM else KeyboardInterrupt
+
+
 def worker_init(main_pid: int | None = None) -> None:
     """A pool worker's start: ignore Ctrl-C and SIGTERM's conversion (the main process terminates its workers), and
     exit when ``main_pid`` is gone (a watchdog thread polls it every 0.5 s)."""

@@ -914,3 +914,23 @@ def test_the_summary_blames_the_missing_estimates_not_the_autopilot_when_there_a
     assert "no TE-PINN estimates" in none and "from the autopilot" not in none
     some = format_summary({"estimates": {"count": 12}})
     assert "no ATTITUDE / ATTITUDE_QUATERNION from the autopilot" in some
+
+
+def test_benchmark_json_cannot_replace_a_trial_it_reads(tmp_path, capsys):
+    """``benchmark broad DIR --json DIR/TRIAL.hdf5`` replaced the trial with its JSON (exit 3, the harness check's):
+    the JSON must be named .json and be none of the folder's files. One line, exit 2, the folder as it was."""
+    import hashlib
+
+    from tepinn_flight.cli.main import main
+
+    trial = tmp_path / "broad_99_x.hdf5"
+    trial.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(200))
+    pub = tmp_path / "published_madgwick_average_rmse.json"
+    pub.write_text("{}")
+    before = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in tmp_path.iterdir()}
+    for target, words in ((trial, "name it .json"), (pub, "is the input")):
+        capsys.readouterr()
+        assert main(["benchmark", "broad", str(tmp_path), "--check-only", "--json", str(target), "-q"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0], err
+    assert {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in tmp_path.iterdir()} == before

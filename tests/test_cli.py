@@ -777,7 +777,9 @@ def test_option_values_that_misbehaved_are_refused_in_one_line(tmp_path, capsys)
     """``export --opset`` below 1 (0 silently wrote 17) or one torch cannot write (an internal error before), ``-o``
     under a file, ``estimate --tlog-rate inf`` (a tlog with one estimate) and ``evaluate`` with a warm-up longer
     than the record (an empty report, exit 0, numpy's warnings), ``--source-log`` for a record not from a tlog (the
-    estimate was written first): one line each, exit 2, nothing written."""
+    estimate was written first), EKF tuning on records with nothing to score (its first grid point reported as
+    tuned), ``replay --speed inf``, ``simulate`` with ``--tlog`` naming the record: one line each, exit 2, nothing
+    written."""
     pytest.importorskip("torch")
     (tmp_path / "afile").write_text("x")
     src = tmp_path / "s.parquet"
@@ -785,6 +787,8 @@ def test_option_values_that_misbehaved_are_refused_in_one_line(tmp_path, capsys)
     from tepinn_flight.record import write_record
 
     write_record(synthetic_record(seed=1, duration_s=6.0, rate_hz=100.0), src)
+    short = tmp_path / "short.parquet"  # (EKF tuning on it: nothing after the warm-up; "tuned" was reported before)
+    write_record(synthetic_record(seed=2, duration_s=5.0, rate_hz=100.0), short)
     cases = ((["export", "-o", str(tmp_path / "m.onnx"), "--opset", "0"], "positive"),
              (["export", "-o", str(tmp_path / "m.onnx"), "--opset", "7"], "torch cannot export the network at this opset"),
              (["export", "-o", str(tmp_path / "afile" / "m.onnx")], "is a file, not a folder"),
@@ -794,10 +798,15 @@ def test_option_values_that_misbehaved_are_refused_in_one_line(tmp_path, capsys)
               "no sample left to score"),
              (["estimate", str(src), "-o", str(tmp_path / "e.parquet"), "--tlog", str(tmp_path / "e.tlog"),
                "--source-log", str(src)], "was not ingested from a tlog"),
-             (["evaluate", str(src), "-o", str(tmp_path / "report.md")], "evaluate writes a report folder"))  # fmt: skip
+             (["evaluate", str(src), "-o", str(tmp_path / "report.md")], "evaluate writes a report folder"),
+             (["evaluate", str(src), "-o", str(tmp_path / "rep"), "--no-model", "--no-peers", "--warmup-s", "5.5",
+               "--tune-ekf-on", str(short)], "EKF tuning: no sample left to score"),
+             (["replay", str(src), "--to", "udpout:127.0.0.1:14999", "--speed", "inf"], "--speed"),
+             (["simulate", "--aircraft", "F450", "--duration", "2", "-o", str(tmp_path / "f"), "--tlog",
+               str(tmp_path / "f")], "the tlog would replace the record"))  # fmt: skip
     for argv, words in cases:
         capsys.readouterr()
         assert main([*argv, "-q"]) == 2, argv
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and words in err[0] and ": error: " in err[0], (argv, err)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "s.parquet"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "s.parquet", "short.parquet"]

@@ -512,3 +512,26 @@ def test_atomic_write_keeps_a_link_and_writes_into_a_pipe_without_replacing_eith
     with pytest.raises(OSError):
         atomic_write(fifo, fails_like_pyarrow)
     assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+
+
+def test_a_signal_while_a_pool_starts_is_raised_once_it_has():
+    """``signals_held``: a SIGTERM or Ctrl-C that comes while a pool starts (whose ``__init__`` cleans up after an
+    Exception, not after a KeyboardInterrupt: a resumed campaign terminated then hung) is raised when the block has
+    ended, as Terminated or KeyboardInterrupt, and the handlers before are put back."""
+    import signal
+
+    from tepinn_flight.worker_processes import Terminated, signals_held, terminate_on_sigterm
+
+    before = signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)
+    ran_to_the_end = []
+    with terminate_on_sigterm(), pytest.raises(Terminated):
+        with signals_held():
+            os.kill(os.getpid(), signal.SIGTERM)
+            os.kill(os.getpid(), signal.SIGINT)
+            ran_to_the_end.append(True)
+    assert ran_to_the_end == [True]
+    with pytest.raises(KeyboardInterrupt) as exc:
+        with signals_held():
+            os.kill(os.getpid(), signal.SIGINT)
+    assert not isinstance(exc.value, Terminated)
+    assert (signal.getsignal(signal.SIGTERM), signal.getsignal(signal.SIGINT)) == before

@@ -48,6 +48,12 @@ def run(args) -> int:
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
     from ..record import atomic_write
 
+    if args.json:  # before the (long) run: the JSON is named as JSON and is none of the files it reads
+        from .paths import check_suffix, refuse_overwriting_inputs
+
+        check_suffix("--json", args.json, (".json",), "JSON")
+        inputs = [p for p in Path(args.folder).glob("*") if p.is_file()] if Path(args.folder).is_dir() else []
+        refuse_overwriting_inputs([("--json", args.json)], [*inputs, *([args.published] if args.published else [])])
     cfg = load_suite_config(args.config, args.set)
     notes: list[str] = []
     estimators = []

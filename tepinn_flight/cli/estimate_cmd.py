@@ -327,15 +327,21 @@ def _in_workers(jobs, opts, ckpt_path, runtime, fusion, workers):
 
     methods = multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
-    pool = ctx.Pool(workers, initializer=_init_worker, initargs=(os.getpid(), ckpt_path, runtime, fusion))
+    from ..worker_processes import signals_held
+
+    pool = None
     try:
+        with signals_held():  # (a signal while the pool starts: raised once it has, and it is stopped)
+            pool = ctx.Pool(workers, initializer=_init_worker, initargs=(os.getpid(), ckpt_path, runtime, fusion))
         yield from pool.imap(_worker_one, [(opts, *job) for job in jobs])
         pool.close()
     except BaseException:
-        pool.terminate()
+        if pool is not None:
+            pool.terminate()
         raise
     finally:
-        pool.join()
+        if pool is not None:
+            pool.join()
 
 
 def _tlog_paths(args, paths, from_folder: bool = False) -> list:

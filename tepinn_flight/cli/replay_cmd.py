@@ -45,8 +45,8 @@ def run(args) -> int:
     from ..live.view import ViewConfig
     from .paths import check_suffix, refuse_overwriting_inputs
 
-    if not args.speed > 0:
-        raise ConfigError("--speed must be > 0")
+    if not 0 < args.speed < float("inf"):
+        raise ConfigError("--speed must be > 0 and finite")
     if args.duration is not None and not args.duration > 0:
         raise ConfigError("--duration must be > 0")
     parse_endpoint(args.to)  # a malformed endpoint fails before the log is read

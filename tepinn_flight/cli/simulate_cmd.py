@@ -76,7 +76,7 @@ def _single(args) -> int:
     from ..record import check_output, write_record
     from ..sim.sensors import DEFAULT_PRESET, load_sensor_config
     from ..sim.simulate import check_flight_args, simulate_record
-    from .paths import output_format
+    from .paths import check_suffix, output_format
 
     duration = 60.0 if args.duration is None else args.duration
     rate = 400.0 if args.rate is None else args.rate
@@ -94,6 +94,9 @@ def _single(args) -> int:
     output_format(out, "simulate")  # a record is Parquet, whatever the name says
     check_output(out)  # before the flight: a place that cannot be written is a one-line error
     if args.tlog:
+        check_suffix("--tlog", args.tlog, ("", ".tlog"), "a MAVLink telemetry log")
+        if Path(args.tlog).resolve() == out.resolve():
+            raise ConfigError(f"--tlog {args.tlog} and -o name the same file: the tlog would replace the record")
         check_output(args.tlog)
     t0 = time.perf_counter()
     rec = simulate_record(args.aircraft, duration, rate, seed, sensor=sensor, sensor_overrides=(),

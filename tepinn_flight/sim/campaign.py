@@ -34,7 +34,7 @@ import numpy as np
 from ..config import check, from_dict, load_toml, to_dict
 from ..errors import ConfigError, TepinnError
 from ..record import atomic_write
-from ..worker_processes import terminate_on_sigterm, worker_init
+from ..worker_processes import signals_held, terminate_on_sigterm, worker_init
 
 MANIFEST = "campaign.json"
 #: A worker process is replaced after this many flights (bounds any memory growth in JSBSim).
@@ -343,17 +343,21 @@ def run_campaign(
                 done(*_fly_one(*s))
         elif specs:
             with terminate_on_sigterm():
-                pool = _mp_context().Pool(n_workers, initializer=worker_init, initargs=(os.getpid(),),
-                                          maxtasksperchild=MAX_TASKS_PER_WORKER)  # fmt: skip
+                pool = None
                 try:
+                    with signals_held():  # (a signal while the pool starts: raised once it has, and it is stopped)
+                        pool = _mp_context().Pool(n_workers, initializer=worker_init, initargs=(os.getpid(),),
+                                                  maxtasksperchild=MAX_TASKS_PER_WORKER)  # fmt: skip
                     for result in pool.imap_unordered(_fly_one_packed, specs):
                         done(*result)
                     pool.close()
                 except BaseException:
-                    pool.terminate()  # Ctrl-C / SIGTERM: stop the workers now; finished records stay
+                    if pool is not None:
+                        pool.terminate()  # Ctrl-C / SIGTERM: stop the workers now; finished records stay
                     raise
                 finally:
-                    pool.join()
+                    if pool is not None:
+                        pool.join()
     finally:
         if bar:
             bar.close()

@@ -301,7 +301,11 @@ def tune(records, grid: dict | None = None, base: EkfParams | None = None, warmu
     records = list(records)
     if not records:
         raise ConfigError("EKF tuning needs at least one training record")
-    masks = [scoring_mask(r, warmup_s) for r in records]
+    scored = [(r, m) for r in records for m in [scoring_mask(r, warmup_s)] if m.any()]  # (records with no score: out)
+    if not scored:  # (every grid point scored NaN, and the first was reported as "tuned")
+        raise ConfigError(f"EKF tuning: no sample left to score on the {len(records)} training record(s): each is "
+                          f"shorter than the warm-up ({warmup_s:g} s) or has no reference after it")  # fmt: skip
+    records, masks = [r for r, _ in scored], [m for _, m in scored]
     rows = []
     combos = list(itertools.product(*(grid[k] for k in names)))
     it = combos
