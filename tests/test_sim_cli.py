@@ -62,6 +62,9 @@ def test_campaign_file_errors(tmp_path, capsys):
         ('name = "t"\nseed = 1\n[[groups]]\naircraft = ["F450"]\nprofiles = [{name = "a", maneuvers = ["loop"]}]\n',
          "unknown maneuver 'loop'"),
         ('name = "t"\nseed = 1\n[[groups]]\naircraft = ["F450"]\nrepeats = "two"\n', "must be an integer"),
+        # (found per flight before, after the good ones had flown, with "re-run the same command" as advice)
+        ('name = "t"\nseed = 1\nrate_hz = 200.0\n[[groups]]\naircraft = ["F450"]\nsensor_set = ["rate_hz=150"]\n',
+         "sensor rate_hz 150 must divide the simulation rate 200 Hz"),
     ]
     for text, message in cases:
         c.write_text(text)

@@ -156,7 +156,7 @@ def expand(cfg: CampaignConfig, base: Path | None = None) -> list[FlightSpec]:
 def validate(cfg: CampaignConfig, flights: list[FlightSpec]) -> dict[str, dict]:
     """Check every name before any work; returns the resolved sensor parameters per (sensor, overrides)."""
     from . import flight as fl
-    from .sensors import load_sensor_config
+    from .sensors import decimation_factor, load_sensor_config
     from .simulate import check_flight_args
 
     known_turb = set(getattr(fl, "TURBULENCE", {}))
@@ -186,6 +186,13 @@ def validate(cfg: CampaignConfig, flights: list[FlightSpec]) -> dict[str, dict]:
         skey = json.dumps([f.sensor, list(f.sensor_set)])
         if skey not in resolved:
             resolved[skey] = load_sensor_config(f.sensor, list(f.sensor_set)).to_dict()
+        rate = resolved[skey].get("rate_hz")
+        if rate is not None and (skey, f.rate_hz) not in checked:  # (found per flight before: after the good ones flew)
+            checked.add((skey, f.rate_hz))
+            try:
+                decimation_factor(f.rate_hz, float(rate))
+            except ConfigError as exc:
+                raise ConfigError(f"{where}: {exc.reason}") from None
     return resolved
 
 

@@ -346,12 +346,18 @@ def _decimation(truth: TruthTrajectory, cfg: SensorConfig) -> tuple[int, float]:
             raise ConfigError("truth trajectory needs a rate (meta['rate_hz']) or at least 2 samples")
         f_truth = 1.0 / float(np.median(np.diff(t)))
     f_out = f_truth if cfg.rate_hz is None else float(cfg.rate_hz)
+    return decimation_factor(f_truth, f_out), f_out
+
+
+def decimation_factor(f_truth: float, f_out: float) -> int:
+    """The integer factor from the simulation rate to the sensor's; a :class:`ConfigError` where there is none
+    (a campaign checks it before its first flight)."""
     k = f_truth / f_out
     if f_out > f_truth * (1 + 1e-9) or abs(k - round(k)) > 1e-6:
         raise ConfigError(
             f"sensor rate_hz {f_out:g} must divide the simulation rate {f_truth:g} Hz by an integer"
         )
-    return int(round(k)), f_out
+    return int(round(k))
 
 
 def _boxcar(x: np.ndarray, idx: np.ndarray, k: int) -> np.ndarray:
