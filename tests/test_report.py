@@ -137,6 +137,13 @@ def test_tuning_refuses_test_records(records_dir, tmp_path, capsys):
     rec = str(records_dir / "syn1.parquet")
     code = main(["evaluate", rec, "--report", str(tmp_path / "r"), "--tune-ekf-on", rec, "-q", "--no-model"])
     assert code == 2 and "never tune on test data" in capsys.readouterr().err
+    import shutil  # a copy of the evaluated record under another name is the same test data (it got through)
+
+    shutil.copy(rec, tmp_path / "copy.parquet")
+    code = main(["evaluate", rec, "--report", str(tmp_path / "r"), "--tune-ekf-on", str(tmp_path / "copy.parquet"),
+                 "-q", "--no-model"])  # fmt: skip
+    assert code == 2 and "never tune on test data" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
 
 
 @pytest.mark.parametrize("flag", ["-o", "--output", "--report"])
