@@ -398,16 +398,7 @@ def read_record(path: str | os.PathLike) -> FlightRecord:
             raise RecordFormatError("not a Parquet flight record (a raw log? run `tepinn-flight ingest` on it first)",
                                     path) from None  # fmt: skip
         raise RecordFormatError(f"damaged Parquet file ({_first_line(exc)})", path) from None
-    raw = table.schema.metadata or {}
-    meta: dict[str, Any] = {}
-    for k, v in raw.items():
-        key = k.decode(errors="replace")
-        if key == "pandas":
-            continue
-        try:
-            meta[key] = json.loads(v)
-        except ValueError:
-            meta[key] = v.decode(errors="replace")
+    meta = _decode_meta(table.schema.metadata or {})
     if "format_version" not in meta:
         if "estimate_key" in meta or "q_est_w" in table.column_names:  # a user's easy mix-up: say which file it is
             raise RecordFormatError("an estimate written by `tepinn-flight estimate`, not a flight record: give the "
@@ -436,18 +427,39 @@ def is_record(path: str | os.PathLike) -> bool:
         return False
 
 
-def is_flight_record(path: str | os.PathLike) -> bool:
-    """True for a Parquet file whose metadata says it is a flight record (``format_version``): not an estimate's
-    output or another table. Reads the schema only."""
+def parquet_meta(path: str | os.PathLike) -> dict[str, Any] | None:
+    """A Parquet file's key-value metadata, each value JSON-decoded where it is JSON (pandas' own key left out),
+    read from its schema alone; None where the file is not a readable Parquet file."""
     import pyarrow.parquet as pq
 
     if not is_record(path):
-        return False
+        return None
     try:
-        meta = pq.read_schema(path).metadata or {}
-    except Exception:  # noqa: BLE001 - a damaged file: whoever reads it says so
-        return True
-    return b"format_version" in meta
+        return _decode_meta(pq.read_schema(path).metadata or {})
+    except Exception:  # noqa: BLE001 - pyarrow raises several types for a damaged file
+        return None
+
+
+def _decode_meta(raw: dict) -> dict[str, Any]:
+    meta: dict[str, Any] = {}
+    for k, v in raw.items():
+        key = k.decode(errors="replace")
+        if key == "pandas":
+            continue
+        try:
+            meta[key] = json.loads(v)
+        except ValueError:
+            meta[key] = v.decode(errors="replace")
+    return meta
+
+
+def is_flight_record(path: str | os.PathLike) -> bool:
+    """True for a Parquet file whose metadata says it is a flight record (``format_version``): not an estimate's
+    output or another table (a damaged one counts: whoever reads it says what is wrong). Reads the schema only."""
+    if not is_record(path):
+        return False
+    meta = parquet_meta(path)
+    return meta is None or "format_version" in meta
 
 
 def _json_default(v):

@@ -91,12 +91,13 @@ def run(args) -> int:
         raise ConfigError(f"--imu {args.imu}: an IMU instance is 0 or more")
     if args.status_interval is not None and not args.status_interval > 0:
         raise ConfigError("--status-interval must be > 0")
-    outputs = [(f, v) for f, v in (("--tlog", args.tlog), ("--summary-json", args.summary_json), ("--rrd", args.rrd)) if v]
-    for flag, path, suffixes, what in (("--tlog", args.tlog, ("", ".tlog"), "a MAVLink telemetry log"),
-                                       ("--summary-json", args.summary_json, ("", ".json"), "JSON"),
-                                       ("--rrd", args.rrd, (".rrd",), "a Rerun recording")):  # fmt: skip
-        if path:
-            check_suffix(flag, path, suffixes, what)
+    named = [(flag, path, suffixes, what) for flag, path, suffixes, what in (
+        ("--tlog", args.tlog, ("", ".tlog"), "a MAVLink telemetry log"),
+        ("--summary-json", args.summary_json, ("", ".json"), "JSON"),
+        ("--rrd", args.rrd, (".rrd",), "a Rerun recording")) if path]  # fmt: skip
+    for flag, path, suffixes, what in named:
+        check_suffix(flag, path, suffixes, what)
+    outputs = [(flag, path) for flag, path, _, _ in named]
     if args.model:
         model = Path(args.model)
         if not model.is_file():

@@ -370,7 +370,7 @@ def _tlog_paths(args, paths, from_folder: bool = False) -> list:
         raise ConfigError(f"--tlog-messages: {exc}") from None
     if not 0 <= args.tlog_rate < float("inf"):
         raise ConfigError("--tlog-rate must be >= 0 and finite (0: every sample)")
-    into_folder = len(paths) > 1 or from_folder or Path(args.tlog).is_dir() or args.tlog.endswith(("/", "\\"))
+    into_folder = from_folder or Path(args.tlog).is_dir() or args.tlog.endswith(("/", "\\"))
     tlogs = [p.with_suffix(".tlog") if into_folder else p for p in output_paths(paths, args.tlog, from_folder)]
     for t in tlogs:
         check_suffix("--tlog", t, ("", ".tlog"), "a MAVLink telemetry log")
@@ -379,10 +379,9 @@ def _tlog_paths(args, paths, from_folder: bool = False) -> list:
 
 def _source_kind(path) -> str | None:
     """What a record or log came from: a log's own format, a record's ``source_kind`` (None: not told)."""
-    import json
-
     from ..errors import TepinnError
     from ..ingest.sniff import sniff
+    from ..record import parquet_meta
 
     try:
         fmt = sniff(path)
@@ -390,13 +389,8 @@ def _source_kind(path) -> str | None:
         return None  # (whoever reads it says what is wrong)
     if fmt != "parquet":
         return fmt
-    import pyarrow.parquet as pq
-
-    try:
-        raw = (pq.read_schema(path).metadata or {}).get(b"source_kind")
-        return None if raw is None else str(json.loads(raw))
-    except (OSError, ValueError):
-        return None
+    kind = (parquet_meta(path) or {}).get("source_kind")
+    return None if kind is None else str(kind)
 
 
 def _write_tlog(opts, src, rec, df, dst) -> tuple[list[str], list[str]]:

@@ -70,15 +70,11 @@ def _run(args) -> int:
     from ..evaluation.report import write_report
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
     from ..ingest import load_record
-    from pathlib import Path
-
     from ..record import check_output
     from ..evaluation.left_out import left_out
-    from .paths import collect_records, read_records
+    from .paths import check_folder_name, collect_records, read_records
 
-    if Path(args.output).suffix.lower() in (".md", ".html", ".json", ".png") and not Path(args.output).is_dir():
-        raise ConfigError(f"-o {args.output} names a file; evaluate writes a report folder (report.md, report.html, "
-                          "metrics.json, figures): give a folder name")  # fmt: skip
+    check_folder_name(args.output, "evaluate writes a report folder (report.md, report.html, metrics.json, figures)")
     check_output(args.output, folder=True)  # before the (long) evaluation
     cfg = load_suite_config(args.config, args.set)
     try:
@@ -95,7 +91,7 @@ def _run(args) -> int:
 
         train = collect_records(args.tune_ekf_on)
         overlap = {p.resolve() for p in train} & {p.resolve() for p in paths}
-        overlap |= {str(a) for a in train for b in paths if _same_content(a, b)}  # a copy under another name too
+        overlap |= {a.resolve() for a in train for b in paths if _same_content(a, b)}  # a copy under another name too
         if overlap:
             raise ConfigError(f"--tune-ekf-on overlaps the evaluated records ({', '.join(sorted(map(str, overlap)))}): "
                               "never tune on test data")  # fmt: skip
@@ -164,22 +160,14 @@ def _run(args) -> int:
     return 0
 
 
+
 def _same_content(a, b) -> bool:
-    """Whether two files hold the same bytes (sizes first; then a hash of each, in 1-MB blocks)."""
-    import hashlib
+    """Whether two files hold the same bytes (their sizes first, then their hashes)."""
     import os
 
+    from ..model.runtime import file_sha256
+
     try:
-        if os.path.getsize(a) != os.path.getsize(b):
-            return False
-
-        def digest(p):
-            h = hashlib.sha256()
-            with open(p, "rb") as f:
-                for block in iter(lambda: f.read(1 << 20), b""):
-                    h.update(block)
-            return h.digest()
-
-        return digest(a) == digest(b)
+        return os.path.getsize(a) == os.path.getsize(b) and file_sha256(a) == file_sha256(b)
     except OSError:
         return False

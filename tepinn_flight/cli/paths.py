@@ -6,8 +6,17 @@ from __future__ import annotations
 from pathlib import Path
 
 
-#: names that are files, not folders: several inputs' outputs under one of them would make a folder so named
-FILE_SUFFIXES = (".parquet", ".pq", ".csv", ".tlog")
+#: names that are files, not folders: outputs written under one of them would make a folder so named
+FILE_SUFFIXES = (".parquet", ".pq", ".csv", ".tlog", ".md", ".html", ".json", ".png")
+
+
+def check_folder_name(output, needs: str) -> None:
+    """A :class:`~..errors.ConfigError` where ``output``, given where a folder is made, is named as a file (it made
+    a folder ``est.csv``, a ``report.md/report.md``); ``needs`` says why a folder."""
+    from ..errors import ConfigError
+
+    if not Path(output).is_dir() and Path(output).suffix.lower() in FILE_SUFFIXES:
+        raise ConfigError(f"-o {output} names a file; {needs}: give a folder name")
 
 
 def output_paths(logs: list[Path], output: str | None, from_folder: bool = False) -> list[Path]:
@@ -17,11 +26,8 @@ def output_paths(logs: list[Path], output: str | None, from_folder: bool = False
     if (output is not None and len(logs) == 1 and not from_folder and not Path(output).is_dir()
             and not output.endswith(("/", "\\"))):
         return [Path(output)]
-    if output is not None and not Path(output).is_dir() and Path(output).suffix.lower() in FILE_SUFFIXES:
-        from ..errors import ConfigError
-
-        raise ConfigError(f"{output} names a file; the outputs of several inputs, or of a folder, go to a folder: give "
-                          "a folder name")  # fmt: skip
+    if output is not None:
+        check_folder_name(output, "the outputs of several inputs, or of a folder, go to a folder")
     folder = Path(output) if output is not None else Path.cwd()
     names: list[Path] = []
     seen: set[str] = set()
