@@ -916,6 +916,27 @@ def test_the_summary_blames_the_missing_estimates_not_the_autopilot_when_there_a
     assert "no ATTITUDE / ATTITUDE_QUATERNION from the autopilot" in some
 
 
+@pytest.mark.parametrize("summary, reason", [
+    ({"estimates": {"count": 0}, "imu": {"samples": 0, "message": None}}, "no usable IMU message arrived"),
+    ({"estimates": {"count": 0, "worker_error": "boom"}, "imu": {"samples": 900, "message": "RAW_IMU"}},
+     "the estimator failed"),
+    ({"estimates": {"count": 0, "withheld_imu_too_slow": 7}, "imu": {"samples": 40, "message": "RAW_IMU"}},
+     "7 withheld: the IMU came too slowly"),
+    ({"estimates": {"count": 0, "samples_processed": 0, "samples_without_estimator": 55},
+      "imu": {"samples": 55, "message": "SCALED_IMU"}}, "the estimator was still starting (55 samples"),
+    ({"estimates": {"count": 0, "samples_processed": 20}, "imu": {"samples": 20, "message": "HIGHRES_IMU"}},
+     "the first window was still filling (20 samples"),
+    ({"estimates": {"count": 0}, "imu": {"samples": 0, "message": "RAW_IMU"}}, "every RAW_IMU sample was a duplicate"),
+])
+def test_the_summary_says_why_there_was_no_estimate(summary, reason):
+    """A run with no estimate said only "no TE-PINN estimates": it now names the first cause that applies."""
+    from tepinn_flight.live.status import format_summary
+
+    text = format_summary(summary)
+    line = next(ln for ln in text.splitlines() if "vs EKF" in ln)
+    assert reason in line, line
+
+
 def test_benchmark_json_cannot_replace_a_trial_it_reads(tmp_path, capsys):
     """``benchmark broad DIR --json DIR/TRIAL.hdf5`` replaced the trial with its JSON (exit 3, the harness check's):
     the JSON must be named .json and be none of the folder's files. One line, exit 2, the folder as it was."""

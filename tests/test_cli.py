@@ -810,3 +810,25 @@ def test_option_values_that_misbehaved_are_refused_in_one_line(tmp_path, capsys)
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and words in err[0] and ": error: " in err[0], (argv, err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "s.parquet", "short.parquet"]
+
+
+def test_a_flight_too_long_to_hold_in_memory_is_refused_before_any_work(tmp_path, capsys):
+    """``simulate --duration 1e6`` ran for an hour growing its rows until the machine killed it: a flight is
+    made in memory, so one of more than MAX_FLIGHT_SAMPLES is one line and exit 2, alone or in a campaign."""
+    from tepinn_flight.cli.main import main
+    from tepinn_flight.sim.simulate import MAX_FLIGHT_SAMPLES
+
+    out = tmp_path / "f.parquet"
+    assert main(["simulate", "--aircraft", "F450", "--duration", "1e6", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "400,000,000 samples" in err and f"{MAX_FLIGHT_SAMPLES:,}" in err and not out.exists()
+    camp = tmp_path / "c.toml"
+    camp.write_text('name = "long"\nseed = 1\nduration_s = 30000.0\nrate_hz = 1000.0\n'
+                    '[[groups]]\naircraft = ["F450"]\nprofiles = [{ name = "random" }]\n')
+    assert main(["simulate", "--campaign", str(camp), "-o", str(tmp_path / "camp")]) == 2
+    assert "30,000,000 samples" in capsys.readouterr().err
+    assert not list((tmp_path / "camp").glob("**/*.parquet"))  # nothing flown
+    # the bound itself is a legal flight: 10 M samples at 400 Hz pass the check (not flown here)
+    from tepinn_flight.sim.simulate import check_flight_args
+
+    check_flight_args(MAX_FLIGHT_SAMPLES / 400.0, 400.0, 0)

@@ -211,3 +211,28 @@ def test_the_vehicle_a_log_names_is_read_alike_from_every_format():
     cube = with_meta(autopilot="px4", vehicle_type="quadrotor", hardware="CUBEPILOT_CUBEORANGE")
     assert vehicle_of(v4) != vehicle_of(cube)
     assert vehicle_of(with_meta(autopilot=None, vehicle_type=None)) is None
+
+
+@pytest.mark.slow
+def test_finetuning_on_one_file_says_its_figures_are_on_that_file(tmp_path, capsys):
+    """With one log nothing can be held out: the line said "validated on 0: training-file ..." and "on the
+    training-file files". It now says the figures are on the file it was tuned on, and the model still works."""
+    from tepinn_flight.record import read_record, write_record
+    from tepinn_flight.sim.simulate import simulate_record
+
+    log = tmp_path / "one.parquet"
+    write_record(simulate_record("F450", 20.0, 400.0, 5), log)
+    assert main(["train", "--init", "default", "--data", str(log), "-o", str(tmp_path / "r"), "--minutes", "0.05",
+                 "-q"]) == 0
+    out = capsys.readouterr().out
+    line = next(ln for ln in out.splitlines() if ln.startswith("fine-tuned on"))
+    assert line.startswith("fine-tuned on 1 file(s), validated on 0 (no file held out: give two or more logs to "
+                           "validate; the figures are on the file it was tuned on): inclination RMSE"), line
+    assert "on the file it was tuned on network gates" in line and "training-file" not in line
+    summary = json.loads((tmp_path / "r" / "finetune.json").read_text())
+    assert summary["val_files"] == [] and "tuned on" in summary["validation_note"]
+    est = tmp_path / "e.parquet"
+    assert main(["estimate", str(log), "--model", str(tmp_path / "r" / "model.pt"), "-o", str(est), "-q"]) == 0
+    import pandas as pd
+
+    assert len(pd.read_parquet(est)) == len(read_record(log)) and np.isfinite(pd.read_parquet(est)["q_est_w"]).all()

@@ -72,20 +72,21 @@ def run(args) -> int:
         out = check_output(args.output, folder=True)
         s = finetune(args.init, args.data, out, minutes=args.minutes, progress=not args.quiet)
         # (one file: nothing is held out, and the figures below are on the file it was tuned on: said so, not "validation")
-        kind = "validation" if s["val_files"] else "training-file"
-        val = kind if s["val_files"] else f"{kind} (no file held out: give two or more logs to validate)"
-        print(f"fine-tuned on {len(s['train_files'])} file(s), validated on {len(s['val_files'])}: {val} "
+        files = "validation files" if s["val_files"] else "file it was tuned on"
+        held = ("" if s["val_files"] else
+                " (no file held out: give two or more logs to validate; the figures are on the file it was tuned on)")
+        print(f"fine-tuned on {len(s['train_files'])} file(s), validated on {len(s['val_files'])}{held}: "
               f"inclination RMSE {s['val_inclination_rmse_deg_before']:.3f}° -> {s['val_inclination_rmse_deg_after']:.3f}° "
               f"(VQF accelerometer time constant {s['tau_acc_s']:g} s, gyro scale "
               f"{', '.join(f'{v:g}' for v in s['gyro_scale'])}; σ₀ {s['sigma_floor_deg']:g}°, c {s['sigma_acc_gain']:g}, sampling term "
               f"{'on' if s['sigma_sampling_gain'] else 'off'}: "
-              f"{kind} NEES {s['val_sigma_nees_before']:.2f} -> {s['val_sigma_nees_after']:.2f}, within 3σ "
+              f"NEES {s['val_sigma_nees_before']:.2f} -> {s['val_sigma_nees_after']:.2f}, within 3σ "
               f"{100 * s['val_sigma_within_3sigma_before']:.1f} -> {100 * s['val_sigma_within_3sigma_after']:.1f} % causal; "
               f"offline tilt smoothing {'kept' if s['smoother'] else 'off'}: training files "
               f"{s['smoother_grid_deg']['on']:.3f}° with it, {s['smoother_grid_deg']['off']:.3f}° without); "
-              f"on the {kind} files {s['val_network_gates_summary']}; model: {out / 'model.pt'}")  # fmt: skip
+              f"on the {files} {s['val_network_gates_summary']}; model: {out / 'model.pt'}")  # fmt: skip
         if s["val_worse_than_init"]:
-            print(f"warning: the fine-tuned model is worse than {args.init} on the {kind} files "
+            print(f"warning: the fine-tuned model is worse than {args.init} on the {files} "
                   f"({s['val_inclination_rmse_deg_before']:.3f}° -> {s['val_inclination_rmse_deg_after']:.3f}°): keep using "
                   f"{args.init}, or add logs of this vehicle (finetune.json: the figures per setting)", file=sys.stderr)  # fmt: skip
         return 0

@@ -147,6 +147,25 @@ def _f(v, fmt: str, none: str = "-") -> str:
     return format(v, fmt)
 
 
+def no_estimate_reason(s: dict) -> str:
+    """Why a bridge run gave no estimate, from its summary (the first cause that applies)."""
+    imu = s.get("imu", {})
+    est = s.get("estimates", {})
+    if est.get("worker_error"):
+        return "the estimator failed (the line above)"
+    if not imu.get("samples"):
+        if not imu.get("message"):
+            return ("no usable IMU message arrived (RAW_IMU, SCALED_IMU or HIGHRES_IMU of the --imu "
+                    "instance, in a known scale: ask for them, e.g. SRx_RAW_SENS on ArduPilot)")
+        return f"every {imu['message']} sample was a duplicate or out of order"
+    if est.get("withheld_imu_too_slow"):
+        return f"{est['withheld_imu_too_slow']} withheld: the IMU came too slowly (the IMU warning above)"
+    if est.get("samples_processed", 0) == 0 and est.get("samples_without_estimator"):
+        return f"the estimator was still starting ({est['samples_without_estimator']} samples came before it was ready)"
+    return (f"the first window was still filling ({est.get('samples_processed', 0)} samples estimated): "
+            "run the bridge longer")
+
+
 def format_summary(s: dict) -> str:
     """The exit summary as readable lines."""
     ap = s.get("autopilot", {})
@@ -207,7 +226,7 @@ def format_summary(s: dict) -> str:
             f"max {dif['max']:.2f} deg, rms {dif.get('rms', float('nan')):.2f} deg over {dif['n']} estimates"
         )
     elif not est.get("count"):  # (the autopilot's attitude may well have come: nothing of ours to pair it with)
-        lines.append("  vs EKF (incl.) : no comparison (no TE-PINN estimates: see the IMU lines above)")
+        lines.append(f"  vs EKF (incl.) : no comparison (no TE-PINN estimates: {no_estimate_reason(s)})")
     else:
         lines.append("  vs EKF (incl.) : no comparison (no ATTITUDE / ATTITUDE_QUATERNION from the autopilot)")
     if s.get("tlog"):
