@@ -235,6 +235,7 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
     from ..errors import TepinnError
     from ..ingest import load_record
     from ..ingest.sniff import sniff
+    from ..log_clock import log_clock_s
     from ..csv_table import write_csv
     from ..model.estimate import REPORTED_STEPS, estimate_record
     from ..quat import quat_zero_yaw
@@ -269,6 +270,9 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
             ok = np.all(np.isfinite(q), 1)
             q[ok] = quat_zero_yaw(q[ok])
             df[EST_Q_COLS] = q
+        t_log = log_clock_s(df["t_s"].to_numpy(), rec.meta)
+        if t_log is not None:  # the log's own clock beside t_s: the estimate laid over the log in the user's viewer
+            df.insert(1, "t_log_s", t_log)
     except TepinnError as exc:
         err.append(f"tepinn-flight estimate: error: {exc if exc.path else f'{src}: {exc}'}")
         return out, err, 1

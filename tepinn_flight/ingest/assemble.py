@@ -277,13 +277,14 @@ def build_record(raw: RawLog, source_path: str | os.PathLike) -> FlightRecord:
 
     # record time: seconds from the first sample; each later boot epoch continues after the last
     t_rec = np.empty_like(t_src)
-    offsets = {}
+    offsets, starts = {}, {}
     end = None
     for e in np.unique(ep):
         m = ep == e
         start = t_src[m][0]
         off = -start if end is None else end + (period if np.isfinite(period) else 0.0) - start
         offsets[int(e)] = float(off)
+        starts[int(e)] = float(start + off)
         t_rec[m] = t_src[m] + off
         end = t_rec[m].max()
 
@@ -343,6 +344,7 @@ def build_record(raw: RawLog, source_path: str | os.PathLike) -> FlightRecord:
         "segments": int(seg[-1]) + 1 if len(seg) else 0,
         "boot_epochs": len(offsets),
         "epoch_time_offsets_s": offsets,
+        "epoch_start_t_s": starts,
         "conventions": conventions.describe(),
         "created_by": f"tepinn-flight {__version__}",
     }
