@@ -22,7 +22,8 @@ def log_clock_s(t_s: np.ndarray, meta: dict) -> np.ndarray | None:
     offsets = meta.get("epoch_time_offsets_s")
     if not offsets or meta.get("source_kind") in SIMULATED_KINDS:
         return None
-    t = np.asarray(t_s, np.float64)
+    # (a ULog stamped in UNIX µs is read from its first whole second, to keep µs in float64: added back here)
+    t = np.asarray(t_s, np.float64) + float(meta.get("time_origin_unix_s") or 0.0)
     off = {int(k): float(v) for k, v in offsets.items()}
     if len(off) == 1:
         return t - next(iter(off.values()))
