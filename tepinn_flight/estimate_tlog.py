@@ -17,6 +17,14 @@ Time
     ``time_usec`` since the autopilot's boot): the estimate and the autopilot's ATTITUDE interleave
     in file order and line up on either clock. Reboots are followed through the record's
     ``epoch_time_offsets_s``. (An IMU stamped with UNIX time gives a ``time_boot_ms`` modulo 2³².)
+    Written from a DataFlash or ULog record, the autopilot's messages keep the log's own clock (the
+    estimate's ``time_boot_ms`` is the log's ``TimeUS`` / ``timestamp``: ``estimate``'s ``t_log_s``);
+    a ULog stamped in UNIX time gives the receive times that UNIX time. Other records start 10 s after
+    boot on 2023-11-14 (``tlog_writer``'s defaults). The "autopilot's" ATTITUDE written then is the
+    record's reference (the log's ATT turned into the IMU board's frame by the level trim, or XKQ, or the
+    truth), not the log's own ATT rows.
+    ``rate_hz``: every sample of a log at that rate, through its stamps' jitter; a faster log thinned
+    to about it (:func:`~tepinn_flight.tlog_writer.due_at_rate`).
 
 Why not ATTITUDE by default
     Log tools that key messages by type only (pymavlink's ``messages``, MAVExplorer graphs) would mix
@@ -78,6 +86,23 @@ def _imu_frames(base: Path, imu_name: str, instance: int, sysid: int):
     return fr.offset[m], t_src, clock, epoch
 
 
+def _tlog_clock(rec: FlightRecord) -> tuple[float, float]:
+    """(the boot time of the record's first sample, the UNIX receive time of it) for a tlog written from a record:
+    the log's own clock where the record has one boot on a boot clock (DataFlash, ULog: the estimate then lines up
+    with the log's TimeUS / timestamp), the UNIX time for a ULog stamped in it; else the writer's defaults."""
+    from .log_clock import log_clock_s
+    from .tlog_writer import DEFAULT_BOOT_OFFSET_S, DEFAULT_START_UNIX_S
+
+    t_log = log_clock_s(rec.t_s, rec.meta)
+    if t_log is None or rec.meta.get("source_kind") not in ("dataflash", "ulog") or len(rec.meta.get("epoch_time_offsets_s") or {}) != 1:
+        return DEFAULT_BOOT_OFFSET_S, DEFAULT_START_UNIX_S
+    if rec.meta.get("time_base") == "unix":
+        return DEFAULT_BOOT_OFFSET_S, float(t_log[0])
+    if not (t_log[0] >= 0.0 and t_log[-1] * 1e3 < 2**32):  # time_boot_ms is a uint32
+        return DEFAULT_BOOT_OFFSET_S, DEFAULT_START_UNIX_S
+    return float(t_log[0]), DEFAULT_START_UNIX_S
+
+
 def write_estimate_tlog(
     path: str | os.PathLike,
     rec: FlightRecord,
@@ -94,7 +119,7 @@ def write_estimate_tlog(
     the record was ingested from, or None to write the record itself as the autopilot's messages.
     """
     from .live.messages import Encoder, attitude_msg, attitude_quaternion_msg, estimate_msgs, heartbeat_onboard_msg
-    from .tlog_writer import DEFAULT_BOOT_OFFSET_S, write_tlog
+    from .tlog_writer import due_at_rate, write_tlog
 
     messages = tuple(messages)
     if not messages or any(k not in TLOG_MESSAGES for k in messages):
@@ -112,9 +137,10 @@ def write_estimate_tlog(
     with tempfile.TemporaryDirectory(prefix="tepinn-tlog-") as td:
         if source is None:
             base = Path(td) / "record.tlog"
-            write_tlog(base, rec)  # t_s → boot time t - t0 + DEFAULT_BOOT_OFFSET_S (one boot)
+            boot0_s, start_unix_s = _tlog_clock(rec)
+            write_tlog(base, rec, boot_offset_s=boot0_s, start_unix_s=start_unix_s)  # t_s → t - t0 + boot0 (one boot)
             imu_name, instance, sysid = "HIGHRES_IMU", 0, 1
-            offsets = {0: float(t[0]) - DEFAULT_BOOT_OFFSET_S}
+            offsets = {0: float(t[0]) - boot0_s}
         else:
             base = Path(source)
             meta = rec.meta
@@ -127,11 +153,8 @@ def write_estimate_tlog(
         t_rec = t_src[known] + np.array([offsets[int(e)] for e in epoch[known]])
         off, t_src = off[known], t_src[known]
 
-        # estimates due: finite, the first of each 1/rate tick of log time
-        ok = np.all(np.isfinite(q), axis=1)
-        tick = np.floor((t - t[0]) * rate_hz + 1e-6).astype(np.int64) if rate_hz > 0 else np.arange(len(t))
-        rows = np.flatnonzero(ok)
-        rows = rows[np.concatenate([[True], np.diff(tick[rows]) != 0])] if len(rows) else rows
+        # estimates due: finite, at about rate_hz of log time (every sample of a log at that rate, jitter and all)
+        rows = np.flatnonzero(due_at_rate(t, rate_hz, np.all(np.isfinite(q), axis=1)))
         # the IMU message of each due row: nearest in record time, within a quarter of a sample period
         order = np.argsort(t_rec, kind="stable")
         ts = t_rec[order]

@@ -159,3 +159,37 @@ def test_mavexplorer_graphs_evaluate_on_the_written_tlog(flight):
             for field in expr.text.split():
                 v = mavutil.evaluate_expression(field, latest)
                 assert v is not None and np.isfinite(v), (g.get("name"), field)
+
+
+def test_a_dataflash_logs_tlog_keeps_the_logs_clock_and_every_sample_at_its_rate(tmp_path, capsys):
+    """`estimate erle.BIN --tlog`: the tlog was stamped 10 s after an invented boot, so its estimate did not line up
+    with the log's TimeMS, and fixed 20-ms ticks dropped 22 % of this 50-Hz log's estimates (its stamps step
+    18–21 ms). Now time_boot_ms is the log's own clock (the estimate's t_log_s) and every estimate is written."""
+    from tests.conftest import real_log
+
+    log = real_log("erle_pxf_copter_15-12-2014_16.BIN")
+    out = tmp_path / "e.parquet"
+    assert main(["estimate", str(log), "-o", str(out), "--tlog", str(tmp_path / "e.tlog"), "-q"]) == 0
+    est = pd.read_parquet(out)
+    aq = [m for m in _read(tmp_path / "e.tlog") if m.get_srcComponent() == 191 and m.get_type() == "ATTITUDE_QUATERNION"]
+    ok = est["q_est_w"].notna().to_numpy()
+    assert len(aq) == int(ok.sum())  # every estimate of a log at the tlog's rate
+    want_ms = np.round(est["t_log_s"].to_numpy()[ok] * 1e3).astype(np.int64)
+    assert [m.time_boot_ms for m in aq] == want_ms.tolist()
+    np.testing.assert_allclose([[m.q1, m.q2, m.q3, m.q4] for m in aq], est[EST].to_numpy()[ok], atol=1e-6)
+
+
+def test_due_at_rate_thins_a_fast_log_and_keeps_a_jittery_one_at_the_rate():
+    from tepinn_flight.tlog_writer import due_at_rate
+
+    t400 = np.arange(4000) / 400.0
+    due = due_at_rate(t400, 50.0)
+    assert np.array_equal(np.flatnonzero(due), np.arange(0, 4000, 8))  # every 8th: 50 Hz
+    rng = np.random.default_rng(0)
+    t50 = np.cumsum(rng.choice([0.018, 0.019, 0.020, 0.021], 3000))  # ArduCopter's 50 Hz stamps
+    assert due_at_rate(t50, 50.0).all()
+    assert np.flatnonzero(due_at_rate(t50, 10.0)).size == pytest.approx(t50[-1] * 10, abs=0.12 * t50[-1] * 10)
+    cand = np.ones(4000, bool)
+    cand[::3] = False
+    assert np.array_equal(due_at_rate(t400, 0.0, cand), cand)  # rate 0: every candidate
+    assert not (due_at_rate(t400, 50.0, cand) & ~cand).any()  # never a row that is not a candidate
