@@ -55,6 +55,13 @@ def test_the_estimate_carries_the_dataflash_clock_and_a_simulation_none(tmp_path
     assert main(["estimate", str(path), "-o", str(tmp_path / "e.csv"), "-q"]) == 0
     est = pd.read_csv(tmp_path / "e.csv")
     assert list(est.columns[:3]) == ["t_s", "t_log_s", "q_est_w"]
+    import json
+
+    import pyarrow.parquet as pq
+
+    assert main(["estimate", str(path), "-o", str(tmp_path / "e.parquet"), "-q"]) == 0
+    conv = json.loads(pq.read_schema(tmp_path / "e.parquet").metadata[b"conventions"])  # the frames travel with it
+    assert (conv["body_frame"], conv["earth_frame"], conv["quaternion_order"]) == ("FRD", "NED", "wxyz")
     want = _pymavlink_imu_times(path, "IMU")
     assert est["t_log_s"].iloc[0] == pytest.approx(want[0], abs=1e-9) and want[0] > 1.0  # not the record's 0
     got = est["t_log_s"].to_numpy()

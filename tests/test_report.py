@@ -396,3 +396,68 @@ def test_a_report_stopped_half_way_leaves_no_report_md_and_no_earlier_figure_sta
     monkeypatch.undo()
     rep.write_report(baseline_result, out)
     assert (out / "report.md").exists() and not (out / rep.FIGURES["error_vs_noise"]).exists()
+
+
+def test_a_difference_in_the_rounding_noise_is_a_tie_not_a_win():
+    """TE-PINN "beat" offline VQF 1/1 on a trial by 6e-12° (the same estimate). A record counts for A only by more
+    than WIN_MARGIN_DEG; closer is a tie; a clear margin still counts."""
+    from types import SimpleNamespace
+
+    from tepinn_flight.evaluation.harness import WIN_MARGIN_DEG, compare_learned
+
+    def run(pairs):
+        recs = [{"results": {"tepinn": {"inclination_rmse_deg": a}, "vqf": {"inclination_rmse_deg": b}}} for a, b in pairs]
+        ests = [SimpleNamespace(name="tepinn", kind="learned"), SimpleNamespace(name="vqf", kind="peer")]
+        ds = {"tepinn": {"inclination_rmse_deg": np.mean([a for a, _ in pairs])},
+              "vqf": {"inclination_rmse_deg": np.mean([b for _, b in pairs])}}
+        return compare_learned(recs, ests, ds)[0]
+
+    c = run([(0.75, 0.75 + 6e-12), (0.5, 0.5 + WIN_MARGIN_DEG / 2), (0.4, 0.4 + 3 * WIN_MARGIN_DEG), (0.9, 0.5)])
+    assert (c["wins_a"], c["ties"], c["n_records"]) == (1, 2, 4)
+
+
+def test_riann_gets_no_heading_figures_and_the_records_table_gives_the_log_clock(tmp_path):
+    """RIANN tracks no heading: its 89.8° heading RMSE and 2483 °/min drift stood beside the others' as if they
+    compared. A DataFlash record's row gives the log's clock at the figures' t = 0 (erle: TimeMS 51.686 s)."""
+    from tests.conftest import real_log
+    from tepinn_flight.evaluation.harness import HarnessConfig, evaluate
+    from tepinn_flight.evaluation.report import render_markdown
+    from tepinn_flight.evaluation.suite import peer_estimators
+    from tepinn_flight.ingest import ingest_log
+
+    rec = ingest_log(real_log("erle_pxf_copter_15-12-2014_16.BIN"))
+    ests = [e for e in peer_estimators(notes=[]) if e.name in ("vqf", "riann")]
+    if len(ests) < 2:
+        pytest.skip("riann or vqf not installed")
+    res = evaluate([rec], ests, HarnessConfig(warmup_s=5.0), progress=False)
+    assert res.dataset["riann"]["heading_rmse_deg"] is None and res.dataset["riann"]["heading_drift_abs_deg_per_min"] is None
+    assert res.dataset["riann"]["inclination_rmse_deg"] is not None and res.dataset["vqf"]["heading_rmse_deg"] is not None
+    assert res.records[0]["log_clock_at_t0_s"] == pytest.approx(51.686, abs=1e-9)
+    md = render_markdown(res, {k: f"{k}.png" for k in FIGURES})
+    row = next(ln for ln in md.splitlines() if ln.startswith("| erle"))
+    assert "| 51.686 |" in row
+    head = next(ln for ln in md.splitlines() if ln.startswith("| estimator | kind"))
+    riann = next(ln for ln in md.splitlines() if ln.startswith(f"| {display_name('riann')} |"))
+    cells = [c.strip() for c in riann.strip("|").split("|")]
+    cols = [c.strip() for c in head.strip("|").split("|")]
+    assert cells[cols.index("heading [°]")] == "–" and cells[cols.index("median of records")] != "–"
+
+
+def test_tepinn_is_drawn_on_top_and_the_plotted_quaternion_keeps_its_sign_where_the_reference_is_missing(baseline_result):
+    import matplotlib.pyplot as plt
+
+    from tepinn_flight.evaluation.report import _hemisphere_ref, fig_inclination_error
+
+    ref = np.array([[np.nan] * 4, [0.0, 1.0, 0.0, 0.0], [np.nan] * 4, [1.0, 0.0, 0.0, 0.0], [np.nan] * 4])
+    np.testing.assert_array_equal(_hemisphere_ref(ref), [[0, 1, 0, 0], [0, 1, 0, 0], [0, 1, 0, 0], [1, 0, 0, 0], [1, 0, 0, 0]])
+    series = [dict(s) for s in baseline_result.series]
+    s0 = series[0]
+    s0["est"] = {"tepinn": s0["est"]["vqf"], **s0["est"]}  # TE-PINN first in the dict: still drawn last
+    from types import SimpleNamespace
+
+    res = SimpleNamespace(**{**vars(baseline_result), "series": series})
+    fig = fig_inclination_error(res, colour_map(["tepinn", *baseline_result.dataset]))
+    lines = fig.axes[0].get_lines()
+    top = max(lines, key=lambda ln: ln.get_zorder())
+    assert top.get_label() == display_name("tepinn") and lines[-1].get_label() == display_name("tepinn")
+    plt.close(fig)

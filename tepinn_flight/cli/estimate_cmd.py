@@ -17,8 +17,11 @@ DESCRIPTION = (
     "acceleration a GNSS receiver measured are taken out first, and where no gate acts for 30 s or more (5 s where "
     "none acts next to it: a short log) the tilt is VQF's run forward and backward (--no-smooth: the causal tilt the "
     "live bridge gives). Writes one row per "
-    "input row: t_s, q_est_w..z (body->NED), sigma_rad, gyr_bias_est_*_rad_s, and says per record what each "
-    "step did. Short logging dropouts (<= 100 ms) are propagated through, longer gaps restart the estimator. A "
+    "input row: t_s (s from the record's first sample), t_log_s (a real log's own clock: DataFlash TimeUS, MAVLink "
+    "time_boot_ms, ULog timestamp, in s), q_est_w..z (Hamilton, scalar first, body FRD -> NED), sigma_rad (the "
+    "1-sigma tilt uncertainty per horizontal axis, rad), gyr_bias_est_*_rad_s (body FRD), and says per record what each "
+    "step did. In 6-D the heading is relative: it starts at 90 deg (VQF's own origin, its x axis taken as east) and "
+    "follows the gyro. Short logging dropouts (<= 100 ms) are propagated through, longer gaps restart the estimator. A "
     "raw log is ingested on the fly."
 )
 
@@ -26,7 +29,7 @@ DESCRIPTION = (
 def add_arguments(p) -> None:
     add_examples(p,
                  'tepinn-flight estimate flight.parquet -o flight_est.parquet',
-                 'tepinn-flight estimate flight.ulg -o flight_est.csv   # CSV: t_s, q_est_w..z, sigma_rad, gyro bias',
+                 'tepinn-flight estimate flight.ulg -o flight_est.csv   # CSV: t_s, t_log_s, q_est_w..z, sigma_rad, gyro bias',
                  'tepinn-flight estimate 00000042.BIN -o est.parquet --mode auto   # a log: ingested on the fly',
                  'tepinn-flight estimate flight.tlog -o est.parquet --tlog flight_est.tlog   # overlay on ATT in MAVExplorer',
                  'tepinn-flight estimate records/*.parquet -o estimates/ --model runs/mine/model.pt',
@@ -46,7 +49,7 @@ def add_arguments(p) -> None:
     p.add_argument("--yaw", choices=["gyro", "zero"], default=None,
                    help="heading of the output: integrated gyro (default) or 0 (the paper's 6-D correction)")
     p.add_argument("--mode", choices=["6d", "9d", "auto"], default=None,
-                   help="6d: gyro + accelerometer, heading relative; 9d: with the magnetometer, heading from magnetic "
+                   help="6d: gyro + accelerometer, heading relative (90 deg at the start, then the gyro's); 9d: with the magnetometer, heading from magnetic "
                         "north (no declination applied); auto: 9d where the record has a magnetometer "
                         "(default: the model's, 6d for the shipped one)")
     p.add_argument("--threads", type=threads, default=0, metavar="N", help="CPU threads of the runtime (default: its own choice)")
@@ -280,7 +283,7 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
     # what the record's own calibration, GNSS velocity and rests gave, and where the network's gates acted
     found = {k: df.attrs[k] for k in REPORTED_STEPS if df.attrs.get(k)}
     table = table.replace_schema_metadata({b"source_record": str(src.name).encode(), b"model": str(opts.model_name).encode(),
-                                           b"estimate_key": key.encode(),
+                                           b"estimate_key": key.encode(), b"conventions": _conventions_json().encode(),
                                            **{k.encode(): v.encode() for k, v in found.items()}})  # fmt: skip
     if output_format(dst, "estimate", csv=True) == "csv":  # the columns alone (the notes are printed below)
         atomic_write(dst, lambda tmp: write_csv(table, tmp))
@@ -298,6 +301,21 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
             err.append(f"tepinn-flight estimate: error: {src}: {exc}")
             return out, err, 1
     return out, err, 0
+
+
+#: the estimate's frames and units, in its Parquet metadata (a CSV carries none: `estimate --help` says them)
+
+
+def _conventions_json() -> str:
+    import json
+
+    from ..conventions import describe
+
+    d = describe()
+    d["columns"] = {"t_s": "s from the record's first sample", "t_log_s": "s on the log's own clock",
+                    "q_est_w..z": "attitude body -> earth", "sigma_rad": "1-sigma tilt uncertainty per horizontal axis, rad",
+                    "gyr_bias_est_*_rad_s": "gyro bias, body frame, rad/s"}  # fmt: skip
+    return json.dumps(d)
 
 
 _WORKER = {}  # in a worker process: the runner and settings its initializer loaded

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ConfigError, TepinnError
+from ..log_clock import log_clock_s
 from ..model.estimate import REPORTED_STEPS, gates_acted
 from ..model.reference_trust import check_reference
 from ..record import GYR_BIAS_COLS, SIMULATED_KINDS, FlightRecord, estimation_ok, segment_slices
@@ -219,7 +220,8 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
     dataset = aggregate(headline, estimators, len(config.rate_bins_deg_s) - 1)
     comparisons = compare_learned(headline, estimators, dataset)
     info = [{"name": e.name, "kind": e.kind, "causal": bool(e.causal), "uses_mag": bool(e.uses_mag),
-             "heading": "raw (9-D)" if e.uses_mag else "one constant offset per run (6-D)"} for e in estimators]  # fmt: skip
+             "heading": ("none (not tracked)" if not getattr(e, "tracks_heading", True) else
+                         "raw (9-D)" if e.uses_mag else "one constant offset per run (6-D)")} for e in estimators]  # fmt: skip
     return EvalResult(config, info, rec_results, dataset, comparisons, notes, series)
 
 
@@ -248,7 +250,9 @@ def score_record(rec: FlightRecord, runs: dict, estimators, config: HarnessConfi
     q_ref = rec.q_ref_wxyz
     has_bias = all(c in rec.data for c in GYR_BIAS_COLS)
     b_true = rec.data[GYR_BIAS_COLS].to_numpy(np.float64) if has_bias else None
+    t_log = log_clock_s(rec.t_s[:1], rec.meta) if len(rec) else None  # the log's clock where the figures' t = 0
     out = {"name": name, "source_kind": rec.meta.get("source_kind"), "n_samples": len(rec),
+           "log_clock_at_t0_s": float(t_log[0]) if t_log is not None else None,
            "duration_s": float(rec.t_s[-1] - rec.t_s[0]) if len(rec) > 1 else 0.0,
            "n_scored_common": int(common.sum()), "results": {}}  # fmt: skip
     ser = {"name": name, "t_s": rec.t_s, "q_ref": q_ref, "mask": common, "rate": rate, "est": {}}
@@ -288,6 +292,11 @@ def _to_report_units(s: dict) -> dict:
     return out
 
 
+#: the summary's figures that need a tracked heading
+_HEADING_KEYS = ("heading_rmse_deg", "total_rmse_deg", "yaw_rmse_deg", "mean_quat_distance", "mean_quat_angle_deg",
+                 "heading_drift_deg_per_min", "heading_drift_abs_deg_per_min")
+
+
 def aggregate(rec_results: list[dict], estimators, n_bins: int) -> dict:
     keys = ["inclination_rmse_deg", "roll_rmse_deg", "pitch_rmse_deg", "heading_rmse_deg", "total_rmse_deg",
             "yaw_rmse_deg", "inclination_mean_deg", "inclination_p95_deg", "mean_quat_distance",
@@ -305,6 +314,9 @@ def aggregate(rec_results: list[dict], estimators, n_bins: int) -> dict:
         d["inclination_rmse_median_deg"] = float(np.median(incl)) if incl.size else None
         d["inclination_rmse_p95_deg"] = float(np.percentile(incl, 95)) if incl.size else None
         d["heading_drift_abs_deg_per_min"] = _mean_finite([abs(r.get("heading_drift_deg_per_min", np.nan)) for r in rs])
+        if not getattr(est, "tracks_heading", True):  # (RIANN: a heading it does not track is no figure to compare)
+            for k in _HEADING_KEYS:
+                d[k] = None
         sq = np.zeros(n_bins)
         cnt = np.zeros(n_bins)
         for r in rs:
@@ -334,6 +346,11 @@ def _mean_finite(vals):
     return float(a.mean()) if a.size else None
 
 
+#: a record counts for A in the paired comparison only where A's inclination RMSE is below B's by more than this
+#: (the report's resolution): identical estimates differ by ~1e-12° and counted as wins before session 45
+WIN_MARGIN_DEG = 0.005
+
+
 def compare_learned(rec_results, estimators, dataset) -> list[dict]:
     """Paired Wilcoxon over records: each learned estimator vs the best non-learned one."""
     learned = [e.name for e in estimators if e.kind == "learned"]
@@ -356,7 +373,8 @@ def compare_learned(rec_results, estimators, dataset) -> list[dict]:
             "a": a, "b": b, "metric": "inclination_rmse_deg (per record)", "n": two["n"],
             "mean_a": ma, "mean_b": mb,
             "relative_change": (ma - mb) / mb if ma is not None and mb else None,
-            "wins_a": int(np.sum(np.asarray(xa) < np.asarray(xb))), "n_records": len(rec_results),
+            "wins_a": int(np.sum(np.asarray(xa) < np.asarray(xb) - WIN_MARGIN_DEG)),
+            "ties": int(np.sum(np.abs(np.asarray(xa) - np.asarray(xb)) <= WIN_MARGIN_DEG)), "n_records": len(rec_results),
             "pvalue_two_sided": two["pvalue"], "pvalue_a_less": less["pvalue"],
             "statistic_w_plus": two["statistic"], "method": two["method"],
         })  # fmt: skip

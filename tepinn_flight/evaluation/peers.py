@@ -50,6 +50,7 @@ class _PeerBase:
     kind = "peer"
     causal = True
     uses_mag = False
+    tracks_heading = True
 
     def estimate(self, record: FlightRecord) -> pd.DataFrame:
         n = len(record)
@@ -97,6 +98,7 @@ class RiannEstimator(_PeerBase):
     """RIANN (Weber et al. 2021): pretrained GRU, 6-D attitude only (heading undefined)."""
 
     q_ned_earth = Q_NED_ENU
+    tracks_heading = False  # its heading is not a heading: the report leaves its heading figures out
 
     def __init__(self):
         import riann

@@ -23,7 +23,7 @@ import numpy as np
 
 from .. import __version__
 from ..record import atomic_write
-from .harness import EvalResult
+from .harness import WIN_MARGIN_DEG, EvalResult
 from .names import display_name
 from .plotdata import PAPER_COLOURS, break_wraps, colour_map, is_9d, minmax_indices, showcase_records
 from .left_out import LEFT_OUT_NOTE, left_out
@@ -89,6 +89,24 @@ def _legend_below(fig, axes) -> None:
         fig.legend(handles, labels, loc="outside lower center", ncol=min(len(labels), 10), fontsize=8, frameon=False)
 
 
+def _drawn(est: dict) -> list:
+    """The estimates in drawing order: TE-PINN last, so that its line is on top of the peers' (it was hidden under
+    eight of them where they agree)."""
+    return sorted(est.items(), key=lambda kv: kv[0].startswith("tepinn"))
+
+
+def _style(name: str) -> dict:
+    return {"zorder": 3, "lw": 1.1} if name.startswith("tepinn") else {"zorder": 2, "lw": 0.8}
+
+
+def _hemisphere_ref(ref: np.ndarray) -> np.ndarray:
+    """The reference where it is finite, elsewhere its nearest finite sample before (else after): what an estimate's
+    sign is matched to, so that the plotted quaternion does not jump where the reference is missing."""
+    import pandas as pd
+
+    return pd.DataFrame(ref).ffill().bfill().to_numpy()
+
+
 def _caption(s: dict, cap: str) -> str:
     return f"{s['name']}\n{cap}" if cap else s["name"]
 
@@ -104,11 +122,12 @@ def fig_quaternion(result, colours, path=None):
         k = _stride(len(s["t_s"]))
         t = s["t_s"][::k]
         ref = s["q_ref"][::k]
-        for name, e in s["est"].items():
+        side = _hemisphere_ref(ref)
+        for name, e in _drawn(s["est"]):
             q = e["q"][::k]
-            q = np.where(np.sum(q * ref, axis=1, keepdims=True) < 0, -q, q)
+            q = np.where(np.sum(q * side, axis=1, keepdims=True) < 0, -q, q)
             for i in range(4):
-                axes[i][c].plot(t, q[:, i], color=colours[name], ls=_ls(name), lw=0.8, label=display_name(name))
+                axes[i][c].plot(t, q[:, i], color=colours[name], ls=_ls(name), label=display_name(name), **_style(name))
         for i, comp in enumerate("wxyz"):
             axes[i][c].plot(t, ref[:, i], color=PAPER_COLOURS["truth"], lw=1.2, label="reference")
             axes[i][0].set_ylabel(f"q_{comp}")
@@ -128,7 +147,7 @@ def fig_euler(result, colours, path=None):
     fig, axes = _grid(plt, 3, shown, 7)
     for c, (s, cap) in enumerate(shown):
         t = s["t_s"]
-        for name, e in list(s["est"].items()) + [("reference", {"q": s["q_ref"]})]:
+        for name, e in _drawn(s["est"]) + [("reference", {"q": s["q_ref"]})]:
             ref = name == "reference"
             eul = quat_to_euler_zyx(e["q"])
             for i in range(3):
@@ -138,7 +157,8 @@ def fig_euler(result, colours, path=None):
                 if i != 1:
                     tt, yy = break_wraps(tt, yy)
                 axes[i][c].plot(tt, yy, color=PAPER_COLOURS["truth"] if ref else colours[name], ls="-" if ref else _ls(name),
-                                lw=1.2 if ref else 0.8, label=name if ref else display_name(name))  # fmt: skip
+                                label=name if ref else display_name(name),
+                                **({"lw": 1.2, "zorder": 2.5} if ref else _style(name)))  # fmt: skip
         for i in (0, 2):
             axes[i][c].set_ylim(-185, 185)
             axes[i][c].set_yticks([-180, -90, 0, 90, 180])
@@ -158,11 +178,11 @@ def fig_inclination_error(result, colours, path=None):
     for c, (s, cap) in enumerate(shown):
         ax = axes[0][c]
         t, m = s["t_s"], s["mask"]
-        for name, e in s["est"].items():
+        for name, e in _drawn(s["est"]):
             y = np.degrees(e["incl"]).copy()
             y[~m] = np.nan
             idx = minmax_indices(y, 6000)
-            ax.plot(t[idx], y[idx], color=colours[name], ls=_ls(name), lw=0.8, label=display_name(name))
+            ax.plot(t[idx], y[idx], color=colours[name], ls=_ls(name), label=display_name(name), **_style(name))
         ax.set_title(_caption(s, cap), fontsize=9)
         ax.set_xlabel("t [s]")
     axes[0][0].set_ylabel("inclination error [°]")
@@ -325,8 +345,11 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
         L.append("")
     L.append("## Records")
     L.append("")
+    L.append("The figures' time axes are each record's t (0 at its first sample); the log's own clock (TimeUS, "
+             "time_boot_ms, timestamp) is t plus the \"log clock at t = 0\" column, up to a reboot.")
+    L.append("")
     L.append("| " + " | ".join(RECORD_COLUMNS) + " |")
-    L.append("|---|---|---:|---|---|---:|---:|---:|")
+    L.append("|---|---|---:|---|---|---:|---:|---:|---:|")
     for row in record_rows(result):
         L.append("| " + " | ".join(row) + " |")
     L.append("")
@@ -346,7 +369,10 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     L.append("## Summary (mean over records)" if not (slow and fast) else
              f"## Summary (mean over the {fast} records in it)")  # fmt: skip
     L.append("")
-    L.append("| estimator | kind | causal | mode | incl. RMSE [°] | median | p95 | roll [°] | pitch [°] | heading [°] | "
+    L.append("Median and p95: of the records' inclination RMSEs (with one record, the RMSE itself); every other column "
+             "is a mean over records. Heading: after one constant offset per record in 6-D; RIANN has no heading.")
+    L.append("")
+    L.append("| estimator | kind | causal | mode | incl. RMSE [°] | median of records | p95 of records | roll [°] | pitch [°] | heading [°] | "
              "total [°] | \\|drift\\| [°/min] | mean q dist | mean angle [°] | gyro bias RMS [°/s] | µs/sample |")  # fmt: skip
     L.append("|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     info = {e["name"]: e for e in result.estimators}
@@ -417,12 +443,18 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     L.append("## Paired comparison over records (Wilcoxon signed-rank, inclination RMSE)")
     L.append("")
     if result.comparisons:
-        L.append("| A | B (best other) | n | mean A [°] | mean B [°] | change | A better in | p (two-sided) | p (A < B) |")
+        L.append(f"A record counts as better only by more than {WIN_MARGIN_DEG:g}° (closer is a tie: the same estimate "
+                 "differs by rounding noise).")
+        if max(cmp_["n"] for cmp_ in result.comparisons) < 6:
+            L.append("With fewer than 6 records no two-sided Wilcoxon signed-rank test can reach p < 0.05: read these "
+                     "p-values as too few records, not as no difference.")
+        L.append("")
+        L.append("| A | B (best other) | n | mean A [°] | mean B [°] | change | A better in (ties) | p (two-sided) | p (A < B) |")
         L.append("|---|---|---:|---:|---:|---:|---:|---:|---:|")
         for cmp_ in result.comparisons:
             ch = cmp_["relative_change"]
             L.append(f"| {display_name(cmp_['a'])} | {display_name(cmp_['b'])} | {cmp_['n']} | {_f(cmp_['mean_a'])} | {_f(cmp_['mean_b'])} | "
-                     f"{'–' if ch is None else f'{100 * ch:+.1f} %'} | {cmp_['wins_a']}/{cmp_.get('n_records', len(result.records))} | "
+                     f"{'–' if ch is None else f'{100 * ch:+.1f} %'} | {cmp_['wins_a']}/{cmp_.get('n_records', len(result.records))} ({cmp_.get('ties', 0)}) | "
                      f"{_f(cmp_['pvalue_two_sided'], 4)} | {_f(cmp_['pvalue_a_less'], 4)} |")  # fmt: skip
         if not any(e["kind"] == "learned" for e in result.estimators):
             L.append("")

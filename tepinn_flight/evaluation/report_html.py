@@ -117,8 +117,8 @@ def rate_counts(result) -> list[int]:
     return list(d["dynamic_error_n"])
 
 
-RECORD_COLUMNS = ["record", "kind", "IMU rate [Hz]", "reference", "estimation OK", "duration [s]", "samples",
-                  "scored (common)"]  # fmt: skip
+RECORD_COLUMNS = ["record", "kind", "IMU rate [Hz]", "reference", "estimation OK", "duration [s]",
+                  "log clock at t = 0 [s]", "samples", "scored (common)"]  # fmt: skip
 
 
 def record_rows(result) -> list[list[str]]:
@@ -133,7 +133,8 @@ def record_rows(result) -> list[list[str]]:
         extra = ", ".join([f"{gaps} dropout(s) bridged"] * bool(gaps) + [f"{lost} lost one at a time"] * bool(lost))
         rows.append([r["name"], str(r["source_kind"]), "–" if rate is None else f"{rate:.1f}", str(r.get("reference_source", "–")),
                      ("yes" if ok else "no") + (f": {why}, not in the summary" if why else ""),
-                     f"{r['duration_s']:.1f}", f"{r['n_samples']}" + (f" ({extra})" if extra else ""),
+                     f"{r['duration_s']:.1f}", "–" if r.get("log_clock_at_t0_s") is None else f"{r['log_clock_at_t0_s']:.3f}",
+                     f"{r['n_samples']}" + (f" ({extra})" if extra else ""),
                      str(r["n_scored_common"])])  # fmt: skip
     return rows
 
