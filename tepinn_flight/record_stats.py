@@ -31,6 +31,7 @@ def summarize(rec: FlightRecord) -> dict:
         "estimation_ok": m.get("estimation_ok"),
         "reference_source": m.get("reference_source"),
         "reference_rate_hz": m.get("reference_rate_hz"),
+        "level_trim_rad": m.get("level_trim_rad"),
         "reference_coverage": float(np.mean(np.all(np.isfinite(rec.q_ref_wxyz), axis=1))) if len(rec) else 0.0,
         "corrupt_frames": m.get("corrupt_frames", 0),
         "skipped_frames": m.get("skipped_frames", 0),

@@ -107,3 +107,28 @@ def test_live_comparison_turns_the_ekf_attitude_once_the_trim_is_known():
 
     assert run(True) < 1e-4  # float32 Euler in the message
     assert run(False) == pytest.approx(np.degrees(np.hypot(tx, ty)), abs=0.05)
+
+
+@pytest.mark.parametrize("name", ["ardusub_small.BIN", "ardusub_small.tlog"])
+def test_info_names_the_level_trim_even_where_the_reference_needs_none(name, capsys):
+    """The estimate is the IMU board's attitude; ArduPilot's ATT the vehicle's. With XKQ (the board's) as the
+    reference nothing said so, and an analyst overlaying the estimate on ATT found a 1.5° offset unexplained. `info`
+    now gives the trim, read from the log's parameters (checked here against pymavlink's PARM / PARAM_VALUE)."""
+    import math
+
+    from pymavlink import mavutil
+
+    from tepinn_flight.cli.main import main
+
+    path = real_log(name)
+    conn = mavutil.mavlink_connection(str(path))
+    want = {}
+    while (m := conn.recv_match(type=["PARM", "PARAM_VALUE"])) is not None:
+        d = m.to_dict()
+        key = d.get("Name", d.get("param_id"))
+        if key in ("AHRS_TRIM_X", "AHRS_TRIM_Y"):
+            want[key] = float(d.get("Value", d.get("param_value")))
+    assert main(["info", str(path)]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if "level trim" in ln)
+    assert f"{math.degrees(want['AHRS_TRIM_X']):.2f}°, {math.degrees(want['AHRS_TRIM_Y']):.2f}°" in line
+    assert "board" in line and "vehicle" in line

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 
 def _hz(v) -> str:
     return "n/a" if v is None else f"{v:.1f} Hz"
@@ -50,6 +52,11 @@ def render_info(path, s: dict) -> str:
     chk = s.get("reference_check")
     if chk:
         add("reference check", chk["line"].removeprefix("reference attitude: "))
+    trim = s.get("level_trim_rad")
+    if trim:
+        add("level trim", f"AHRS_TRIM_X/Y {math.degrees(trim[0]):.2f}°, {math.degrees(trim[1]):.2f}°: the estimates and the "
+            "reference above are the IMU board's attitude; ArduPilot's ATT / ATTITUDE (and a ground station) show the "
+            "vehicle's, turned by this trim")  # fmt: skip
     gaps = s.get("gaps", [])
     nb = s.get("bridged_gaps", 0)
     add("segments", f"{s.get('segments')} ({len(gaps)} break(s)"

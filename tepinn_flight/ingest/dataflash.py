@@ -466,11 +466,13 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     except ConfigError as exc:
         raise ConfigError(exc.reason, path) from None
     ref = None
+    trim = usable_trim(*(_param(src, n) for n in TRIM_PARAMS))
+    if trim is not None:  # the board's attitude (estimates, the reference) is this far from ATT's vehicle attitude
+        meta["level_trim_rad"] = list(trim)
     if pick is not None:
         label, rinst = pick
         rinst = _with_rows(src, rinst)
         t_ref, q = _ref_quaternions(src, rinst)
-        trim = usable_trim(*(_param(src, n) for n in TRIM_PARAMS))
         if rinst.name not in QUAT_REFS and trim is not None:  # reported in the vehicle's frame (.ahrs_trim)
             q = vehicle_to_board(q, *trim)
             meta["ahrs_trim_rad"] = list(trim)

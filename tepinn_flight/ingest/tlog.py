@@ -296,6 +296,9 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
         meta["firmware"] = firmware
     if trim_meta is not None:
         meta["ahrs_trim_rad"] = trim_meta
+    level = usable_trim(*(params.get(n) for n in TRIM_PARAMS)) if autopilot == "ardupilot" else None
+    if level is not None:  # the board's attitude (estimates, the reference) is this far from ATTITUDE's vehicle attitude
+        meta["level_trim_rad"] = list(level)
     if scan.corrupt_frames:
         notes.append(f"{scan.corrupt_frames} frames failed their CRC check: skipped")
     if scan.junk_bytes:
