@@ -161,7 +161,7 @@ def test_evaluate_says_where_samples_were_lost_and_how_the_estimators_differ_the
     from tepinn_flight.evaluation.estimators import TepinnEstimator
     from tepinn_flight.evaluation.harness import evaluate
     from tepinn_flight.evaluation.peers import VqfEstimator
-    from tepinn_flight.evaluation.report_html import record_rows
+    from tepinn_flight.evaluation.report_html import RECORD_COLUMNS, record_rows
 
     rec = _rolling(lose=0.05, seed=2)
     rec.meta.update(imu_rate_hz=100.0, reference_source="synthetic-truth")
@@ -172,6 +172,6 @@ def test_evaluate_says_where_samples_were_lost_and_how_the_estimators_differ_the
     r = res.records[0]
     assert r["lost_samples"] == want
     assert any(f"{want} sample(s) lost one at a time" in n for n in res.notes)
-    assert f"({want} lost one at a time)" in record_rows(res)[0][6]
+    assert f"({want} lost one at a time)" in record_rows(res)[0][RECORD_COLUMNS.index("samples")]
     incl = {k: v["inclination_rmse_deg"] for k, v in r["results"].items()}
     assert incl["tepinn"] < 0.05 and incl["vqf"] > 1.0
