@@ -24,7 +24,7 @@ Time
     record's reference (the log's ATT turned into the IMU board's frame by the level trim, or XKQ, or the
     truth), not the log's own ATT rows.
     ``rate_hz``: every sample of a log at that rate, through its stamps' jitter; a faster log thinned
-    to about it (:func:`~tepinn_flight.tlog_writer.due_at_rate`).
+    to about it (:func:`~tepinn_flight.rate_thinning.due_at_rate`).
 
 Why not ATTITUDE by default
     Log tools that key messages by type only (pymavlink's ``messages``, MAVExplorer graphs) would mix
@@ -88,19 +88,15 @@ def _imu_frames(base: Path, imu_name: str, instance: int, sysid: int):
 
 def _tlog_clock(rec: FlightRecord) -> tuple[float, float]:
     """(the boot time of the record's first sample, the UNIX receive time of it) for a tlog written from a record:
-    the log's own clock where the record has one boot on a boot clock (DataFlash, ULog: the estimate then lines up
-    with the log's TimeUS / timestamp), the UNIX time for a ULog stamped in it; else the writer's defaults."""
-    from .log_clock import log_clock_s
+    the log's own clock where :func:`~tepinn_flight.log_clock.boot_time_at_start_s` gives it (DataFlash, ULog: the
+    estimate then lines up with the log's TimeUS / timestamp), the UNIX time for a ULog stamped in it; else the
+    writer's defaults."""
+    from .log_clock import boot_time_at_start_s, unix_time_at_start_s
     from .tlog_writer import DEFAULT_BOOT_OFFSET_S, DEFAULT_START_UNIX_S
 
-    t_log = log_clock_s(rec.t_s, rec.meta)
-    if t_log is None or rec.meta.get("source_kind") not in ("dataflash", "ulog") or len(rec.meta.get("epoch_time_offsets_s") or {}) != 1:
-        return DEFAULT_BOOT_OFFSET_S, DEFAULT_START_UNIX_S
-    if rec.meta.get("time_base") == "unix":
-        return DEFAULT_BOOT_OFFSET_S, float(t_log[0])
-    if not (t_log[0] >= 0.0 and t_log[-1] * 1e3 < 2**32):  # time_boot_ms is a uint32
-        return DEFAULT_BOOT_OFFSET_S, DEFAULT_START_UNIX_S
-    return float(t_log[0]), DEFAULT_START_UNIX_S
+    boot = boot_time_at_start_s(rec.t_s, rec.meta)
+    unix = unix_time_at_start_s(rec.t_s, rec.meta)
+    return (DEFAULT_BOOT_OFFSET_S if boot is None else boot), (DEFAULT_START_UNIX_S if unix is None else unix)
 
 
 def write_estimate_tlog(
@@ -119,7 +115,8 @@ def write_estimate_tlog(
     the record was ingested from, or None to write the record itself as the autopilot's messages.
     """
     from .live.messages import Encoder, attitude_msg, attitude_quaternion_msg, estimate_msgs, heartbeat_onboard_msg
-    from .tlog_writer import due_at_rate, write_tlog
+    from .rate_thinning import due_at_rate
+    from .tlog_writer import write_tlog
 
     messages = tuple(messages)
     if not messages or any(k not in TLOG_MESSAGES for k in messages):

@@ -35,3 +35,27 @@ def log_clock_s(t_s: np.ndarray, meta: dict) -> np.ndarray | None:
     shift = np.array([off[e] for e in epochs])
     k = np.clip(np.searchsorted(first, t, side="right") - 1, 0, len(epochs) - 1)
     return t - shift[k]
+
+
+def boot_time_at_start_s(t_s: np.ndarray, meta: dict) -> float | None:
+    """The autopilot's time since boot at the record's first sample, where the record is one boot of a DataFlash or
+    ULog log on a boot clock that a MAVLink ``time_boot_ms`` (uint32) can carry; else None. What a tlog written from
+    the record (``estimate --tlog``) and a replay of it (``replay``) stamp their messages from, so that they line up
+    with the log's own clock."""
+    if meta.get("source_kind") not in ("dataflash", "ulog") or len(meta.get("epoch_time_offsets_s") or {}) != 1:
+        return None
+    if meta.get("time_base") == "unix" or not len(t_s):
+        return None
+    t_log = log_clock_s(np.asarray(t_s[:1]), meta)
+    t_end = log_clock_s(np.asarray(t_s[-1:]), meta)
+    if t_log is None or not (t_log[0] >= 0.0 and t_end[0] * 1e3 < 2**32):
+        return None
+    return float(t_log[0])
+
+
+def unix_time_at_start_s(t_s: np.ndarray, meta: dict) -> float | None:
+    """The UNIX time of the record's first sample, where the log stamped its IMU with it (PX4 SITL ULogs); else None."""
+    if meta.get("time_base") != "unix" or not len(t_s):
+        return None
+    t_log = log_clock_s(np.asarray(t_s[:1]), meta)
+    return None if t_log is None else float(t_log[0])

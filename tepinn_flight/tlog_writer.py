@@ -38,6 +38,7 @@ from .conventions import GRAVITY_M_S2
 from .mavlink_dialect import dialect
 from .vehicle_class import mav_type_suffix
 from .quat import quat_to_euler_zyx
+from .rate_thinning import due_at_rate
 from .record import GYR_BIAS_COLS, FlightRecord, atomic_write
 
 #: 2023-11-14T22:13:20Z: the default receive time of the record's first sample.
@@ -73,29 +74,6 @@ class TlogWriter:
 
 def _i16(x: np.ndarray) -> np.ndarray:
     return np.clip(np.round(np.nan_to_num(x)), *_INT16).astype(np.int64)
-
-
-def due_at_rate(t_s: np.ndarray, rate_hz: float, candidates: np.ndarray | None = None) -> np.ndarray:
-    """Rows to send at about ``rate_hz``: the first candidate, then each one at least ``1/rate_hz`` less half a
-    sample period after the last taken (bool mask). A log at that rate keeps every sample through its stamps'
-    jitter (a 50-Hz ArduCopter log stepping 18–21 ms lost 22 % of them to fixed 20-ms ticks); a faster one is
-    thinned to about the rate (400 Hz → every 8th sample for 50 Hz). ``rate_hz`` ≤ 0: every candidate."""
-    t = np.asarray(t_s, np.float64)
-    cand = np.ones(len(t), bool) if candidates is None else np.asarray(candidates, bool)
-    if rate_hz <= 0 or not np.isfinite(rate_hz):
-        return cand.copy()
-    dt = np.diff(t)
-    dt = dt[(dt > 0) & np.isfinite(dt)]
-    period = float(np.median(dt)) if len(dt) else 0.0
-    gap = 1.0 / rate_hz - 0.5 * period
-    due = np.zeros(len(t), bool)
-    last = -np.inf
-    for i in np.flatnonzero(cand).tolist():
-        ti = float(t[i])
-        if ti - last >= gap - 1e-9:
-            due[i] = True
-            last = ti
-    return due
 
 
 def write_tlog(

@@ -180,7 +180,7 @@ def test_a_dataflash_logs_tlog_keeps_the_logs_clock_and_every_sample_at_its_rate
 
 
 def test_due_at_rate_thins_a_fast_log_and_keeps_a_jittery_one_at_the_rate():
-    from tepinn_flight.tlog_writer import due_at_rate
+    from tepinn_flight.rate_thinning import due_at_rate
 
     t400 = np.arange(4000) / 400.0
     due = due_at_rate(t400, 50.0)

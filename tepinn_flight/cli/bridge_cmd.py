@@ -45,7 +45,9 @@ def add_arguments(p) -> None:
     p.add_argument("--diag-rate", type=float, default=10.0, metavar="HZ", help="diagnostics per second (default 10; 0 = none)")
     p.add_argument("--imu", type=int, default=0, metavar="N", help="IMU instance to use (default 0)")
     p.add_argument("--min-imu-rate", type=float, default=50.0, metavar="HZ",
-                   help="below this IMU rate ask the autopilot for more (MAV_CMD_SET_MESSAGE_INTERVAL; default 50)")
+                   help="below this IMU rate (less 10 %%, for 2 s) ask the autopilot for more "
+                        "(MAV_CMD_SET_MESSAGE_INTERVAL; default 50; 0: never); not granted: a warning, and the estimates "
+                        "go on (withheld only below 20 Hz, too slow to estimate from)")
     p.add_argument("--request-imu-rate", type=float, default=200.0, metavar="HZ", help="IMU rate to ask for (default 200)")
     p.add_argument("--sysid", type=int, default=None, metavar="N", help="the autopilot's system id (default: the first seen)")
     p.add_argument("--compid", type=int, default=191, metavar="N", help="our component id (default 191, MAV_COMP_ID_ONBOARD_COMPUTER)")

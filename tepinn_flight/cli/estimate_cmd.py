@@ -15,8 +15,8 @@ DESCRIPTION = (
     "below a 20 Hz IMU, slower than the network learned); "
     "offline only, where the record shows them, the accelerometer's and the gyro's scale and the motion "
     "acceleration a GNSS receiver measured are taken out first, and where no gate acts for 30 s or more (5 s where "
-    "none acts next to it: a short log) the tilt is VQF's run forward and backward (--no-smooth: the causal tilt the "
-    "live bridge gives). Writes one row per "
+    "none acts next to it: a short log) the tilt is VQF's run forward and backward (--no-smooth: the causal tilt; with --no-gnss-aid "
+    "--no-gyro-selfcal too, what the live bridge gives). Writes one row per "
     "input row: t_s (s from the record's first sample), t_log_s (a real log's own clock: DataFlash TimeUS, MAVLink "
     "time_boot_ms, ULog timestamp, in s), q_est_w..z (Hamilton, scalar first, body FRD -> NED), sigma_rad (the "
     "1-sigma tilt uncertainty per horizontal axis, rad), gyr_bias_est_*_rad_s (body FRD), and says per record what each "
@@ -73,7 +73,8 @@ def add_arguments(p) -> None:
                         "velocity and it agrees with the accelerometer: docs/estimator.md)")
     smooth = p.add_mutually_exclusive_group()
     smooth.add_argument("--no-smooth", action="store_true",
-                        help="do not smooth the tilt offline (the causal estimate the live bridge gives; by default every "
+                        help="do not smooth the tilt offline (the causal estimate; the live bridge's with --no-gnss-aid and "
+                             "--no-gyro-selfcal too; by default every "
                              "stretch of 30 s or more where no gate of the network acts (5 s where none acts next to it) takes "
                              "the tilt of VQF run forward and backward on the same inputs, heading kept: nearer the true "
                              "attitude, farther from an autopilot's own causal estimate: docs/estimator.md)")

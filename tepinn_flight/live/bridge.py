@@ -80,6 +80,7 @@ class BridgeConfig:
     autopilot_timeout_s: float = 3.0
     request_grace_s: float = 2.0  # judge the IMU rate only after seeing the autopilot this long
     request_spacing_s: float = 3.0  # between MAV_CMD_SET_MESSAGE_INTERVAL attempts
+    imu_slow_for_s: float = 2.0  # the IMU counts as slow after this long below min_imu_rate_hz (a stopping one: not)
     view: bool = False  # --view: TE-PINN beside the EKF in the Rerun viewer (live/view.py)
     rrd_path: str | None = None  # --rrd: the same recorded to a Rerun file
 
@@ -137,7 +138,7 @@ class Bridge:
         self.ap = AutopilotTracker(c.sysid, c.compid, note)
         self.imu = ImuStream(c.imu_instance, note)
         self.requests = ImuRateRequests(c.min_imu_rate_hz, c.request_imu_rate_hz, c.request_grace_s,
-                                        c.request_spacing_s, note)  # fmt: skip
+                                        c.request_spacing_s, note, c.imu_slow_for_s)  # fmt: skip
         self.comparison = LiveComparison(self.view)
         self.trim_asked = False  # AHRS_TRIM_X/Y requested from an ArduPilot autopilot
         self.feed = EstimatorFeed(c, make_estimator, note)
@@ -261,7 +262,7 @@ class Bridge:
     def _emit(self, est: dict) -> None:
         if self.ap.enc is None:
             return
-        if self.requests.warning:  # the IMU stays below min_imu_rate_hz: an estimate from it would mislead
+        if self.requests.withhold:  # the IMU stays below 20 Hz, not granted more: an estimate from it would mislead
             self.out.withheld += 1
             return
         self.out.emit(est, self.comparison, self.imu.rate,
@@ -296,7 +297,9 @@ class Bridge:
         imu = f"{self.imu.message or 'IMU -'} {self.imu.rate.rate(now):.0f} Hz"
         est = self.feed.state()
         if est is None:
-            if self.out.lat_hist.count == 0:
+            if self.requests.withhold:
+                est = "est withheld (IMU too slow)"
+            elif self.out.lat_hist.count == 0:
                 est = "est - (first window filling)" if self.imu.samples else "est - (no IMU yet)"
             else:
                 est = self.out.status(now)

@@ -11,12 +11,13 @@
 * **rate**: when the autopilot has been seen for ``request_grace_s`` and its IMU stream is below
   ``min_imu_rate_hz``, :class:`ImuRateRequests` asks for ``request_imu_rate_hz`` with
   ``MAV_CMD_SET_MESSAGE_INTERVAL`` (up to 3 times, ``request_spacing_s`` apart) and says so, with a
-  warning that withholds the estimates, if it did not help.
+  warning if it did not help; the estimates are withheld only below 20 Hz (:class:`ImuRateRequests`).
 """
 
 from __future__ import annotations
 
 from ..ingest.tlog import MAV_AUTOPILOT_ARDUPILOTMEGA
+from ..record import MIN_ESTIMATION_RATE_HZ
 from . import MAV_COMP_ID_AUTOPILOT1
 from .inputs import ImuSample, imu_preference, imu_sample, imu_scale_known
 from .messages import set_message_interval_msg
@@ -25,6 +26,8 @@ from .status import RateMeter
 
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 REQUEST_ATTEMPTS = 3
+#: an IMU counts as slow below (1 − this) × ``min_imu_rate_hz`` (the rate meter's count over its window jitters)
+RATE_ALLOWANCE = 0.1
 #: the IMU messages the bridge reads
 IMU_NAMES = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
 
@@ -100,9 +103,18 @@ class ImuStream:
 
 
 class ImuRateRequests:
-    """Asks a slow autopilot for a faster IMU stream; ``warning`` when it was not granted."""
+    """Asks a slow autopilot for a faster IMU stream; ``warning`` when it was not granted, ``withhold`` when the
+    stream is then too slow to estimate from at all.
 
-    def __init__(self, min_rate_hz: float, request_rate_hz: float, grace_s: float, spacing_s: float, note):
+    The IMU is slow when its rate stays under ``min_rate_hz`` (less :data:`RATE_ALLOWANCE`: a 50-Hz IMU counted over
+    the meter's window reads 43–49.5 Hz) for ``slow_for_s`` (a stream that stops is not a slow one). Estimates are
+    withheld only below :data:`~tepinn_flight.record.MIN_ESTIMATION_RATE_HZ` (20 Hz), the rate below which a log is
+    too slow offline too; between that and ``min_rate_hz`` the bridge asks, warns if not granted, and estimates on
+    (a 25-Hz ArduSub IMU; the network's gates stay shut below the rates it learned)."""
+
+    def __init__(self, min_rate_hz: float, request_rate_hz: float, grace_s: float, spacing_s: float, note,
+                 slow_for_s: float = 2.0):  # fmt: skip
+        self.slow_for_s = slow_for_s
         self.min_rate_hz = min_rate_hz
         self.request_rate_hz = request_rate_hz
         self.grace_s = grace_s
@@ -113,6 +125,8 @@ class ImuRateRequests:
         self.msg = None
         self.ack = None
         self.warning = None
+        self.withhold = False
+        self.slow_since = None
 
     def check(self, now: float, ap, imu_rate: RateMeter, send) -> None:
         """``ap``: the :class:`~tepinn_flight.live.autopilot.AutopilotTracker`; ``imu_rate``: the IMU
@@ -120,14 +134,19 @@ class ImuRateRequests:
         if ap.enc is None or ap.lost or ap.first_seen is None or self.min_rate_hz <= 0:
             return
         if now - ap.first_seen < self.grace_s or now - ap.last_seen > 1.0:
+            self.slow_since = None
             return  # too early to judge, or the autopilot itself is silent
         rate = imu_rate.rate(now)
-        if rate >= self.min_rate_hz:
+        if rate >= (1.0 - RATE_ALLOWANCE) * self.min_rate_hz:
+            self.slow_since = None
             if self.warning:
                 self.note(f"tepinn-flight bridge: IMU now at {rate:.0f} Hz")
                 self.warning = None
+                self.withhold = False
             return
-        if now < self.next_at:
+        if self.slow_since is None:
+            self.slow_since = now
+        if now - self.slow_since < self.slow_for_s or now < self.next_at:
             return
         if self.attempts < REQUEST_ATTEMPTS:
             name = "RAW_IMU" if ap.autopilot == MAV_AUTOPILOT_ARDUPILOTMEGA else "HIGHRES_IMU"
@@ -141,9 +160,13 @@ class ImuRateRequests:
                       f"attempt {self.attempts})")  # fmt: skip
         elif self.warning is None:
             ack = f"ack: {self.ack}" if self.ack else "no COMMAND_ACK"
+            self.withhold = rate < MIN_ESTIMATION_RATE_HZ
+            then = (f"estimates withheld: they need >= {MIN_ESTIMATION_RATE_HZ:.0f} Hz" if self.withhold else
+                    f"estimating at this rate (the network's gates stay shut below {MIN_ESTIMATION_RATE_HZ:.0f} Hz; "
+                    f"a faster IMU helps in fast motion)")  # fmt: skip
             self.warning = (f"IMU at {rate:.1f} Hz (< {self.min_rate_hz:.0f} Hz); asked for {self.msg} at "
-                            f"{self.request_rate_hz:.0f} Hz {REQUEST_ATTEMPTS}x ({ack}): not granted; "
-                            "estimates need >= 50 Hz (set SRx_RAW_SENS / the stream rate on the autopilot)")  # fmt: skip
+                            f"{self.request_rate_hz:.0f} Hz {REQUEST_ATTEMPTS}x ({ack}): not granted; {then} "
+                            "(set SRx_RAW_SENS / the stream rate on the autopilot)")  # fmt: skip
             self.note(f"tepinn-flight bridge: {self.warning}")
 
     def on_ack(self, m, enums) -> None:

@@ -17,8 +17,9 @@ frames by receive time. :func:`schedule` turns frames into playback times:
 **DataFlash, ULog, BROAD and flight records** are ingested into a flight record, then sent as an
 autopilot would (sysid 1, compid 1): HEARTBEAT at 1 Hz, the IMU at its logged rate as
 HIGHRES_IMU (rad/s, m/s², gauss) or SCALED_IMU (mrad/s, mG, mGauss), and ATTITUDE plus
-ATTITUDE_QUATERNION from the reference at ≤ 50 Hz, stamped with a boot clock that starts
-``boot_offset_s`` before the record.
+ATTITUDE_QUATERNION from the reference at about 50 Hz, stamped with a boot clock: the log's own for a
+DataFlash or ULog log of one boot (``log_clock.boot_time_at_start_s``), else one that starts ``boot_offset_s``
+before the record.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from ..errors import CorruptLog, NoImuData
+from ..rate_thinning import due_at_rate
 from ..vehicle_class import mav_type_suffix
 from . import MAV_COMP_ID_AUTOPILOT1, mavutil
 from .messages import (
@@ -252,8 +254,9 @@ def record_stream(rec, imu_message: str = "highres", attitude_rate_hz: float = A
     enc = Encoder(sysid, MAV_COMP_ID_AUTOPILOT1)
     t0 = float(t[0])
     boot = t - t0 + boot_offset_s
+    att_due = due_at_rate(t, attitude_rate_hz, has_q)  # (fixed ticks lost a jittery 50 Hz log's samples)
     p = 0.0
-    att_k = hb_k = None
+    hb_k = None
     for i in range(n):
         if i:
             dt = float(t[i] - t[i - 1])
@@ -269,13 +272,10 @@ def record_stream(rec, imu_message: str = "highres", attitude_rate_hz: float = A
             frames.append(enc.pack(highres_imu_msg(int(round(b * 1e6)), gyr[i], acc[i], mg)))
         else:
             frames.append(enc.pack(scaled_imu_msg(int(round(b * 1e3)), gyr[i], acc[i], mg)))
-        if has_q[i]:
-            k = math.floor(b * attitude_rate_hz + 1e-9)
-            if k != att_k:
-                att_k = k
-                ms = int(round(b * 1e3))
-                frames.append(enc.pack(attitude_msg(ms, q[i], rates[i])))
-                frames.append(enc.pack(attitude_quaternion_msg(ms, q[i], rates[i])))
+        if att_due[i]:
+            ms = int(round(b * 1e3))
+            frames.append(enc.pack(attitude_msg(ms, q[i], rates[i])))
+            frames.append(enc.pack(attitude_quaternion_msg(ms, q[i], rates[i])))
         for fr in frames:
             yield p, fr
 
@@ -284,6 +284,7 @@ def load_source(path, imu_message: str = "highres"):
     """(kind, factory of a fresh (playback time, frame) iterator, description) for any log."""
     from ..ingest import load_record  # noqa: PLC0415
     from ..ingest.sniff import sniff  # noqa: PLC0415
+    from ..log_clock import boot_time_at_start_s  # noqa: PLC0415
 
     fmt = sniff(path)
     if fmt == "tlog":
@@ -297,8 +298,10 @@ def load_source(path, imu_message: str = "highres"):
         return "tlog", make, frames
     rec = load_record(path)
 
+    boot = boot_time_at_start_s(rec.t_s, rec.meta)  # a DataFlash or ULog log played on its own clock
+
     def make():
-        return record_stream(rec, imu_message=imu_message)
+        return record_stream(rec, imu_message=imu_message, boot_offset_s=BOOT_OFFSET_S if boot is None else boot)
 
     return fmt, make, rec
 

@@ -205,7 +205,9 @@ def format_summary(s: dict) -> str:
         f"stale samples {est.get('dropped_stale', 0)} + queue full {est.get('dropped_queue_full', 0)}"
     )
     lines.append(
-        f"  estimates      : {est.get('count', 0)} at {_f(est.get('rate_hz'), '.1f')} Hz; model runs "
+        f"  estimates      : {est.get('count', 0)} at {_f(est.get('rate_hz'), '.1f')} Hz"
+        + (f", {est['withheld_imu_too_slow']} withheld (IMU too slow)" if est.get("withheld_imu_too_slow") else "")
+        + "; model runs "
         f"{est.get('model_runs', 0)} ({_f(est.get('model_ms_mean'), '.2f')} ms each), resets {est.get('resets', 0)}, "
         f"errors {est.get('errors', 0)}, worker restarts {est.get('worker_restarts', 0)}"
     )

@@ -17,8 +17,9 @@ Protocol (both modes, the same :func:`worker_loop`):
 * worker: reads whatever is waiting, drops samples older than ``max_age_s`` (wall clock since
   the IMU message arrived; "stale") and pushes the rest through
   :class:`~tepinn_flight.model.streaming.StreamingEstimator`, which resets itself on time
-  reversals and gaps. Of the samples that cross the output grid (``rate_hz`` on the autopilot's
-  clock) only the newest of a batch is sent back.
+  reversals and gaps. Of the samples due at about ``rate_hz`` on the autopilot's clock
+  (:class:`~tepinn_flight.rate_thinning.RateThinner`: every sample of an IMU at that rate, through its stamps' jitter)
+  only the newest of a batch is sent back.
 * worker → bridge: length-prefixed frames: ``R`` ready (JSON), ``E`` estimate + counters,
   ``S`` counters, ``X`` a non-fatal error line (the estimator raised: it is reset and goes on),
   ``F`` a fatal error line (the model could not be loaded; the worker exits).
@@ -42,6 +43,7 @@ import sys
 import threading
 import time
 
+from ..rate_thinning import RateThinner
 from ..vehicle_class import CLASSES as VEHICLE_CLASSES
 from ..vehicle_class import vehicle_class
 
@@ -127,7 +129,7 @@ def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, 
     size = SAMPLE.size
     processed = dropped = resets = errors = model_runs = 0
     model_s = step_s = 0.0
-    last_k = None
+    thin = RateThinner(rate_hz)  # the estimates sent: about rate_hz, every sample of a stream at that rate
     t0_prev = None
     last_stats = 0.0
     while True:
@@ -147,7 +149,7 @@ def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, 
         for r in recs:
             if r[0] == KIND_RESET:
                 est.reset()
-                last_k = None
+                thin.reset()
                 continue
             if r[0] == KIND_VEHICLE:
                 if r[1] < len(VEHICLE_CLASSES) and hasattr(est, "set_vehicle"):
@@ -169,7 +171,7 @@ def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, 
                     est.reset()
                 except Exception:  # noqa: BLE001
                     pass
-                last_k = None
+                thin.reset()
                 continue
             processed += 1
             t0 = getattr(est, "t0", None)
@@ -181,11 +183,10 @@ def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, 
                 model_s += e.compute_s
             else:
                 step_s += e.compute_s
+            thin.seen(t_s)
             if e.q_nb_wxyz is None:
                 continue
-            k = math.floor(t_s * rate_hz + 1e-9)
-            if k != last_k:
-                last_k = k
+            if thin.due(t_s):
                 due = (r, e)
         counters = COUNTERS.pack(processed, dropped, resets, errors, model_runs, model_s, step_s)
         now = clock()
