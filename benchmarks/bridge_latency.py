@@ -44,14 +44,14 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 # ---------------------------------------------------------------------------- traffic
-def make_traffic(seconds: float, total_rate: float | None):
-    """[(due_s, frame, kind)] for a 400 Hz IMU autopilot; filler up to ``total_rate`` msg/s."""
+def make_traffic(seconds: float, total_rate: float | None, imu_hz: float = 400.0):
+    """[(due_s, frame, kind)] for an ``imu_hz`` IMU autopilot; filler up to ``total_rate`` msg/s."""
     from tepinn_flight.live import dialect
     from tepinn_flight.live.replay import record_stream
     from tepinn_flight.model.synthetic import synthetic_record
 
     m = dialect()
-    rec = synthetic_record(seed=11, duration_s=seconds, rate_hz=400.0)
+    rec = synthetic_record(seed=11, duration_s=seconds, rate_hz=imu_hz)
     items = []
     for p, fr in record_stream(rec, attitude_rate_hz=50.0):
         mid = fr[7] | (fr[8] << 8) | (fr[9] << 16)
@@ -248,6 +248,9 @@ def main() -> int:
     ap.add_argument("--model", default=None, help="checkpoint (default: shipped model, else untrained default size)")
     ap.add_argument("--busy", type=int, default=0, metavar="N",
                     help="also run N processes that keep a core busy during every phase (the issue's loaded machine)")
+    ap.add_argument("--imu-hz", type=float, default=400.0,
+                    help="the autopilot's IMU rate (default 400; 50: an ArduCopter log's, where the network's once-a-"
+                         "second run falls among the top 2 %% of samples' latencies)")
     a = ap.parse_args()
 
     from tepinn_flight.model.checkpoint import default_model_path
@@ -273,10 +276,10 @@ def main() -> int:
         model = str(Path(tmpdir) / "default_size.pt")
         save_checkpoint(model, TEPINN(ModelConfig()).eval(), FusionConfig())
         label = "untrained, default size"
-    print(f"model: {label}; {os.cpu_count()} CPU cores; {a.seconds:g} s of traffic per phase; "
+    print(f"model: {label}; IMU at {a.imu_hz:g} Hz; {os.cpu_count()} CPU cores; {a.seconds:g} s of traffic per phase; "
           f"{len(burners)} busy process(es) beside it\n")
-    traffic = make_traffic(a.seconds, None)
-    busy = make_traffic(a.seconds, 2000.0)
+    traffic = make_traffic(a.seconds, None, a.imu_hz)
+    busy = make_traffic(a.seconds, 2000.0, a.imu_hz)
     res = {
         "direct": run_phase(traffic, None, None, a.seconds),
         "bridge": run_phase(traffic, model, "process", a.seconds),
@@ -324,8 +327,8 @@ def main() -> int:
     lat = bs.get("latency_ms", {})
     checks = [
         ("estimates >= 50 Hz", b.get("est_rate_hz", 0) >= 49.9),
-        ("IMU in -> estimate out p99 <= 10 ms", lat.get("p99", 1e9) <= 10.0),
-        ("forwarding adds <= 1 ms p99 (paired, 400 Hz IMU)", added <= 1.0),
+        ("IMU in -> estimate out p99 <= 5 ms (the issue's target)", lat.get("p99", 1e9) <= 5.0),
+        (f"forwarding adds <= 1 ms p99 (paired, {a.imu_hz:g} Hz IMU)", added <= 1.0),
         ("no lost frame at 2,000 msg/s", b2["lost"] == 0),
     ]
     print("\n" + "\n".join(f"  [{'ok' if ok else 'MISSED'}] {name}" for name, ok in checks))
