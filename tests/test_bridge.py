@@ -992,3 +992,8 @@ def test_a_50_hz_imu_is_not_slow_and_a_stopping_stream_raises_no_warning():
         ap.last_seen = now
         req.check(now, ap, SimpleNamespace(rate=lambda t: 10.0), sent.append)
     assert len(sent) == 3 and req.withhold and "estimates withheld" in req.warning
+    for k in range(30):  # it rises to 30 Hz, still under the 45 Hz asked: the warning stands, the estimates resume
+        now = 70.0 + 0.1 * k
+        ap.last_seen = now
+        req.check(now, ap, SimpleNamespace(rate=lambda t: 30.0), sent.append)
+    assert req.warning and not req.withhold and len(sent) == 3

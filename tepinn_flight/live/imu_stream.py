@@ -160,7 +160,7 @@ class ImuRateRequests:
                       f"attempt {self.attempts})")  # fmt: skip
         elif self.warning is None:
             ack = f"ack: {self.ack}" if self.ack else "no COMMAND_ACK"
-            self.withhold = rate < MIN_ESTIMATION_RATE_HZ
+            self.withhold = self._too_slow(rate)
             then = (f"estimates withheld: they need >= {MIN_ESTIMATION_RATE_HZ:.0f} Hz" if self.withhold else
                     f"estimating at this rate (the network's gates stay shut below {MIN_ESTIMATION_RATE_HZ:.0f} Hz; "
                     f"a faster IMU helps in fast motion)")  # fmt: skip
@@ -168,6 +168,13 @@ class ImuRateRequests:
                             f"{self.request_rate_hz:.0f} Hz {REQUEST_ATTEMPTS}x ({ack}): not granted; {then} "
                             "(set SRx_RAW_SENS / the stream rate on the autopilot)")  # fmt: skip
             self.note(f"tepinn-flight bridge: {self.warning}")
+        else:  # the warning stands: the estimates follow the rate (a 10-Hz stream that rises to 30 Hz is estimated)
+            self.withhold = self._too_slow(rate)
+
+    @staticmethod
+    def _too_slow(rate: float) -> bool:
+        """Too slow to estimate from: under 20 Hz, with the same allowance for the meter's count."""
+        return rate < (1.0 - RATE_ALLOWANCE) * MIN_ESTIMATION_RATE_HZ
 
     def on_ack(self, m, enums) -> None:
         """A COMMAND_ACK of MAV_CMD_SET_MESSAGE_INTERVAL."""
