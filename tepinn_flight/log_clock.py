@@ -22,11 +22,12 @@ def log_clock_s(t_s: np.ndarray, meta: dict) -> np.ndarray | None:
     offsets = meta.get("epoch_time_offsets_s")
     if not offsets or meta.get("source_kind") in SIMULATED_KINDS:
         return None
+    t = np.asarray(t_s, np.float64)
     # (a ULog stamped in UNIX µs is read from its first whole second, to keep µs in float64: added back here)
-    t = np.asarray(t_s, np.float64) + float(meta.get("time_origin_unix_s") or 0.0)
+    origin = float(meta.get("time_origin_unix_s") or 0.0)
     off = {int(k): float(v) for k, v in offsets.items()}
     if len(off) == 1:
-        return t - next(iter(off.values()))
+        return t - next(iter(off.values())) + origin
     starts = {int(k): float(v) for k, v in (meta.get("epoch_start_t_s") or {}).items()}
     if set(starts) != set(off):
         return None
@@ -34,7 +35,7 @@ def log_clock_s(t_s: np.ndarray, meta: dict) -> np.ndarray | None:
     first = np.array([starts[e] for e in epochs])
     shift = np.array([off[e] for e in epochs])
     k = np.clip(np.searchsorted(first, t, side="right") - 1, 0, len(epochs) - 1)
-    return t - shift[k]
+    return t - shift[k] + origin
 
 
 def boot_time_at_start_s(t_s: np.ndarray, meta: dict) -> float | None:
