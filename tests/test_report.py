@@ -461,3 +461,15 @@ def test_tepinn_is_drawn_on_top_and_the_plotted_quaternion_keeps_its_sign_where_
     top = max(lines, key=lambda ln: ln.get_zorder())
     assert top.get_label() == display_name("tepinn") and lines[-1].get_label() == display_name("tepinn")
     plt.close(fig)
+
+
+def test_labels_of_records_with_nearly_the_same_rmse_do_not_print_over_each_other():
+    from tepinn_flight.evaluation.report import _label_sides
+
+    vals = np.array([1.00, 1.01, 1.02, 2.0, 3.0])
+    got = dict(_label_sides(vals, range(5), log_scale=False, span=2.0))
+    assert got == {0: 1, 1: -1, 3: 1, 4: 1}  # the second close one to the left, the third left out
+    same = dict(_label_sides(np.full(4, 0.75), range(4), log_scale=False, span=0.0))
+    assert sorted(same.values()) == [-1, 1]
+    logs = dict(_label_sides(np.array([0.1, 0.101, 10.0]), range(3), log_scale=True, span=2.0))
+    assert logs == {0: 1, 1: -1, 2: 1}

@@ -212,6 +212,27 @@ def fig_error_vs_rate(result, colours, path=None):
 LABEL_ALL_RECORDS = 12
 
 
+def _label_sides(vals: np.ndarray, label, log_scale: bool, span: float, near: float = 0.03) -> list[tuple[int, int]]:
+    """(record index, +1 right / −1 left) of the dots to label: going up the values, a label closer than ``near`` of
+    the axis' span to the one before goes to the other side, and one close to both sides' last is left out (the
+    labels of records with nearly the same RMSE were printed over each other)."""
+    def pos(v):
+        return math.log10(v) if log_scale else v
+
+    out, last = [], {1: -np.inf, -1: -np.inf}
+    gap = near * span if span > 0 else np.inf  # (every value the same: one label each side)
+    for j in sorted((int(j) for j in label), key=lambda j: vals[j]):
+        if not (np.isfinite(vals[j]) and (vals[j] > 0 or not log_scale)):
+            continue
+        y = pos(vals[j])
+        for side in (1, -1):
+            if y - last[side] >= gap:
+                out.append((j, side))
+                last[side] = y
+                break
+    return out
+
+
 def fig_per_record(result, colours, path=None):
     plt = _plt()
     names = list(result.dataset)
@@ -220,6 +241,10 @@ def fig_per_record(result, colours, path=None):
     if not ok.any():
         ok[:] = True  # every record left out: the summary is over them all (harness)
     fig, ax = plt.subplots(figsize=(max(6, 1.3 * len(names) + 2), 5))
+    allv = np.array([r["results"][n].get("inclination_rmse_deg") or np.nan for r in result.records for n in names], np.float64)
+    allv = allv[np.isfinite(allv) & (allv > 0)]
+    log_scale = bool(allv.size and allv.max() > 20 * allv.min())  # records an order of magnitude apart: all readable
+    span = (np.log10(allv.max() / allv.min()) if log_scale else allv.max() - allv.min()) if allv.size else 0.0
     for i, name in enumerate(names):
         vals = [r["results"][name].get("inclination_rmse_deg") for r in result.records]
         vals = np.array([np.nan if v is None else v for v in vals], np.float64)
@@ -233,14 +258,12 @@ def fig_per_record(result, colours, path=None):
             ax.hlines(np.nanmean(vals[ok]), i - 0.3, i + 0.3, color=colours[name], lw=2)
         if fin.size:
             label = fin if len(vals) <= LABEL_ALL_RECORDS else np.unique([fin[np.argmin(vals[fin])], fin[np.argmax(vals[fin])]])
-            for j in label:
-                ax.annotate(rec_names[j], (i + jitter[j], vals[j]), xytext=(4, 0), textcoords="offset points",
-                            fontsize=6, va="center", color="#333333")  # fmt: skip
+            for j, side in _label_sides(vals, label, log_scale, span):
+                ax.annotate(rec_names[j], (i + jitter[j], vals[j]), xytext=(4 * side, 0), textcoords="offset points",
+                            fontsize=6, va="center", ha="left" if side > 0 else "right", color="#333333")  # fmt: skip
     ax.set_xticks(range(len(names)), [display_name(n) for n in names], rotation=30, ha="right")
     ax.set_ylabel("inclination RMSE per record [°]")
-    allv = np.array([r["results"][n].get("inclination_rmse_deg") or np.nan for r in result.records for n in names], np.float64)
-    allv = allv[np.isfinite(allv) & (allv > 0)]
-    if allv.size and allv.max() > 20 * allv.min():  # records an order of magnitude apart: all readable
+    if log_scale:
         ax.set_yscale("log")
     shown = "dots labelled with the record" if len(rec_names) <= LABEL_ALL_RECORDS else "best and worst record labelled"
     if (~ok).any():
