@@ -14,7 +14,11 @@ ratios to VQF side by side, the per-file check of the issue (TE-PINN ≤ max(1.5
 and TE-PINN's σ calibration by kind (mean NEES, share within 3σ, Spearman's rank correlation of σ with the
 error — does σ rise where the error does —, each per file averaged; the NEES and 3σ target is
 set for the real files — the simulated line shows σ in sustained manoeuvres).
-TE-PINN is the model as it ships: offline, its tilt smoothed where no gate acts (session 25).
+TE-PINN is the model as it ships: offline, its tilt smoothed where no gate acts (session 25), and where a record has
+a GNSS receiver (the simulations' records, some drone logs) the motion acceleration it measures taken out of the
+accelerometer, which no peer is given. So two more columns (session 45): offline VQF (`vqf.offlineVQF`, the acausal
+peer the smoothing should be judged against) and TE-PINN on the IMU alone ("TP IMU only": `--no-gnss-aid`, as the
+peers run), with their ratios in the summary lines.
 `--no-smooth` adds it without the smoothing (`estimate --no-smooth`, the live bridge's tilt) as its own
 column; `--smooth` adds the smoothing to a `--model` written before session 25 (which does not smooth).
 
@@ -99,7 +103,13 @@ def run(args) -> int:
         return 2
 
     ests = [TepinnEstimator.from_checkpoint(args.model or default_model_path(), "tepinn"), VqfEstimator(),
-            TepinnEstimator.from_checkpoint(args.lstm or default_lstm_path(), "lstm"), FilterEstimator(Ekf(), name="ekf")]  # fmt: skip
+            TepinnEstimator.from_checkpoint(args.lstm or default_lstm_path(), "lstm"), FilterEstimator(Ekf(), name="ekf"),
+            VqfEstimator(offline=True)]  # fmt: skip
+    if hasattr(ests[0].fusion, "gnss_aid"):  # TE-PINN on the IMU alone, as its peers run (session 45: the disclosure)
+        import dataclasses
+
+        ests.append(TepinnEstimator(ests[0].model, dataclasses.replace(ests[0].fusion, gnss_aid=False), "tepinn-imu",
+                                    ests[0].checkpoint))  # fmt: skip
     if args.smooth and not getattr(ests[0].fusion, "smoother", True):
         ests.insert(1, ests[0].smoothed())
     if args.no_smooth and ests[0].unsmoothed() is not None:
@@ -110,7 +120,8 @@ def run(args) -> int:
     for kind, grp, name, rec, held in files:
         rows.append({"kind": kind, "group": grp, "name": name, "held": held, **score_file(ests, rec)})
     print(f"\n{len(files)} files, {time.perf_counter() - t0:.0f} s; inclination RMSE (deg), 5 s warm-up\n")
-    label = {n: {"tepinn-nosmooth": "TP no-smooth", "tepinn-smooth": "TP smoothed"}.get(n, display_name(n)) for n in names}
+    label = {n: {"tepinn-nosmooth": "TP no-smooth", "tepinn-smooth": "TP smoothed", "tepinn-imu": "TP IMU only",
+                 "offline-vqf": "offl. VQF"}.get(n, display_name(n)) for n in names}  # fmt: skip
     width = {n: max(9, len(label[n]) + 1) for n in names}
     head = f"{'kind':<10} {'group':<26} {'file':<44} {'split':<9}" + "".join(f"{label[n]:>{width[n]}}" for n in names)
     print(head + f"{'TP/VQF':>8}  per-file check")
@@ -137,7 +148,11 @@ def run(args) -> int:
             line = f"{kind:<10} {'held-out' if held else 'seen in training':<17} n={len(sel):<3}" + "".join(
                 f" {display_name(n)} {means[n]:.2f}" for n in names)
             print(line + f" | TE-PINN/VQF {means['tepinn'] / means['vqf']:.3f}, /LSTM {means['tepinn'] / means['lstm']:.3f}"
-                         f", /EKF {means['tepinn'] / means['ekf']:.3f}; files failing the per-file check: {fails}")  # fmt: skip
+                         f", /EKF {means['tepinn'] / means['ekf']:.3f}, /offline VQF {means['tepinn'] / means['offline-vqf']:.3f}"
+                         + (f"; on the IMU alone (no GNSS aid, as every peer) /VQF {means['tepinn-imu'] / means['vqf']:.3f}, "
+                            f"/LSTM {means['tepinn-imu'] / means['lstm']:.3f}, /offline VQF "
+                            f"{means['tepinn-imu'] / means['offline-vqf']:.3f}" if "tepinn-imu" in means else "")
+                         + f"; files failing the per-file check: {fails}")  # fmt: skip
             for other in (n for n in names if n in ("tepinn-smooth", "tepinn-nosmooth")):
                 print(f"{'':<10} {display_name(other)}/VQF {means[other] / means['vqf']:.3f}, /LSTM "
                       f"{means[other] / means['lstm']:.3f}; files failing the per-file check: "

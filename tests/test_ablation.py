@@ -41,3 +41,14 @@ def test_table_has_one_row_per_variant_and_dashes_for_missing_values():
 
 def test_default_heldout_campaign_is_in_the_checkout():
     assert heldout_campaign().exists()
+
+
+def test_an_ablation_whose_variants_all_score_the_same_says_why():
+    """With a recipe that keeps the anchored estimator's gates shut on its records, six variants scored 1.34°, ×1.00
+    each, and nothing said the table measured no component."""
+    from tepinn_flight.evaluation.ablation import IDENTICAL_NOTE, identical_variants
+
+    same = [{"results": {"full": {"inclination_rmse_deg": 1.34}, "no-physics": {"inclination_rmse_deg": 1.34}}}] * 3
+    differ = same[:2] + [{"results": {"full": {"inclination_rmse_deg": 1.34}, "no-physics": {"inclination_rmse_deg": 1.5}}}]
+    assert identical_variants(same, ["full", "no-physics"]) and not identical_variants(differ, ["full", "no-physics"])
+    assert "corrected nothing" in IDENTICAL_NOTE

@@ -135,3 +135,17 @@ def test_benchmark_cli_bad_folder(tmp_path, capsys):
     code = main(["benchmark", "broad", str(tmp_path), "-q"])
     err = capsys.readouterr().err
     assert code == 2 and "no BROAD trial files" in err and len(err.strip().splitlines()) == 1
+
+
+def test_riann_gets_no_heading_in_the_broad_table(trial01):
+    """`benchmark broad` printed a 72.8° heading RMSE for RIANN, which tracks no heading; `evaluate` left it out."""
+    pytest.importorskip("riann")
+    from tepinn_flight.evaluation.broad_benchmark import format_broad, run_broad_benchmark
+    from tepinn_flight.evaluation.peers import RiannEstimator, VqfEstimator
+
+    path = trial01[0]
+    res = run_broad_benchmark(path.parent, [VqfEstimator(), RiannEstimator()], pattern=path.name, progress=False)
+    assert res["summary"]["riann"]["heading_rmse_deg"] is None and res["summary"]["riann"]["inclination_rmse_deg"] > 0
+    assert res["summary"]["vqf"]["heading_rmse_deg"] is not None
+    row = next(ln for ln in format_broad(res).splitlines() if ln.startswith("RIANN"))
+    assert row.split()[3:5] == ["-", "-"], row

@@ -832,3 +832,22 @@ def test_a_flight_too_long_to_hold_in_memory_is_refused_before_any_work(tmp_path
     from tepinn_flight.sim.simulate import check_flight_args
 
     check_flight_args(MAX_FLIGHT_SAMPLES / 400.0, 400.0, 0)
+
+
+def test_model_default_names_the_shipped_model_in_every_verb(tmp_path, capsys):
+    """`train --init default` took "default" for the shipped model; `evaluate --model default` said "no such
+    checkpoint". Every verb's --model now does the same, with the shipped model's figures."""
+    pytest.importorskip("torch")
+    import pandas as pd
+
+    from tepinn_flight.cli.main import main
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    src = tmp_path / "s.parquet"
+    write_record(synthetic_record(seed=2, duration_s=8.0, rate_hz=100.0), src)
+    assert main(["estimate", str(src), "-o", str(tmp_path / "a.parquet"), "-q"]) == 0
+    assert main(["estimate", str(src), "-o", str(tmp_path / "b.parquet"), "--model", "default", "-q"]) == 0
+    a, b = pd.read_parquet(tmp_path / "a.parquet"), pd.read_parquet(tmp_path / "b.parquet")
+    assert a.equals(b)
+    assert main(["evaluate", str(src), "-o", str(tmp_path / "rep"), "--model", "default", "--no-peers", "-q"]) == 0

@@ -236,3 +236,28 @@ def test_finetuning_on_one_file_says_its_figures_are_on_that_file(tmp_path, caps
     import pandas as pd
 
     assert len(pd.read_parquet(est)) == len(read_record(log)) and np.isfinite(pd.read_parquet(est)["q_est_w"]).all()
+
+
+def test_finetuning_warns_when_its_sigma_fails_the_validation_files(tmp_path, capsys, monkeypatch):
+    """σ went from NEES 0.77 to 19.3 (39.5 % within 3σ) on a validation file and fine-tuning said nothing (it warned
+    only on a worse RMSE). The summary below is what `finetune` returns; the warning is the CLI's."""
+    import tepinn_flight.model.finetune as ft
+
+    def fake(init, items, out, minutes=6.0, progress=True, seed=0):
+        return {"train_files": ["a", "b"], "val_files": ["c"], "val_inclination_rmse_deg_before": 0.25,
+                "val_inclination_rmse_deg_after": 0.24, "tau_acc_s": 3.0, "gyro_scale": [1.0, 1.0, 1.0],
+                "sigma_floor_deg": 0.3, "sigma_acc_gain": 0.01, "sigma_sampling_gain": 1.0,
+                "val_sigma_nees_before": 0.77, "val_sigma_nees_after": 19.3, "val_sigma_within_3sigma_before": 0.99,
+                "val_sigma_within_3sigma_after": 0.395, "smoother": True, "smoother_grid_deg": {"on": 0.2, "off": 0.3},
+                "val_network_gates_summary": "network gates shut on all 1 record(s)", "val_worse_than_init": False}
+
+    monkeypatch.setattr(ft, "finetune", fake)
+    log = tmp_path / "x.parquet"
+    log.write_bytes(b"")
+    assert main(["train", "--init", "default", "--data", str(log), "-o", str(tmp_path / "r"), "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "σ is over-confident on the validation files: 39.5 %" in err and "NEES 19.30" in err
+    fake_ok = lambda *a, **k: {**fake(*a, **k), "val_sigma_within_3sigma_after": 0.985, "val_sigma_nees_after": 1.9}  # noqa: E731
+    monkeypatch.setattr(ft, "finetune", fake_ok)
+    assert main(["train", "--init", "default", "--data", str(log), "-o", str(tmp_path / "r2"), "-q"]) == 0
+    assert "over-confident" not in capsys.readouterr().err

@@ -106,6 +106,13 @@ def main(argv: list[str] | None = None) -> int:
         sys.stderr.write(f"tepinn-flight {argv[0]}: {_unavailable_message(argv[0], UNAVAILABLE[argv[0]])}\n")
         return 1
     args = parser.parse_args(argv)
+    model = getattr(args, "model", None)  # "--model default" names the shipped model, as "train --init default" does
+    if model == "default" and not os.path.exists("default"):
+        args.model = None
+    elif isinstance(model, list) and "default" in model and not os.path.exists("default"):  # (evaluate, benchmark)
+        from ..model.checkpoint import default_model_path
+
+        args.model = [str(default_model_path()) if m == "default" else m for m in model]
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2

@@ -95,7 +95,27 @@ def evaluate_variants(ckpts: dict[str, Path], records, progress: bool = True) ->
             "nees": unc.get("nees"),
             "vs_full": (d.get("inclination_rmse_deg") / ref) if ref and d.get("inclination_rmse_deg") else None,
         })  # fmt: skip
+    if len(ckpts) > 1 and identical_variants(res.records, list(ckpts)):
+        notes.append(IDENTICAL_NOTE)
     return rows, notes
+
+
+#: said when every variant scores the same on every record (a recipe whose anchored estimator kept every gate shut)
+IDENTICAL_NOTE = ("every variant scores the same on every record: the filter-anchored estimator's gates stayed shut, "
+                  "so the network (the part the variants change) corrected nothing here and this ablation measures no "
+                  "component. Ablate on records where a gate acts (fixed-wing flight, a saturating or uncalibrated "
+                  "gyro: the default held-out campaign), or with a recipe whose estimator is the network-centred fusion alone "
+                  "(--set anchor.enabled=false)")
+
+
+def identical_variants(records: list[dict], names: list[str], tol_deg: float = 1e-9) -> bool:
+    """Whether every variant's inclination RMSE equals the others' on every record."""
+    for r in records:
+        vals = [r["results"][n].get("inclination_rmse_deg") for n in names]
+        vals = [v for v in vals if v is not None]
+        if vals and max(vals) - min(vals) > tol_deg:
+            return False
+    return True
 
 
 def ablation_markdown(rows: list[dict], recipe: str, n_records: int, notes=()) -> str:

@@ -223,6 +223,8 @@ def run_broad_benchmark(folder, estimators: list, published_path=None, pattern: 
     for est in all_est:
         rs = per_est[est.name]
         d = {m: float(np.nanmean([rs[t][m] for t in trials])) for m in METRICS}
+        if not getattr(est, "tracks_heading", True):  # RIANN: no heading to score (its 72.8° was printed as one)
+            d["total_rmse_deg"] = d["heading_rmse_deg"] = None
         d["us_per_sample"] = 1e6 * timing[est.name][0] / max(1, timing[est.name][1])
         d["mode"] = "9-D" if est.uses_mag else "6-D (one heading offset per trial)"
         d["causal"] = bool(est.causal)
@@ -238,6 +240,10 @@ def run_broad_benchmark(folder, estimators: list, published_path=None, pattern: 
         "n_trials": 0, "ok": False, "error_deg": None, "reason": "no published results"}  # fmt: skip
     return {"folder": str(folder), "trials": trials, "check_estimator": check_est.name, "check": check,
             "trusted": bool(check.get("ok")), "summary": summary, "per_trial": per_est, "notes": notes}  # fmt: skip
+
+
+def _cell(v: float, width: int) -> str:
+    return f"{v:{width}.2f}" if v is not None and np.isfinite(v) else f"{'-':>{width}s}"
 
 
 def format_broad(result: dict) -> str:
@@ -265,11 +271,11 @@ def format_broad(result: dict) -> str:
         untrusted = d["kind"] == "learned" and not result["trusted"]
         mode = "9-D" if d["mode"].startswith("9") else "6-D"
         L.append(f"{display_name(name):30s} {mode:8s} {'yes' if d['causal'] else 'no':6s} "
-                 f"{d['total_rmse_deg']:7.2f} {d['heading_rmse_deg']:8.2f} {d['inclination_rmse_deg']:7.2f} "
+                 f"{_cell(d['total_rmse_deg'], 7)} {_cell(d['heading_rmse_deg'], 8)} {d['inclination_rmse_deg']:7.2f} "
                  f"{d['us_per_sample']:10.2f}" + ("   UNTRUSTED" if untrusted else ""))  # fmt: skip
     L.append("")
     L.append("RMSE in degrees over BROAD's movement samples, mean over trials; 6-D rows: total and heading after one constant "
-             "heading offset per trial; 9-D rows: raw.")  # fmt: skip
+             "heading offset per trial; 9-D rows: raw; '-': an estimator that tracks no heading (RIANN).")  # fmt: skip
     for nt in result["notes"]:
         L.append(f"note: {nt}")
     return "\n".join(L)
