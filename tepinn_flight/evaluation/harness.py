@@ -331,6 +331,9 @@ def aggregate(rec_results: list[dict], estimators, n_bins: int) -> dict:
             d["uncertainty"] = {k: float(np.average([u[k] for u in unc], weights=w))
                                 for k in ("coverage_1sigma", "coverage_2sigma", "coverage_3sigma", "nees")}  # fmt: skip
             d["uncertainty"]["spearman_mean"] = _mean_finite([u["spearman"] for u in unc])
+            # (the figures above are pooled over samples; the and real_vs_peers.py's are per record averaged)
+            d["uncertainty"]["nees_per_record_mean"] = _mean_finite([u["nees"] for u in unc])
+            d["uncertainty"]["coverage_3sigma_per_record_mean"] = _mean_finite([u["coverage_3sigma"] for u in unc])
             d["uncertainty"]["expected"] = {f"coverage_{k}sigma": v for k, v in M.COVERAGE_EXPECTED_2D.items()} | {"nees": 2.0}
         tot_s = sum(r["seconds"] for r in rs)
         tot_n = sum(rr["n_samples"] for rr in rec_results)
