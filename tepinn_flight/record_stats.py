@@ -32,6 +32,8 @@ def summarize(rec: FlightRecord) -> dict:
         "reference_source": m.get("reference_source"),
         "reference_rate_hz": m.get("reference_rate_hz"),
         "level_trim_rad": m.get("level_trim_rad"),
+        "imu_time_field": m.get("imu_time_field"),
+        "boot_epochs": m.get("boot_epochs"),
         "reference_coverage": float(np.mean(np.all(np.isfinite(rec.q_ref_wxyz), axis=1))) if len(rec) else 0.0,
         "corrupt_frames": m.get("corrupt_frames", 0),
         "skipped_frames": m.get("skipped_frames", 0),
@@ -58,6 +60,7 @@ def summarize(rec: FlightRecord) -> dict:
     out.update(
         duration_s=float(sum(durations)),
         span_s=float(t[-1] - t[0]),
+        log_clock_s=_log_clock_span(t, m),
         segments=int(len(seg_ids)),
         gaps=gaps,
         bridged_gaps=int(sum(g["bridged"] for g in gaps)),
@@ -130,3 +133,11 @@ def sample_noise(values: np.ndarray, seg: np.ndarray, period: float, window_s: f
         return None
     v = d[: m * k].reshape(m, k, -1).var(axis=1).mean(axis=1) / 6.0
     return float(np.sqrt(np.median(v)))
+
+
+def _log_clock_span(t: np.ndarray, meta: dict) -> list[float] | None:
+    """[first, last] sample on the log's own clock (:mod:`.log_clock`), or None where the record has none."""
+    from .log_clock import log_clock_s
+
+    c = log_clock_s(t[[0, -1]], meta)
+    return None if c is None else [float(c[0]), float(c[1])]

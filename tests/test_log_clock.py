@@ -90,3 +90,14 @@ def test_a_ulog_stamped_in_unix_time_gets_unix_time_back():
     k = np.clip(np.searchsorted(want, t_log), 1, len(want) - 1)
     nearest = np.minimum(np.abs(want[k] - t_log), np.abs(want[k - 1] - t_log))
     assert nearest.max() < 2e-6  # every sample one of the log's own stamps
+
+
+def test_info_gives_the_log_clock_span(capsys):
+    """`info` says where the record's t = 0 lies on the log's clock (erle: TimeMS 51.686 s, pymavlink's first IMU)."""
+    from tepinn_flight.cli.main import main
+
+    path = real_log("erle_pxf_copter_15-12-2014_16.BIN")
+    want = _pymavlink_imu_times(path, "IMU")
+    assert main(["info", str(path)]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if "log clock" in ln)
+    assert f"{want[0]:.3f} s to {want[-1]:.3f} s (TimeMS" in line

@@ -40,6 +40,12 @@ def render_info(path, s: dict) -> str:
     add("duration", f"{s.get('duration_s', 0):.1f} s in segments"
         + (f", {bridged_s:.1f} s more across the dropouts the estimators bridge" if bridged_s >= 0.05 else "")
         + f" (span {s.get('span_s', 0):.1f} s)")  # fmt: skip
+    clock = s.get("log_clock_s")
+    if clock:
+        field = s.get("imu_time_field") or "the log's own time"
+        boots = s.get("boot_epochs") or 1
+        add("log clock", f"{clock[0]:.3f} s to {clock[1]:.3f} s ({field}: estimate's t_log_s; t = 0 is the first sample"
+            + (f"; {boots} boots: it restarts at each)" if boots > 1 else ")"))
     add("samples", s.get("samples"))
     inst = s.get("imu_instances") or []
     if inst:
