@@ -216,7 +216,13 @@ def _output_key(opts: _Options, src) -> str:
     from pathlib import Path
 
     st = Path(src).stat()
-    return hashlib.sha256(f"{opts.settings_key}|{Path(src).name}|{st.st_size}|{st.st_mtime_ns}".encode()).hexdigest()[:32]
+    key = f"{OUTPUT_VERSION}|{opts.settings_key}|{Path(src).name}|{st.st_size}|{st.st_mtime_ns}"
+    return hashlib.sha256(key.encode()).hexdigest()[:32]
+
+
+#: the output's own version, in its key: an output written before a change of its columns is not "up to date"
+#: (2: t_log_s, session 45)
+OUTPUT_VERSION = 2
 
 
 def _up_to_date(dst, key: str) -> bool:
