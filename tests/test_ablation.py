@@ -51,4 +51,8 @@ def test_an_ablation_whose_variants_all_score_the_same_says_why():
     same = [{"results": {"full": {"inclination_rmse_deg": 1.34}, "no-physics": {"inclination_rmse_deg": 1.34}}}] * 3
     differ = same[:2] + [{"results": {"full": {"inclination_rmse_deg": 1.34}, "no-physics": {"inclination_rmse_deg": 1.5}}}]
     assert identical_variants(same, ["full", "no-physics"]) and not identical_variants(differ, ["full", "no-physics"])
+    nothing = [{"results": {"full": {"inclination_rmse_deg": None}, "no-physics": {"inclination_rmse_deg": None}}}]
+    nan_first = [{"results": {"full": {"inclination_rmse_deg": float("nan")}, "a": {"inclination_rmse_deg": 1.0},
+                              "b": {"inclination_rmse_deg": 5.0}}}]  # fmt: skip
+    assert not identical_variants(nothing, ["full", "no-physics"]) and not identical_variants(nan_first, ["full", "a", "b"])
     assert "corrected nothing" in IDENTICAL_NOTE

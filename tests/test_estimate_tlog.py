@@ -178,18 +178,3 @@ def test_a_dataflash_logs_tlog_keeps_the_logs_clock_and_every_sample_at_its_rate
     assert [m.time_boot_ms for m in aq] == want_ms.tolist()
     np.testing.assert_allclose([[m.q1, m.q2, m.q3, m.q4] for m in aq], est[EST].to_numpy()[ok], atol=1e-6)
 
-
-def test_due_at_rate_thins_a_fast_log_and_keeps_a_jittery_one_at_the_rate():
-    from tepinn_flight.rate_thinning import due_at_rate
-
-    t400 = np.arange(4000) / 400.0
-    due = due_at_rate(t400, 50.0)
-    assert np.array_equal(np.flatnonzero(due), np.arange(0, 4000, 8))  # every 8th: 50 Hz
-    rng = np.random.default_rng(0)
-    t50 = np.cumsum(rng.choice([0.018, 0.019, 0.020, 0.021], 3000))  # ArduCopter's 50 Hz stamps
-    assert due_at_rate(t50, 50.0).all()
-    assert np.flatnonzero(due_at_rate(t50, 10.0)).size == pytest.approx(t50[-1] * 10, abs=0.12 * t50[-1] * 10)
-    cand = np.ones(4000, bool)
-    cand[::3] = False
-    assert np.array_equal(due_at_rate(t400, 0.0, cand), cand)  # rate 0: every candidate
-    assert not (due_at_rate(t400, 50.0, cand) & ~cand).any()  # never a row that is not a candidate

@@ -101,3 +101,25 @@ def test_info_gives_the_log_clock_span(capsys):
     assert main(["info", str(path)]) == 0
     line = next(ln for ln in capsys.readouterr().out.splitlines() if "log clock" in ln)
     assert f"{want[0]:.3f} s to {want[-1]:.3f} s (TimeMS" in line
+
+
+def test_a_boot_whose_first_sample_came_late_still_reads_its_own_clock():
+    """A new boot's first two samples in file order swapped: its start was taken as the first in file order, so
+    the earlier one fell before the boot's start in t_s and read the previous boot's clock (~100 s off)."""
+    from tepinn_flight.ingest.assemble import build_record
+    from tepinn_flight.ingest.streams import ImuStream, RawLog
+
+    t0 = 100 + np.arange(1000) * 0.01
+    t1 = 5 + np.arange(1000) * 0.01
+    t1[[0, 1]] = t1[[1, 0]]
+    t = np.concatenate([t0, t1])
+    ep = np.r_[np.zeros(1000, int), np.ones(1000, int)]
+    n = len(t)
+    raw = RawLog(imu=ImuStream(t, np.zeros((n, 3)), np.tile([0.0, 0.0, -9.81], (n, 1)), epoch=ep),
+                 meta={"source_kind": "dataflash"})  # fmt: skip
+    rec = build_record(raw, "x.bin")
+    t_log = log_clock_s(rec.t_s, rec.meta)
+    # every sample of the record reads a time the log holds, and the second boot's start reads 5.00 s
+    assert np.abs(t_log[:, None] - np.sort(t)[None, :]).min(axis=1).max() < 1e-9
+    assert np.isclose(t_log[rec.t_s >= rec.meta["epoch_start_t_s"][1]], 5.0).any()
+    assert not (t_log[rec.t_s >= rec.meta["epoch_start_t_s"][1]] > 50).any()

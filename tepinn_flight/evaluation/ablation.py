@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 
 #: variant → (ModelConfig overrides, LossConfig overrides)
@@ -109,13 +110,17 @@ IDENTICAL_NOTE = ("every variant scores the same on every record: the filter-anc
 
 
 def identical_variants(records: list[dict], names: list[str], tol_deg: float = 1e-9) -> bool:
-    """Whether every variant's inclination RMSE equals the others' on every record."""
+    """Whether every variant's inclination RMSE equals the others' on every record (finite scores only; at least two
+    of them on some record, else there is nothing to call equal)."""
+    compared = False
     for r in records:
         vals = [r["results"][n].get("inclination_rmse_deg") for n in names]
-        vals = [v for v in vals if v is not None]
-        if vals and max(vals) - min(vals) > tol_deg:
-            return False
-    return True
+        vals = [float(v) for v in vals if v is not None and math.isfinite(float(v))]
+        if len(vals) >= 2:
+            compared = True
+            if max(vals) - min(vals) > tol_deg:
+                return False
+    return compared
 
 
 def ablation_markdown(rows: list[dict], recipe: str, n_records: int, notes=()) -> str:

@@ -281,7 +281,7 @@ def build_record(raw: RawLog, source_path: str | os.PathLike) -> FlightRecord:
     end = None
     for e in np.unique(ep):
         m = ep == e
-        start = t_src[m][0]
+        start = t_src[m].min()  # (a boot's first sample in file order may be a late one)
         off = -start if end is None else end + (period if np.isfinite(period) else 0.0) - start
         offsets[int(e)] = float(off)
         starts[int(e)] = float(start + off)

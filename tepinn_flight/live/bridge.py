@@ -30,6 +30,7 @@ to every out (both ``time.monotonic``, which the worker process shares).
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import threading
@@ -85,8 +86,8 @@ class BridgeConfig:
     rrd_path: str | None = None  # --rrd: the same recorded to a Rerun file
 
     def __post_init__(self):
-        if not self.rate_hz > 0 or not self.diag_rate_hz >= 0:
-            raise ConfigError("--rate must be > 0 and --diag-rate >= 0")
+        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0) or not (math.isfinite(self.diag_rate_hz) and self.diag_rate_hz >= 0):
+            raise ConfigError("--rate must be a number > 0 and --diag-rate one >= 0")
         if self.estimate_as not in ESTIMATE_AS:
             raise ConfigError(f"--estimate-as must be one of {', '.join(ESTIMATE_AS)}, not {self.estimate_as!r}")
         if self.worker not in ("process", "thread"):
