@@ -47,11 +47,10 @@ def boot_time_at_start_s(t_s: np.ndarray, meta: dict) -> float | None:
         return None
     if meta.get("time_base") == "unix" or not len(t_s):
         return None
-    t_log = log_clock_s(np.asarray(t_s[:1]), meta)
-    t_end = log_clock_s(np.asarray(t_s[-1:]), meta)
-    if t_log is None or not (t_log[0] >= 0.0 and t_end[0] * 1e3 < 2**32):
+    ends = log_clock_s(np.asarray(t_s)[[0, -1]], meta)
+    if ends is None or not (ends[0] >= 0.0 and ends[1] * 1e3 < 2**32):
         return None
-    return float(t_log[0])
+    return float(ends[0])
 
 
 def unix_time_at_start_s(t_s: np.ndarray, meta: dict) -> float | None:

@@ -310,10 +310,9 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
     return out, err, 0
 
 
-#: the estimate's frames and units, in its Parquet metadata (a CSV carries none: `estimate --help` says them)
-
-
 def _conventions_json() -> str:
+    """The estimate's frames, units and columns, for its Parquet metadata (a CSV carries none: `estimate --help` says
+    them)."""
     import json
 
     from ..conventions import describe

@@ -393,7 +393,8 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
              f"## Summary (mean over the {fast} records in it)")  # fmt: skip
     L.append("")
     L.append("Median and p95: of the records' inclination RMSEs (with one record, the RMSE itself); every other column "
-             "is a mean over records. Heading: after one constant offset per record in 6-D; RIANN has no heading.")
+             "is a mean over records. Heading: after one constant offset per record in 6-D; '–' for an estimator that tracks "
+             "none (RIANN).")
     L.append("")
     L.append("| estimator | kind | causal | mode | incl. RMSE [°] | median of records | p95 of records | roll [°] | pitch [°] | heading [°] | "
              "total [°] | \\|drift\\| [°/min] | mean q dist | mean angle [°] | gyro bias RMS [°/s] | µs/sample |")  # fmt: skip
