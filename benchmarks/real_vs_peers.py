@@ -22,8 +22,16 @@ peers run), with their ratios in the summary lines.
 `--no-smooth` adds it without the smoothing (`estimate --no-smooth`, the live bridge's tilt) as its own
 column; `--smooth` adds the smoothing to a `--model` written before session 25 (which does not smooth).
 
+Your own files (session 46): name logs, BROAD trials, records or folders of them and they are scored instead of the
+shared split (no simulations unless `--sim-every` asks for them). A file the split names keeps its label; any other is
+"given": the shipped model never trained on a file of that name. Files that cannot be scored fairly are listed apart
+with the reason, as `evaluate` does: an IMU below 20 Hz, no reference attitude, a reference that fails the trust check
+(`model/reference_trust.py`), or a file `ingest` cannot read. Without files, the shared files the split names in neither
+list are named at the end (not scored: some decided design choices, others cannot be estimated).
+
     python benchmarks/real_vs_peers.py [--shared ../shared] [--sim-every 4] [--model CKPT] [--lstm CKPT] [--no-smooth] [--smooth]
     python benchmarks/real_vs_peers.py --campaign my_seed.toml --sim runs/my_seed --sim-every 1 --no-real
+    python benchmarks/real_vs_peers.py my_logs/ other_broad/*.hdf5
 """
 
 from __future__ import annotations
@@ -41,12 +49,14 @@ REPO = Path(__file__).resolve().parents[1]
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
+    ap.add_argument("files", nargs="*", help="logs, BROAD trials, records or folders of them, scored instead of the shared split")
     ap.add_argument("--shared", default=str(REPO.parent / "shared"))
     ap.add_argument("--sim", default=str(REPO / "runs/heldout"), help="folder of the held-out campaign")
     ap.add_argument("--campaign", default=str(REPO / "flight_sims/campaigns/heldout.toml"),
                     help="the campaign flown into --sim (default: the held-out one, seed 77)")
     ap.add_argument("--no-real", action="store_true", help="simulated flights only (no real files)")
-    ap.add_argument("--sim-every", type=int, default=4, help="every N-th held-out flight (0: none)")
+    ap.add_argument("--sim-every", type=int, default=None,
+                    help="every N-th held-out flight (0: none; default 4, or 0 where files are named)")
     ap.add_argument("--model", default=None, help="TE-PINN checkpoint (default: shipped)")
     ap.add_argument("--lstm", default=None, help="LSTM baseline checkpoint (default: shipped)")
     ap.add_argument("--smooth", action="store_true",
@@ -78,28 +88,42 @@ def run(args) -> int:
     torch.set_num_threads(1)
     split = tomllib.loads((REPO / "train/splits/real.toml").read_text())
     shared = Path(args.shared)
-    files = []  # (kind, group, name, record, held_out)
-    real_logs = [] if args.no_real else split["heldout"]["real_logs"] + split["seen"].get("real_logs", [])
-    broad = [] if args.no_real else split["heldout"].get("broad", []) + split["seen"]["broad"]
-    for name in real_logs:
-        p = shared / "real-logs" / name
-        if p.exists():
-            rec = ingest_log(p)
-            rate = float(rec.meta.get("imu_rate_hz") or 0)
-            grp = f"{rec.meta.get('autopilot', '?')} {rec.meta.get('vehicle_type', '?')} {rate:.0f} Hz"
-            files.append(("drone log", grp, name, rec, name in split["heldout"]["real_logs"]))
-    for name in broad:
-        p = shared / "broad" / name
-        if p.exists():
-            grp = "_".join(name.split("_")[2:4]).replace("_", " ")
-            files.append(("BROAD", grp, name, ingest_log(p), name in split["heldout"].get("broad", [])))
-    if args.sim_every:
+    held_names = set(split["heldout"]["real_logs"]) | set(split["heldout"].get("broad", []))
+    seen_names = set(split["seen"].get("real_logs", [])) | set(split["seen"]["broad"])
+    files = []  # (kind, group, name, record, split label: "held-out", "seen" or "given")
+    apart = []  # (name, why it is not scored)
+    sim_every = (0 if args.files else 4) if args.sim_every is None else args.sim_every
+    if args.files:
+        for p in expand_files(args.files):
+            label = "held-out" if p.name in held_names else "seen" if p.name in seen_names else "given"
+            item, why = load_scorable(p, label)
+            if item is None:
+                apart.append((p.name, why))
+            else:
+                files.append(item)
+    else:
+        real_logs = [] if args.no_real else split["heldout"]["real_logs"] + split["seen"].get("real_logs", [])
+        broad = [] if args.no_real else split["heldout"].get("broad", []) + split["seen"]["broad"]
+        for name in real_logs:
+            p = shared / "real-logs" / name
+            if p.exists():
+                rec = ingest_log(p)
+                files.append(("drone log", file_group(rec, name), name, rec,
+                              "held-out" if name in split["heldout"]["real_logs"] else "seen"))
+        for name in broad:
+            p = shared / "broad" / name
+            if p.exists():
+                rec = ingest_log(p)
+                files.append(("BROAD", file_group(rec, name), name, rec,
+                              "held-out" if name in split["heldout"].get("broad", []) else "seen"))
+    if sim_every:
         run_campaign(Path(args.campaign), Path(args.sim), progress=True)
-        for p in sorted(Path(args.sim).glob("*.parquet"))[:: args.sim_every]:
+        for p in sorted(Path(args.sim).glob("*.parquet"))[::sim_every]:
             grp = p.stem.split("-")[1]
-            files.append(("simulated", grp, p.stem, read_record(p), True))
+            files.append(("simulated", grp, p.stem, read_record(p), "held-out"))
     if not files:
-        print(f"no files found (shared folder {shared}, simulations {args.sim})")
+        print(f"no files found (shared folder {shared}, simulations {args.sim})"
+              + "".join(f"\n  not scored: {n}: {why}" for n, why in apart))
         return 2
 
     ests = [TepinnEstimator.from_checkpoint(args.model or default_model_path(), "tepinn"), VqfEstimator(),
@@ -117,8 +141,8 @@ def run(args) -> int:
     names = [e.name for e in ests]
     rows = []
     t0 = time.perf_counter()
-    for kind, grp, name, rec, held in files:
-        rows.append({"kind": kind, "group": grp, "name": name, "held": held, **score_file(ests, rec)})
+    for kind, grp, name, rec, label in files:
+        rows.append({"kind": kind, "group": grp, "name": name, "split": label, **score_file(ests, rec)})
     print(f"\n{len(files)} files, {time.perf_counter() - t0:.0f} s; inclination RMSE (deg), 5 s warm-up\n")
     label = {n: {"tepinn-nosmooth": "TP no-smooth", "tepinn-smooth": "TP smoothed", "tepinn-imu": "TP IMU only",
                  "offline-vqf": "offl. VQF"}.get(n, display_name(n)) for n in names}  # fmt: skip
@@ -127,7 +151,7 @@ def run(args) -> int:
     print(head + f"{'TP/VQF':>8}  per-file check")
     for r in rows:
         ok = r["tepinn"] <= max(1.5 * r["vqf"], r["vqf"] + 0.5)
-        print(f"{r['kind']:<10} {r['group'][:26]:<26} {r['name'][:44]:<44} {'held-out' if r['held'] else 'seen':<9}"
+        print(f"{r['kind']:<10} {r['group'][:26]:<26} {r['name'][:44]:<44} {r['split']:<9}"
               + "".join(f"{r[n]:>{width[n]}.2f}" for n in names) + f"{r['tepinn'] / r['vqf']:>8.2f}  {'ok' if ok else 'FAIL'}")
     applied = [r for r in rows if "selfcal" in r]
     print(f"\nTE-PINN's gyro self-calibration applied on {len(applied)} of {len(rows)} files"
@@ -139,13 +163,13 @@ def run(args) -> int:
     print(f"TE-PINN's offline tilt smoothing applied on {len(sm)} of {len(rows)} files")
     print()
     for kind in ("drone log", "BROAD", "simulated"):
-        for held in (True, False):
-            sel = [r for r in rows if r["kind"] == kind and r["held"] == held]
+        for label in ("held-out", "seen", "given"):
+            sel = [r for r in rows if r["kind"] == kind and r["split"] == label]
             if not sel:
                 continue
             means = {n: float(np.nanmean([r[n] for r in sel])) for n in names}
             fails = sum(r["tepinn"] > max(1.5 * r["vqf"], r["vqf"] + 0.5) for r in sel)
-            line = f"{kind:<10} {'held-out' if held else 'seen in training':<17} n={len(sel):<3}" + "".join(
+            line = f"{kind:<10} {SPLIT_LABELS[label]:<17} n={len(sel):<3}" + "".join(
                 f" {display_name(n)} {means[n]:.2f}" for n in names)
             print(line + f" | TE-PINN/VQF {means['tepinn'] / means['vqf']:.3f}, /LSTM {means['tepinn'] / means['lstm']:.3f}"
                          f", /EKF {means['tepinn'] / means['ekf']:.3f}, /offline VQF {means['tepinn'] / means['offline-vqf']:.3f}"
@@ -163,7 +187,90 @@ def run(args) -> int:
                     print(f"{'':<10} σ of {display_name(n)}: mean NEES {np.mean(nees):.2f} (target 1.5–2.5), within 3σ "
                           f"{100 * np.mean([r[f'in3:{n}'] for r in sel if f'in3:{n}' in r]):.1f} % (target ≥ 97 %), "
                           f"Spearman(σ, |e|) {np.nanmean([r.get(f'rho:{n}', np.nan) for r in sel]):.2f}, per file averaged")
+    if not args.files and not args.no_real:
+        apart += [(n, "named in neither list of train/splits/real.toml (used for design choices, or no usable IMU or "
+                      "reference): pass it as an argument to score it") for n in unlisted_shared(shared, held_names | seen_names)]
+    if apart:
+        print(f"\nnot scored ({len(apart)}):" + "".join(f"\n  {n}: {why}" for n, why in apart))
     return 0
+
+
+#: what each split label means in the summary lines
+SPLIT_LABELS = {"held-out": "held-out", "seen": "seen in training", "given": "given (not in split)"}
+#: what a folder named on the command line is searched for (not recursive)
+SCORABLE_SUFFIXES = (".bin", ".log", ".tlog", ".ulg", ".hdf5", ".h5", ".parquet")
+
+
+def expand_files(args: list[str]) -> list[Path]:
+    """The files named, each folder replaced by its files with a log, trial or record suffix (sorted)."""
+    out = []
+    for a in args:
+        p = Path(a)
+        if p.is_dir():
+            out += sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in SCORABLE_SUFFIXES)
+        else:
+            out.append(p)
+    return out
+
+
+def file_group(rec, name: str) -> str:
+    """The summary's group of a real record: a BROAD trial's motion class, else autopilot, vehicle and IMU rate."""
+    if rec.meta.get("source_kind") == "broad":
+        return motion_class(str(rec.meta.get("broad_trial") or Path(name).stem))
+    rate = float(rec.meta.get("imu_rate_hz") or 0)
+    return f"{rec.meta.get('autopilot', '?')} {rec.meta.get('vehicle_type', '?')} {rate:.0f} Hz"
+
+
+def motion_class(trial: str) -> str:
+    """A BROAD trial's motion class from its name: '01_undisturbed_slow_rotation_with_breaks_B' -> 'slow rotation with
+    breaks', '32_disturbed_attached_magnet_1cm' -> 'attached magnet' (number, (un)disturbed and variant left out)."""
+    parts = [x for x in trial.split("_") if x]
+    if parts and parts[0].lower() == "broad":
+        parts = parts[1:]
+    if parts and parts[0].isdigit():
+        parts = parts[1:]
+    if parts and parts[0].lower() in ("undisturbed", "disturbed"):
+        parts = parts[1:]
+    if len(parts) > 1 and (len(parts[-1]) == 1 or parts[-1].lower().endswith("cm")):
+        parts = parts[:-1]
+    return " ".join(parts) or trial
+
+
+def load_scorable(path: Path, label: str):
+    """``((kind, group, name, record, label), "")`` for a file that can be scored fairly, else ``(None, why)``: a file
+    ``ingest`` cannot read, an IMU below 20 Hz, no reference attitude, or a reference that fails the trust check
+    (the rules ``evaluate`` keeps such records out of its summary by)."""
+    from tepinn_flight.errors import TepinnError
+    from tepinn_flight.ingest import load_record
+    from tepinn_flight.model.reference_trust import check_reference
+    from tepinn_flight.record import SIMULATED_KINDS, estimation_ok
+
+    try:
+        rec = load_record(path)
+    except (TepinnError, OSError) as exc:
+        return None, f"not read: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+    if not estimation_ok(rec.meta):
+        return None, f"IMU too slow for windowed estimation ({float(rec.meta.get('imu_rate_hz') or 0):.1f} Hz, under 20 Hz)"
+    if not np.any(np.all(np.isfinite(rec.q_ref_wxyz), axis=1)):
+        return None, "no reference attitude"
+    chk = check_reference(rec)
+    if not chk.trusted:
+        return None, f"reference not trusted: {chk.describe()}"
+    kind = rec.meta.get("source_kind")
+    if kind in SIMULATED_KINDS:
+        return ("simulated", str(rec.meta.get("aircraft", "?")), path.name, rec, label), ""
+    return ("BROAD" if kind == "broad" else "drone log", file_group(rec, path.name), path.name, rec, label), ""
+
+
+def unlisted_shared(shared: Path, listed: set[str]) -> list[str]:
+    """The files of the shared real logs and BROAD folders that the split names in neither list."""
+    out = []
+    for sub in ("real-logs", "broad"):
+        folder = shared / sub
+        if folder.is_dir():
+            out += [q.name for q in sorted(folder.iterdir())
+                    if q.is_file() and q.suffix.lower() in SCORABLE_SUFFIXES and q.name not in listed]
+    return out
 
 
 def score_file(ests, rec) -> dict:
