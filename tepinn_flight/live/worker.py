@@ -19,7 +19,10 @@ Protocol (both modes, the same :func:`worker_loop`):
   :class:`~tepinn_flight.model.streaming.StreamingEstimator`, which resets itself on time
   reversals and gaps. Of the samples due at about ``rate_hz`` on the autopilot's clock
   (:class:`~tepinn_flight.rate_thinning.RateThinner`: every sample of an IMU at that rate, through its stamps' jitter)
-  only the newest of a batch is sent back.
+  only the newest of a batch is sent back. Then, before waiting for the next samples, the estimator's
+  ``prepare`` runs the network's next window where the next sample will need it
+  (:meth:`~tepinn_flight.model.streaming.StreamingEstimator.prepare`): the estimate of the sample that opens a
+  token no longer waits for the network (the same estimates, to the bit).
 * worker → bridge: length-prefixed frames: ``R`` ready (JSON), ``E`` estimate + counters,
   ``S`` counters, ``X`` a non-fatal error line (the estimator raised: it is reset and goes on),
   ``F`` a fatal error line (the model could not be loaded; the worker exits).
@@ -130,6 +133,7 @@ def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, 
     processed = dropped = resets = errors = model_runs = 0
     model_s = step_s = 0.0
     thin = RateThinner(rate_hz)  # the estimates sent: about rate_hz, every sample of a stream at that rate
+    prepare = getattr(est, "prepare", None)  # StreamingEstimator.prepare: the network between samples
     t0_prev = None
     last_stats = 0.0
     while True:
@@ -199,6 +203,22 @@ def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, 
         elif now - last_stats >= STATS_INTERVAL_S:
             out.send(b"S", counters)
             last_stats = now
+        if prepare is not None:  # the next sample's network window, run now while the stream is idle (same estimates)
+            try:
+                ran, secs = prepare()
+            except Exception as exc:  # noqa: BLE001 - as a push that raised: reset, report, go on
+                errors += 1
+                if errors == 1 or errors % 100 == 0:
+                    out.send(b"X", f"estimator error #{errors}: {_one_line(exc)}".encode()[:2000])
+                try:
+                    est.reset()
+                except Exception:  # noqa: BLE001
+                    pass
+                thin.reset()
+                continue
+            if ran:
+                model_runs += 1
+                model_s += secs
     return 0
 
 

@@ -11,6 +11,13 @@ logging dropout (≤ ``record_gaps.MAX_BRIDGED_GAP_S``), bridged as offline: the
 The network runs through a :class:`~.runtime.NetworkRunner`: a :class:`~.network.TEPINN` module
 (PyTorch) or e.g. an :class:`~.runtime.OnnxRunner` (no torch).
 
+Between samples, :meth:`StreamingEstimator.prepare` may run the network early (session 46): where the next sample,
+arriving no sooner than half a period after the last, opens a new token, the token is closed and its window run now,
+in the time the stream leaves idle, instead of inside the next sample's push. The next push then takes that window's
+output as it would have computed it, so its estimate comes out without waiting for the network: the same estimates to
+the bit. Where the next sample after all falls into the same token (a stamp that came early), or the vehicle's class
+was learnt in between, the early close is undone from a snapshot and the push goes on as without it.
+
 Three offline steps have no live counterpart, all reading the whole record around the pass: the gyro
 self-calibration (``AnchorConfig.gyro_selfcal``, :mod:`.gyro_selfcal`), the GNSS-aided tilt
 (``AnchorConfig.gnss_aid``, :mod:`.gnss_aid`: centred averages, a heading fitted over 30 s, a second
@@ -40,6 +47,9 @@ if TYPE_CHECKING:
 
 #: the anchored filter's sample period is the median of a segment's first steps (offline the same)
 TS_STEPS = 51
+#: :meth:`StreamingEstimator.prepare` closes the token early where a next sample this many periods after the last
+#: would already open a new one (a sample sooner than that, in the same token, undoes the early close)
+PREPARE_SOONEST_PERIODS = 0.5
 
 
 @dataclass
@@ -149,6 +159,7 @@ class StreamingEstimator:
         self.block_speed = 0.0  # the largest |v̂| on the current block's windows ...
         self.speeds = deque(maxlen=self.anchor_cfg.quiet_memory_blocks) if self.anchor_cfg else None  # ... of the last blocks
         self.quiet = self.anchor_cfg.quiet_in(self.fusion_cfg) if self.anchor_cfg is not None else 0
+        self.early = None  # prepare()'s early close: (token index, the state before it, the window's output)
 
     def push(self, t_s: float, gyr_rad_s, acc_m_s2, mag_ut=None, clipped: bool = False,
              gyr_clipped: bool | None = None) -> Estimate:
@@ -190,9 +201,15 @@ class StreamingEstimator:
         k = 0 if t == self.t0 else int(math.ceil((t - self.t0) / self.delta - 1e-6))
         est = None
         ran = False
+        if self.early is not None and k <= self.k:  # this sample belongs to the token prepare() closed after all
+            self._undo_early()
         if k > self.k:
-            est = self._close_token()
-            ran = est is not None
+            if self.early is not None:  # the token prepare() closed did end with the last sample: its window's output
+                est = self.early[2]
+                self.early = None
+            else:
+                est = self._close_token()
+                ran = est is not None
             for j in range(self.k + 1, k):  # empty tokens: hold the previous means (causal)
                 g, a, m, cl = self.last_means
                 self.win.append(self.t0 + j * self.delta, g, a, m, 0.0, cl)
@@ -221,8 +238,39 @@ class StreamingEstimator:
         self.t_prev = t
         return Estimate(t, q, sigma, bias, ran, time.perf_counter() - t0c)
 
+    def prepare(self) -> tuple[bool, float]:
+        """Between samples (the bridge's worker, once it has sent the last estimate): close the current token and run
+        its window now where the next sample, due about a period after the last and arriving no sooner than
+        :data:`PREPARE_SOONEST_PERIODS` of one, would open a new token — so the next push does not wait for the network.
+        The estimates are the same bits as without it (:meth:`push` takes the output, or undoes the early close where
+        the next sample falls into the same token after all). → (the network ran, seconds spent)."""
+        if self.early is not None or self.t_prev is None or self.period is None or self.cur.n == 0:
+            return False, 0.0
+        t_soonest = self.t_prev + PREPARE_SOONEST_PERIODS * self.period
+        if int(math.ceil((t_soonest - self.t0) / self.delta - 1e-6)) <= self.k:
+            return False, 0.0
+        t0c = time.perf_counter()
+        win = self.win
+        saved = (win.buf.copy(), win.n, self.last_means, self.feedback, self.n_windows,
+                 None if self.speeds is None else list(self.speeds), self.busy, self.block_speed)  # fmt: skip
+        est = self._close_token()
+        self.early = (self.k, saved, est)
+        return est is not None, time.perf_counter() - t0c
+
+    def _undo_early(self) -> None:
+        """The state as it was before :meth:`prepare` closed the token."""
+        buf, n, self.last_means, self.feedback, self.n_windows, speeds, self.busy, self.block_speed = self.early[1]
+        self.win.buf[:] = buf
+        self.win.n = n
+        if speeds is not None:
+            self.speeds.clear()
+            self.speeds.extend(speeds)
+        self.early = None
+
     def set_vehicle(self, vehicle: str | None) -> None:
         """What the vehicle is, learnt after the start (the bridge: the autopilot's heartbeat): from the next window on."""
+        if self.early is not None:  # the early window read the class it replaces
+            self._undo_early()
         self.vehicle = vehicle
         if self.anchored is not None:
             self.anchored.speed_gate = speed_gate_allowed(self.anchor_cfg, vehicle)
