@@ -316,11 +316,17 @@ def main() -> int:
     if est.get("model_runs"):
         n = est["samples_processed"]
         runs = est["model_runs"]
+        steps = est.get("steps", n - runs)  # pushes without the network (it runs between samples since session 46)
         mm, su = est["model_ms_mean"], est["step_us_mean"]
-        total = runs * mm / 1e3 + (n - runs) * su / 1e6
+        total = runs * mm / 1e3 + steps * su / 1e6
         print(f"where the estimator's time goes: network {runs} calls x {mm:.2f} ms = {runs * mm / 1e3:.2f} s "
-              f"({100 * runs * mm / 1e3 / total:.0f} %), fusion step {n - runs} samples x {su:.1f} us = "
-              f"{(n - runs) * su / 1e6:.2f} s; estimator busy {100 * total / a.seconds:.0f} % of one core")  # fmt: skip
+              f"({100 * runs * mm / 1e3 / total:.0f} %), fusion step {steps} samples x {su:.1f} us = "
+              f"{steps * su / 1e6:.2f} s; estimator busy {100 * total / a.seconds:.0f} % of one core")  # fmt: skip
+        pm = est.get("push_ms") or {}
+        if pm.get("n"):
+            print(f"the worker's push of each sent estimate's sample: p50 {pm['p50']:.3f} ms, p99 {pm['p99']:.3f} ms, "
+                  f"max {pm['max']:.2f} ms; {est.get('sent_after_network', 0)} of {pm['n']} sent estimates waited for "
+                  "the network in their push")  # fmt: skip
     b2 = res["bridge 2k"]
     print(f"2,000 msg/s through the bridge: {b2['lost']} of {b2['sent']} frames lost "
           f"(direct: {res['direct 2k']['lost']})")  # fmt: skip

@@ -346,7 +346,10 @@ class Bridge:
                 "errors": wc[3],
                 "model_runs": wc[4],
                 "model_ms_mean": round(wc[5] / wc[4] * 1e3, 3) if wc[4] else None,
-                "step_us_mean": round(wc[6] / max(1, wc[0] - wc[4]) * 1e6, 2) if wc[0] else None,
+                "step_us_mean": round(wc[6] / wc[7] * 1e6, 2) if wc[7] else None,
+                "steps": wc[7],  # the pushes that did not run the network (it ran between samples, or not at all)
+                "push_ms": out.push_hist.summary(1e3, 3),  # the worker's push of each sent estimate's sample
+                "sent_after_network": out.after_network,  # sent estimates whose push ran the network
                 "worker": self.cfg.worker,
                 "worker_restarts": self.feed.restarts,
                 "worker_error": self.feed.fatal or self.feed.error,

@@ -24,7 +24,7 @@ from .worker import COUNTERS, ProcessWorker, ThreadWorker, pack_sample, reset_re
 
 RESTART_BACKOFF_S = (2.0, 4.0, 8.0, 16.0, 30.0)
 _NOT_TOLD = object()  # EstimatorFeed.vehicle_told before the worker was told anything (None: told "not known")
-_ZERO = (0, 0, 0, 0, 0, 0.0, 0.0)  # the worker's counters: processed, stale, resets, errors, model runs, model s, step s
+_ZERO = (0, 0, 0, 0, 0, 0.0, 0.0, 0)  # the worker's counters: processed, stale, resets, errors, model runs, model s, step s, steps
 
 
 class EstimatorFeed:
@@ -198,6 +198,10 @@ class EstimateOutput:
         self.cfg = cfg
         self.clock = clock
         self.lat_hist = latency_histogram()
+        # the worker's own time on each sent estimate's sample (its push), and how many of those pushes ran the network:
+        # the part of the latency the estimator adds (the rest is the pipes and the scheduling)
+        self.push_hist = latency_histogram()
+        self.after_network = 0
         self.last_latency = None
         self.count = 0
         self.rate = RateMeter(2.0)
@@ -229,6 +233,8 @@ class EstimateOutput:
         now = self.clock()
         lat = now - est["arrival"]
         self.lat_hist.add(lat)
+        self.push_hist.add(est["compute_s"])
+        self.after_network += est["model_ran"]
         self.last_latency = lat
         self.count += 1
         self.rate.tick(now)

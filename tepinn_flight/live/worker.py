@@ -59,8 +59,9 @@ KIND_RESET = 2
 KIND_VEHICLE = 3  # what the vehicle is: its class's index in vehicle_class.CLASSES in the seq field
 #: seq, t_s, arrival, q(4), sigma, bias(3), gyr(3), time_usec, time_boot_ms, model_ran, compute_s
 EST = struct.Struct("<Idd4dd3d3dQiBd")
-#: processed, dropped_stale, resets, errors, model_runs, model_s, step_s
-COUNTERS = struct.Struct("<IIIIIdd")
+#: processed, dropped_stale, resets, errors, model_runs (in a push or between samples), model_s, step_s (the pushes
+#: that did not run the network), steps (those pushes)
+COUNTERS = struct.Struct("<IIIIIddI")
 HEADER = struct.Struct("<HB")
 STATS_INTERVAL_S = 0.05
 #: Scheduling priority of the worker process below the bridge's (forwarding first).
@@ -130,7 +131,7 @@ def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, 
     out.send(b"R", json.dumps(info).encode())
     buf = bytearray()
     size = SAMPLE.size
-    processed = dropped = resets = errors = model_runs = 0
+    processed = dropped = resets = errors = model_runs = steps = 0
     model_s = step_s = 0.0
     thin = RateThinner(rate_hz)  # the estimates sent: about rate_hz, every sample of a stream at that rate
     prepare = getattr(est, "prepare", None)  # StreamingEstimator.prepare: the network between samples
@@ -187,12 +188,13 @@ def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, 
                 model_s += e.compute_s
             else:
                 step_s += e.compute_s
+                steps += 1
             thin.seen(t_s)
             if e.q_nb_wxyz is None:
                 continue
             if thin.due(t_s):
                 due = (r, e)
-        counters = COUNTERS.pack(processed, dropped, resets, errors, model_runs, model_s, step_s)
+        counters = COUNTERS.pack(processed, dropped, resets, errors, model_runs, model_s, step_s, steps)
         now = clock()
         if due is not None:
             r, e = due
