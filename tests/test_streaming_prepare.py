@@ -86,3 +86,118 @@ def test_a_sample_inside_the_token_undoes_the_early_close():
             assert live.early is None and live.win.n == n_before
             undone += 1
     assert closed > 50 and undone > 20
+
+
+def _run_worker(make_estimator, records: list[bytes]):
+    """``worker_loop`` over ``records`` (one write each, so each is its own batch) → the frames it wrote, as
+    (kind, payload) in order."""
+    import os
+
+    import tepinn_flight.live.worker as worker
+
+    r_in, w_in = os.pipe()
+    r_out, w_out = os.pipe()
+    frames = []
+    warm, worker.warm_up = worker.warm_up, lambda e: None
+    try:
+        import threading
+
+        done = threading.Event()
+
+        def read_all():
+            buf = b""
+            while True:
+                chunk = os.read(r_out, 1 << 16)
+                if not chunk:
+                    break
+                buf += chunk
+            i = 0
+            while i < len(buf):
+                n, kind = worker.HEADER.unpack_from(buf, i)
+                i += worker.HEADER.size
+                frames.append((bytes([kind]), buf[i:i + n]))
+                i += n
+            done.set()
+
+        th = threading.Thread(target=read_all, daemon=True)
+        th.start()
+
+        def feed():
+            import time
+
+            for rec in records:  # one at a time, as an IMU streams (a batch merged now and then changes nothing)
+                os.write(w_in, rec)
+                time.sleep(0.002)
+            os.close(w_in)
+
+        feeder = threading.Thread(target=feed, daemon=True)
+        feeder.start()
+        assert worker.worker_loop(r_in, w_out, make_estimator, rate_hz=1000.0, max_age_s=1e9) == 0
+        feeder.join()
+        os.close(w_out)
+        done.wait(10)
+    finally:
+        worker.warm_up = warm
+        os.close(r_in)
+        os.close(r_out)
+    return frames
+
+
+def test_the_workers_estimates_with_prepare_are_those_of_the_estimator_without_it():
+    """The bridge's worker calls prepare after each batch: each estimate it sends is the one a plain push-only run gives,
+    and its counters count the network runs made between samples."""
+    from tepinn_flight.live.worker import pack_sample, unpack_estimate
+
+    model, cfg, _ = load_model(default_model_path())
+    rec = synthetic_record(seed=6, duration_s=5.0, rate_hz=100.0)
+    plain = StreamingEstimator(model, cfg)
+    ref = {}
+    for i in range(len(rec)):
+        e = plain.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i])
+        if e.q_nb_wxyz is not None:
+            ref[i] = tuple(e.q_nb_wxyz)
+    records = [pack_sample(i, float(rec.t_s[i]), 0.0, tuple(rec.gyr_rad_s[i]), tuple(rec.acc_m_s2[i]), None, 0, None)
+               for i in range(len(rec))]  # fmt: skip (arrival 0: max_age_s is infinite here)
+    frames = _run_worker(lambda: StreamingEstimator(model, cfg), records)
+    sent = [unpack_estimate(p) for k, p in frames if k == b"E"]
+    assert len(sent) > 100
+    for est, _ in sent:
+        assert est["q"] == ref[est["seq"]]  # the same bits
+    processed, _, _, errors, model_runs, _, _, steps = sent[-1][1]
+    assert errors == 0 and model_runs > 20
+    assert steps > processed - model_runs // 2  # most network runs were made between samples, not in a push
+
+
+def test_an_estimator_whose_prepare_raises_is_reported_reset_and_goes_on():
+    from tepinn_flight.live.worker import pack_sample
+
+    class Est:
+        t0 = None
+
+        def __init__(self):
+            self.resets = 0
+            self.calls = 0
+
+        def push(self, t, *a):
+            from tepinn_flight.model.streaming import Estimate
+
+            return Estimate(t, (1.0, 0.0, 0.0, 0.0), 0.01, (0.0, 0.0, 0.0), False, 1e-6)
+
+        def prepare(self):
+            self.calls += 1
+            if self.calls == 2:
+                raise RuntimeError("the network's window failed")
+            return False, 0.0
+
+        def reset(self, sensor=False):
+            self.resets += 1
+
+    est = Est()
+    import time
+
+    now = time.monotonic()
+    records = [pack_sample(i, 0.01 * i, now, (0.0, 0.0, 0.0), (0.0, 0.0, -9.81), None, 0, None) for i in range(4)]
+    frames = _run_worker(lambda: est, records)
+    errs = [p.decode() for k, p in frames if k == b"X"]
+    assert errs == ["estimator error #1: RuntimeError: the network's window failed"]
+    assert est.resets == 1 and est.calls >= 3  # reset once, and prepare called again after it
