@@ -54,7 +54,7 @@ def main() -> int:
     ap.add_argument("--sim", default=str(REPO / "runs/heldout"), help="folder of the held-out campaign")
     ap.add_argument("--campaign", default=str(REPO / "flight_sims/campaigns/heldout.toml"),
                     help="the campaign flown into --sim (default: the held-out one, seed 77)")
-    ap.add_argument("--no-real", action="store_true", help="simulated flights only (no real files)")
+    ap.add_argument("--no-real", action="store_true", help="simulated flights only (none of the shared real files; files named are scored)")
     ap.add_argument("--sim-every", type=int, default=None,
                     help="every N-th held-out flight (0: none; default 4, or 0 where files are named)")
     ap.add_argument("--model", default=None, help="TE-PINN checkpoint (default: shipped)")
@@ -169,7 +169,7 @@ def run(args) -> int:
                 continue
             means = {n: float(np.nanmean([r[n] for r in sel])) for n in names}
             fails = sum(r["tepinn"] > max(1.5 * r["vqf"], r["vqf"] + 0.5) for r in sel)
-            line = f"{kind:<10} {SPLIT_LABELS[label]:<17} n={len(sel):<3}" + "".join(
+            line = f"{kind:<10} {SPLIT_LABELS[label]:<20} n={len(sel):<3}" + "".join(
                 f" {display_name(n)} {means[n]:.2f}" for n in names)
             print(line + f" | TE-PINN/VQF {means['tepinn'] / means['vqf']:.3f}, /LSTM {means['tepinn'] / means['lstm']:.3f}"
                          f", /EKF {means['tepinn'] / means['ekf']:.3f}, /offline VQF {means['tepinn'] / means['offline-vqf']:.3f}"
@@ -188,13 +188,15 @@ def run(args) -> int:
                           f"{100 * np.mean([r[f'in3:{n}'] for r in sel if f'in3:{n}' in r]):.1f} % (target ≥ 97 %), "
                           f"Spearman(σ, |e|) {np.nanmean([r.get(f'rho:{n}', np.nan) for r in sel]):.2f}, per file averaged")
     if not args.files and not args.no_real:
-        apart += [(n, "named in neither list of train/splits/real.toml (used for design choices, or no usable IMU or "
-                      "reference): pass it as an argument to score it") for n in unlisted_shared(shared, held_names | seen_names)]
+        apart += [(n, "named in neither list of train/splits/real.toml (a design log, or no usable IMU or reference: "
+                      "name it as an argument to see which)") for n in unlisted_shared(shared, held_names | seen_names)]
     if apart:
         print(f"\nnot scored ({len(apart)}):" + "".join(f"\n  {n}: {why}" for n, why in apart))
     return 0
 
 
+#: the warm-up left out of every score (as `evaluate`'s default)
+WARMUP_S = 5.0
 #: what each split label means in the summary lines
 SPLIT_LABELS = {"held-out": "held-out", "seen": "seen in training", "given": "given (not in split)"}
 #: what a folder named on the command line is searched for (not recursive)
@@ -210,7 +212,7 @@ def expand_files(args: list[str]) -> list[Path]:
             out += sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in SCORABLE_SUFFIXES)
         else:
             out.append(p)
-    return out
+    return list({p.resolve(): p for p in out}.values())  # a file named twice (or as a folder's) once
 
 
 def file_group(rec, name: str) -> str:
@@ -253,6 +255,10 @@ def load_scorable(path: Path, label: str):
         return None, f"IMU too slow for windowed estimation ({float(rec.meta.get('imu_rate_hz') or 0):.1f} Hz, under 20 Hz)"
     if not np.any(np.all(np.isfinite(rec.q_ref_wxyz), axis=1)):
         return None, "no reference attitude"
+    from tepinn_flight.evaluation.harness import scoring_mask
+
+    if not np.any(scoring_mask(rec, WARMUP_S) & np.all(np.isfinite(rec.q_ref_wxyz), axis=1)):
+        return None, f"nothing to score after the {WARMUP_S:g}-s warm-up ({len(rec)} samples)"
     chk = check_reference(rec)
     if not chk.trusted:
         return None, f"reference not trusted: {chk.describe()}"
@@ -283,7 +289,7 @@ def score_file(ests, rec) -> dict:
     from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad, tilt_error_vector_rad, uncertainty_metrics
     from tepinn_flight.record_gaps import bridge_gaps
 
-    m = scoring_mask(rec, 5.0)
+    m = scoring_mask(rec, WARMUP_S)
     r = {}
     br = bridge_gaps(rec)
     for e in ests:

@@ -64,3 +64,18 @@ def test_folders_are_expanded_to_their_logs_and_the_split_labels_follow_train_sp
     unlisted = rvp.unlisted_shared(shared, listed)
     assert "aplogan_nan.log" in unlisted and "dkla_fs-batt.log" in unlisted
     assert not set(unlisted) & listed
+
+
+def test_a_record_shorter_than_the_warm_up_is_listed_apart_and_a_file_named_twice_is_scored_once(tmp_path):
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    rvp = _rvp()
+    short, long_ = tmp_path / "short.parquet", tmp_path / "long.parquet"
+    write_record(synthetic_record(seed=1, duration_s=4.0, rate_hz=100.0), short)
+    write_record(synthetic_record(seed=1, duration_s=8.0, rate_hz=100.0), long_)
+    item, why = rvp.load_scorable(short, "given")
+    assert item is None and why.startswith("nothing to score after the 5-s warm-up")
+    (kind, group, name, rec, label), why = rvp.load_scorable(long_, "given")
+    assert kind == "simulated" and why == ""
+    assert rvp.expand_files([str(tmp_path), str(long_)]) == [long_, short]

@@ -63,29 +63,54 @@ def test_prepare_gives_the_same_estimates_as_the_network_run_in_push(rate_hz, ji
             assert runs_push + runs_prep >= runs_ref  # early closes undone ran again in a push
 
 
-def test_a_sample_inside_the_token_undoes_the_early_close():
-    """At 60 Hz a 25 Hz token holds 2.4 periods: after some tokens' last regular sample prepare closes the token (the
-    next regular one, 1 period later, opens a new one). An extra sample 0.3 periods later still belongs to the token:
-    it finds the state as before the early close, and every estimate stays the twin's, which never prepares."""
+QUIET_BY_SPEED = dict(quiet_speed_m_s=1.7, quiet_after_blocks=1, quiet_memory_blocks=2, speed_lo_m_s=1.6,
+                      speed_hi_m_s=2.1, smoother=False)  # the synthetic flight's |v̂| crosses 1.7 m/s: blocks turn busy
+# and quiet by the network's speed (the block speeds and the speeds of the last blocks decide), and the speed gate opens
+
+
+def _state(e: StreamingEstimator) -> tuple:
+    """What the windows' bookkeeping holds: what an undone early close must give back."""
+    return (e.k, e.n_windows, e.busy, e.block_speed, tuple(e.speeds), e.feedback, repr(e.last_means), e.win.n,
+            e.win.buf.tobytes())  # fmt: skip
+
+
+@pytest.mark.parametrize("rate_hz,settings", [(60.0, {}), (90.0, QUIET_BY_SPEED)])
+def test_a_sample_inside_the_token_undoes_the_early_close(rate_hz, settings):
+    """At 60 or 90 Hz a 25 Hz token holds 2.4 or 3.6 periods: after some tokens' last regular sample prepare closes the
+    token (the next regular one, 1 period later, opens a new one). An extra sample 0.3 periods later, on about half of
+    those, still belongs to the token: it finds the state as before the early close — compared field by field with a
+    twin that never prepares —, and every estimate stays the twin's. The vehicle's class, told to both every 400
+    samples, undoes an early close too."""
     model, cfg, _ = load_model(default_model_path())
-    rate = 60.0
-    rec = synthetic_record(seed=2, duration_s=8.0, rate_hz=rate)
+    cfg = dataclasses.replace(cfg, **settings)
+    rec = synthetic_record(seed=3 if settings else 2, duration_s=40.0 if settings else 8.0, rate_hz=rate_hz)
+    rng = np.random.default_rng(4)
     live, twin = StreamingEstimator(model, cfg), StreamingEstimator(model, cfg)
-    closed = undone = 0
+    closed = undone = busy_changes = 0
+    busy_prev = None
     for i in range(len(rec)):
         t, g, a = rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i]
         assert live.push(t, g, a).q_nb_wxyz == twin.push(t, g, a).q_nb_wxyz
+        assert _state(live) == _state(twin)
+        busy_changes += twin.busy != busy_prev
+        busy_prev = twin.busy
         live.prepare()
+        if i % 400 == 399:  # the class learnt: it undoes an early close (the window read the class it replaces)
+            v = ("quadrotor", None)[(i // 400) % 2]
+            live.set_vehicle(v)
+            twin.set_vehicle(v)
+            assert live.early is None
         if live.early is None:
             continue
         closed += 1
-        t_in = t + 0.3 / rate
-        if int(np.ceil((t_in - live.t0) / live.delta - 1e-6)) == live.k:  # inside the token prepare closed
-            n_before = live.early[1][1]
+        t_in = t + 0.3 / rate_hz
+        if rng.random() < 0.5 and int(np.ceil((t_in - live.t0) / live.delta - 1e-6)) == live.k:  # inside the token
             assert live.push(t_in, g, a).q_nb_wxyz == twin.push(t_in, g, a).q_nb_wxyz
-            assert live.early is None and live.win.n == n_before
+            assert live.early is None and _state(live) == _state(twin)
             undone += 1
-    assert closed > 50 and undone > 20
+    assert closed > 50 and undone > 10
+    if settings:
+        assert busy_changes > 4  # blocks did turn busy and quiet (the speeds' bookkeeping was exercised)
 
 
 def _run_worker(make_estimator, records: list[bytes]):
@@ -102,7 +127,7 @@ def _run_worker(make_estimator, records: list[bytes]):
     try:
         import threading
 
-        done = threading.Event()
+        done, ready = threading.Event(), threading.Event()
 
         def read_all():
             buf = b""
@@ -111,6 +136,7 @@ def _run_worker(make_estimator, records: list[bytes]):
                 if not chunk:
                     break
                 buf += chunk
+                ready.set()  # the worker's first frame is its ready frame: it is now reading samples
             i = 0
             while i < len(buf):
                 n, kind = worker.HEADER.unpack_from(buf, i)
@@ -125,6 +151,7 @@ def _run_worker(make_estimator, records: list[bytes]):
         def feed():
             import time
 
+            ready.wait(60)  # (the worker compiles and warms up first: records written before would arrive as one batch)
             for rec in records:  # one at a time, as an IMU streams (a batch merged now and then changes nothing)
                 os.write(w_in, rec)
                 time.sleep(0.002)
@@ -201,3 +228,8 @@ def test_an_estimator_whose_prepare_raises_is_reported_reset_and_goes_on():
     errs = [p.decode() for k, p in frames if k == b"X"]
     assert errs == ["estimator error #1: RuntimeError: the network's window failed"]
     assert est.resets == 1 and est.calls >= 3  # reset once, and prepare called again after it
+    from tepinn_flight.live.worker import COUNTERS, EST
+
+    last = [p for k, p in frames if k == b"E"][-1]
+    processed, _, _, errors, *_ = COUNTERS.unpack_from(last, EST.size)
+    assert processed == 4 and errors == 0  # no sample was lost to it: the bridge's queue count stays right

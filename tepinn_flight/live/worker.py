@@ -136,12 +136,16 @@ def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, 
     thin = RateThinner(rate_hz)  # the estimates sent: about rate_hz, every sample of a stream at that rate
     prepare = getattr(est, "prepare", None)  # StreamingEstimator.prepare: the network between samples
 
-    def failed(exc: BaseException) -> None:
-        """The estimator raised: count it, report the first and every 100th, reset it and go on."""
-        nonlocal errors
-        errors += 1
-        if errors == 1 or errors % 100 == 0:
-            out.send(b"X", f"estimator error #{errors}: {_one_line(exc)}".encode()[:2000])
+    reported = 0  # estimator errors, a sample's (counted in ``errors``: the bridge counts it consumed) or prepare's
+
+    def failed(exc: BaseException, sample: bool) -> None:
+        """The estimator raised (on a sample's push, or in prepare): count it, report the first and every 100th, reset
+        it and go on."""
+        nonlocal errors, reported
+        errors += sample
+        reported += 1
+        if reported == 1 or reported % 100 == 0:
+            out.send(b"X", f"estimator error #{reported}: {_one_line(exc)}".encode()[:2000])
         try:
             est.reset()
         except Exception:  # noqa: BLE001
@@ -182,7 +186,7 @@ def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, 
                 e = est.push(t_s, r[4:7], r[7:10], None if math.isnan(mag[0]) else mag, bool(r[15] & CLIPPED),
                              bool(r[15] & GYR_CLIPPED))  # fmt: skip
             except Exception as exc:  # noqa: BLE001 - the model raised: reset, report, go on
-                failed(exc)
+                failed(exc, sample=True)
                 continue
             processed += 1
             t0 = getattr(est, "t0", None)
@@ -214,8 +218,8 @@ def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, 
         if prepare is not None:  # the next sample's network window, run now while the stream is idle (same estimates)
             try:
                 ran, secs = prepare()
-            except Exception as exc:  # noqa: BLE001 - as a push that raised
-                failed(exc)
+            except Exception as exc:  # noqa: BLE001 - as a push that raised (no sample lost: not in ``errors``)
+                failed(exc, sample=False)
                 continue
             if ran:
                 model_runs += 1

@@ -58,7 +58,7 @@ class Estimate:
     q_nb_wxyz: tuple | None  # None until the first window is full
     sigma_rad: float
     gyr_bias_rad_s: tuple
-    model_ran: bool  # the network ran on this sample (a token closed)
+    model_ran: bool  # the network ran in this push (a token closed here, not already run by prepare)
     compute_s: float  # processing time of this push
 
 
@@ -159,7 +159,7 @@ class StreamingEstimator:
         self.block_speed = 0.0  # the largest |v̂| on the current block's windows ...
         self.speeds = deque(maxlen=self.anchor_cfg.quiet_memory_blocks) if self.anchor_cfg else None  # ... of the last blocks
         self.quiet = self.anchor_cfg.quiet_in(self.fusion_cfg) if self.anchor_cfg is not None else 0
-        self.early = None  # prepare()'s early close: (token index, the state before it, the window's output)
+        self.early = None  # prepare()'s early close: (the state before it, the window's output)
 
     def push(self, t_s: float, gyr_rad_s, acc_m_s2, mag_ut=None, clipped: bool = False,
              gyr_clipped: bool | None = None) -> Estimate:
@@ -205,7 +205,7 @@ class StreamingEstimator:
             self._undo_early()
         if k > self.k:
             if self.early is not None:  # the token prepare() closed did end with the last sample: its window's output
-                est = self.early[2]
+                est = self.early[1]
                 self.early = None
             else:
                 est = self._close_token()
@@ -254,12 +254,12 @@ class StreamingEstimator:
         saved = (win.buf.copy(), win.n, self.last_means, self.feedback, self.n_windows,
                  None if self.speeds is None else list(self.speeds), self.busy, self.block_speed)  # fmt: skip
         est = self._close_token()
-        self.early = (self.k, saved, est)
+        self.early = (saved, est)
         return est is not None, time.perf_counter() - t0c
 
     def _undo_early(self) -> None:
         """The state as it was before :meth:`prepare` closed the token."""
-        buf, n, self.last_means, self.feedback, self.n_windows, speeds, self.busy, self.block_speed = self.early[1]
+        buf, n, self.last_means, self.feedback, self.n_windows, speeds, self.busy, self.block_speed = self.early[0]
         self.win.buf[:] = buf
         self.win.n = n
         if speeds is not None:
