@@ -34,15 +34,10 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bridge_latency import _burn  # noqa: E402  (the same load as that benchmark's --busy)
 DEFAULT_LOG = ROOT.parent / "shared" / "real-logs" / "erle_pxf_copter_15-12-2014_16.BIN"
 TARGET_P99_MS = 5.0
-
-
-def _burn() -> None:
-    """A stress-like load: one core kept busy with arithmetic until the benchmark ends."""
-    x = 0
-    while True:
-        x = (x * 1103515245 + 12345) & 0x7FFFFFFF
 
 
 def _free_udp_port() -> int:

@@ -80,7 +80,6 @@ def run(args) -> int:
     from tepinn_flight.evaluation.filters import Ekf
     from tepinn_flight.evaluation.names import display_name
     from tepinn_flight.evaluation.peers import VqfEstimator
-    from tepinn_flight.ingest import ingest_log
     from tepinn_flight.model.checkpoint import default_lstm_path, default_model_path
     from tepinn_flight.record import read_record
     from tepinn_flight.sim.campaign import run_campaign
@@ -94,28 +93,20 @@ def run(args) -> int:
     apart = []  # (name, why it is not scored)
     sim_every = (0 if args.files else 4) if args.sim_every is None else args.sim_every
     if args.files:
-        for p in expand_files(args.files):
-            label = "held-out" if p.name in held_names else "seen" if p.name in seen_names else "given"
-            item, why = load_scorable(p, label)
-            if item is None:
-                apart.append((p.name, why))
-            else:
-                files.append(item)
-    else:
-        real_logs = [] if args.no_real else split["heldout"]["real_logs"] + split["seen"].get("real_logs", [])
-        broad = [] if args.no_real else split["heldout"].get("broad", []) + split["seen"]["broad"]
-        for name in real_logs:
-            p = shared / "real-logs" / name
-            if p.exists():
-                rec = ingest_log(p)
-                files.append(("drone log", file_group(rec, name), name, rec,
-                              "held-out" if name in split["heldout"]["real_logs"] else "seen"))
-        for name in broad:
-            p = shared / "broad" / name
-            if p.exists():
-                rec = ingest_log(p)
-                files.append(("BROAD", file_group(rec, name), name, rec,
-                              "held-out" if name in split["heldout"].get("broad", []) else "seen"))
+        named = [(p, "held-out" if p.name in held_names else "seen" if p.name in seen_names else "given")
+                 for p in expand_files(args.files)]  # fmt: skip
+    elif args.no_real:
+        named = []
+    else:  # the shared split: held-out first, then seen; drone logs, then BROAD trials
+        named = [(shared / sub / n, label) for sub, key in (("real-logs", "real_logs"), ("broad", "broad"))
+                 for label, part in (("held-out", "heldout"), ("seen", "seen")) for n in split[part].get(key, [])
+                 if (shared / sub / n).exists()]  # fmt: skip
+    for p, label in named:  # each by the rules evaluate's summary keeps records by
+        item, why = load_scorable(p, label)
+        if item is None:
+            apart.append((p.name, why))
+        else:
+            files.append(item)
     if sim_every:
         run_campaign(Path(args.campaign), Path(args.sim), progress=True)
         for p in sorted(Path(args.sim).glob("*.parquet"))[::sim_every]:

@@ -135,7 +135,6 @@ def worker_loop(in_fd: int, out_fd: int, make_estimator, rate_hz: float = 50.0, 
     model_s = step_s = 0.0
     thin = RateThinner(rate_hz)  # the estimates sent: about rate_hz, every sample of a stream at that rate
     prepare = getattr(est, "prepare", None)  # StreamingEstimator.prepare: the network between samples
-
     reported = 0  # estimator errors, a sample's (counted in ``errors``: the bridge counts it consumed) or prepare's
 
     def failed(exc: BaseException, sample: bool) -> None:
