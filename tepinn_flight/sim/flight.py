@@ -22,7 +22,6 @@ ground or produce a non-finite number stops cleanly: the trajectory is cut to it
 from __future__ import annotations
 
 import math
-import struct
 from dataclasses import dataclass
 from typing import Callable
 
@@ -30,7 +29,8 @@ import numpy as np
 
 from tepinn_flight.errors import ConfigError
 from tepinn_flight.quat import quat_from_euler_zyx
-from tepinn_flight.sim.jsbsim_env import FT_TO_M, getter, jsbsim_version, open_fdm
+from tepinn_flight.sim.jsbsim_env import FT_TO_M, jsbsim_version, open_fdm
+from tepinn_flight.sim.jsbsim_native import Stepper
 from tepinn_flight.sim.maneuvers import Sequencer, validate_names
 from tepinn_flight.sim.truth import TruthTrajectory
 from tepinn_flight.sim.vibration import motor_vibration
@@ -45,6 +45,14 @@ WARMUP_S = 1.0  # controller settles before logging starts (motors spun up, trim
 STATE_PATHS = ("attitude/phi-rad", "attitude/theta-rad", "attitude/psi-rad", "velocities/pi-rad_sec",
                "velocities/qi-rad_sec", "velocities/ri-rad_sec", "position/h-agl-ft", "velocities/v-north-fps",
                "velocities/v-east-fps", "velocities/v-down-fps")  # fmt: skip
+#: the logged row's first 16 and last 4 columns (the vehicle's 4 extra properties go between)
+TRUTH_PATHS = ("attitude/phi-rad", "attitude/theta-rad", "attitude/psi-rad", "velocities/pi-rad_sec",
+               "velocities/qi-rad_sec", "velocities/ri-rad_sec", "position/ecef-x-ft", "position/ecef-y-ft",
+               "position/ecef-z-ft", "velocities/v-north-fps", "velocities/v-east-fps",
+               "velocities/v-down-fps")  # fmt: skip
+TRUTH_PATHS_END = ("forces/fbx-total-lbs", "forces/fby-total-lbs", "forces/fbz-total-lbs", "inertia/mass-slugs")
+#: STATE_PATHS from the row: its columns, the height (read before the row) inserted at STATE_H_AT
+STATE_COLS, STATE_H_AT = (0, 1, 2, 3, 4, 5, 9, 10, 11), 6
 
 #: MIL-F-8785C (Dryden) turbulence presets: wind speed at 20 ft AGL (ft/s) and severity index
 TURBULENCE = {
@@ -207,69 +215,46 @@ def fly(aircraft: str, duration_s: float, rate_hz: float = 400.0, seed: int = 0,
             fdm["atmosphere/turbulence/milspec/windspeed_at_20ft_AGL-fps"] = ws
             fdm["atmosphere/turbulence/milspec/severity"] = sev
         ctl.turbulence_baseline = (ws, sev)  # maneuvers that change turbulence restore this
-        run = fdm.run
+        # JSBSim's steps and the truth's reads: compiled calls into JSBSim's C++ where the binding allows
+        # (jsbsim_native; the same numbers through the binding elsewhere)
+        min_agl_ft = vehicle.min_agl_m / FT_TO_M
+        row_paths = [*TRUTH_PATHS, *vehicle.log_paths, *TRUTH_PATHS_END]
+        if len(row_paths) != N_COLUMNS:
+            raise ValueError("a vehicle logs exactly 4 extra properties")
+        steps = Stepper(fdm, "position/h-agl-ft", row_paths, sub, min_agl_ft, n_steps, STATE_COLS, STATE_H_AT)
         # warm-up (not logged): the controller settles on the start condition
         ctl_step = ctl.step
-        for k in range(int(round(WARMUP_S * rate_hz * sub))):
-            if k % div == 0:
-                ctl_step()
-            run()
+        n_warm = int(round(WARMUP_S * rate_hz * sub))
+        for k in range(0, n_warm, div):
+            ctl_step()
+            steps.run(min(div, n_warm - k))
         ctl.read_state()
         start_agl_m = ctl.agl_m
         seq = Sequencer(library, recovery_cls, names, rng_man, weights)
         seq.start(ctl, 0.0)
         seq_update = seq.update
-
-        g = lambda p: getter(fdm, p)  # noqa: E731
-        phi, theta, psi = g("attitude/phi-rad"), g("attitude/theta-rad"), g("attitude/psi-rad")
-        gp, gq, gr = g("velocities/pi-rad_sec"), g("velocities/qi-rad_sec"), g("velocities/ri-rad_sec")
-        ex, ey, ez = g("position/ecef-x-ft"), g("position/ecef-y-ft"), g("position/ecef-z-ft")
-        vn, ve, vd = g("velocities/v-north-fps"), g("velocities/v-east-fps"), g("velocities/v-down-fps")
-        fx, fy, fz = g("forces/fbx-total-lbs"), g("forces/fby-total-lbs"), g("forces/fbz-total-lbs")
-        mass = g("inertia/mass-slugs")
-        agl = g("position/h-agl-ft")
-        extra = tuple(g(p) for p in vehicle.log_paths)
-        if len(extra) != 4:
-            raise ValueError("a vehicle logs exactly 4 extra properties")
-        x0, x1, x2, x3 = extra
         lat0 = fdm["position/lat-geod-rad"]
         lon0 = fdm["position/long-gc-rad"]
-        min_agl_ft = vehicle.min_agl_m / FT_TO_M
-        # one packed row of N_COLUMNS doubles per sample, joined once at the end (cheaper than a
-        # list of tuples converted by numpy: the per-step Python is the speed-critical path)
-        pack = struct.Struct(f"={N_COLUMNS}d").pack
-        rows = []
-        append = rows.append
         termination = "completed"
         state = None  # the controller's inputs when the step before a control update read them
-        for i in range(n_steps * sub):  # JSBSim steps; a sample is logged after every sub-th
-            if i % div == 0:
-                seq_update(ctl, i * dt_sim)
-                ctl_step(state)
-                state = None
-            run()
-            if sub > 1 and (i + 1) % sub:
-                continue
-            # JSBSim runs FGPropagate first in each step and the force models after it, so after
-            # run() the state and the forces (hence the specific force) belong to the same instant.
-            h = agl()
-            if not h > min_agl_ft:  # also stops on a non-finite height; other columns: below
-                termination = (f"stopped at t={i // sub * dt:.3f} s: "
-                               + ("ground proximity" if math.isfinite(h) else "non-finite state"))
+        n_sim = n_steps * sub
+        logged = steps.logged
+        for i in range(0, n_sim, div):  # a control update, then the JSBSim steps until the next
+            seq_update(ctl, i * dt_sim)
+            ctl_step(state)
+            n = min(div, n_sim - i)
+            stop = logged(i, n)
+            if stop >= 0:  # also stops on a non-finite height; other columns: below
+                termination = (f"stopped at t={stop // sub * dt:.3f} s: "
+                               + ("ground proximity" if math.isfinite(steps.h) else "non-finite state"))
                 break
-            if (i + 1) % div:
-                append(pack(phi(), theta(), psi(), gp(), gq(), gr(), ex(), ey(), ez(), vn(), ve(), vd(),
-                            x0(), x1(), x2(), x3(), fx(), fy(), fz(), mass()))
-            else:  # a control update follows: it takes these (STATE_PATHS) instead of reading them again
-                s_phi, s_theta, s_psi, s_p, s_q, s_r = phi(), theta(), psi(), gp(), gq(), gr()
-                s_vn, s_ve, s_vd = vn(), ve(), vd()
-                append(pack(s_phi, s_theta, s_psi, s_p, s_q, s_r, ex(), ey(), ez(), s_vn, s_ve, s_vd,
-                            x0(), x1(), x2(), x3(), fx(), fy(), fz(), mass()))
-                state = (s_phi, s_theta, s_psi, s_p, s_q, s_r, h, s_vn, s_ve, s_vd)
-        t_end = len(rows) * dt
+            # after run(), the state and the forces belong to the same instant (JSBSim runs FGPropagate first in
+            # each step and the force models after it); a control update after a logged row takes its numbers
+            state = steps.state() if (i + n) % sub == 0 else None
+        arr = steps.rows()
+        t_end = len(arr) * dt
         seq.close(ctl, t_end)
 
-    arr = np.frombuffer(b"".join(rows), dtype=np.float64).reshape(len(rows), N_COLUMNS)
     ok = np.all(np.isfinite(arr), axis=1)
     if not ok.all():  # cut at the first non-finite row
         cut = int(np.argmin(ok))
