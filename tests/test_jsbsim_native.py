@@ -38,6 +38,17 @@ def test_handles_found_and_checked():
         assert jn.native_handles(object(), ["position/h-agl-ft"]) is None
 
 
+@needs_layout
+def test_another_release_takes_the_bindings_path(monkeypatch):
+    """A jsbsim release whose layout was not read (its objects may hold other things there): no pointer is
+    taken from its objects, the binding runs."""
+    monkeypatch.setattr(jsbsim, "__version__", "9.0.0")
+    veh, ctx = _fdm()
+    with ctx as fdm:
+        fdm.run_ic()
+        assert jn.native_handles(fdm, ["position/h-agl-ft"]) is None
+
+
 def test_switch_turns_it_off(monkeypatch):
     monkeypatch.setenv(jn.ENV_SWITCH, "0")
     veh, ctx = _fdm()

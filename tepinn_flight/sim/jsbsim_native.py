@@ -12,9 +12,10 @@ more than ``run()`` alone, with the same numbers: the same functions on the same
 C++ objects behind the binding's Python objects (a Cython extension type stores them after the object's
 header) and checks what it found before anything is called:
 
-* the binding's types have the layout this was written against (``__basicsize__``; the executive holds
-  the same pointer twice, as its base and as itself), and the symbols exist (the Itanium C++ ABI of
-  Linux and macOS builds; elsewhere: not found);
+* a jsbsim release whose binding this was read from (1.3), its types with that layout (``__basicsize__``;
+  the executive holds the same pointer twice, as its base and as itself; every node object the same
+  method table before its own pointer), and the symbols (the Itanium C++ ABI of Linux and macOS builds;
+  elsewhere: not found);
 * every node read natively gives the value the binding gives, on a probe property set to a value no
   model writes.
 
@@ -45,6 +46,8 @@ SYMBOLS = {"run": "_ZN6JSBSim9FGFDMExec3RunEv", "get": "_ZNK14SGPropertyNode14ge
 #: (the same pointer), weak-reference list; FGPropertyNode = header, Cython's method table, the node
 EXEC_SIZE, EXEC_BASE_WORD, EXEC_WORD = 40, 2, 3
 NODE_SIZE, NODE_WORD = 32, 3
+#: the jsbsim releases whose binding this layout was read from (others: the binding's path)
+TESTED_VERSIONS = ("1.3.",)
 #: a property no model writes, set to a value a wrong pointer would not read back
 PROBE_PATH, PROBE_VALUE = "tepinn/native-probe", 0.123456789012345
 
@@ -115,6 +118,8 @@ def native_handles(fdm, paths: list[str]) -> NativeHandles | None:
 
     if os.environ.get(ENV_SWITCH, "1") == "0" or ctypes.sizeof(ctypes.c_void_p) != 8:
         return None
+    if not str(getattr(jsbsim, "__version__", "")).startswith(TESTED_VERSIONS):
+        return None
     if jsbsim.FGFDMExec.__basicsize__ != EXEC_SIZE or jsbsim.FGPropertyNode.__basicsize__ != NODE_SIZE:
         return None
     if type(fdm) is not jsbsim.FGFDMExec:
@@ -133,10 +138,16 @@ def native_handles(fdm, paths: list[str]) -> NativeHandles | None:
     if probe is None or any(n is None for n in nodes):
         return None
     probe.set_double_value(PROBE_VALUE)
-    for node in [probe, *nodes]:
-        if type(node) is not jsbsim.FGPropertyNode or _word(node, NODE_WORD) == 0:
-            return None
-    ptrs = np.array([_word(n, NODE_WORD) for n in nodes], dtype=np.intp)
+    every = [probe, *nodes]
+    if any(type(node) is not jsbsim.FGPropertyNode for node in every):
+        return None
+    # before any call: the word before the node's is Cython's method table, one for every node object, and the
+    # nodes' own pointers differ from it and from each other (the paths name different properties)
+    words = [_word(node, NODE_WORD) for node in every]
+    table = {_word(node, NODE_WORD - 1) for node in every}
+    if 0 in words or len(table) != 1 or table & set(words) or len(set(words)) != len(set(paths)) + 1:
+        return None
+    ptrs = np.array(words[1:], dtype=np.intp)
     if get(_word(probe, NODE_WORD)) != PROBE_VALUE:
         return None
     for node, p in zip(nodes, ptrs):
