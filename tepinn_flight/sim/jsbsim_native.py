@@ -43,7 +43,7 @@ ENV_SWITCH = "TEPINN_JSBSIM_NATIVE"
 #: ``FGPropertyNode.get_double_value`` call
 SYMBOLS = {"run": "_ZN6JSBSim9FGFDMExec3RunEv", "get": "_ZNK14SGPropertyNode14getDoubleValueEv"}
 #: the binding's object layouts this reads (jsbsim 1.3): FGFDMExec = header, FGJSBBase* base, FGFDMExec*
-#: (the same pointer), weak-reference list; FGPropertyNode = header, Cython's method table, the node
+#: (the same pointer), one more word; FGPropertyNode = header, Cython's method table, the node
 EXEC_SIZE, EXEC_BASE_WORD, EXEC_WORD = 40, 2, 3
 NODE_SIZE, NODE_WORD = 32, 3
 #: the jsbsim releases whose binding this layout was read from (others: the binding's path)
