@@ -155,6 +155,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     print(f"cpu cores: {os.cpu_count()}, load average: {os.getloadavg()[0]:.2f}, rate {RATE_HZ:g} Hz, "
           f"{args.duration:g} s flights")  # fmt: skip
+    from tepinn_flight.sim.jsbsim_native import describe
+
+    print(describe())
     print("real-time factors (simulated s per s), wall clock | CPU time of this process")
     print(f"{'aircraft':11s} {'bare run() (ceiling)':>21s} {'fly() dynamics':>17s} {'ratio':>5s} "
           f"{'full chain + record':>20s} {'ratio':>5s}  termination")  # fmt: skip

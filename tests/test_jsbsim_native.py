@@ -49,6 +49,16 @@ def test_another_release_takes_the_bindings_path(monkeypatch):
         assert jn.native_handles(fdm, ["position/h-agl-ft"]) is None
 
 
+def test_why_not_is_said(monkeypatch):
+    """The benchmarks' line says which path runs and, where it is the binding, why."""
+    if LAYOUT_KNOWN:
+        assert jn.unavailable() is None and "C++" in jn.describe()
+    monkeypatch.setattr(jsbsim, "__version__", "9.0.0")
+    assert "jsbsim 9.0.0" in jn.unavailable() and "binding (jsbsim 9.0.0" in jn.describe()
+    monkeypatch.setenv(jn.ENV_SWITCH, "0")
+    assert jn.unavailable() == f"{jn.ENV_SWITCH}=0"
+
+
 def test_switch_turns_it_off(monkeypatch):
     monkeypatch.setenv(jn.ENV_SWITCH, "0")
     veh, ctx = _fdm()

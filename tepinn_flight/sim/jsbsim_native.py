@@ -111,26 +111,43 @@ def _functions():
     return run_addr, get_addr
 
 
+def unavailable() -> str | None:
+    """Why no flight in this process can step JSBSim natively (the checks that need no aircraft), or None."""
+    import jsbsim
+
+    version = str(getattr(jsbsim, "__version__", ""))
+    if os.environ.get(ENV_SWITCH, "1") == "0":
+        return f"{ENV_SWITCH}=0"
+    if ctypes.sizeof(ctypes.c_void_p) != 8:
+        return "not a 64-bit process"
+    if not version.startswith(TESTED_VERSIONS):
+        return f"jsbsim {version}: its binding's layout was not read (tested: {', '.join(TESTED_VERSIONS)}x)"
+    if jsbsim.FGFDMExec.__basicsize__ != EXEC_SIZE or jsbsim.FGPropertyNode.__basicsize__ != NODE_SIZE:
+        return f"jsbsim {version}: its binding's objects have another size"
+    if _functions() is None:
+        return f"jsbsim {version}: its extension does not export {SYMBOLS['run']} and {SYMBOLS['get']}"
+    return None
+
+
+def describe() -> str:
+    """One line: how :func:`~tepinn_flight.sim.flight.fly` steps JSBSim in this process (benchmarks print it)."""
+    why = unavailable()
+    if why is None:
+        return f"JSBSim stepped through its C++ from compiled code (sim/jsbsim_native.py; {ENV_SWITCH}=0: the binding)"
+    return f"JSBSim stepped through its Python binding ({why})"
+
+
 def native_handles(fdm, paths: list[str]) -> NativeHandles | None:
     """The C++ handles behind ``fdm`` and the nodes of ``paths`` (existing properties), checked; None
     where they cannot be used (see the module doc)."""
     import jsbsim
 
-    if os.environ.get(ENV_SWITCH, "1") == "0" or ctypes.sizeof(ctypes.c_void_p) != 8:
-        return None
-    if not str(getattr(jsbsim, "__version__", "")).startswith(TESTED_VERSIONS):
-        return None
-    if jsbsim.FGFDMExec.__basicsize__ != EXEC_SIZE or jsbsim.FGPropertyNode.__basicsize__ != NODE_SIZE:
-        return None
-    if type(fdm) is not jsbsim.FGFDMExec:
+    if unavailable() is not None or type(fdm) is not jsbsim.FGFDMExec:
         return None
     exec_ptr = _word(fdm, EXEC_WORD)
     if exec_ptr == 0 or _word(fdm, EXEC_BASE_WORD) != exec_ptr:
         return None
-    fns = _functions()
-    if fns is None:
-        return None
-    run_fn, get_fn = fns
+    run_fn, get_fn = _functions()
     get = _GET_T(get_fn)  # the checks below call it from Python
     pm = fdm.get_property_manager()
     probe = pm.get_node(PROBE_PATH, True)
