@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from tepinn_flight.sim import jsbsim_native as jn
-from tepinn_flight.sim.flight import AIRCRAFT, STATE_COLS, STATE_H_AT, STATE_PATHS, TRUTH_PATHS, TRUTH_PATHS_END, fly
+from tepinn_flight.sim.flight import (AGL_PATH, AIRCRAFT, STATE_COLS, STATE_H_AT, STATE_PATHS, TRUTH_PATHS,
+                                      TRUTH_PATHS_END, fly)
 from tepinn_flight.sim.jsbsim_env import open_fdm
 
 LAYOUT_KNOWN = (jsbsim.FGFDMExec.__basicsize__, jsbsim.FGPropertyNode.__basicsize__) == (jn.EXEC_SIZE, jn.NODE_SIZE)
@@ -30,12 +31,12 @@ def test_handles_found_and_checked():
     veh, ctx = _fdm()
     with ctx as fdm:
         fdm.run_ic()
-        hd = jn.native_handles(fdm, ["position/h-agl-ft", *_row_paths(veh)])
+        hd = jn.native_handles(fdm, [AGL_PATH, *_row_paths(veh)])
         assert hd is not None
         assert len(hd.node_ptrs) == 1 + len(_row_paths(veh))
         # a path that does not exist, another object, the switch: no handles
         assert jn.native_handles(fdm, ["no/such-property"]) is None
-        assert jn.native_handles(object(), ["position/h-agl-ft"]) is None
+        assert jn.native_handles(object(), [AGL_PATH]) is None
 
 
 @needs_layout
@@ -46,7 +47,7 @@ def test_another_release_takes_the_bindings_path(monkeypatch):
     veh, ctx = _fdm()
     with ctx as fdm:
         fdm.run_ic()
-        assert jn.native_handles(fdm, ["position/h-agl-ft"]) is None
+        assert jn.native_handles(fdm, [AGL_PATH]) is None
 
 
 def test_why_not_is_said(monkeypatch):
@@ -64,22 +65,25 @@ def test_switch_turns_it_off(monkeypatch):
     veh, ctx = _fdm()
     with ctx as fdm:
         fdm.run_ic()
-        assert jn.native_handles(fdm, ["position/h-agl-ft"]) is None
-        st = jn.Stepper(fdm, "position/h-agl-ft", _row_paths(veh), 1, -1e9, 10, STATE_COLS, STATE_H_AT)
+        assert jn.native_handles(fdm, [AGL_PATH]) is None
+        st = jn.Stepper(fdm, AGL_PATH, _row_paths(veh), 1, -1e9, 10, STATE_COLS, STATE_H_AT)
         assert not st.native
 
 
-@needs_layout
 @pytest.mark.parametrize("sub", [1, 3])
-def test_rows_and_state_are_the_bindings_reads(sub):
+@pytest.mark.parametrize("native", [True, False])
+def test_rows_and_state_are_the_bindings_reads(monkeypatch, sub, native):
     """After each block the rows hold what the binding reads at that instant, and the state what the
-    controller would read (fdm[path], an independent way in)."""
+    controller would read (fdm[path], an independent way in): through C++ and through the binding."""
+    if native and not LAYOUT_KNOWN:
+        pytest.skip(f"jsbsim {jsbsim.__version__}'s binding has another object layout")
+    monkeypatch.setenv(jn.ENV_SWITCH, "1" if native else "0")
     veh, ctx = _fdm()
     with ctx as fdm:
         fdm.run_ic()
         paths = _row_paths(veh)
-        st = jn.Stepper(fdm, "position/h-agl-ft", paths, sub, -1e9, 40, STATE_COLS, STATE_H_AT)
-        assert st.native
+        st = jn.Stepper(fdm, AGL_PATH, paths, sub, -1e9, 40, STATE_COLS, STATE_H_AT)
+        assert st.native == native
         i = 0
         for n in (2 * sub, sub, 2 * sub + 1):
             assert st.logged(i, n) == -1
@@ -104,8 +108,8 @@ def test_stop_below_the_floor_like_the_binding(monkeypatch, sub):
         veh, ctx = _fdm()
         with ctx as fdm:
             fdm.run_ic()
-            floor = fdm["position/h-agl-ft"] - 1e-9  # the first steps fall below it
-            st = jn.Stepper(fdm, "position/h-agl-ft", _row_paths(veh), sub, floor, 50, STATE_COLS, STATE_H_AT)
+            floor = fdm[AGL_PATH] - 1e-9  # the first steps fall below it
+            st = jn.Stepper(fdm, AGL_PATH, _row_paths(veh), sub, floor, 50, STATE_COLS, STATE_H_AT)
             assert st.native == (switch == "1")
             stops = [st.logged(i, 4) for i in range(0, 40, 4)]
             stop = next(s for s in stops if s >= 0)

@@ -51,8 +51,11 @@ TRUTH_PATHS = ("attitude/phi-rad", "attitude/theta-rad", "attitude/psi-rad", "ve
                "position/ecef-z-ft", "velocities/v-north-fps", "velocities/v-east-fps",
                "velocities/v-down-fps")  # fmt: skip
 TRUTH_PATHS_END = ("forces/fbx-total-lbs", "forces/fby-total-lbs", "forces/fbz-total-lbs", "inertia/mass-slugs")
-#: STATE_PATHS from the row: its columns, the height (read before the row) inserted at STATE_H_AT
-STATE_COLS, STATE_H_AT = (0, 1, 2, 3, 4, 5, 9, 10, 11), 6
+#: read after each logged step before the row; a flight ends where it is not above the vehicle's floor
+AGL_PATH = "position/h-agl-ft"
+#: STATE_PATHS from the row: its columns, and where the height goes in
+STATE_COLS = tuple(TRUTH_PATHS.index(p) for p in STATE_PATHS if p != AGL_PATH)
+STATE_H_AT = STATE_PATHS.index(AGL_PATH)
 
 #: MIL-F-8785C (Dryden) turbulence presets: wind speed at 20 ft AGL (ft/s) and severity index
 TURBULENCE = {
@@ -221,7 +224,7 @@ def fly(aircraft: str, duration_s: float, rate_hz: float = 400.0, seed: int = 0,
         row_paths = [*TRUTH_PATHS, *vehicle.log_paths, *TRUTH_PATHS_END]
         if len(row_paths) != N_COLUMNS:
             raise ValueError("a vehicle logs exactly 4 extra properties")
-        steps = Stepper(fdm, "position/h-agl-ft", row_paths, sub, min_agl_ft, n_steps, STATE_COLS, STATE_H_AT)
+        steps = Stepper(fdm, AGL_PATH, row_paths, sub, min_agl_ft, n_steps, STATE_COLS, STATE_H_AT)
         # warm-up (not logged): the controller settles on the start condition
         ctl_step = ctl.step
         n_warm = int(round(WARMUP_S * rate_hz * sub))
