@@ -372,19 +372,22 @@ def test_bad_arguments_raise_config_error(kwargs, match):
     assert "\n" not in str(exc.value)
 
 
-def test_a_flight_that_would_crash_stops_cleanly(monkeypatch):
-    """Motors cut after 1 s: the quad falls; the flight stops above the ground, finite, and says so."""
-    from tepinn_flight.sim import multirotor
+@pytest.mark.parametrize("native", ["1", "0"])
+def test_a_flight_that_would_crash_stops_cleanly(monkeypatch, native):
+    """Motors cut once the flight starts: the quad falls; the flight stops above the ground, finite, and says
+    so (through the compiled loop and through the binding's Python loop)."""
+    from tepinn_flight.sim import maneuvers
+    from tepinn_flight.sim.jsbsim_native import ENV_SWITCH
+    from tepinn_flight.sim.quad_control_law import INV_TMAX
 
-    orig = multirotor.QuadController._write_motors
+    monkeypatch.setenv(ENV_SWITCH, native)
+    orig = maneuvers.Sequencer.start
 
-    def dying_motors(self, c0, c1, c2, c3):
-        self._n = getattr(self, "_n", 0) + 1
-        if self._n > 401:  # the set-up, 1 s of warm-up at 200 Hz, then 1 s of flight
-            c0 = c1 = c2 = c3 = 0.0
-        orig(self, c0, c1, c2, c3)
+    def start_and_cut(self, ctl, t):  # after the warm-up: every motor command becomes 0 from here on
+        orig(self, ctl, t)
+        ctl.par[INV_TMAX] = 0.0
 
-    monkeypatch.setattr(multirotor.QuadController, "_write_motors", dying_motors)
+    monkeypatch.setattr(maneuvers.Sequencer, "start", start_and_cut)
     tr = fly("F450", 60.0, RATE, seed=0, maneuvers=["hover"])
     assert tr.meta["termination"].startswith("stopped at t=")
     assert "ground" in tr.meta["termination"]

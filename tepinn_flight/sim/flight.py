@@ -32,6 +32,7 @@ from tepinn_flight.quat import quat_from_euler_zyx
 from tepinn_flight.sim.jsbsim_env import FT_TO_M, jsbsim_version, open_fdm
 from tepinn_flight.sim.jsbsim_native import Stepper
 from tepinn_flight.sim.maneuvers import Sequencer, validate_names
+from tepinn_flight.sim.quad_flight_kernel import FINISHED, STOPPED
 from tepinn_flight.sim.truth import TruthTrajectory
 from tepinn_flight.sim.vibration import motor_vibration
 
@@ -224,7 +225,8 @@ def fly(aircraft: str, duration_s: float, rate_hz: float = 400.0, seed: int = 0,
         row_paths = [*TRUTH_PATHS, *vehicle.log_paths, *TRUTH_PATHS_END]
         if len(row_paths) != N_COLUMNS:
             raise ValueError("a vehicle logs exactly 4 extra properties")
-        steps = Stepper(fdm, AGL_PATH, row_paths, sub, min_agl_ft, n_steps, STATE_COLS, STATE_H_AT)
+        steps = Stepper(fdm, AGL_PATH, row_paths, sub, min_agl_ft, n_steps, STATE_COLS, STATE_H_AT,
+                        extra_paths=getattr(ctl, "native_paths", ()))
         # warm-up (not logged): the controller settles on the start condition
         ctl_step = ctl.step
         n_warm = int(round(WARMUP_S * rate_hz * sub))
@@ -238,22 +240,38 @@ def fly(aircraft: str, duration_s: float, rate_hz: float = 400.0, seed: int = 0,
         seq_update = seq.update
         lat0 = fdm["position/lat-geod-rad"]
         lon0 = fdm["position/long-gc-rad"]
-        termination = "completed"
-        state = None  # the controller's inputs when the step before a control update read them
         n_sim = n_steps * sub
-        logged = steps.logged
-        for i in range(0, n_sim, div):  # a control update, then the JSBSim steps until the next
-            seq_update(ctl, i * dt_sim)
-            ctl_step(state)
-            n = min(div, n_sim - i)
-            stop = logged(i, n)
-            if stop >= 0:  # also stops on a non-finite height; other columns: below
-                termination = (f"stopped at t={stop // sub * dt:.3f} s: "
-                               + ("ground proximity" if math.isfinite(steps.h) else "non-finite state"))
-                break
-            # after run(), the state and the forces belong to the same instant (JSBSim runs FGPropagate first in
-            # each step and the force models after it); a control update after a logged row takes its numbers
-            state = steps.state() if (i + n) % sub == 0 else None
+        stop = -1  # the step at which the height floor ended the flight
+        # a compiled loop of control updates and steps (a quad whose JSBSim is called natively), or Python's
+        runner = ctl.native_runner(steps, n_sim, div, dt_sim) if hasattr(ctl, "native_runner") else None
+        if runner is not None:
+            i, skip_law = 0, False
+            while True:  # back in Python where a maneuver finished or needs the random generator
+                i, code = runner(i, skip_law, seq.current.v)
+                if code == FINISHED or code == STOPPED:
+                    stop = i if code == STOPPED else -1
+                    break
+                t = i * dt_sim
+                if seq.current.resolve(ctl, t, code):
+                    seq.advance(ctl, t)
+                skip_law = True  # the control update at step i goes on without the law, which ran
+        else:
+            state = None  # the controller's inputs when the step before a control update read them
+            logged = steps.logged
+            for i in range(0, n_sim, div):  # a control update, then the JSBSim steps until the next
+                seq_update(ctl, i * dt_sim)
+                ctl_step(state)
+                n = min(div, n_sim - i)
+                stop = logged(i, n)
+                if stop >= 0:  # also stops on a non-finite height; other columns: below
+                    break
+                # after run(), the state and the forces belong to the same instant (JSBSim runs FGPropagate first
+                # in each step and the force models after it); a control update after a logged row takes its numbers
+                state = steps.state() if (i + n) % sub == 0 else None
+        termination = "completed"
+        if stop >= 0:
+            termination = (f"stopped at t={stop // sub * dt:.3f} s: "
+                           + ("ground proximity" if math.isfinite(steps.h) else "non-finite state"))
         arr = steps.rows()
         t_end = len(arr) * dt
         seq.close(ctl, t_end)

@@ -42,9 +42,10 @@ from numba.extending import intrinsic
 
 #: set to "0" to use JSBSim's Python binding only (same flights; for comparison and as a way out)
 ENV_SWITCH = "TEPINN_JSBSIM_NATIVE"
-#: the mangled names of the C++ functions the binding's ``FGFDMExec.run`` and
-#: ``FGPropertyNode.get_double_value`` call
-SYMBOLS = {"run": "_ZN6JSBSim9FGFDMExec3RunEv", "get": "_ZNK14SGPropertyNode14getDoubleValueEv"}
+#: the mangled names of the C++ functions the binding's ``FGFDMExec.run``,
+#: ``FGPropertyNode.get_double_value`` and ``FGPropertyNode.set_double_value`` call
+SYMBOLS = {"run": "_ZN6JSBSim9FGFDMExec3RunEv", "get": "_ZNK14SGPropertyNode14getDoubleValueEv",
+           "set": "_ZN14SGPropertyNode14setDoubleValueEd"}
 #: the binding's object layouts this reads (jsbsim 1.3): FGFDMExec = header, FGJSBBase* base, FGFDMExec*
 #: (the same pointer), one more word; FGPropertyNode = header, Cython's method table, the node
 EXEC_SIZE, EXEC_BASE_WORD, EXEC_WORD = 40, 2, 3
@@ -53,8 +54,11 @@ NODE_SIZE, NODE_WORD = 32, 3
 TESTED_VERSIONS = ("1.3.",)
 #: a property no model writes, set to a value a wrong pointer would not read back
 PROBE_PATH, PROBE_VALUE = "tepinn/native-probe", 0.123456789012345
+#: a value written to the probe natively, which the binding must read back
+PROBE_SET_VALUE = -9876.54321012345
 
 _GET_T = ctypes.CFUNCTYPE(ctypes.c_double, ctypes.c_void_p)
+_SET_T = ctypes.CFUNCTYPE(ctypes.c_bool, ctypes.c_void_p, ctypes.c_double)
 
 
 @intrinsic
@@ -86,13 +90,29 @@ def _call_double(typingctx, fn_addr, obj):
     return types.float64(types.intp, types.intp), codegen
 
 
+@intrinsic
+def _call_set(typingctx, fn_addr, obj, value):
+    """``fn(obj, value)`` for the C++ member function at address ``fn_addr`` taking a double and returning a
+    bool (``SGPropertyNode::setDoubleValue``; see :func:`_call_void`). The bool is ignored."""
+
+    def codegen(context, builder, sig, args):
+        ptr_t = ir.IntType(8).as_pointer()
+        fnty = ir.FunctionType(ir.IntType(8), [ptr_t, ir.DoubleType()])
+        fn = builder.inttoptr(args[0], fnty.as_pointer())
+        builder.call(fn, [builder.inttoptr(args[1], ptr_t), args[2]])
+        return context.get_dummy_value()
+
+    return types.none(types.intp, types.intp, types.float64), codegen
+
+
 @dataclass(frozen=True)
 class NativeHandles:
-    """The addresses of JSBSim's C++ ``Run`` and ``getDoubleValue`` and of the executive; ``nodes`` keeps
-    the binding's node objects alive beside their pointers."""
+    """The addresses of JSBSim's C++ ``Run``, ``getDoubleValue`` and ``setDoubleValue`` and of the executive;
+    ``nodes`` keeps the binding's node objects alive beside their pointers."""
 
     run_fn: int
     get_fn: int
+    set_fn: int
     exec_ptr: int
     nodes: tuple
     node_ptrs: np.ndarray
@@ -107,11 +127,9 @@ def _functions():
 
     try:
         lib = ctypes.CDLL(ext.__file__)
-        run_addr = ctypes.cast(getattr(lib, SYMBOLS["run"]), ctypes.c_void_p).value
-        get_addr = ctypes.cast(getattr(lib, SYMBOLS["get"]), ctypes.c_void_p).value
+        return tuple(ctypes.cast(getattr(lib, SYMBOLS[k]), ctypes.c_void_p).value for k in ("run", "get", "set"))
     except (OSError, AttributeError):
         return None
-    return run_addr, get_addr
 
 
 def unavailable() -> str | None:
@@ -128,7 +146,7 @@ def unavailable() -> str | None:
     if jsbsim.FGFDMExec.__basicsize__ != EXEC_SIZE or jsbsim.FGPropertyNode.__basicsize__ != NODE_SIZE:
         return f"jsbsim {version}: its binding's objects have another size"
     if _functions() is None:
-        return f"jsbsim {version}: its extension does not export {SYMBOLS['run']} and {SYMBOLS['get']}"
+        return f"jsbsim {version}: its extension does not export {', '.join(SYMBOLS.values())}"
     return None
 
 
@@ -150,8 +168,8 @@ def native_handles(fdm, paths: list[str]) -> NativeHandles | None:
     exec_ptr = _word(fdm, EXEC_WORD)
     if exec_ptr == 0 or _word(fdm, EXEC_BASE_WORD) != exec_ptr:
         return None
-    run_fn, get_fn = _functions()
-    get = _GET_T(get_fn)  # the checks below call it from Python
+    run_fn, get_fn, set_fn = _functions()
+    get, put = _GET_T(get_fn), _SET_T(set_fn)  # the checks below call them from Python
     pm = fdm.get_property_manager()
     probe = pm.get_node(PROBE_PATH, True)
     nodes = [pm.get_node(p) for p in paths]
@@ -170,11 +188,14 @@ def native_handles(fdm, paths: list[str]) -> NativeHandles | None:
     ptrs = np.array(words[1:], dtype=np.intp)
     if get(_word(probe, NODE_WORD)) != PROBE_VALUE:
         return None
+    put(_word(probe, NODE_WORD), PROBE_SET_VALUE)  # a native write the binding reads back
+    if probe.get_double_value() != PROBE_SET_VALUE:
+        return None
     for node, p in zip(nodes, ptrs):
         a, b = get(int(p)), node.get_double_value()
         if not (a == b or (a != a and b != b)):
             return None
-    return NativeHandles(run_fn, get_fn, exec_ptr, tuple(nodes), ptrs)
+    return NativeHandles(run_fn, get_fn, set_fn, exec_ptr, tuple(nodes), ptrs)
 
 
 #: the leading entries of the context array :func:`run_logged` takes (then the nodes' pointers, height
@@ -231,23 +252,27 @@ class Stepper:
 
     ``agl_path`` is read after each logged step and decides whether the flight goes on; the row holds
     ``row_paths``' values; ``state_cols`` pick a controller's state from the last row (the height goes in
-    at ``state_h_at``)."""
+    at ``state_h_at``). ``extra_paths``: properties a compiled controller reads or writes, checked with the
+    others (their pointers: :attr:`extra_ptrs`)."""
 
     def __init__(self, fdm, agl_path: str, row_paths: list[str], sub: int, min_agl_ft: float, capacity: int,
-                 state_cols: tuple[int, ...], state_h_at: int, native: bool = True):  # fmt: skip
+                 state_cols: tuple[int, ...], state_h_at: int, native: bool = True,
+                 extra_paths: tuple[str, ...] = ()):  # fmt: skip
         from tepinn_flight.sim.jsbsim_env import getter
 
         self.sub, self.min_agl_ft = int(sub), float(min_agl_ft)
         self.state_cols, self.state_h_at = state_cols, state_h_at
         self.n_cols = len(row_paths)
         self._h = float("nan")  # the last height read (the binding's path)
-        self.handles = native_handles(fdm, [agl_path, *row_paths]) if native else None
+        self.handles = native_handles(fdm, [agl_path, *row_paths, *extra_paths]) if native else None
         if self.handles is not None:
             hd = self.handles
             cols = [c for c in state_cols]
             cols.insert(state_h_at, -1)
-            self._ctx = np.array([hd.run_fn, hd.get_fn, hd.exec_ptr, self.sub, 0, len(hd.node_ptrs), *hd.node_ptrs,
-                                  *cols], dtype=np.int64)  # fmt: skip
+            k = 1 + len(row_paths)
+            self.extra_ptrs = hd.node_ptrs[k:]
+            self._ctx = np.array([hd.run_fn, hd.get_fn, hd.exec_ptr, self.sub, 0, k, *hd.node_ptrs[:k], *cols],
+                                 dtype=np.int64)  # fmt: skip
             self._rows = np.empty((max(1, capacity), self.n_cols))
             self._state = np.full(len(cols), np.nan)
         else:
@@ -262,6 +287,12 @@ class Stepper:
     @property
     def native(self) -> bool:
         return self.handles is not None
+
+    @property
+    def kernel_args(self) -> tuple:
+        """What a compiled loop passes to :func:`run_logged`: the context, the rows and the state arrays
+        (native only)."""
+        return self._ctx, self._rows, self._state
 
     def run(self, n: int) -> None:
         """``n`` steps, nothing logged."""

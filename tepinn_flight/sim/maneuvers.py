@@ -113,15 +113,20 @@ class Sequencer:
         self._begin_next(ctl, t)
 
     def update(self, ctl, t: float) -> None:
+        if self.current.update(ctl, t):
+            self.advance(ctl, t)
+
+    def advance(self, ctl, t: float) -> None:
+        """The current maneuver finished at ``t`` (its update said so: here, or in a compiled loop): record
+        it and begin the next (a recovery after a maneuver, the next maneuver after a recovery)."""
         m = self.current
-        if m.update(ctl, t):
-            m.finish(ctl, t)
-            self.segments.append((self.t_start, t, m.name))
-            self.gains.append(float(m.vibration_gain))
-            if m.name == RECOVERY:
-                self._begin_next(ctl, t)
-            else:
-                self._begin(self.recovery_cls(), ctl, t)
+        m.finish(ctl, t)
+        self.segments.append((self.t_start, t, m.name))
+        self.gains.append(float(m.vibration_gain))
+        if m.name == RECOVERY:
+            self._begin_next(ctl, t)
+        else:
+            self._begin(self.recovery_cls(), ctl, t)
 
     def close(self, ctl, t: float) -> None:
         """End of flight: record the maneuver in progress, cut at ``t``."""

@@ -5,8 +5,12 @@ The controller runs at ``QuadVehicle.control_hz`` (200 Hz), its laws compiled wi
 model (the F450's rate SCAS limits rates to 43 deg/s; we switch it off and drive the ESC inputs
 ``fcs/cmd*_ext_nd`` directly), so the vehicle can flip and roll at more than 600 deg/s.
 
-Per-step Python only moves floats between JSBSim, the maneuvers' references and the compiled laws:
-it is the speed-critical path.
+The maneuvers write the controller's reference vector and read its observation vector (the layouts:
+:mod:`tepinn_flight.sim.quad_control_law`; the fields are also properties here). Where JSBSim's C++ can
+be called from compiled code, the flight's control updates, its maneuvers' laws and JSBSim's steps run
+in one compiled loop (:meth:`QuadController.native_runner`, :mod:`tepinn_flight.sim.quad_flight_kernel`)
+and Python acts only where a maneuver ends or draws; elsewhere :meth:`QuadController.step` runs the
+same laws once per update from Python.
 
 Frames: body FRD, earth NED; motor order FR, AL, FL, AR for both quads.
 """
@@ -18,15 +22,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tepinn_flight.quat import gravity_body_f, quat_from_euler_zyx_f
+from tepinn_flight.quat import quat_from_euler_zyx_f
 from tepinn_flight.sim.jsbsim_env import FT_TO_M, getter, setter
 from tepinn_flight.sim.lean_model import LeanModel
-from tepinn_flight.sim.quad_control_law import G0, attitude_step, pack_params, position_step, rate_step
+from tepinn_flight.sim.quad_control_law import (G0, MODE_ATT, MODE_POS, MODE_RATE, N_OBS, N_REF, OBS_AGL, OBS_POS,
+                                                OBS_Q, OBS_VEL, OBS_W, REF_ACC_FF, REF_MODE, REF_POS, REF_Q,
+                                                REF_RATE, REF_THRUST, REF_VEL_FF, REF_YAW, REF_YAW_RATE_FF,
+                                                control_update, pack_params, tilt)  # fmt: skip
+from tepinn_flight.sim.quad_maneuver_law import level_quat
 
-
-MODE_POS = 0  # velocity/position reference -> thrust vector -> attitude
-MODE_ATT = 1  # attitude quaternion reference + collective thrust
-MODE_RATE = 2  # body-rate reference + collective thrust
+__all__ = ["MODE_ATT", "MODE_POS", "MODE_RATE", "QuadController", "QuadParams", "QuadVehicle"]
 
 
 @dataclass(frozen=True)
@@ -149,44 +154,84 @@ def _mixer_inverse(p: QuadParams) -> list[list[float]]:
     return [[float(v) for v in r] for r in inv]
 
 
+def _vector(array: str, at: int, n: int) -> property:
+    """A field of n floats in one of the controller's vectors: read as a view (item writes go through),
+    assigned from any sequence."""
+
+    def get(self):
+        return getattr(self, array)[at : at + n]
+
+    def put(self, value) -> None:
+        getattr(self, array)[at : at + n] = value
+
+    return property(get, put)
+
+
+def _scalar(array: str, at: int, kind=float) -> property:
+    def get(self):
+        return kind(getattr(self, array)[at])
+
+    def put(self, value) -> None:
+        getattr(self, array)[at] = value
+
+    return property(get, put)
+
+
+#: the properties the compiled loop reads: fly()'s state (its STATE_PATHS, in that order), then roll and pitch
+#: acceleration and the position north and east from the start (quad_flight_kernel's C_* layout)
+NATIVE_READS = ("attitude/phi-rad", "attitude/theta-rad", "attitude/psi-rad", "velocities/pi-rad_sec",
+                "velocities/qi-rad_sec", "velocities/ri-rad_sec", "position/h-agl-ft", "velocities/v-north-fps",
+                "velocities/v-east-fps", "velocities/v-down-fps", "accelerations/pidot-rad_sec2",
+                "accelerations/qidot-rad_sec2", "position/from-start-neu-n-ft",
+                "position/from-start-neu-e-ft")  # fmt: skip
+
+
 class QuadController:
-    """Cascaded controller bound to one FGFDMExec. Maneuvers write the public reference fields."""
+    """Cascaded controller bound to one FGFDMExec. Maneuvers write the reference fields (``ref``) and read
+    the observed ones (``obs``)."""
+
+    # the reference the maneuvers write (quad_control_law's REF_* layout)
+    mode = _scalar("ref", REF_MODE, int)
+    pos_ref = _vector("ref", REF_POS, 3)  # NED from start, m (down = -height above start)
+    vel_ff = _vector("ref", REF_VEL_FF, 3)
+    acc_ff = _vector("ref", REF_ACC_FF, 3)
+    yaw_ref = _scalar("ref", REF_YAW)
+    yaw_rate_ff = _scalar("ref", REF_YAW_RATE_FF)
+    q_ref = _vector("ref", REF_Q, 4)
+    rate_ref = _vector("ref", REF_RATE, 3)
+    thrust_n = _scalar("ref", REF_THRUST)
+    # the state the maneuvers read: attitude and rates every update, position in position mode (OBS_*)
+    q = _vector("obs", OBS_Q, 4)
+    w = _vector("obs", OBS_W, 3)
+    pos = _vector("obs", OBS_POS, 3)
+    vel = _vector("obs", OBS_VEL, 3)
+    agl_m = _scalar("obs", OBS_AGL)
 
     def __init__(self, fdm, p: QuadParams, dt_s: float):
         self.p = p
         self.dt = dt_s
         g = lambda path: getter(fdm, path)  # noqa: E731
-        self._phi, self._theta, self._psi = g("attitude/phi-rad"), g("attitude/theta-rad"), g("attitude/psi-rad")
-        self._p, self._q, self._r = g("velocities/pi-rad_sec"), g("velocities/qi-rad_sec"), g("velocities/ri-rad_sec")
-        self._pd, self._qd = g("accelerations/pidot-rad_sec2"), g("accelerations/qidot-rad_sec2")
-        self._vn, self._ve, self._vd = (
-            g("velocities/v-north-fps"), g("velocities/v-east-fps"), g("velocities/v-down-fps"))
-        self._pn, self._pe = g("position/from-start-neu-n-ft"), g("position/from-start-neu-e-ft")
-        self._h = g("position/h-agl-ft")
+        (self._phi, self._theta, self._psi, self._p, self._q, self._r, self._h, self._vn, self._ve, self._vd,
+         self._pd, self._qd, self._pn, self._pe) = (g(path) for path in NATIVE_READS)  # fmt: skip
         self._cmd = tuple(setter(fdm, path) for path in p.cmd_paths)
         self.vmax_h, self.vmax_up, self.vmax_down = 10.0, 6.0, 4.0  # m/s, fixed (packed below)
-        self._par = pack_params(p, dt_s, self.vmax_h, self.vmax_up, self.vmax_down, _mixer_inverse(p))
+        self.par = pack_params(p, dt_s, self.vmax_h, self.vmax_up, self.vmax_down, _mixer_inverse(p))
         self._st = np.zeros(4)  # rate-loop integrators (roll, pitch, yaw) and the filtered yaw torque
         self.hover_thrust_n = p.mass_kg * G0
-        # reference set by maneuvers
+        self.ref = np.zeros(N_REF)
+        self.obs = np.zeros(N_OBS)
         self.mode = MODE_POS
-        self.pos_ref = [0.0, 0.0, 0.0]  # NED from start, m (down = -height above start)
-        self.vel_ff = [0.0, 0.0, 0.0]
-        self.acc_ff = [0.0, 0.0, 0.0]
-        self.yaw_ref = 0.0
-        self.yaw_rate_ff = 0.0
         self.q_ref = (1.0, 0.0, 0.0, 0.0)
-        self.rate_ref = [0.0, 0.0, 0.0]
         self.thrust_n = self.hover_thrust_n
+        self.q = (1.0, 0.0, 0.0, 0.0)
         self.max_tilt = p.max_tilt_rad
         self.max_acc_h = G0 * math.tan(p.max_tilt_rad)
-        # state exposed to maneuvers (attitude and rates every update, position in position mode)
-        self.q = (1.0, 0.0, 0.0, 0.0)
-        self.w = (0.0, 0.0, 0.0)
-        self.pos = [0.0, 0.0, 0.0]
-        self.vel = [0.0, 0.0, 0.0]
-        self.agl_m = 0.0
         self.start_agl_m = 0.0
+
+    @property
+    def native_paths(self) -> tuple[str, ...]:
+        """What the compiled loop reads and writes (:data:`NATIVE_READS`, then the motor commands)."""
+        return (*NATIVE_READS, *self.p.cmd_paths)
 
     def setup(self, fdm) -> None:
         for path, value in self.p.setup:
@@ -202,71 +247,66 @@ class QuadController:
         self.w = (self._p(), self._q(), self._r())
         h = self._h() * FT_TO_M
         self.agl_m = h
-        self.pos = [self._pn() * FT_TO_M, self._pe() * FT_TO_M, self.start_agl_m - h]
-        self.vel = [self._vn() * FT_TO_M, self._ve() * FT_TO_M, self._vd() * FT_TO_M]
+        self.pos = (self._pn() * FT_TO_M, self._pe() * FT_TO_M, self.start_agl_m - h)
+        self.vel = (self._vn() * FT_TO_M, self._ve() * FT_TO_M, self._vd() * FT_TO_M)
 
     def hold_here(self) -> None:
         """Position mode: stop and hold the current position and heading."""
         self.read_state()
         self.mode = MODE_POS
-        self.pos_ref = list(self.pos)
-        self.vel_ff = [0.0, 0.0, 0.0]
-        self.acc_ff = [0.0, 0.0, 0.0]
+        self.pos_ref = self.pos
+        self.vel_ff = (0.0, 0.0, 0.0)
+        self.acc_ff = (0.0, 0.0, 0.0)
         self.yaw_ref = self.heading()
         self.yaw_rate_ff = 0.0
 
     def heading(self) -> float:
-        w, x, y, z = self.q
+        w, x, y, z = self.q.tolist()
         return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
     def tilt(self) -> float:
         """Angle between body z and earth down, rad."""
-        c = gravity_body_f(self.q)[2]
-        return math.acos(max(-1.0, min(1.0, c)))
+        return tilt(self.obs)
 
     def level_quat(self, yaw: float) -> tuple[float, float, float, float]:
-        return (math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw))
+        return level_quat(yaw)
 
     # -------------------------------------------------------------- control
     def step(self, state: tuple | None = None) -> None:
-        """One control update: read the state, run the compiled laws for the mode, write the motors.
+        """One control update from Python: read the state, run the compiled laws for the mode, write the motors.
 
-        The laws are :mod:`tepinn_flight.sim.quad_control_law`; this method only moves floats
-        between JSBSim, the references the maneuvers wrote and the compiled code (about 2 us).
-        ``state``: the values :func:`~tepinn_flight.sim.flight.fly` read after the last ``run()``
-        (:data:`~tepinn_flight.sim.flight.STATE_PATHS`), the same numbers this would read; None:
-        read here.
+        The laws are :mod:`tepinn_flight.sim.quad_control_law`'s :func:`control_update`; this method only
+        moves floats between JSBSim and the compiled code. ``state``: the values
+        :func:`~tepinn_flight.sim.flight.fly` read after the last ``run()``
+        (:data:`~tepinn_flight.sim.flight.STATE_PATHS`), the same numbers this would read; None: read here.
         """
         if state is None:
-            phi, theta, psi = self._phi(), self._theta(), self._psi()
-            wp, wq, wr = self._p(), self._q(), self._r()
-            h_ft = None
-        else:
-            phi, theta, psi, wp, wq, wr, h_ft, vn, ve, vd = state
-        pd, qd = self._pd(), self._qd()
-        mode = self.mode
-        if mode == MODE_POS:
-            if h_ft is None:
-                h_ft, vn, ve, vd = self._h(), self._vn(), self._ve(), self._vd()
-            h = h_ft * FT_TO_M
-            self.agl_m = h
-            pos = self.pos = [self._pn() * FT_TO_M, self._pe() * FT_TO_M, self.start_agl_m - h]
-            vel = self.vel = [vn * FT_TO_M, ve * FT_TO_M, vd * FT_TO_M]
-            pr, vf, af = self.pos_ref, self.vel_ff, self.acc_ff
-            qw, qx, qy, qz, self.yaw_ref, c0, c1, c2, c3 = position_step(self._par, self._st, (
-                phi, theta, psi, wp, wq, wr, pd, qd, pos[0], pos[1], pos[2], vel[0], vel[1], vel[2],
-                pr[0], pr[1], pr[2], vf[0], vf[1], vf[2], af[0], af[1], af[2], self.yaw_ref, self.yaw_rate_ff))
-        elif mode == MODE_ATT:
-            rw, rx, ry, rz = self.q_ref
-            qw, qx, qy, qz, c0, c1, c2, c3 = attitude_step(self._par, self._st, (
-                phi, theta, psi, wp, wq, wr, pd, qd, rw, rx, ry, rz, self.yaw_rate_ff, self.thrust_n))
-        else:
-            rp, rq, rr = self.rate_ref
-            qw, qx, qy, qz, c0, c1, c2, c3 = rate_step(self._par, self._st, (
-                phi, theta, psi, wp, wq, wr, pd, qd, rp, rq, rr, self.thrust_n))
-        self.q = (qw, qx, qy, qz)
-        self.w = (wp, wq, wr)
+            state = (self._phi(), self._theta(), self._psi(), self._p(), self._q(), self._r(), self._h(), self._vn(),
+                     self._ve(), self._vd())  # fmt: skip
+        phi, theta, psi, wp, wq, wr, h_ft, vn, ve, vd = state
+        c0, c1, c2, c3 = control_update(self.par, self._st, self.ref, self.obs, self.start_agl_m, phi, theta, psi,
+                                        wp, wq, wr, self._pd(), self._qd(), h_ft, vn, ve, vd, self._pn(),
+                                        self._pe())  # fmt: skip
         self._write_motors(c0, c1, c2, c3)
+
+    def native_runner(self, steps, n_sim: int, div: int, dt_sim: float):
+        """Where ``steps`` (a :class:`~tepinn_flight.sim.jsbsim_native.Stepper` made with
+        :attr:`native_paths` as its extra paths) calls JSBSim natively: ``run(i, skip_first, maneuver_vector)
+        -> (i, code)``, the compiled loop of the flight's steps below ``n_sim`` with a control update every
+        ``div`` (:func:`~tepinn_flight.sim.quad_flight_kernel.fly_quad`); else None."""
+        if not steps.native:
+            return None
+        from tepinn_flight.sim.quad_flight_kernel import fly_quad
+
+        ctx, rows, state = steps.kernel_args
+        cctx = np.array([steps.handles.set_fn, *steps.extra_ptrs], dtype=np.int64)
+        floor, par, st, ref, obs = steps.min_agl_ft, self.par, self._st, self.ref, self.obs
+
+        def run(i: int, skip_first: bool, man: np.ndarray) -> tuple[int, int]:
+            return fly_quad(ctx, cctx, i, n_sim, div, dt_sim, floor, self.start_agl_m, skip_first, par, st, ref, obs,
+                            man, rows, state)  # fmt: skip
+
+        return run
 
     def _write_motors(self, c0: float, c1: float, c2: float, c3: float) -> None:
         """Normalised commands of motors FR, AL, FL, AR to JSBSim."""

@@ -1,7 +1,10 @@
 """Multirotor maneuver library: hover, rate steps, flips, rolls, yaw spins, figure-eights, vibration.
 
 Each maneuver writes references into :class:`tepinn_flight.sim.multirotor.QuadController`;
-parameters are drawn from the flight's generator at the maneuver's start.
+parameters are drawn from the flight's generator at the maneuver's start and kept in the maneuver's
+vector ``v``, which its compiled law (:mod:`tepinn_flight.sim.quad_maneuver_law`) reads at each control
+update. What needs the generator mid-maneuver (a hover's next target, the next rate step) is the
+``event`` method here, which finishes the update where the law returned ``EVENT``.
 """
 
 from __future__ import annotations
@@ -10,8 +13,9 @@ import math
 
 import numpy as np
 
+from tepinn_flight.sim import quad_maneuver_law as law
 from tepinn_flight.sim.maneuvers import RECOVERY, Maneuver
-from tepinn_flight.sim.multirotor import MODE_ATT, MODE_POS, MODE_RATE
+from tepinn_flight.sim.multirotor import MODE_POS
 
 TWO_PI = 2.0 * math.pi
 
@@ -24,9 +28,32 @@ def _sign(rng: np.random.Generator) -> float:
     return 1.0 if rng.random() < 0.5 else -1.0
 
 
-class Recovery(Maneuver):
+class QuadManeuver(Maneuver):
+    """A multirotor maneuver: its parameters and progress in ``v`` (``law.M_*`` and its kind's slots), its
+    per-update law compiled (:func:`~tepinn_flight.sim.quad_maneuver_law.maneuver_update`)."""
+
+    kind = -1
+
+    def __init__(self):
+        self.v = np.zeros(law.N_SLOTS)
+        self.v[law.M_KIND] = self.kind
+
+    def update(self, ctl, t):
+        return self.resolve(ctl, t, law.maneuver_update(self.v, ctl.ref, ctl.obs, ctl.par, t))
+
+    def resolve(self, ctl, t: float, code: int) -> bool:
+        """Whether the maneuver has finished, given its law's ``code`` at this update (``EVENT``: Python's
+        part of the update runs here)."""
+        return self.event(ctl, t) if code == law.EVENT else code == law.DONE
+
+    def event(self, ctl, t: float) -> bool:  # pragma: no cover - maneuvers whose law returns EVENT override it
+        raise NotImplementedError(f"{self.name}: no event")
+
+
+class Recovery(QuadManeuver):
     name = RECOVERY
     description = "level, brake to a stop and climb back towards the start altitude"
+    kind = law.KIND_RECOVERY
 
     def start(self, ctl, t, rng):
         ctl.read_state()
@@ -36,39 +63,31 @@ class Recovery(Maneuver):
         ctl.acc_ff = [0.0, 0.0, 0.0]
         ctl.yaw_ref = ctl.heading()
         ctl.yaw_rate_ff = 0.0
-        self.t0 = t
-        self.t_min = _u(rng, 0.6, 1.5)
-
-    def update(self, ctl, t):
-        el = t - self.t0
-        if el < self.t_min:
-            return False
-        w = ctl.w
-        settled = ctl.tilt() < 0.25 and abs(w[0]) + abs(w[1]) + abs(w[2]) < 1.0
-        return settled or el > 4.0
+        self.v[law.M_T0] = t
+        self.v[law.REC_T_MIN] = _u(rng, 0.6, 1.5)
 
 
-class Hover(Maneuver):
+class Hover(QuadManeuver):
     name = "hover"
     description = "station keeping: position hold with small target moves (+-0.5 m) and heading changes"
+    kind = law.KIND_HOVER
 
     def start(self, ctl, t, rng):
         ctl.hold_here()
         self.c = list(ctl.pos_ref)
         self.yaw0 = ctl.yaw_ref
-        self.t0 = t
-        self.dur = _u(rng, 3.0, 6.0)
+        self.v[law.M_T0] = t
+        self.v[law.M_DUR] = _u(rng, 3.0, 6.0)
         self.rng = rng
-        self.next_move = t
+        self.v[law.HOV_NEXT_MOVE] = t
 
-    def update(self, ctl, t):
-        if t >= self.next_move:
-            r = self.rng
-            ctl.pos_ref = [self.c[0] + _u(r, -0.5, 0.5), self.c[1] + _u(r, -0.5, 0.5),
-                           self.c[2] + _u(r, -0.3, 0.3)]
-            ctl.yaw_ref = self.yaw0 + _u(r, -0.5, 0.5)
-            self.next_move = t + _u(r, 1.0, 2.0)
-        return t - self.t0 >= self.dur
+    def event(self, ctl, t):
+        """The next target: a small move and heading change, held for 1-2 s."""
+        r = self.rng
+        ctl.pos_ref = [self.c[0] + _u(r, -0.5, 0.5), self.c[1] + _u(r, -0.5, 0.5), self.c[2] + _u(r, -0.3, 0.3)]
+        ctl.yaw_ref = self.yaw0 + _u(r, -0.5, 0.5)
+        self.v[law.HOV_NEXT_MOVE] = t + _u(r, 1.0, 2.0)
+        return t - self.v[law.M_T0] >= self.v[law.M_DUR]
 
 
 class Vibration(Hover):
@@ -80,105 +99,66 @@ class Vibration(Hover):
         self.vibration_gain = _u(rng, 3.0, 6.0)
 
 
-class RateSteps(Maneuver):
+class RateSteps(QuadManeuver):
     name = "rate_steps"
     description = "aggressive body-rate doublets on random axes, re-levelled between steps"
+    kind = law.KIND_RATE_STEPS
 
     def start(self, ctl, t, rng):
         ctl.hold_here()
         p = ctl.p
         self.rng = rng
-        self.t0 = t
-        self.dur = _u(rng, 2.0, 4.0)
+        self.v[law.M_T0] = t
+        self.v[law.M_DUR] = _u(rng, 2.0, 4.0)
         self.lo, self.hi = 0.35 * p.flip_rate_rad_s[1], 0.8 * p.flip_rate_rad_s[1]
         self._new_step(ctl, t)
 
     def _new_step(self, ctl, t):
-        r = self.rng
-        self.axis = int(r.integers(0, 3))
+        r, v = self.rng, self.v
+        axis = int(r.integers(0, 3))
         amp = _u(r, self.lo, self.hi) * _sign(r)
-        if self.axis == 2:
+        if axis == 2:
             amp *= 0.5
-        self.amp = amp
-        self.step_dur = _u(r, 0.06, 0.16)
-        self.ts = t
+        v[law.RS_AXIS], v[law.RS_AMP] = axis, amp
+        v[law.RS_STEP_DUR] = _u(r, 0.06, 0.16)
+        v[law.RS_TS] = t
         ctl.read_state()
-        self.level = ctl.level_quat(ctl.heading())
+        v[law.RS_LEVEL : law.RS_LEVEL + 4] = ctl.level_quat(ctl.heading())
 
-    def update(self, ctl, t):
-        el = t - self.ts
-        d = self.step_dur
-        if el < 2.0 * d:
-            ctl.mode = MODE_RATE
-            rr = [0.0, 0.0, 0.0]
-            rr[self.axis] = self.amp if el < d else -self.amp
-            ctl.rate_ref = rr
-            ctl.thrust_n = ctl.hover_thrust_n
-        elif el < 2.0 * d + 0.35:
-            ctl.mode = MODE_ATT
-            ctl.q_ref = self.level
-            ctl.thrust_n = ctl.hover_thrust_n / max(0.5, math.cos(min(ctl.tilt(), 1.0)))
-        else:
-            if t - self.t0 >= self.dur:
-                return True
-            self._new_step(ctl, t)
+    def event(self, ctl, t):
+        """The next doublet (its axis, rate and length drawn) once the last one has been levelled."""
+        self._new_step(ctl, t)
         return False
 
     def finish(self, ctl, t):
         ctl.hold_here()
 
 
-class Flip(Maneuver):
+class Flip(QuadManeuver):
     """A full rotation about the pitch axis (``flip``) or roll axis (``roll``)."""
 
     name = "flip"
     description = "360 deg (sometimes 720 deg) pitch flip at the vehicle's flip rate (>= 600 deg/s)"
     axis = 1
     min_agl_m = 20.0
+    kind = law.KIND_FLIP
 
     def start(self, ctl, t, rng):
         ctl.hold_here()
-        p = ctl.p
-        self.rate = _u(rng, *p.flip_rate_rad_s) * _sign(rng)
-        self.turns = 2 if rng.random() < 0.2 else 1
+        p, v = ctl.p, self.v
+        v[law.FL_AXIS] = self.axis
+        v[law.FL_RATE] = _u(rng, *p.flip_rate_rad_s) * _sign(rng)
+        v[law.FL_TURNS] = 2 if rng.random() < 0.2 else 1
         self.alt_ref = ctl.pos[2]
-        self.yaw = ctl.heading()
-        self.t_punch = _u(rng, 0.25, 0.5)
+        v[law.FL_YAW] = ctl.heading()
+        t_punch = v[law.FL_T_PUNCH] = _u(rng, 0.25, 0.5)
         v_up = _u(rng, 2.0, 5.0)  # punch up before rotating
         ctl.vel_ff = [0.0, 0.0, -v_up]
-        ctl.pos_ref[2] = ctl.pos[2] - v_up * self.t_punch
-        self.t0 = t
-        self.phase = 0
-        self.angle = 0.0
-        self.cut = _u(rng, 0.25, 0.6)  # collective during the rotation, fraction of hover
-
-    def update(self, ctl, t):
-        ph = self.phase
-        if ph == 0:
-            if t - self.t0 >= self.t_punch:
-                self.phase = 1
-                ctl.mode = MODE_RATE
-                rr = [0.0, 0.0, 0.0]
-                rr[self.axis] = self.rate
-                ctl.rate_ref = rr
-                ctl.thrust_n = self.cut * ctl.hover_thrust_n
-                self.t1 = t
-        elif ph == 1:
-            w = ctl.w[self.axis]
-            self.angle += w * ctl.dt
-            remaining = self.turns * TWO_PI - abs(self.angle)
-            # hand over to the attitude loop early enough to brake
-            if remaining <= 0.12 * abs(w) or t - self.t1 > 3.0:
-                self.phase = 2
-                ctl.mode = MODE_ATT
-                ctl.q_ref = ctl.level_quat(self.yaw)
-                ctl.thrust_n = ctl.hover_thrust_n
-                self.t2 = t
-        elif ph == 2:
-            ctl.thrust_n = ctl.hover_thrust_n / max(0.5, math.cos(min(ctl.tilt(), 1.0)))
-            if ctl.tilt() < 0.3 or t - self.t2 > 1.0:
-                return True
-        return False
+        ctl.pos_ref[2] = ctl.pos[2] - v_up * t_punch
+        v[law.M_T0] = t
+        v[law.FL_PHASE] = 0.0
+        v[law.FL_ANGLE] = 0.0
+        v[law.FL_CUT] = _u(rng, 0.25, 0.6)  # collective during the rotation, fraction of hover
 
     def finish(self, ctl, t):
         ctl.hold_here()
@@ -191,72 +171,43 @@ class Roll(Flip):
     axis = 0
 
 
-class YawSpin(Maneuver):
+class YawSpin(QuadManeuver):
     name = "yaw_spin"
     description = "position hold while spinning about the vertical axis"
+    kind = law.KIND_YAW_SPIN
 
     def start(self, ctl, t, rng):
         ctl.hold_here()
-        self.t0 = t
-        self.dur = _u(rng, 1.5, 4.0)
-        self.rate = _u(rng, *ctl.p.spin_rate_rad_s) * _sign(rng)
-        self.ramp = 0.4
-
-    def update(self, ctl, t):
-        el = t - self.t0
-        k = min(1.0, el / self.ramp, max(0.0, (self.dur - el) / self.ramp))
-        ctl.yaw_rate_ff = k * self.rate
-        return el >= self.dur
+        v = self.v
+        v[law.M_T0] = t
+        v[law.M_DUR] = _u(rng, 1.5, 4.0)
+        v[law.YS_RATE] = _u(rng, *ctl.p.spin_rate_rad_s) * _sign(rng)
+        v[law.YS_RAMP] = 0.4
 
     def finish(self, ctl, t):
         ctl.hold_here()
 
 
-class FigureEight(Maneuver):
+class FigureEight(QuadManeuver):
     name = "figure_eight"
     description = "horizontal figure-eight with strong lateral acceleration (0.6-1.4 g)"
+    kind = law.KIND_FIGURE_EIGHT
 
     def start(self, ctl, t, rng):
         ctl.hold_here()
-        self.c = list(ctl.pos)
+        v = self.v
+        v[law.FE_C : law.FE_C + 3] = ctl.pos
         amax = ctl.max_acc_h / math.sqrt(2.0)
-        self.a_peak = _u(rng, 0.6 * G0_, min(1.4 * G0_, amax))
-        self.period = _u(rng, 3.5, 7.0)
-        self.om = TWO_PI / self.period
-        self.A = self.a_peak / self.om**2
-        self.Az = _u(rng, 0.0, 2.0)
-        self.rot = _u(rng, -math.pi, math.pi)
-        self.face = rng.random() < 0.5
-        self.dur = self.period * (1 if rng.random() < 0.5 else 2)
-        self.ramp = min(1.0, 0.25 * self.dur)
-        self.t0 = t
-
-    def update(self, ctl, t):
-        el = t - self.t0
-        k = min(1.0, el / self.ramp, max(0.0, (self.dur - el) / self.ramp))
-        om, A = self.om, self.A
-        s1, c1 = math.sin(om * el), math.cos(om * el)
-        s2, c2 = math.sin(2 * om * el), math.cos(2 * om * el)
-        # lemniscate-like: x = A sin(wt), y = A/4 sin(2wt)  -> both peak accelerations A w^2
-        x, vx, ax = A * s1, A * om * c1, -A * om * om * s1
-        y, vy, ay = 0.25 * A * s2, 0.5 * A * om * c2, -A * om * om * s2
-        cr, sr = math.cos(self.rot), math.sin(self.rot)
-        n, e = cr * x - sr * y, sr * x + cr * y
-        vn, ve = cr * vx - sr * vy, sr * vx + cr * vy
-        an, ae = cr * ax - sr * ay, sr * ax + cr * ay
-        z, vz, az = self.Az * s1, self.Az * om * c1, -self.Az * om * om * s1
-        c = self.c
-        ctl.pos_ref = [c[0] + k * n, c[1] + k * e, c[2] + k * z]
-        ctl.vel_ff = [k * vn, k * ve, k * vz]
-        ctl.acc_ff = [k * an, k * ae, k * az]
-        if self.face:
-            v2 = vn * vn + ve * ve
-            if k > 0.5 and v2 > 1.0:
-                ctl.yaw_ref = math.atan2(ve, vn)
-                ctl.yaw_rate_ff = k * (vn * ae - ve * an) / v2
-            else:
-                ctl.yaw_rate_ff = 0.0
-        return el >= self.dur
+        a_peak = _u(rng, 0.6 * G0_, min(1.4 * G0_, amax))
+        period = _u(rng, 3.5, 7.0)
+        om = v[law.FE_OM] = TWO_PI / period
+        v[law.FE_A] = a_peak / om**2
+        v[law.FE_AZ] = _u(rng, 0.0, 2.0)
+        v[law.FE_ROT] = _u(rng, -math.pi, math.pi)
+        v[law.FE_FACE] = rng.random() < 0.5
+        dur = v[law.M_DUR] = period * (1 if rng.random() < 0.5 else 2)
+        v[law.FE_RAMP] = min(1.0, 0.25 * dur)
+        v[law.M_T0] = t
 
     def finish(self, ctl, t):
         ctl.hold_here()

@@ -2,8 +2,9 @@
 reference, attitude error -> rate reference, rate loop -> torques, torques -> motor commands.
 
 :class:`tepinn_flight.sim.multirotor.QuadController` reads the state from JSBSim, calls one of the
-three entry points below (one per reference mode) and writes the returned motor commands; the
-maneuvers keep writing references into the controller as before. Pure math: floats in, a tuple of
+three entry points below (one per reference mode) through :func:`control_update` and writes the
+returned motor commands; the maneuvers write the reference vector (``REF_*``) and read the observation
+vector (``OBS_*``) that :func:`control_update` fills. Pure math: floats in, a tuple of
 floats out; the rate-loop integrators live in a 4-vector ``st`` updated in place and the vehicle's
 constants in the vector ``par`` made by :func:`pack_params`. The arithmetic is that of the former
 pure-Python controller, operation for operation.
@@ -20,8 +21,22 @@ import math
 import numpy as np
 from numba import njit
 
+from tepinn_flight.conventions import FT_TO_M
 from tepinn_flight.conventions import GRAVITY_M_S2 as G0
-from tepinn_flight.quat_scalar import euler_zyx_half_angles, qmul, rotmat_to_quat
+from tepinn_flight.quat_scalar import down_in_body, euler_zyx_half_angles, qmul, rotmat_to_quat
+
+#: the reference modes: velocity/position reference -> thrust vector -> attitude; attitude quaternion
+#: reference + collective thrust; body-rate reference + collective thrust
+MODE_POS, MODE_ATT, MODE_RATE = 0, 1, 2
+#: the reference vector the maneuvers write (the mode, position NED from the start in m, velocity and
+#: acceleration feed-forward, heading and its rate, attitude quaternion, body rates, collective in N)
+REF_MODE, REF_POS, REF_VEL_FF, REF_ACC_FF, REF_YAW, REF_YAW_RATE_FF, REF_Q, REF_RATE, REF_THRUST = (
+    0, 1, 4, 7, 10, 11, 12, 16, 19)  # fmt: skip
+N_REF = 20
+#: the observation vector the maneuvers read: the state at the last control update (attitude
+#: ``q_nb_wxyz`` and body rates every update; position, velocity NED and height above ground in position mode)
+OBS_Q, OBS_W, OBS_POS, OBS_VEL, OBS_AGL = 0, 4, 7, 10, 13
+N_OBS = 14
 
 # layout of the parameter vector (pack_params); the 4x4 inverse mixer follows at MINV, row-major
 (POS_KP, VEL_KP, VMAX_H, VMAX_UP, VMAX_DOWN, MAX_ACC_H, MASS_KG, HOVER_N, DT_S, MAX_RATE, MAX_YAW_RATE,
@@ -205,12 +220,58 @@ def rate_step(par, st, x):
     return (qw, qx, qy, qz, c0, c1, c2, c3)
 
 
+@njit(cache=True)
+def control_update(par, st, ref, obs, start_agl_m, phi, theta, psi, wp, wq, wr, pd, qd, h_ft, vn_fps, ve_fps, vd_fps,
+                   pn_ft, pe_ft):  # fmt: skip
+    """One control update from JSBSim's state (Euler angles, inertial body rates and the roll and pitch
+    accelerations in rad, rad/s, rad/s²; height above ground, NED velocity and the position north and east
+    from the start in ft, ft/s) and the reference vector ``ref`` in the mode it names: the four motor
+    commands. Writes the attitude and rates to ``obs`` (and in position mode the position, velocity and
+    height, and the heading reference it moved along its rate to ``ref``); ``start_agl_m``: the height
+    above ground that position down = 0 means."""
+    mode = ref[REF_MODE]
+    if mode == MODE_POS:
+        h = h_ft * FT_TO_M
+        pn, pe, pdn = pn_ft * FT_TO_M, pe_ft * FT_TO_M, start_agl_m - h
+        vn, ve, vd = vn_fps * FT_TO_M, ve_fps * FT_TO_M, vd_fps * FT_TO_M
+        obs[OBS_AGL] = h
+        obs[OBS_POS], obs[OBS_POS + 1], obs[OBS_POS + 2] = pn, pe, pdn
+        obs[OBS_VEL], obs[OBS_VEL + 1], obs[OBS_VEL + 2] = vn, ve, vd
+        r, f, a = REF_POS, REF_VEL_FF, REF_ACC_FF
+        qw, qx, qy, qz, yaw_ref, c0, c1, c2, c3 = position_step(par, st, (
+            phi, theta, psi, wp, wq, wr, pd, qd, pn, pe, pdn, vn, ve, vd, ref[r], ref[r + 1], ref[r + 2],
+            ref[f], ref[f + 1], ref[f + 2], ref[a], ref[a + 1], ref[a + 2], ref[REF_YAW], ref[REF_YAW_RATE_FF]))
+        ref[REF_YAW] = yaw_ref
+    elif mode == MODE_ATT:
+        k = REF_Q
+        qw, qx, qy, qz, c0, c1, c2, c3 = attitude_step(par, st, (
+            phi, theta, psi, wp, wq, wr, pd, qd, ref[k], ref[k + 1], ref[k + 2], ref[k + 3], ref[REF_YAW_RATE_FF],
+            ref[REF_THRUST]))
+    else:
+        k = REF_RATE
+        qw, qx, qy, qz, c0, c1, c2, c3 = rate_step(par, st, (
+            phi, theta, psi, wp, wq, wr, pd, qd, ref[k], ref[k + 1], ref[k + 2], ref[REF_THRUST]))
+    obs[OBS_Q], obs[OBS_Q + 1], obs[OBS_Q + 2], obs[OBS_Q + 3] = qw, qx, qy, qz
+    obs[OBS_W], obs[OBS_W + 1], obs[OBS_W + 2] = wp, wq, wr
+    return c0, c1, c2, c3
+
+
+@njit(cache=True)
+def tilt(obs):
+    """Angle between body z and earth down of the observed attitude, rad."""
+    c = down_in_body(obs[OBS_Q], obs[OBS_Q + 1], obs[OBS_Q + 2], obs[OBS_Q + 3])[2]
+    return math.acos(max(-1.0, min(1.0, c)))
+
+
 def load_compiled(p) -> None:
     """Compile, or load from numba's cache, the three entry points now (numba's start-up in a
     process: ≈ 0.5 s with a warm cache). ``p``: any QuadParams; one hover update in each mode."""
     par = pack_params(p, 0.005, 10.0, 6.0, 4.0, np.eye(4))
     hover = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     st = np.zeros(4)
-    position_step(par, st, hover + (0.0,) * 15 + (0.0, 0.0))
-    attitude_step(par, st, hover + (1.0, 0.0, 0.0, 0.0, 0.0, par[HOVER_N]))
-    rate_step(par, st, hover + (0.0, 0.0, 0.0, par[HOVER_N]))
+    ref, obs = np.zeros(N_REF), np.zeros(N_OBS)
+    ref[REF_Q], ref[REF_THRUST] = 1.0, par[HOVER_N]
+    for mode in (MODE_POS, MODE_ATT, MODE_RATE):
+        ref[REF_MODE] = mode
+        control_update(par, st, ref, obs, 0.0, *hover, 100.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    tilt(obs)
