@@ -3,10 +3,12 @@
 :func:`~tepinn_flight.sim.flight.fly` logs 21 properties after every JSBSim step. Through JSBSim's
 Python binding each read is a Python call (~60–90 ns), and the step and the row around them Python
 too: 1.8–2 µs a step where JSBSim's ``run()`` of the agile quad takes 2.8 µs (``benchmarks/PROFILE.md``,
-session 47). The binding is a thin Cython layer over two exported C++ functions of its own extension
-module, ``JSBSim::FGFDMExec::Run()`` and ``SGPropertyNode::getDoubleValue() const``. Called directly
-from a numba loop with the C++ objects the binding wraps, the same step and reads cost ~0.2 µs a row
-more than ``run()`` alone, with the same numbers: the same functions on the same objects.
+session 47). The binding is a thin Cython layer over exported C++ functions of its own extension
+module: ``JSBSim::FGFDMExec::Run()``, ``SGPropertyNode::getDoubleValue() const`` and
+``SGPropertyNode::setDoubleValue(double)``. Called directly from a numba loop with the C++ objects the
+binding wraps, the same step and reads cost ~0.2 µs a row more than ``run()`` alone, with the same
+numbers: the same functions on the same objects. A quad's compiled flight loop
+(:mod:`tepinn_flight.sim.quad_flight_kernel`) also writes its motor commands through ``setDoubleValue``.
 
 :class:`Stepper` runs a flight's steps and logs its rows either way; :func:`native_handles` finds the
 C++ objects behind the binding's Python objects (a Cython extension type stores them after the object's
@@ -17,7 +19,7 @@ header) and checks what it found before anything is called:
   method table before its own pointer), and the symbols (the Itanium C++ ABI of Linux and macOS builds;
   elsewhere: not found);
 * every node read natively gives the value the binding gives, on a probe property set to a value no
-  model writes.
+  model writes; a value written to the probe natively is what the binding reads back.
 
 Anything else, or ``TEPINN_JSBSIM_NATIVE=0`` in the environment, and the binding is used; the flights are the same
 bits either way (``tests/test_jsbsim_native.py``). That path costs ~10 % more of ``fly()`` than the loop before it
