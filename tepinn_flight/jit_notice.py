@@ -5,7 +5,8 @@ loops load from numba's cache (the ``numba:compile`` event fires only on a cache
 The loops are the older fusion (``model/fusion.py``, run alongside the shipped estimator), the
 shipped estimator's kernels between network windows (``model/anchor_kernels.py``), the live
 accelerometer-scale reading (``model/accel_scale_kernels.py``), the baseline
-filters (``evaluation/filters/``) and the tlog frame sync (``ingest/mavlink_sync.py``);
+filters (``evaluation/filters/``), the tlog frame sync (``ingest/mavlink_sync.py``) and the simulation's
+flight loop (``sim/``);
 ``benchmarks/jit_compile.py`` measures their compile and cache-load times.
 """
 
@@ -15,7 +16,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 #: what the CLI prints (after its ``tepinn-flight VERB: note:`` prefix)
-COMPILE_NOTICE = ("compiling the estimators' loops once (numba, first run after installing: about 10-30 s; "
+COMPILE_NOTICE = ("compiling the package's loops once (numba, first run after installing: about 10-30 s; "
                   "cached afterwards)")  # fmt: skip
 
 

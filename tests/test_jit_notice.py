@@ -90,3 +90,37 @@ def test_estimate_says_it_compiles_once_then_not_and_never_with_quiet(tmp_path):
         else:
             assert [ln for ln in p.stderr.splitlines() if COMPILE_NOTICE in ln] == said, p.stderr
         assert sorted(f.name for f in part.rglob("anchor_kernels.*")) == gone
+
+
+@pytest.mark.slow
+def test_simulate_says_it_compiles_once_then_not(tmp_path):
+    """A first flight after installing compiles the simulation's loop (seconds): said once, then not."""
+    args = ["simulate", "--aircraft", "agile_quad", "--duration", "0.5", "-o", str(tmp_path / "f.parquet")]
+    cold = _run(args, tmp_path / "cache", module=True)
+    assert cold.returncode == 0, cold.stderr
+    assert [ln for ln in cold.stderr.splitlines() if COMPILE_NOTICE in ln] == [
+        f"tepinn-flight simulate: note: {COMPILE_NOTICE}"], cold.stderr  # fmt: skip
+    warm = _run(args, tmp_path / "cache", module=True)
+    assert warm.returncode == 0 and COMPILE_NOTICE not in warm.stderr, warm.stderr
+
+
+def test_a_campaign_announces_the_compile_its_workers_do(monkeypatch, tmp_path, capsys):
+    """The campaign's workers compile in their forkserver, which this process cannot watch: where the simulation's
+    loop is not in numba's cache the command says so before the flights start, and not where it is."""
+    from types import SimpleNamespace
+
+    from tepinn_flight import jit_warmup
+    from tepinn_flight.cli import simulate_cmd
+    from tepinn_flight.sim import campaign
+
+    said = []
+    monkeypatch.setattr(campaign, "run_campaign", lambda *a, **k: said.append("ran") or SimpleNamespace(
+        failed=[], total=0, computed=0, skipped=0, wall_s=0.0, flight_s=0.0))  # fmt: skip
+    args = SimpleNamespace(list=False, campaign="c.toml", output=str(tmp_path / "out"), workers=1, quiet=False,
+                           **{n: None for n in simulate_cmd._SINGLE_ONLY})  # fmt: skip
+    for is_cold in (True, False):
+        monkeypatch.setattr(jit_warmup, "cold", lambda d, c=is_cold: c)
+        assert simulate_cmd.run(args) == 0
+        err = capsys.readouterr().err
+        assert (COMPILE_NOTICE in err) == is_cold, err
+    assert said == ["ran", "ran"]

@@ -52,6 +52,12 @@ _SINGLE_ONLY = ("aircraft", "duration", "rate", "seed", "sensor", "sensor_set", 
 
 
 def run(args) -> int:
+    from .notes import run_noting_compiles
+
+    return run_noting_compiles("simulate", args, _run)  # the first run after installing compiles the loops: say so
+
+
+def _run(args) -> int:
     from ..errors import ConfigError
 
     if args.list:
@@ -122,6 +128,12 @@ def _campaign(args) -> int:
     from ..sim.campaign import run_campaign
 
     check_output(args.output, folder=True)
+    from ..jit_notice import announce
+    from ..jit_warmup import cold
+    from ..sim import quad_flight_kernel, vibration
+
+    if cold([quad_flight_kernel.fly_quad, vibration._accumulate]):
+        announce()  # the workers' forkserver compiles them, out of this process's sight
     res = run_campaign(args.campaign, args.output, workers=args.workers, progress=not args.quiet)
     if not args.quiet or res.failed:
         print(f"campaign {args.campaign}: {res.total} flights, {res.computed} computed, {res.skipped} already done, "
