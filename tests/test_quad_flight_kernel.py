@@ -234,3 +234,14 @@ def test_the_loop_and_laws_compile_once(tmp_path):
                        timeout=600)  # fmt: skip
     assert p.returncode == 0, p.stderr
     assert p.stdout.split() == ["1", "1", "1"], p.stdout
+
+
+def test_the_loops_state_is_flys():
+    """The compiled loop reads its state where fly()'s rows hold it: the controller's first reads are fly()'s
+    STATE_PATHS, in that order (the kernel takes them from the last row when it logged one)."""
+    from tepinn_flight.sim.flight import STATE_PATHS
+    from tepinn_flight.sim.multirotor import NATIVE_READS
+    from tepinn_flight.sim.quad_flight_kernel import C_CMD, C_STATE, N_CTX, N_STATE
+
+    assert NATIVE_READS[:N_STATE] == STATE_PATHS
+    assert len(NATIVE_READS) == C_CMD - C_STATE and N_CTX == C_CMD + 4
