@@ -133,3 +133,23 @@ def test_flights_are_the_same_bits_both_ways(monkeypatch, aircraft, rate_hz, see
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     assert a.meta == b.meta and a.maneuvers == b.maneuvers
     assert len(a.t_s) == round(4.0 * rate_hz)
+
+
+def test_numba_turned_off_takes_the_bindings_path_with_the_same_flight(tmp_path):
+    """With numba's compilation off (NUMBA_DISABLE_JIT=1, a debugging switch) the kernels would run as Python, where
+    JSBSim's C++ cannot be called: the binding's path runs instead (it raised before), and flies the same numbers."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import numpy as np, sys; from tepinn_flight.sim.flight import fly; from tepinn_flight.sim import "
+            "jsbsim_native as jn; tr = fly('agile_quad', 1.5, 200.0, seed=3); print(jn.unavailable()); "
+            "np.save(sys.argv[1], np.hstack([tr.q_nb_wxyz, tr.acc_true_m_s2, tr.gyr_true_rad_s]))")  # fmt: skip
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = {**os.environ, "NUMBA_DISABLE_JIT": "1", "PYTHONPATH": repo}
+    p = subprocess.run([sys.executable, "-c", code, str(tmp_path / "off.npy")], capture_output=True, text=True,
+                       env=env, cwd=repo, timeout=600)  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert "NUMBA_DISABLE_JIT" in p.stdout
+    tr = fly("agile_quad", 1.5, 200.0, seed=3)
+    assert np.load(tmp_path / "off.npy").tobytes() == np.hstack([tr.q_nb_wxyz, tr.acc_true_m_s2, tr.gyr_true_rad_s]).tobytes()

@@ -21,7 +21,8 @@ header) and checks what it found before anything is called:
 * every node read natively gives the value the binding gives, on a probe property set to a value no
   model writes; a value written to the probe natively is what the binding reads back.
 
-Anything else, or ``TEPINN_JSBSIM_NATIVE=0`` in the environment, and the binding is used; the flights are the same
+Anything else, ``TEPINN_JSBSIM_NATIVE=0`` in the environment or numba's compilation turned off
+(``NUMBA_DISABLE_JIT``), and the binding is used; the flights are the same
 bits either way (``tests/test_jsbsim_native.py``). That path costs ~10 % more of ``fly()`` than the loop before it
 (session 46's, which read the row in place; here the row's reads go through one list, and a method call and the
 state's hand-over come with each control update). One difference remains: a C++
@@ -141,6 +142,10 @@ def unavailable() -> str | None:
     version = str(getattr(jsbsim, "__version__", ""))
     if os.environ.get(ENV_SWITCH, "1") == "0":
         return f"{ENV_SWITCH}=0"
+    from numba.core import config
+
+    if config.DISABLE_JIT:  # the kernels would run as Python, where JSBSim's C++ cannot be called
+        return "numba's compilation is off (NUMBA_DISABLE_JIT)"
     if ctypes.sizeof(ctypes.c_void_p) != 8:
         return "not a 64-bit process"
     if not version.startswith(TESTED_VERSIONS):
