@@ -2,6 +2,9 @@
 (sim/quad_maneuver_law.py): against the former pure-Python maneuvers, and against the binding's Python loop."""
 
 import math
+import os
+import subprocess
+import sys
 
 import jsbsim
 import numpy as np
@@ -9,9 +12,12 @@ import pytest
 
 from tepinn_flight.sim import jsbsim_native as jn
 from tepinn_flight.sim import quad_maneuver_law as law
-from tepinn_flight.sim.flight import AGL_PATH, fly
-from tepinn_flight.sim.multirotor import AGILE_QUAD, F450, QuadController
+from tepinn_flight.sim.flight import AGL_PATH, AIRCRAFT, STATE_PATHS, fly
+from tepinn_flight.sim.jsbsim_env import open_fdm
+from tepinn_flight.sim.multirotor import AGILE_QUAD, F450, NATIVE_READS, QuadController
 from tepinn_flight.sim.multirotor_maneuvers import LIBRARY
+from tepinn_flight.sim.quad_control_law import N_OBS, N_PARAMS, N_REF, OBS_Q, OBS_W, REF_YAW_RATE_FF
+from tepinn_flight.sim.quad_flight_kernel import C_CMD, C_STATE, N_CTX, N_STATE
 
 from .quad_maneuver_reference import REF_LIBRARY, ReferenceController
 
@@ -122,8 +128,8 @@ def test_maneuver_law_codes():
     """The law's verdicts where they are known in closed form: a hover draws its next target when due
     (EVENT), a yaw spin's ramp is 1 in the middle and its rate reference is the drawn rate, a recovery
     settles only once level and still."""
-    v, ref, obs, par = np.zeros(law.N_SLOTS), np.zeros(20), np.zeros(14), np.zeros(64)
-    obs[0] = 1.0
+    v, ref, obs, par = np.zeros(law.N_SLOTS), np.zeros(N_REF), np.zeros(N_OBS), np.zeros(N_PARAMS)
+    obs[OBS_Q] = 1.0  # level
     v[law.M_KIND], v[law.M_T0], v[law.M_DUR], v[law.HOV_NEXT_MOVE] = law.KIND_HOVER, 0.0, 5.0, 1.0
     assert law.maneuver_update(v, ref, obs, par, 0.5) == law.CONTINUE
     assert law.maneuver_update(v, ref, obs, par, 1.0) == law.EVENT
@@ -131,14 +137,14 @@ def test_maneuver_law_codes():
     assert law.maneuver_update(v, ref, obs, par, 5.0) == law.DONE
     v[:] = 0.0
     v[law.M_KIND], v[law.M_DUR], v[law.YS_RATE], v[law.YS_RAMP] = law.KIND_YAW_SPIN, 3.0, 2.5, 0.4
-    assert law.maneuver_update(v, ref, obs, par, 1.5) == law.CONTINUE and ref[11] == 2.5
-    assert law.maneuver_update(v, ref, obs, par, 0.2) == law.CONTINUE and ref[11] == pytest.approx(1.25)
+    assert law.maneuver_update(v, ref, obs, par, 1.5) == law.CONTINUE and ref[REF_YAW_RATE_FF] == 2.5
+    assert law.maneuver_update(v, ref, obs, par, 0.2) == law.CONTINUE and ref[REF_YAW_RATE_FF] == pytest.approx(1.25)
     v[:] = 0.0
     v[law.M_KIND], v[law.REC_T_MIN] = law.KIND_RECOVERY, 1.0
-    obs[4] = 2.0  # spinning at 2 rad/s: not settled before 4 s
+    obs[OBS_W] = 2.0  # rolling at 2 rad/s: not settled before 4 s
     assert law.maneuver_update(v, ref, obs, par, 2.0) == law.CONTINUE
     assert law.maneuver_update(v, ref, obs, par, 4.01) == law.DONE
-    obs[4] = 0.0
+    obs[OBS_W] = 0.0
     assert law.maneuver_update(v, ref, obs, par, 0.5) == law.CONTINUE  # before its least time
     assert law.maneuver_update(v, ref, obs, par, 1.5) == law.DONE
 
@@ -190,9 +196,7 @@ def test_native_write_is_the_bindings():
     def put(fn, node, value):
         jn._call_set(fn, node, value)
 
-    veh = __import__("tepinn_flight.sim.flight", fromlist=["AIRCRAFT"]).AIRCRAFT["F450"].build()
-    from tepinn_flight.sim.jsbsim_env import open_fdm
-
+    veh = AIRCRAFT["F450"].build()
     with open_fdm(veh.model, 0.0025, own_aircraft=veh.own_aircraft, lean=veh.lean) as fdm:
         fdm.run_ic()
         path = F450.cmd_paths[0]
@@ -223,10 +227,6 @@ print(len(fly_quad.signatures), len(maneuver_update.signatures), len(control_upd
 def test_the_loop_and_laws_compile_once(tmp_path):
     """The forkserver's warm-up compiles the loop for the signature flights call it with, and the laws called
     from Python (the binding's path) share theirs: one compile each (each extra one is seconds per process)."""
-    import os
-    import subprocess
-    import sys
-
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": repo}
     env.pop("NUMBA_DISABLE_JIT", None)
@@ -236,12 +236,8 @@ def test_the_loop_and_laws_compile_once(tmp_path):
     assert p.stdout.split() == ["1", "1", "1"], p.stdout
 
 
-def test_the_loops_state_is_flys():
-    """The compiled loop reads its state where fly()'s rows hold it: the controller's first reads are fly()'s
-    STATE_PATHS, in that order (the kernel takes them from the last row when it logged one)."""
-    from tepinn_flight.sim.flight import STATE_PATHS
-    from tepinn_flight.sim.multirotor import NATIVE_READS
-    from tepinn_flight.sim.quad_flight_kernel import C_CMD, C_STATE, N_CTX, N_STATE
-
-    assert NATIVE_READS[:N_STATE] == STATE_PATHS
+def test_the_loops_context_holds_the_controllers_reads():
+    """The kernel's context layout (C_*) fits what the controller hands it: fly()'s state (the kernel takes it from
+    the last row where it logged one), the other reads, then the four motor commands."""
+    assert N_STATE == len(STATE_PATHS) and NATIVE_READS[:N_STATE] == STATE_PATHS
     assert len(NATIVE_READS) == C_CMD - C_STATE and N_CTX == C_CMD + 4

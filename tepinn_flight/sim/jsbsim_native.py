@@ -33,6 +33,7 @@ raises none while stepping a loaded model.
 from __future__ import annotations
 
 import ctypes
+import functools
 import operator
 import os
 import struct
@@ -125,7 +126,9 @@ def _word(obj, k: int) -> int:
     return ctypes.c_void_p.from_address(id(obj) + 8 * k).value or 0
 
 
+@functools.cache
 def _functions():
+    """The addresses of the C++ functions (``SYMBOLS``' order: run, get, set) in the binding's extension, or None."""
     import jsbsim._jsbsim as ext
 
     try:

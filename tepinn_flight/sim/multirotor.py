@@ -25,13 +25,11 @@ import numpy as np
 from tepinn_flight.quat import quat_from_euler_zyx_f
 from tepinn_flight.sim.jsbsim_env import FT_TO_M, getter, setter
 from tepinn_flight.sim.lean_model import LeanModel
-from tepinn_flight.sim.quad_control_law import (G0, MODE_ATT, MODE_POS, MODE_RATE, N_OBS, N_REF, OBS_AGL, OBS_POS,
-                                                OBS_Q, OBS_VEL, OBS_W, REF_ACC_FF, REF_MODE, REF_POS, REF_Q,
-                                                REF_RATE, REF_THRUST, REF_VEL_FF, REF_YAW, REF_YAW_RATE_FF,
-                                                control_update, pack_params, tilt)  # fmt: skip
-from tepinn_flight.sim.quad_maneuver_law import level_quat
-
-__all__ = ["MODE_ATT", "MODE_POS", "MODE_RATE", "QuadController", "QuadParams", "QuadVehicle"]
+from tepinn_flight.sim.flight import STATE_PATHS
+from tepinn_flight.sim.quad_control_law import (G0, HOVER_N, MODE_POS, N_OBS, N_REF, OBS_AGL, OBS_POS, OBS_Q, OBS_VEL,
+                                                OBS_W, REF_ACC_FF, REF_MODE, REF_POS, REF_Q, REF_RATE, REF_THRUST,
+                                                REF_VEL_FF, REF_YAW, REF_YAW_RATE_FF, control_update,
+                                                pack_params)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -179,11 +177,8 @@ def _scalar(array: str, at: int, kind=float) -> property:
 
 #: the properties the compiled loop reads: fly()'s state (its STATE_PATHS, in that order), then roll and pitch
 #: acceleration and the position north and east from the start (quad_flight_kernel's C_* layout)
-NATIVE_READS = ("attitude/phi-rad", "attitude/theta-rad", "attitude/psi-rad", "velocities/pi-rad_sec",
-                "velocities/qi-rad_sec", "velocities/ri-rad_sec", "position/h-agl-ft", "velocities/v-north-fps",
-                "velocities/v-east-fps", "velocities/v-down-fps", "accelerations/pidot-rad_sec2",
-                "accelerations/qidot-rad_sec2", "position/from-start-neu-n-ft",
-                "position/from-start-neu-e-ft")  # fmt: skip
+NATIVE_READS = (*STATE_PATHS, "accelerations/pidot-rad_sec2", "accelerations/qidot-rad_sec2",
+                "position/from-start-neu-n-ft", "position/from-start-neu-e-ft")  # fmt: skip
 
 
 class QuadController:
@@ -217,14 +212,12 @@ class QuadController:
         self.vmax_h, self.vmax_up, self.vmax_down = 10.0, 6.0, 4.0  # m/s, fixed (packed below)
         self.par = pack_params(p, dt_s, self.vmax_h, self.vmax_up, self.vmax_down, _mixer_inverse(p))
         self._st = np.zeros(4)  # rate-loop integrators (roll, pitch, yaw) and the filtered yaw torque
-        self.hover_thrust_n = p.mass_kg * G0
         self.ref = np.zeros(N_REF)
         self.obs = np.zeros(N_OBS)
         self.mode = MODE_POS
         self.q_ref = (1.0, 0.0, 0.0, 0.0)
-        self.thrust_n = self.hover_thrust_n
+        self.thrust_n = self.par[HOVER_N]
         self.q = (1.0, 0.0, 0.0, 0.0)
-        self.max_tilt = p.max_tilt_rad
         self.max_acc_h = G0 * math.tan(p.max_tilt_rad)
         self.start_agl_m = 0.0
 
@@ -263,13 +256,6 @@ class QuadController:
     def heading(self) -> float:
         w, x, y, z = self.q.tolist()
         return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-
-    def tilt(self) -> float:
-        """Angle between body z and earth down, rad."""
-        return tilt(self.obs)
-
-    def level_quat(self, yaw: float) -> tuple[float, float, float, float]:
-        return level_quat(yaw)
 
     # -------------------------------------------------------------- control
     def step(self, state: tuple | None = None) -> None:

@@ -123,7 +123,7 @@ class RateSteps(QuadManeuver):
         v[law.RS_STEP_DUR] = _u(r, 0.06, 0.16)
         v[law.RS_TS] = t
         ctl.read_state()
-        v[law.RS_LEVEL : law.RS_LEVEL + 4] = ctl.level_quat(ctl.heading())
+        v[law.RS_LEVEL : law.RS_LEVEL + 4] = law.level_quat(ctl.heading())
 
     def event(self, ctl, t):
         """The next doublet (its axis, rate and length drawn) once the last one has been levelled."""
