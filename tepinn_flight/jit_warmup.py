@@ -23,10 +23,10 @@ HELPER_WAIT_S = 600.0
 
 def _dispatchers(filters: bool = False) -> list:
     """The loops whose cache state says whether the warm-up is needed (one or two per module it warms)."""
-    from .model import (accel_scale_kernels, anchor_kernels, fusion, gnss_aid_kernels, gyro_selfcal, head_physics,
-                        tokens_kernels, window_features)
+    from .model import (accel_scale_kernels, anchor_kernels, anchor_steps, fusion, gnss_aid_kernels, gyro_selfcal,
+                        head_physics, tokens_kernels, window_features)
 
-    found = [fusion._run, fusion._step, anchor_kernels.vqf_outputs, anchor_kernels.vqf_output_one,
+    found = [fusion._run, fusion._step, anchor_steps.run_segment, anchor_steps.update_one, anchor_kernels.step_weights,
              anchor_kernels.blend_tilt_rows, window_features._features, head_physics._attitude,
              gnss_aid_kernels.window_sums,
              gyro_selfcal.attitude_at, accel_scale_kernels.track_step, accel_scale_kernels.quiet_rows,
@@ -165,9 +165,10 @@ def warm_kernels() -> None:
     import numpy as np
 
     from .model.accel_scale import AccelScaleConfig, AccelScaleTracker, quiet_samples
-    from .model.anchor import AnchorConfig, AnchoredVQF, WindowOutput, q_nb_from_vqf, with_fusion_tilt
+    from .model.anchor import AnchorConfig, AnchoredVQF, WindowOutput, q_nb_from_vqf, window_rows, with_fusion_tilt
     from .model.anchor_kernels import fusion_tilt_f
     from .model.config import ModelConfig
+    from .model.estimate import offline_vqf
     from .model.gnss_aid import GnssAidConfig, motion_acc_body
     from .model.gyro_selfcal import self_calibrate
     from .model.head_physics import window_attitude
@@ -189,6 +190,15 @@ def warm_kernels() -> None:
                 f.update_one(t[i], gyr[i], acc[i], mag[i], bool(i == h))
             f.correct(WindowOutput((0.9, 0.1, 0.0, 0.0), 0.05, np.zeros(3), np.zeros(3), np.zeros(3), None))
             f.update(t[h + 3 :], gyr[h + 3 :], acc[h + 3 :], mag[h + 3 :], clipped[h + 3 :])
+            ends = np.arange(15, n, 16)  # a whole segment, as offline
+            m = len(ends)
+            wins = window_rows(np.tile([1.0, 0.0, 0.0, 0.0], (m, 1)), np.full(m, 0.05, np.float32), np.zeros((m, 3)),
+                               np.tile([30.0, 0.0, 0.0], (m, 1)), np.zeros((m, 3)), None, np.zeros(m, bool),
+                               np.zeros(m, bool))  # fmt: skip
+            AnchoredVQF(cfg, float(t[1] - t[0]), use_mag).run_windows(t, gyr, acc, mag, clipped, ends, wins)
+    t_ro = t.copy()
+    t_ro.flags.writeable = False  # (a record's time column, as the smoothing's VQF reads it)
+    offline_vqf(AnchorConfig(), t_ro, gyr, acc)
     q = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
     q_nb_from_vqf(q)
     with_fusion_tilt(q, q)

@@ -14,8 +14,9 @@ from scipy.spatial.transform import Rotation
 
 from tepinn_flight.evaluation.peers import Q_NED_ENU, q_nb_from_earth_sensor
 from tepinn_flight.model.anchor import q_nb_from_vqf
-from tepinn_flight.model.anchor_kernels import (horizontal_bias, rest_rows, sigma_step, turn_acc_state, vqf_inputs,
-                                                vqf_output_one, vqf_outputs)  # fmt: skip
+from tepinn_flight.model.anchor_kernels import horizontal_bias, sigma_step, turn_acc_state
+
+from .anchor_reference import rest_rows, vqf_inputs, vqf_output_one, vqf_outputs  # (the former class's block kernels)
 from tepinn_flight.quat_scalar import rotmat_entries
 from tests.conftest import broad_trial
 

@@ -16,10 +16,10 @@ import pytest
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
-#: the anchored VQF's kernels (model/anchor_kernels.py)
-ANCHOR_KERNELS = ("q_nb_from_vqf_f", "q_nb_rows", "step_weights", "sigma_step", "clip_sigma_step", "clip_sigma_rows", "vqf_inputs",
-                  "vqf_outputs", "horizontal_bias",
-                  "tilt_pull_f", "up_in_earth_f", "turn_acc_state", "fusion_tilt_f")
+#: the anchored VQF's kernels called from Python (model/anchor_kernels.py; the rest are called from the compiled steps)
+ANCHOR_KERNELS = ("q_nb_rows", "tilt_pull_f", "fusion_tilt_f", "fusion_tilt_rows")
+#: the anchored filter's compiled steps (model/anchor_steps.py), offline and live
+ANCHOR_STEPS = ("update_rows", "update_one", "correct", "run_segment", "clip_room", "pull")
 
 _CALLS = textwrap.dedent("""
     import numpy as np
@@ -54,7 +54,8 @@ _CALLS = textwrap.dedent("""
                        mag if use_mag else None)
     import dataclasses
     from tepinn_flight.model import anchor_kernels as ak
-    from tepinn_flight.model.anchor import AnchorConfig, AnchoredVQF, WindowOutput, q_nb_from_vqf, tilt_pull_quat
+    from tepinn_flight.model import anchor_steps as st
+    from tepinn_flight.model.anchor import AnchorConfig, AnchoredVQF, WindowOutput, q_nb_from_vqf, tilt_pull_quat, window_rows
 
     every_gate = dataclasses.replace(AnchorConfig(), speed_lo_m_s=0.0, speed_hi_m_s=1e-3)  # centripetal, pulls
     for cfg in (every_gate, AnchorConfig(sigma_acc_gain=1, pull_gain=1, bias_gate_weight=1)):  # ints in the config
@@ -70,11 +71,23 @@ _CALLS = textwrap.dedent("""
             g = np.array(rec.gyr_rad_s[53:60])
             g[2] = np.nan  # a hole
             f.update(rec.t_s[53:60], g, np.ascontiguousarray(rec.acc_m_s2[53:60]))
+            f.pull((1, 0, 0, 0))
+            ends = np.arange(15, n, 16)  # a whole segment from a record's columns, windows with and without a fusion bias
+            for fb in (None, np.zeros((len(ends), 3))):
+                wins = window_rows(rec.q_ref_wxyz[ends], np.full(len(ends), 0.05, np.float32), np.zeros((len(ends), 3)),
+                                   np.zeros((len(ends), 3)), np.zeros((len(ends), 3)), fb, np.zeros(len(ends), bool),
+                                   np.zeros(len(ends), bool))  # fmt: skip
+                AnchoredVQF(cfg, 0.01, use_mag).run_windows(rec.t_s, rec.gyr_rad_s, rec.acc_m_s2, rec.mag_ut, rec.clipped,
+                                                            ends, wins)  # fmt: skip
+                AnchoredVQF(cfg, 0.01, use_mag).run_windows(list(rec.t_s), rec.gyr_rad_s, rec.acc_m_s2, None, None,
+                                                            list(ends), wins.tolist())  # fmt: skip
     q_nb_from_vqf(rec.q_ref_wxyz)
     q_nb_from_vqf(rec.q_ref_wxyz[0])
     tilt_pull_quat(rec.q_ref_wxyz[0], [0, 0, 1], 1)
     ak.fusion_tilt_f(*rec.q_ref_wxyz[0], *rec.q_ref_wxyz[1])  # a record's rows, and floats (the live path)
     ak.fusion_tilt_f(1.0, 0.0, 0.0, 0.0, *(float(v) for v in rec.q_ref_wxyz[1]))
+    from tepinn_flight.model.anchor import with_fusion_tilt
+    with_fusion_tilt(rec.q_ref_wxyz, rec.q_ref_wxyz)
     from tepinn_flight.model import window_features as wf
     from tepinn_flight.model.config import ModelConfig
 
@@ -128,9 +141,10 @@ _CALLS = textwrap.dedent("""
                     ("hp._attitude", hp._attitude), ("gs.attitude_at", gs.attitude_at), ("gk.window_sums", gk.window_sums),
                     ("gk.rotate_rows", gk.rotate_rows),
                     ("complementary._run", complementary._run), ("madgwick._run", madgwick._run),
-                    ("ekf._loop", ekf._loop)) + tuple((f"ak.{k}", getattr(ak, k)) for k in ANCHOR_KERNELS):
+                    ("ekf._loop", ekf._loop)) + tuple((f"ak.{k}", getattr(ak, k)) for k in ANCHOR_KERNELS) + tuple(
+                        (f"st.{k}", getattr(st, k)) for k in ANCHOR_STEPS):
         print(name, len(d.signatures))
-""").replace("ANCHOR_KERNELS", repr(ANCHOR_KERNELS))
+""").replace("ANCHOR_KERNELS", repr(ANCHOR_KERNELS)).replace("ANCHOR_STEPS", repr(ANCHOR_STEPS))
 
 
 @pytest.mark.slow
@@ -142,4 +156,4 @@ def test_every_loop_is_compiled_for_one_signature(tmp_path):
     counts = dict(line.split() for line in p.stdout.splitlines())
     assert counts == {k: "1" for k in ("ask.track_step", "ask.quiet_rows", "fusion._run", "fusion._step", "wf._features", "hp._attitude", "gs.attitude_at", "complementary._run", "madgwick._run",
                                        "ekf._loop", "gk.window_sums", "gk.rotate_rows")
-                      + tuple(f"ak.{k}" for k in ANCHOR_KERNELS)}, p.stdout  # fmt: skip
+                      + tuple(f"ak.{k}" for k in ANCHOR_KERNELS) + tuple(f"st.{k}" for k in ANCHOR_STEPS)}, p.stdout  # fmt: skip

@@ -74,14 +74,14 @@ def test_estimate_says_it_compiles_once_then_not_and_never_with_quiet(tmp_path):
     assert said == [f"tepinn-flight estimate: note: {COMPILE_NOTICE}"], cold.stderr
     warm = _run(args, tmp_path / "cache", module=True)
     assert warm.returncode == 0 and COMPILE_NOTICE not in warm.stderr, warm.stderr
-    # the warm cache less the anchored filter's kernels: only those compile (seconds, not the whole set) — said once
+    # the warm cache less the anchored filter's steps: only those compile (seconds, not the whole set) — said once
     # without -q, and not at all with it (and compiled all the same: cached again)
     for name, extra in (("part", []), ("quiet", ["-q"])):
         part = tmp_path / name
         shutil.copytree(tmp_path / "cache", part)
-        gone = sorted(f.name for f in part.rglob("anchor_kernels.*"))
+        gone = sorted(f.name for f in part.rglob("anchor_steps.*"))
         assert gone, sorted(f.name for f in part.rglob("*"))
-        for f in part.rglob("anchor_kernels.*"):
+        for f in part.rglob("anchor_steps.*"):
             f.unlink()
         p = _run([*args, *extra], part, module=True)
         assert p.returncode == 0, p.stderr
@@ -89,7 +89,7 @@ def test_estimate_says_it_compiles_once_then_not_and_never_with_quiet(tmp_path):
             assert p.stderr == "", p.stderr
         else:
             assert [ln for ln in p.stderr.splitlines() if COMPILE_NOTICE in ln] == said, p.stderr
-        assert sorted(f.name for f in part.rglob("anchor_kernels.*")) == gone
+        assert sorted(f.name for f in part.rglob("anchor_steps.*")) == gone
 
 
 @pytest.mark.slow

@@ -81,7 +81,7 @@ def test_after_the_warm_up_an_estimate_and_the_live_estimator_compile_nothing(tm
     here = set(lines["here"].split())
     assert {"tepinn_flight.model.fusion._run", "tepinn_flight.model.fusion._step"} <= here, lines["here"]
     # the helper's share was compiled there, not here
-    helper_only = {"tepinn_flight.model.anchor_kernels.vqf_outputs", "tepinn_flight.model.window_features._features",
+    helper_only = {"tepinn_flight.model.anchor_steps.run_segment", "tepinn_flight.model.window_features._features",
                    "tepinn_flight.model.gnss_aid_kernels.window_sums", "tepinn_flight.model.gyro_selfcal.attitude_at"}
     assert not here & helper_only, lines["here"]
     assert out[3] == "cold False", p.stdout

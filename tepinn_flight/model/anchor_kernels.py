@@ -1,8 +1,7 @@
-"""The anchored VQF's arithmetic between the network's windows, compiled with numba (one signature
-each): the samples into VQF's frames, VQF's outputs out of them with σ, the tilt pull and the turn
-of VQF's accelerometer state that goes with it. :mod:`.anchor` runs them; offline it calls VQF on
-blocks of ~16 samples (one network window each), where numpy's per-call cost on such small arrays
-was most of the time (``benchmarks/PROFILE.md``, session 9).
+"""The anchored VQF's per-sample formulas, compiled with numba: VQF's frames and the conversions into and
+out of them, σ's terms, the tilt pull and the turn of VQF's accelerometer state that goes with it, the
+still run, the gyro's step weight, the tilt blends. The filter's steps (:mod:`.anchor_steps`) call them;
+the offline smoothing and the live path call the blends and conversions from Python (one signature each).
 
 VQF's frames are defined here (the one home; :mod:`.anchor` and ``evaluation/peers.py`` import
 them): a z-up sensor frame ``S`` (body FRD turned 180° about x) and a z-up earth frame (ENU-type).
@@ -89,43 +88,6 @@ def clip_sigma_step(sig, e, clipped, gx, gy, gz, decay, gain_dt, cap):
     return math.sqrt(sig * sig + e * e), e
 
 
-@njit(cache=True)
-def clip_sigma_rows(sigma, clipped, g_s, e, decay, gain_dt, cap):
-    """:func:`clip_sigma_step` over a block in place: ``sigma`` (n,), ``clipped`` (n,) bool, ``g_s``
-    (n, 3) the gyro VQF integrated. Returns the last ``e``."""
-    for i in range(sigma.shape[0]):
-        sigma[i], e = clip_sigma_step(sigma[i], e, clipped[i], g_s[i, 0], g_s[i, 1], g_s[i, 2], decay, gain_dt, cap)
-    return e
-
-
-@njit(cache=True)
-def vqf_inputs(gyr_b, acc_b, gyr_corr, vel, acc_v, centripetal, g_s, a_s):
-    """The block VQF sees, in its sensor frame: ``g_s`` ← gyro − ``gyr_corr``; ``a_s`` ←
-    accelerometer − (ω × ``vel`` + ``acc_v``) when ``centripetal`` and either is non-zero (ω: the
-    gyro as measured), else the accelerometer. Returns how many rows hold a non-finite value
-    (their outputs are then meaningless)."""
-    cen = centripetal and (vel[0] != 0.0 or vel[1] != 0.0 or vel[2] != 0.0
-                           or acc_v[0] != 0.0 or acc_v[1] != 0.0 or acc_v[2] != 0.0)  # fmt: skip
-    bad = 0
-    for i in range(gyr_b.shape[0]):
-        gx, gy, gz = gyr_b[i, 0], gyr_b[i, 1], gyr_b[i, 2]
-        ax, ay, az = acc_b[i, 0], acc_b[i, 1], acc_b[i, 2]
-        if not (math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz)
-                and math.isfinite(ax) and math.isfinite(ay) and math.isfinite(az)):  # fmt: skip
-            bad += 1
-        g_s[i, 0] = gx - gyr_corr[0]
-        g_s[i, 1] = -(gy - gyr_corr[1])
-        g_s[i, 2] = -(gz - gyr_corr[2])
-        if cen:
-            ax = ax - ((gy * vel[2] - gz * vel[1]) + acc_v[0])
-            ay = ay - ((gz * vel[0] - gx * vel[2]) + acc_v[1])
-            az = az - ((gx * vel[1] - gy * vel[0]) + acc_v[2])
-        a_s[i, 0] = ax
-        a_s[i, 1] = -ay
-        a_s[i, 2] = -az
-    return bad
-
-
 #: a step within this fraction of the filter's period counts as exactly one period (time stamps' rounding)
 STEP_EVEN_TOL = 1e-6
 
@@ -154,38 +116,6 @@ def step_weights(t, t_prev, ts, w_max, w):
         uneven |= w[i] != 1.0
         prev = t[i]
     return uneven
-
-
-@njit(cache=True)
-def vqf_outputs(q_es, bias_s, a_s, g_s, gyr_corr, e, alpha, var0, gain, samp, var_net, q_nb, bias_b, sigma):
-    """VQF's block out to the estimator's frames: ``q_nb`` (n, 4) body FRD → NED, ``bias_b`` (n, 3) its
-    bias in body axes plus ``gyr_corr`` (what was removed before VQF), ``sigma`` (n,) by
-    :func:`sigma_step` from state ``e`` (``a_s``, ``g_s``: the block VQF saw). Returns the last ``e``."""
-    for i in range(q_es.shape[0]):
-        qw, qx, qy, qz = q_es[i, 0], q_es[i, 1], q_es[i, 2], q_es[i, 3]
-        q_nb[i, 0], q_nb[i, 1], q_nb[i, 2], q_nb[i, 3] = q_nb_from_vqf_f(qw, qx, qy, qz)
-        bias_b[i, 0] = bias_s[i, 0] + gyr_corr[0]
-        bias_b[i, 1] = -bias_s[i, 1] + gyr_corr[1]
-        bias_b[i, 2] = -bias_s[i, 2] + gyr_corr[2]
-        sigma[i], e = sigma_step(qw, qx, qy, qz, a_s[i, 0], a_s[i, 1], a_s[i, 2], g_s[i, 0], g_s[i, 1], g_s[i, 2], e,
-                                 alpha, var0, gain, samp, var_net)  # fmt: skip
-    return e
-
-
-@njit(cache=True)
-def vqf_output_one(q_es, bias_s, a_s, gx, gy, gz, gyr_corr, sp, out):
-    """:func:`vqf_outputs` of one sample, for the live path (one compiled call where there were three):
-    ``q_es`` (4,) and ``bias_s`` (3,) VQF's after its update, ``a_s`` (3,) the accelerometer it saw and
-    (``gx``, ``gy``, ``gz``) the gyro, sensor axes, before any step weighting; ``sp`` = (e, α, var0, gain,
-    samp, var_net) as :func:`sigma_step` takes them, its ``e`` updated in place; ``out`` (8,) ← q_nb (4),
-    σ, bias_b (3)."""
-    qw, qx, qy, qz = q_es[0], q_es[1], q_es[2], q_es[3]
-    out[0], out[1], out[2], out[3] = q_nb_from_vqf_f(qw, qx, qy, qz)
-    out[5] = bias_s[0] + gyr_corr[0]
-    out[6] = -bias_s[1] + gyr_corr[1]
-    out[7] = -bias_s[2] + gyr_corr[2]
-    out[4], sp[0] = sigma_step(qw, qx, qy, qz, a_s[0], a_s[1], a_s[2], gx, gy, gz, sp[0], sp[1], sp[2], sp[3], sp[4],
-                               sp[5])  # fmt: skip
 
 
 @njit(cache=True)
@@ -311,14 +241,6 @@ def rest_step(st, gx, gy, gz, ax, ay, az, gyr_max2, acc_dev2, spike2):
         st[0], st[1], st[2], st[3], st[4], st[5], st[6] = 1.0, ax, ay, az, gx, gy, gz
     else:
         st[0], st[1], st[2], st[3], st[4], st[5], st[6] = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-
-
-@njit(cache=True)
-def rest_rows(st, gyr_b, acc_b, gyr_max2, acc_dev2, spike2):
-    """:func:`rest_step` of each row of ``gyr_b`` / ``acc_b`` (n, 3), in order."""
-    for i in range(gyr_b.shape[0]):
-        rest_step(st, gyr_b[i, 0], gyr_b[i, 1], gyr_b[i, 2], acc_b[i, 0], acc_b[i, 1], acc_b[i, 2], gyr_max2, acc_dev2,
-                  spike2)  # fmt: skip
 
 
 @njit(cache=True)

@@ -22,8 +22,8 @@ from ..errors import TepinnError
 from ..record import ACC_COLS, EST_BIAS_COLS, EST_Q_COLS, FlightRecord, segment_slices
 from ..record_gaps import GAP_PERIODS, bridge_gaps
 from ..vehicle_class import vehicle_class
-from .anchor import (AnchorConfig, AnchoredVQF, WindowOutput, ffill_rows, q_nb_from_vqf, speed_gate_allowed, to_sensor,
-                     with_fusion_tilt)  # fmt: skip
+from .anchor import (AnchorConfig, AnchoredVQF, _rows, ffill_rows, q_nb_from_vqf, speed_gate_allowed, to_sensor,
+                     window_rows, with_fusion_tilt)  # fmt: skip
 from .anchor_kernels import step_weights
 from .beside import MAX_WAIT_S_PER_SAMPLE, WAIT_S_PER_SAMPLE, Beside, BesideFailed, worth_it
 from .fusion import FusionConfig, FusionRun, feedback_bias
@@ -565,31 +565,24 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag, vehicle: 
     clip_gate = np.zeros(n)
     relevel_t, relevel_i = [], []
     open_s, first_t = np.zeros(len(GATE_NAMES)), np.full(len(GATE_NAMES), np.inf)
+    wins = window_rows(q_pull, out["sigma"], out["bias"], out["vel"], out["acc_v"], b_fus, aided, fast)
+    tc, gc, ac = _rows(t, 1), _rows(cols[1]), _rows(cols[2])  # (C arrays once for every segment)
+    mc = _rows(cols[3]) if use_mag else None
     for sl in segment_slices(seg):
         a, b = sl.start, sl.stop
         dt = np.diff(t[a : min(b, a + TS_STEPS + 1)])  # as the live estimator: its first steps
         flt = AnchoredVQF(anchor, float(np.median(dt)) if dt.size else 0.01, use_mag, vehicle)
-        n_before = len(relevel_i)
-        cur = a
-        starts, gates, parts = [], [], []  # each window's gate holds from the sample after it to the next one's
-        for j in np.flatnonzero((idx >= a) & (idx < b)):
-            i = int(idx[j]) + 1
-            if i > cur:
-                _put(flt, cols, cur, i, q_out, s_out, b_out, use_mag)
-                cur = i
-            flt.correct(WindowOutput(q_pull[j], float(out["sigma"][j]), out["bias"][j], out["vel"][j], out["acc_v"][j],
-                                     None if b_fus is None else b_fus[j], bool(aided[j]), bool(fast[j])))  # fmt: skip
-            if len(flt.relevel_t) > len(relevel_i) - n_before:  # this window re-levelled the tilt from sample i on
-                relevel_i.append(i)
-            starts.append(i)
-            gates.append(flt.gate)
-            parts.append(flt.gate_parts)
-        if cur < b:
-            _put(flt, cols, cur, b, q_out, s_out, b_out, use_mag)
-        if starts:  # filled once at the end (per window up to the segment's end was quadratic in its length)
-            gate[a:b] = _piecewise(np.asarray(starts) - a, np.asarray(gates, np.float64), b - a)
-            clip_gate[a:b] = _piecewise(np.asarray(starts) - a, np.asarray(parts, np.float64)[:, 1], b - a)
-            _add_open_time(t[a:b], np.asarray(starts) - a, np.asarray(parts, np.float64) > 0, open_s, first_t)
+        js = np.flatnonzero((idx >= a) & (idx < b))
+        ends = np.asarray(idx, np.int64)[js] - a  # each window at its last sample, for the samples after it
+        q_out[a:b], s_out[a:b], b_out[a:b], gates, parts, relevel = flt.run_windows(
+            tc[a:b], gc[a:b], ac[a:b], None if mc is None else mc[a:b], None if cols[4] is None else cols[4][a:b], ends,
+            wins[js])  # fmt: skip
+        starts = ends + 1  # each window's gate holds from the sample after it to the next one's
+        relevel_i += (starts[relevel] + a).tolist()  # the windows that re-levelled the tilt, from the sample after
+        if len(starts):
+            gate[a:b] = _piecewise(starts, gates, b - a)
+            clip_gate[a:b] = _piecewise(starts, parts[:, 1], b - a)
+            _add_open_time(t[a:b], starts, parts > 0, open_s, first_t)
         relevel_t += flt.relevel_t
     gates_open = {name: (float(s), float(t0)) for name, s, t0 in zip(GATE_NAMES, open_s, first_t)}
     return q_out, s_out, b_out, gate, relevel_t, relevel_i, gates_open, clip_gate
@@ -692,15 +685,6 @@ def self_calibrated(anchor: AnchorConfig, rec: FlightRecord) -> tuple[AnchorConf
     if cal.applied:
         anchor = replace(anchor, gyro_scale=cal.scale)
     return anchor, cal
-
-
-def _put(flt, cols, a, b, q_out, s_out, b_out, use_mag):
-    t, gyr, acc, mag, clipped = cols
-    q6, q9, s, bias = flt.update(t[a:b], gyr[a:b], acc[a:b], mag[a:b] if use_mag else None,
-                                 None if clipped is None else clipped[a:b])  # fmt: skip
-    q_out[a:b] = q9 if use_mag else q6
-    s_out[a:b] = s
-    b_out[a:b] = bias
 
 
 def _frame(t, q, s, b) -> pd.DataFrame:
