@@ -6,6 +6,10 @@ gravity and sensor noise, 200 Hz). CPU time (``time.process_time``) is reported 
 may be shared; wall time is shown too. Peers that are not installed are listed as skipped. The
 compiled loops are run once before timing (numba's compile or cache load is not a per-sample cost).
 
+Also VQF's batch update alone, the ``vqf`` package's C++ ``updateBatch`` beside the anchored estimator's compiled port
+(``model/vqf_kernel.py``, the same bits), 6-D and 9-D, with the same conversions around both (session 49: 0.24 / 0.28 µs,
+9-D 0.37 / 0.41 µs).
+
 Usage: python benchmarks/filters_speed.py [--samples 50000] [--repeat 3]
 """
 
@@ -71,6 +75,36 @@ class OldLoop:
             self.module._run = new
 
 
+class BatchVqf:
+    """VQF's batch update alone over a record, 6-D or 9-D, the same conversions around it: the ``vqf`` package's
+    ``updateBatch`` (C++) or the anchored estimator's port (``model/vqf_kernel.py``: that filter compiled with numba,
+    its bits)."""
+
+    def __init__(self, compiled: bool, use_mag: bool):
+        self.compiled, self.use_mag = compiled, use_mag
+        self.name = ("vqf compiled" if compiled else "vqf updateBatch") + (" 9-D" if use_mag else "")
+
+    def estimate(self, rec):
+        from tepinn_flight.model import vqf_kernel as vk
+        from tepinn_flight.model.anchor import to_sensor
+
+        g, a = to_sensor(rec.gyr_rad_s), to_sensor(rec.acc_m_s2)
+        m = to_sensor(np.nan_to_num(rec.mag_ut)) if self.use_mag else None
+        ts = float(rec.t_s[1] - rec.t_s[0])
+        if not self.compiled:
+            import vqf
+
+            return vqf.VQF(ts).updateBatch(g, a, m)["quat6D"]
+        n = len(g)
+        c, s = vk.new_filter(ts)
+        q6, q9, b = np.empty((n, 4)), np.empty((n, 4)), np.empty((n, 3))
+        if self.use_mag:
+            vk.update_rows_9d(c, s, g, a, m, q6, q9, b)
+        else:
+            vk.update_rows(c, s, g, a, q6, b)
+        return q6
+
+
 def timed(est, rec, repeat: int) -> tuple[float, float]:
     best_cpu = best_wall = math.inf
     for _ in range(repeat):
@@ -101,6 +135,12 @@ def main() -> int:
     for est in peers:
         cpu, wall = timed(est, rec, args.repeat if est.name != "riann" else 1)
         rows.append((est.name, "peer", cpu, wall, None))
+    for use_mag in (False, True):  # the anchored estimator's VQF beside the package's C++, the same work around both
+        for compiled in (False, True):
+            est = BatchVqf(compiled, use_mag)
+            est.estimate(short)  # compile / load the cached machine code
+            cpu, wall = timed(est, rec, args.repeat)
+            rows.append((est.name, "ours" if compiled else "peer", cpu, wall, None))
     for est, module in ours:
         est.estimate(short)  # compile / load the cached machine code
         cpu, wall = timed(est, rec, args.repeat)
