@@ -427,9 +427,13 @@ class AnchoredVQF:
         self.cfg = c = config
         self.ts = ts_s = float(ts_s)
         self.use_mag = bool(use_mag)
-        self.cv, self.sv = vqf_kernel.new_filter(ts_s, tauAcc=c.tau_acc_s, biasClip=c.bias_clip_deg_s)
-        self.k = _settings(c, ts_s, self.use_mag, speed_gate_allowed(c, vehicle))
-        f = np.zeros(S.N_F)  # the steps' state beside VQF's
+        # the filter's arrays, views of one buffer (the live step takes it whole): settings, state, VQF's two, scratch
+        self.buf = buf = np.zeros(S.N_BUF)
+        self.k, self.fs = buf[S.O_K : S.O_F], buf[S.O_F : S.O_CV]
+        self.cv, self.sv = buf[S.O_CV : S.O_SV], buf[S.O_SV : S.O_ROWS]
+        self.cv[:], self.sv[:] = vqf_kernel.new_filter(ts_s, tauAcc=c.tau_acc_s, biasClip=c.bias_clip_deg_s)
+        self.k[:] = _settings(c, ts_s, self.use_mag, speed_gate_allowed(c, vehicle))
+        f = self.fs  # the steps' state beside VQF's
         f[S.F_T_BIAS_OVER] = math.nan  # none
         f[S.F_TAU_ACC] = c.tau_acc_s
         f[S.F_T_CLIP_HIGH] = f[S.F_T_CLIP_LAST] = f[S.F_T_GATED] = -math.inf
@@ -438,10 +442,9 @@ class AnchoredVQF:
                                   float(c.sigma_acc_gain), float(c.sigma_sampling_gain) * ts_s * ts_s / 12.0, 0.0)  # fmt: skip
         f[S.F_CLIP_DECAY] = math.exp(-ts_s / c.sigma_clip_tau_s)
         f[S.F_T_PREV] = math.nan  # the previous sample's time (none yet in this segment)
-        self.fs = f
         self.cb = np.empty(64)  # the saturated samples' times still remembered (anchor_steps.clip_room)
         self.relevel_t: list[float] = []  # when the tilt was set from the accelerometer at rest (rest_relevel_s)
-        self._rows1, self._quats1, self._out1 = np.zeros((6, 3)), np.zeros((2, 4)), np.empty(12)  # update_one's scratch
+        self._out1 = buf[S.O_OUT : S.N_BUF]  # update_one's output
         self._win = np.zeros(S.N_WIN)
         self._no_mag = np.empty((0, 3))
 
@@ -508,9 +511,8 @@ class AnchoredVQF:
         mx, my, mz = _NAN3 if mag is None else mag
         if clipped:
             self._room(1)
-        S.update_one(self.k, self.fs, self.cv, self.sv, self.cb, self._rows1, self._quats1, float(t_s), float(gx), float(gy),
-                     float(gz), float(ax), float(ay), float(az), float(mx), float(my), float(mz), bool(clipped),
-                     self._out1)  # fmt: skip
+        S.update_one(self.buf, self.cb, float(t_s), float(gx), float(gy), float(gz), float(ax), float(ay), float(az),
+                     float(mx), float(my), float(mz), bool(clipped))  # fmt: skip
         o = self._out1.tolist()
         return (o[0], o[1], o[2], o[3]), ((o[4], o[5], o[6], o[7]) if self.use_mag else None), o[8], (o[9], o[10], o[11])
 

@@ -59,6 +59,16 @@ F_SP, F_E_CLIP, F_CLIP_DECAY, F_LAST_G, F_LAST_A = 40, 46, 47, 48, 51  # (F_SP: 
 F_HOLES, F_T_PREV, F_RELEVELS = 54, 55, 56
 N_F = 57
 
+# ---------------------------------------------------------------- one buffer for the live step (fewer arguments to pass)
+O_K = 0
+O_F = O_K + N_K
+O_CV = O_F + N_F
+O_SV = O_CV + vk.N_COEFFS
+O_ROWS = O_SV + vk.N_STATE  # update_one's scratch: (6, 3) rows, (2, 4) quaternions, its (12,) output
+O_QUATS = O_ROWS + 18
+O_OUT = O_QUATS + 8
+N_BUF = O_OUT + 12
+
 # ---------------------------------------------------------------- a network window
 W_Q, W_SIGMA, W_BIAS, W_VEL, W_ACC, W_FUSION_BIAS, W_HAS_FUSION_BIAS, W_GNSS_AIDED, W_GNSS_FAST = 0, 4, 5, 8, 11, 14, 17, 18, 19
 N_WIN = 20
@@ -198,9 +208,16 @@ def _rest_goes_on(f, n):
 
 
 @njit(cache=True)
-def update_one(k, f, cv, sv, cb, rows, quats, t, gx, gy, gz, ax, ay, az, mx, my, mz, clipped, out):
-    """One sample in plain floats (the live path): :func:`update_rows` of a block of one, made in the scratch
-    ``rows`` (6, 3) and ``quats`` (2, 4) → ``out`` (12,): q6 (4), q9 (4, with the magnetometer), σ, bias (3)."""
+def update_one(buf, cb, t, gx, gy, gz, ax, ay, az, mx, my, mz, clipped):
+    """One sample in plain floats (the live path): :func:`update_rows` of a block of one. ``buf`` holds the filter's
+    arrays (:data:`O_K` …: ``k``, ``f``, ``cv``, ``sv``) and the scratch it is made in; its output at :data:`O_OUT`
+    (12,): q6 (4), q9 (4, with the magnetometer), σ, bias (3). (Two arrays to pass instead of eight: numba checks
+    each argument's type on every call from Python, ~0.1 µs an array.)"""
+    k, f = buf[O_K:O_F], buf[O_F:O_CV]
+    cv, sv = buf[O_CV:O_SV], buf[O_SV:O_ROWS]
+    rows = buf[O_ROWS:O_QUATS].reshape((6, 3))
+    quats = buf[O_QUATS:O_OUT].reshape((2, 4))
+    out = buf[O_OUT:N_BUF]
     rows[0, 0], rows[0, 1], rows[0, 2] = gx, gy, gz
     rows[1, 0], rows[1, 1], rows[1, 2] = ax, ay, az
     rows[2, 0], rows[2, 1], rows[2, 2] = mx, my, mz
