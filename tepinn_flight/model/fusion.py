@@ -153,6 +153,17 @@ _S_COV = 19  # (36) bias states: 6×6 covariance of (δθ, δb) at the last upda
 _NS = _S_COV + 36
 
 
+# the live step's one buffer (views of it: the state, the settings, the sample's gyro, a window's tilt and bias, the
+# output): two arguments to pass instead of six (numba checks each argument's type on every call from Python)
+_O_S = 0
+_O_P = _O_S + _NS
+_O_W = _O_P + _NP
+_O_QM = _O_W + 3
+_O_BM = _O_QM + 4
+_O_OUT = _O_BM + 3
+_NBUF = _O_OUT + 8
+
+
 def new_state() -> np.ndarray:
     s = np.full(_NS, np.nan)
     s[_S_B : _S_B + 3] = 0.0
@@ -510,17 +521,16 @@ class AttitudeFusion:
 
     def __init__(self, config: FusionConfig):
         self.c = config
-        self.p = config.kernel_params()
-        self._out = np.empty(8)
-        # the kernel's array arguments, always float64, C-contiguous and writable (the types the
-        # offline loop passes): one compiled signature for both paths
-        self._w = np.zeros(3)
-        self._q_m = np.zeros(4)
-        self._b_m = np.zeros(3)
+        # the kernel's arrays, views of one buffer (float64, C-contiguous, writable: the types the offline loop
+        # passes, one compiled signature for both paths); the live step takes the buffer whole
+        self._buf = b = np.zeros(_NBUF)
+        self.s, self.p = b[_O_S:_O_P], b[_O_P:_O_W]
+        self.p[:] = config.kernel_params()
+        self._w, self._q_m, self._b_m, self._out = b[_O_W:_O_QM], b[_O_QM:_O_BM], b[_O_BM:_O_OUT], b[_O_OUT:_NBUF]
         self.reset()
 
     def reset(self) -> None:
-        self.s = new_state()
+        self.s[:] = new_state()
 
     @property
     def q(self):
@@ -551,21 +561,28 @@ class AttitudeFusion:
         (a token is known to be complete only when the next sample arrives): it corrects the state
         at that time, before the propagation to ``t``. Offline and live runs therefore agree.
         """
-        w = self._w
-        w[0], w[1], w[2] = w_rad_s  # (half of what a slice assignment from a tuple costs, per live sample)
-        out = self._out
+        w0, w1, w2 = w_rad_s
         if est is None:
-            ok = _step(self.s, self.p, float(t), self._w, bool(clipped), False, self._q_m, 0.0, self._b_m, out)
+            ok = _step_live(self._buf, float(t), float(w0), float(w1), float(w2), bool(clipped), False, 0.0)
         else:
             q_m, sigma, b_m = est
             self._q_m[:] = q_m
             self._b_m[:] = b_m
-            ok = _step(self.s, self.p, float(t), self._w, bool(clipped), True, self._q_m, float(sigma), self._b_m, out)
-        o = out.tolist()  # (one conversion: this runs on every live sample)
+            ok = _step_live(self._buf, float(t), float(w0), float(w1), float(w2), bool(clipped), True, float(sigma))
+        o = self._out.tolist()  # (one conversion: this runs on every live sample)
         bias = (o[5], o[6], o[7])
         if not ok:
             return None, float("nan"), bias
         return (o[0], o[1], o[2], o[3]), o[4], bias
+
+
+@njit(cache=True)
+def _step_live(buf, t, w0, w1, w2, clipped, has_est, sigma_m):
+    """:func:`_step` of one live sample on :class:`AttitudeFusion`'s buffer (its views at ``_O_*``)."""
+    w = buf[_O_W:_O_QM]
+    w[0], w[1], w[2] = w0, w1, w2
+    return _step(buf[_O_S:_O_P], buf[_O_P:_O_W], t, w, clipped, has_est, buf[_O_QM:_O_BM], sigma_m, buf[_O_BM:_O_OUT],
+                 buf[_O_OUT:_NBUF])  # fmt: skip
 
 
 def feedback_bias(config: FusionConfig, bias) -> tuple[float, float, float]:
