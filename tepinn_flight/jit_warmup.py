@@ -26,7 +26,8 @@ def _dispatchers(filters: bool = False) -> list:
     from .model import (accel_scale_kernels, anchor_kernels, anchor_steps, fusion, gnss_aid_kernels, gyro_selfcal,
                         head_physics, tokens_kernels, window_features)
 
-    found = [fusion._run, fusion._step, anchor_steps.run_segment, anchor_steps.update_one, anchor_kernels.step_weights,
+    found = [fusion._run, fusion._step, fusion._step_live, anchor_steps.run_segment, anchor_steps.update_one,
+             anchor_kernels.step_weights,
              anchor_kernels.blend_tilt_rows, window_features._features, head_physics._attitude,
              gnss_aid_kernels.window_sums,
              gyro_selfcal.attitude_at, accel_scale_kernels.track_step, accel_scale_kernels.quiet_rows,
@@ -114,10 +115,11 @@ def warm_up(filters: bool = False, wait_s: float = HELPER_WAIT_S) -> bool:
 
 
 def warm_fusion() -> None:
-    """The older fusion's loops, offline (``FusionRun``) and live (``AttitudeFusion.step``: the same ``_step``)."""
+    """The older fusion's loops, offline (``FusionRun``) and live (``AttitudeFusion.step``: the same ``_step`` on one
+    buffer, ``_step_live``)."""
     import numpy as np
 
-    from .model.fusion import FusionConfig, FusionRun
+    from .model.fusion import AttitudeFusion, FusionConfig, FusionRun
 
     n = 64
     t = np.arange(n) / 100.0
@@ -127,6 +129,9 @@ def warm_fusion() -> None:
     run = FusionRun(t, gyr, FusionConfig(), np.zeros(n, bool))
     run.add(idx, q, np.full(len(idx), 0.02), np.zeros((len(idx), 3)))
     run.advance(n)
+    live = AttitudeFusion(FusionConfig())
+    live.step(0.0, (0.05, -0.02, 0.1))
+    live.step(0.01, (0.05, -0.02, 0.1), ((1.0, 0.0, 0.0, 0.0), 0.02, (0.0, 0.0, 0.0)))
 
 
 def _turns(rate_hz: float = 50.0):
