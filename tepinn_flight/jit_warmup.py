@@ -1,8 +1,10 @@
 """The first run after an install compiles the package's loops (numba): about 25 s of one core for ``estimate`` on
 the 2-core machine this was measured on (session 37), 60 % of it the older fusion (``model/fusion.py``). Where the
 cache is cold, :func:`warm_up` compiles them in two processes at once — a helper process
-(``python -m tepinn_flight.jit_warmup``) the estimator's other loops (:func:`warm_kernels`), this one the fusion
-(:func:`warm_fusion`) — and then everything loads from numba's cache; where it is warm it does nothing.
+(``python -m tepinn_flight.jit_warmup``) the anchored filter's steps and its VQF (:func:`warm_anchored`; since session
+49 VQF itself is compiled, the largest share: ~12 s of a core here), this one the fusion (:func:`warm_fusion`, ~6 s)
+and the estimator's other loops (:func:`warm_kernels`, ~7 s) — and then everything loads from numba's cache; where it
+is warm it does nothing.
 
 The warm calls go through the same entry points the estimator calls (each loop is compiled for one signature
 whatever its callers pass: ``tests/test_compiled_signatures.py``), on a few made-up samples. A loop they miss is
@@ -75,8 +77,9 @@ class WarmUp:
 
 
 def start(filters: bool = False) -> WarmUp:
-    """On a cold cache: start the helper process on :func:`warm_kernels` (and with ``filters`` the baseline filters
-    ``evaluate`` runs, :func:`warm_filters`) and compile :func:`warm_fusion` here meanwhile → the :class:`WarmUp`
+    """On a cold cache: start the helper process on :func:`warm_anchored` (and with ``filters`` the baseline filters
+    ``evaluate`` runs, :func:`warm_filters`) and compile :func:`warm_fusion` and :func:`warm_kernels` here meanwhile
+    → the :class:`WarmUp`
     (join it before the loops the helper compiles are used: the caller may do other work first). Nothing with
     ``NUMBA_DISABLE_JIT`` or on a warm cache."""
     if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0") or not cold(_dispatchers(filters)):
@@ -97,6 +100,7 @@ def start(filters: bool = False) -> WarmUp:
     w = WarmUp(True, helper)
     try:
         warm_fusion()
+        warm_kernels()
     except BaseException:
         w.stop()
         raise
@@ -161,24 +165,13 @@ def _turns(rate_hz: float = 50.0):
     return np.arange(n) / rate_hz, w + 0.002, acc, clipped
 
 
-def warm_kernels() -> None:
-    """The estimator's loops but the fusion's: the anchored filter's (offline and live, every gate), the smoothing's,
-    the GNSS aid's, the gyro self-calibration's, the network's token features and the live accelerometer-scale
-    reading's."""
+def warm_anchored() -> None:
+    """The anchored filter's steps (offline and live, every gate, 6-D and 9-D) and its VQF: the helper's share."""
     import dataclasses
 
     import numpy as np
 
-    from .model.accel_scale import AccelScaleConfig, AccelScaleTracker, quiet_samples
-    from .model.anchor import AnchorConfig, AnchoredVQF, WindowOutput, q_nb_from_vqf, window_rows, with_fusion_tilt
-    from .model.anchor_kernels import fusion_tilt_f
-    from .model.config import ModelConfig
-    from .model.estimate import offline_vqf
-    from .model.gnss_aid import GnssAidConfig, motion_acc_body
-    from .model.gyro_selfcal import self_calibrate
-    from .model.head_physics import window_attitude
-    from .model.smoother import blend_tilt, disagreement_sigma
-    from .model.window_features import SensorValues, window_features
+    from .model.anchor import AnchorConfig, AnchoredVQF, WindowOutput, window_rows
 
     t, gyr, acc, clipped = _turns()
     n = len(t)
@@ -201,6 +194,26 @@ def warm_kernels() -> None:
                                np.tile([30.0, 0.0, 0.0], (m, 1)), np.zeros((m, 3)), None, np.zeros(m, bool),
                                np.zeros(m, bool))  # fmt: skip
             AnchoredVQF(cfg, float(t[1] - t[0]), use_mag).run_windows(t, gyr, acc, mag, clipped, ends, wins)
+
+
+def warm_kernels() -> None:
+    """The estimator's other loops: the smoothing's, the GNSS aid's, the gyro self-calibration's, the network's token
+    features and the accelerometer-scale reading's, offline and live; the frames' conversions."""
+    import numpy as np
+
+    from .model.accel_scale import AccelScaleConfig, AccelScaleTracker, quiet_samples
+    from .model.anchor import AnchorConfig, q_nb_from_vqf, with_fusion_tilt
+    from .model.anchor_kernels import fusion_tilt_f
+    from .model.config import ModelConfig
+    from .model.estimate import offline_vqf
+    from .model.gnss_aid import GnssAidConfig, motion_acc_body
+    from .model.gyro_selfcal import self_calibrate
+    from .model.head_physics import window_attitude
+    from .model.smoother import blend_tilt, disagreement_sigma
+    from .model.window_features import SensorValues, window_features
+
+    t, gyr, acc, clipped = _turns()
+    n = len(t)
     t_ro = t.copy()
     t_ro.flags.writeable = False  # (a record's time column, as the smoothing's VQF reads it)
     offline_vqf(AnchorConfig(), t_ro, gyr, acc)
@@ -240,6 +253,6 @@ def warm_filters() -> None:
 
 
 if __name__ == "__main__":  # the helper process
-    warm_kernels()
+    warm_anchored()
     if "--filters" in sys.argv[1:]:
         warm_filters()
