@@ -160,6 +160,8 @@ class FlightRecord:
         if self.meta["source_kind"] not in SOURCE_KINDS:
             raise RecordFormatError(f"unknown source_kind {self.meta['source_kind']!r}")
         t, seg = self.t_s, self.segment
+        if not np.all(np.isfinite(t)):  # (a NaN passes the comparisons below)
+            raise RecordFormatError(f"t_s holds {int(np.count_nonzero(~np.isfinite(t)))} non-finite time stamp(s)")
         if len(t) > 1:
             same = seg[1:] == seg[:-1]
             if np.any(np.diff(seg) < 0):

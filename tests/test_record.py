@@ -119,6 +119,10 @@ def test_validation_catches_bad_records(tmp_path):
     d.loc[5, "t_s"] = d.loc[4, "t_s"]  # not strictly increasing inside segment 0
     with pytest.raises(RecordFormatError, match="strictly increase"):
         write_record(FlightRecord(d, rec.meta), tmp_path / "x.parquet")
+    d = rec.data.copy()
+    d.loc[5, "t_s"] = np.nan  # (passes every comparison: it used to reach the estimator, which failed inside)
+    with pytest.raises(RecordFormatError, match="1 non-finite time stamp"):
+        write_record(FlightRecord(d, rec.meta), tmp_path / "x.parquet")
     assert not list(tmp_path.iterdir())  # nothing left behind
 
 
