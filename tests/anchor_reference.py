@@ -12,17 +12,13 @@ import numpy as np
 from tepinn_flight.conventions import GRAVITY_M_S2
 from tepinn_flight.quat_scalar import down_in_body
 from tepinn_flight.record_gaps import GAP_PERIODS
-from tepinn_flight.model.anchor import AnchorConfig, WindowOutput, _read_only, _rows, ffill_rows, q_nb_from_vqf, speed_gate_allowed, to_sensor
+from tepinn_flight.model.anchor import AnchorConfig, WindowOutput, _rows, ffill_rows, q_nb_from_vqf, speed_gate_allowed, to_sensor
+from tepinn_flight.model.anchor_steps import BIAS_EVIDENCE_S, CLIP_SIGMA_CAP_RAD, THRUST_TAU_S
 from numba import njit
 
 from tepinn_flight.model.anchor_kernels import (clip_sigma_step, horizontal_bias, q_nb_from_vqf_f, rest_step, sigma_step,
                                                 step_weight, step_weights, tilt_pull_f, turn_acc_state,
                                                 up_in_earth_f)  # fmt: skip
-
-BIAS_EVIDENCE_S = 2.0
-THRUST_TAU_S = 10.0
-CLIP_SIGMA_CAP_RAD = math.pi / 2
-
 
 # the former class's block kernels (model/anchor_kernels.py up to session 48; the compiled steps replaced them)
 
@@ -102,6 +98,15 @@ def rest_rows(st, gyr_b, acc_b, gyr_max2, acc_dev2, spike2):
     for i in range(gyr_b.shape[0]):
         rest_step(st, gyr_b[i, 0], gyr_b[i, 1], gyr_b[i, 2], acc_b[i, 0], acc_b[i, 1], acc_b[i, 2], gyr_max2, acc_dev2,
                   spike2)  # fmt: skip
+
+
+def _read_only(x) -> np.ndarray:
+    """``x`` C-contiguous and read-only (a view where it is C-contiguous already): a record's columns are read-only, so
+    that is the one signature a kernel reading them is compiled for, whoever calls it (a caller's writable array was
+    a second compile: tests/test_compiled_signatures.py)."""
+    v = np.ascontiguousarray(x).view()
+    v.flags.writeable = False
+    return v
 
 
 def _floats(v) -> list:

@@ -8,7 +8,6 @@ the pass-through) and the state turned between samples as the anchored filter tu
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -37,25 +36,16 @@ def _synthetic(n: int = 12000, ts: float = 0.005, seed: int = 3):
     w[moving] = np.cumsum(rng.normal(0, 0.08, (moving.sum(), 3)), axis=0) % 6.0 - 3.0
     w += np.array([0.004, -0.003, 0.002])  # a bias within the clip
     w[6000:6400] += np.array([0.2, 0.0, 0.0])  # ... and beyond it for 2 s
-    q = np.zeros((n, 4))
-    q[0] = [1, 0, 0, 0]
-    for i in range(1, n):  # the true attitude, integrated
-        a = w[i] * ts
-        th = np.linalg.norm(a)
-        dq = np.r_[math.cos(th / 2), (math.sin(th / 2) / th) * a] if th > 0 else np.array([1.0, 0, 0, 0])
-        p = q[i - 1]
-        q[i] = [p[0] * dq[0] - p[1] * dq[1] - p[2] * dq[2] - p[3] * dq[3],
-                p[0] * dq[1] + p[1] * dq[0] + p[2] * dq[3] - p[3] * dq[2],
-                p[0] * dq[2] - p[1] * dq[3] + p[2] * dq[0] + p[3] * dq[1],
-                p[0] * dq[3] + p[1] * dq[2] - p[2] * dq[1] + p[3] * dq[0]]  # fmt: skip
-        q[i] /= np.linalg.norm(q[i])
+    from scipy.spatial.transform import Rotation
 
-    def to_body(v):  # earth → sensor: R(q)ᵀ v
-        w_, x, y, z = q.T
-        r = np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w_ * z), 2 * (x * z + w_ * y)], -1),
-                      np.stack([2 * (x * y + w_ * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w_ * x)], -1),
-                      np.stack([2 * (x * z - w_ * y), 2 * (y * z + w_ * x), 1 - 2 * (x * x + y * y)], -1)], 1)  # fmt: skip
-        return np.einsum("nji,nj->ni", r, v)
+    steps = Rotation.from_rotvec(w * ts)  # the true attitude (sensor → earth), the gyro integrated
+    rots = [Rotation.identity()]
+    for i in range(1, n):
+        rots.append(rots[-1] * steps[i])
+    att = Rotation.concatenate(rots)
+
+    def to_body(v):  # earth → sensor
+        return att.inv().apply(v)
 
     acc = to_body(np.tile([0.0, 0.0, 9.81], (n, 1))) + rng.normal(0, 0.05, (n, 3))
     acc[moving] += rng.normal(0, 1.5, (moving.sum(), 3))  # motion acceleration

@@ -635,22 +635,9 @@ def with_fusion_tilt(q_nb: np.ndarray, q_fusion: np.ndarray) -> np.ndarray:
     return out
 
 
-def _read_only(x) -> np.ndarray:
-    """``x`` C-contiguous and read-only (a view where it is C-contiguous already): a record's columns are read-only, so
-    that is the one signature a kernel reading them is compiled for, whoever calls it (a caller's writable array was
-    a second compile: tests/test_compiled_signatures.py)."""
-    v = np.ascontiguousarray(x).view()
-    v.flags.writeable = False
-    return v
-
-
 def _floats(v) -> list:
     """A short vector (array, tuple, list) as Python floats."""
     return np.asarray(v, np.float64).tolist()
-
-
-def _norm3(v) -> float:
-    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 
 
 def ffill_rows(arr, first=None):
