@@ -27,10 +27,15 @@ nearest 2 among the grid points with at least `--coverage` of the samples within
    of session 15, 0.65, gave NEES 2.35 and 95.6 % within 3σ at 286 Hz; 0.75: 1.76, 98.1 %; at 26 Hz
    1.03, 98.8 %). w is read through a probe: the smoothed estimate's σ at k = 1 and at k = 0.5.
 
+6. `--aircraft DIR` (alone): σ's aircraft term (rule 28, `AnchorConfig.sigma_aircraft_deg`) chosen by the same rule on
+   the simulated flights of DIR with the consumer IMU preset (`--preset`): session 50, the training campaign's 36:
+   0.35° (NEES 2.84, 93.3 % within 3σ without it; 1.94, 97.3 % with it).
+
 `--heldout` also scores the shipped σ and the refit of 2 on the held-out drone logs (reference: the
 autopilot's estimate) — each such run is a look at the held-out files: say so where it decides anything.
 
     python benchmarks/sigma_fit.py [--shared ../shared] [--coverage 0.975] [--rates 6,11] [--smooth] [--heldout]
+    python benchmarks/sigma_fit.py --aircraft runs/default/data [--preset consumer]
 """
 
 from __future__ import annotations
@@ -75,6 +80,44 @@ def _smoothed_score(rows, k: float) -> tuple[float, float]:
     return float(np.mean([np.mean(e2 / v) for e2, v in var])), float(np.mean([np.mean(e2 <= 9.0 * v) for e2, v in var]))
 
 
+def aircraft_part(folder: Path, preset: str) -> int:
+    """6. σ's aircraft term (rule 28, session 50): the shipped estimate (offline, smoothed) on the simulated flights
+    of ``folder`` whose IMU is ``preset``, σ without the term → the rule's σ_a (per-file NEES nearest 2 with >= 97 %
+    within 3σ, 0.05° grid) beside the shipped value. Session 50, the 36 consumer flights of the training campaign:
+    0.35° (NEES 2.84, 93.3 % without it; 1.94, 97.3 % with it)."""
+    from tepinn_flight.evaluation.estimators import TepinnEstimator
+    from tepinn_flight.evaluation.harness import scoring_mask
+    from tepinn_flight.evaluation.metrics import error_quat_earth, tilt_error_vector_rad
+    from tepinn_flight.evaluation.sigma_calibration import fit_added_sigma
+    from tepinn_flight.model.checkpoint import default_model_path
+    from tepinn_flight.record import EST_Q_COLS, read_record
+
+    est = TepinnEstimator.from_checkpoint(default_model_path(), "tepinn")
+    shipped = est.fusion.sigma_aircraft_deg
+    est = TepinnEstimator(est.model, dataclasses.replace(est.fusion, sigma_aircraft_deg=0.0), "tepinn", est.checkpoint)
+    files = []
+    for p in sorted(folder.glob("*.parquet")):
+        rec = read_record(p)
+        if rec.meta.get("sensor_preset") != preset:
+            continue
+        df = est.estimate(rec)
+        q, s = df[EST_Q_COLS].to_numpy(), df["sigma_rad"].to_numpy()
+        m = scoring_mask(rec, 5.0) & np.all(np.isfinite(q), 1) & np.isfinite(s)
+        ev = tilt_error_vector_rad(error_quat_earth(q[m], rec.q_ref_wxyz[m]))
+        files.append((np.sum(ev**2, axis=1), s[m]))
+    if not files:
+        print(f"no simulated flights with the {preset!r} IMU in {folder} (tepinn-flight simulate --campaign "
+              "flight_sims/campaigns/mixed.toml -o runs/default/data)")  # fmt: skip
+        return 2
+    choice, table = fit_added_sigma(files)
+    print(f"6. σ's aircraft term on {len(files)} simulated flights with the {preset} IMU (σ² + σ_a²):")
+    for sa, n, cv in table:
+        print(f"   σ_a {sa:.2f}°: {_fmt((n, cv))}" + ("  <- the rule's choice" if sa == choice else "")
+              + ("  <- shipped" if abs(sa - shipped) < 1e-9 else ""))  # fmt: skip
+    print(f"the rule's choice: {choice}°, shipped: {shipped:g}°")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)
     ap.add_argument("--shared", default=str(REPO.parent / "shared"))
@@ -82,7 +125,12 @@ def main() -> int:
     ap.add_argument("--rates", default="", help="decimation factors for part 4, comma-separated ('': skip)")
     ap.add_argument("--smooth", action="store_true", help="part 5: the offline smoothing's σ factor")
     ap.add_argument("--heldout", action="store_true", help="also score on the held-out drone logs (a look at them)")
+    ap.add_argument("--aircraft", metavar="DIR", help="part 6 alone: σ's aircraft term chosen on the simulated flights "
+                    "of DIR (the training campaign, runs/default/data) with the --preset IMU")  # fmt: skip
+    ap.add_argument("--preset", default="consumer", help="part 6's sensor preset (default: consumer)")
     args = ap.parse_args()
+    if args.aircraft:
+        return aircraft_part(Path(args.aircraft), args.preset)
 
     from tepinn_flight.evaluation.sigma_calibration import fit_sigma, score
     from tepinn_flight.ingest import load_record
@@ -147,10 +195,11 @@ def main() -> int:
     if args.heldout:
         held = [shared / "real-logs" / n for n in split["heldout"]["real_logs"] if (shared / "real-logs" / n).exists()]
         hf = sigma_samples(model, anchor, [load_record(p) for p in held])
-        print(f"held-out drone logs ({len(hf)}), shipped: {_fmt(score(hf, *ship))}")
+        sa = anchor.sigma_aircraft_deg  # σ's aircraft term (rule 28) on the logs that name a vehicle
+        print(f"held-out drone logs ({len(hf)}), shipped (σ_a {sa:g}°): {_fmt(score(hf, *ship, sa))}")
         for gs, f in refits.items():
             print(f"held-out drone logs, refit of 2 with g in {gs}: "
-                  f"{_fmt(score(hf, f.sigma_floor_deg, f.sigma_acc_gain, f.sigma_sampling_gain))}")
+                  f"{_fmt(score(hf, f.sigma_floor_deg, f.sigma_acc_gain, f.sigma_sampling_gain, sa))}")
     return 0
 
 

@@ -537,8 +537,8 @@ def test_info_real_record_and_log(erle, capsys):
 def test_estimate_real_record_equals_the_pinned_estimates(erle, tmp_path):
     """The shipped model through the verb: the pinned attitudes of tests/test_pinned_estimates.py (the
     estimator without the GNSS aid and the smoothing is causal, so the cut record gives the full log's estimates), and
-    σ in closed form where no gate acts (session 17's σ: σ₀² + (|ω|·Δt)²/12, c = 0; the pins hold the
-    σ before it). The pins hold VQF fed each sample over one fixed period: the shipped checkpoint with
+    σ in closed form where no gate acts (session 17's σ: σ₀² + (|ω|·Δt)²/12, c = 0, and since session 50 the aircraft
+    term σ_a²; the pins hold the σ before them). The pins hold VQF fed each sample over one fixed period: the shipped checkpoint with
     ``gyro_step_weighting`` off (session 29; erle's millisecond stamps step by 19-21 ms), as a user's
     ``--model`` would carry it."""
     import math
@@ -554,6 +554,8 @@ def test_estimate_real_record_equals_the_pinned_estimates(erle, tmp_path):
 
     ck = read_checkpoint(default_model_path())
     ck["anchor_config"]["gyro_step_weighting"] = False
+    sigma_a_deg = ck["anchor_config"]["sigma_aircraft_deg"]  # σ's aircraft term (session 50): erle names a copter
+    assert sigma_a_deg > 0
     torch.save(ck, tmp_path / "unweighted.pt")
     out = tmp_path / "est.parquet"
     assert main(["estimate", str(erle["crop"]), "-o", str(out), "-q", "--no-gnss-aid", "--no-smooth",
@@ -567,7 +569,8 @@ def test_estimate_real_record_equals_the_pinned_estimates(erle, tmp_path):
                                    rtol=0, atol=1e-9)  # fmt: skip
         seg_t = rec.t_s[rec.segment == rec.segment[row]]
         ts = float(np.median(np.diff(seg_t[: TS_STEPS + 1])))  # the filter's sample period
-        want = math.sqrt(math.radians(0.45) ** 2 + float(np.sum(rec.gyr_rad_s[row] ** 2)) * ts**2 / 12)
+        want = math.sqrt(math.radians(0.45) ** 2 + float(np.sum(rec.gyr_rad_s[row] ** 2)) * ts**2 / 12
+                         + math.radians(sigma_a_deg) ** 2)  # fmt: skip
         assert est.loc[row, "sigma_rad"] == pytest.approx(want, rel=1e-9)
 
 

@@ -22,8 +22,8 @@ from ..errors import TepinnError
 from ..record import ACC_COLS, EST_BIAS_COLS, EST_Q_COLS, FlightRecord, segment_slices
 from ..record_gaps import GAP_PERIODS, bridge_gaps
 from ..vehicle_class import vehicle_class
-from .anchor import (AnchorConfig, AnchoredVQF, _rows, ffill_rows, q_nb_from_vqf, speed_gate_allowed, to_sensor,
-                     window_rows, with_fusion_tilt)  # fmt: skip
+from .anchor import (AnchorConfig, AnchoredVQF, _rows, aircraft_var_rad2, ffill_rows, q_nb_from_vqf, speed_gate_allowed,
+                     to_sensor, window_rows, with_aircraft_sigma, with_fusion_tilt)  # fmt: skip
 from .anchor_kernels import step_weights
 from .beside import MAX_WAIT_S_PER_SAMPLE, WAIT_S_PER_SAMPLE, Beside, BesideFailed, worth_it
 from .fusion import FusionConfig, FusionRun, feedback_bias
@@ -473,6 +473,7 @@ def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, 
         clips = cols[4] is not None and bool(np.any(cols[4]))  # the clip-turn fit's inputs only where the gyro clipped
         q_out, s_out, done = smooth(t, q_out, s_out, gate, rec.segment, smoother or SmootherConfig(), offline, cols[4],
                                     relevel_i, imu=(gyr * scale, cols[2], b_out) if clips else None)  # fmt: skip
+    s_out = with_aircraft_sigma(s_out, aircraft_var_rad2(anchor, vehicle))  # rule 28: an aircraft's IMU
     df = _frame(t, q_out, s_out, b_out)
     for key, found in (("accel_scale_selfcal", acal), ("gyro_selfcal", cal), ("gnss_aid", aid), ("smoother", done)):
         if found is not None:

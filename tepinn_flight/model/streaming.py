@@ -38,7 +38,7 @@ import numpy as np
 
 from ..record_gaps import GAP_PERIODS, filler_times, interpolate_rows, is_bridgeable
 from .accel_scale import AccelScaleTracker
-from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, fusion_tilt_f, speed_gate_allowed
+from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, aircraft_var_rad2, fusion_tilt_f, speed_gate_allowed
 from .fusion import AttitudeFusion, FusionConfig, feedback_bias
 from .runtime import NetworkRunner, as_runner
 
@@ -129,6 +129,7 @@ class StreamingEstimator:
         # the accelerometer's scale, read causally and kept across segments (a sensor's property)
         self.acc_scale = AccelScaleTracker() if a is not None and a.accel_scale_selfcal else None
         self.vehicle = vehicle  # kept across segments (the vehicle's, not the segment's)
+        self.sigma_add = aircraft_var_rad2(a, vehicle) if a is not None else 0.0  # σ² an aircraft's IMU adds (rule 28)
         if threads:
             self.runner.set_threads(threads)
         self.reset()
@@ -233,6 +234,8 @@ class StreamingEstimator:
         if self.anchor_cfg is not None:
             g_clip = bool(clipped) if gyr_clipped is None else bool(gyr_clipped)
             q, sigma, bias = self._anchored_step(t, gyr_rad_s, acc_m_s2, mag_ut, bool(clipped), g_clip, est)
+            if self.sigma_add:  # as offline (anchor.with_aircraft_sigma)
+                sigma = math.sqrt(sigma * sigma + self.sigma_add)
         else:
             q, sigma, bias = self.fusion.step(t, gyr_rad_s, est, bool(clipped))
         self.t_prev = t
@@ -268,10 +271,13 @@ class StreamingEstimator:
         self.early = None
 
     def set_vehicle(self, vehicle: str | None) -> None:
-        """What the vehicle is, learnt after the start (the bridge: the autopilot's heartbeat): from the next window on."""
+        """What the vehicle is, learnt after the start (the bridge: the autopilot's heartbeat): from the next window on
+        (σ's aircraft term from the next sample)."""
         if self.early is not None:  # the early window read the class it replaces
             self._undo_early()
         self.vehicle = vehicle
+        if self.anchor_cfg is not None:
+            self.sigma_add = aircraft_var_rad2(self.anchor_cfg, vehicle)
         if self.anchored is not None:
             self.anchored.speed_gate = speed_gate_allowed(self.anchor_cfg, vehicle)
 
