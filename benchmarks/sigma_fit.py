@@ -27,9 +27,11 @@ nearest 2 among the grid points with at least `--coverage` of the samples within
    of session 15, 0.65, gave NEES 2.35 and 95.6 % within 3σ at 286 Hz; 0.75: 1.76, 98.1 %; at 26 Hz
    1.03, 98.8 %). w is read through a probe: the smoothed estimate's σ at k = 1 and at k = 0.5.
 
-6. `--aircraft DIR` (alone): σ's aircraft term (rule 28, `AnchorConfig.sigma_aircraft_deg`) chosen by the same rule on
-   the simulated flights of DIR with the consumer IMU preset (`--preset`): session 50, the training campaign's 36:
-   0.35° (NEES 2.84, 93.3 % within 3σ without it; 1.94, 97.3 % with it).
+6. `--aircraft DIR` (alone): σ's aircraft terms chosen by the same rule on the simulated flights of DIR with the
+   consumer IMU preset (`--preset`): σ_a (rule 28, `AnchorConfig.sigma_aircraft_deg`) on the shipped offline
+   estimate, c_a (rule 29, `sigma_acc_gain_aircraft`) on the live-equivalent one. Session 50, the training
+   campaign's 36: σ_a 0.35° (NEES 2.84, 93.3 % within 3σ without it; 1.94, 97.3 % with it); c_a 0.2 (31.49, 63.3 %
+   → 1.90, 98.1 %).
 
 `--heldout` also scores the shipped σ and the refit of 2 on the held-out drone logs (reference: the
 autopilot's estimate) — each such run is a look at the held-out files: say so where it decides anything.
@@ -81,10 +83,13 @@ def _smoothed_score(rows, k: float) -> tuple[float, float]:
 
 
 def aircraft_part(folder: Path, preset: str) -> int:
-    """6. σ's aircraft term (rule 28, session 50): the shipped estimate (offline, smoothed) on the simulated flights
-    of ``folder`` whose IMU is ``preset``, σ without the term → the rule's σ_a (per-file NEES nearest 2 with >= 97 %
-    within 3σ, 0.05° grid) beside the shipped value. Session 50, the 36 consumer flights of the training campaign:
-    0.35° (NEES 2.84, 93.3 % without it; 1.94, 97.3 % with it)."""
+    """6. σ's aircraft terms (session 50) on the simulated flights of ``folder`` whose IMU is ``preset``, each chosen by
+    σ's rule (per-file NEES nearest 2 with >= 97 % within 3σ) beside the shipped value:
+    a. σ_a (rule 28) on the shipped estimate (offline, smoothed), σ without the term (0.05° grid);
+    b. c_a (rule 29) on the live-equivalent estimate (no smoothing, no GNSS aid, no gyro self-calibration), σ_a as
+       shipped, e read through a probe (0.025 grid).
+    Session 50, the 36 consumer flights of the training campaign: σ_a 0.35° (NEES 2.84, 93.3 % without it; 1.94,
+    97.3 % with it), c_a 0.2 (31.49, 63.3 % → 1.90, 98.1 %)."""
     from tepinn_flight.evaluation.estimators import TepinnEstimator
     from tepinn_flight.evaluation.harness import scoring_mask
     from tepinn_flight.evaluation.metrics import error_quat_earth, tilt_error_vector_rad
@@ -92,29 +97,40 @@ def aircraft_part(folder: Path, preset: str) -> int:
     from tepinn_flight.model.checkpoint import default_model_path
     from tepinn_flight.record import EST_Q_COLS, read_record
 
-    est = TepinnEstimator.from_checkpoint(default_model_path(), "tepinn")
-    shipped = est.fusion.sigma_aircraft_deg
-    est = TepinnEstimator(est.model, dataclasses.replace(est.fusion, sigma_aircraft_deg=0.0), "tepinn", est.checkpoint)
-    files = []
+    shipped = TepinnEstimator.from_checkpoint(default_model_path(), "tepinn")
+    a = shipped.fusion
+    offline = dataclasses.replace(a, sigma_aircraft_deg=0.0)
+    live = dataclasses.replace(a, smoother=False, gnss_aid=False, gyro_selfcal=False, sigma_acc_gain_aircraft=0.0)
+    probe = dataclasses.replace(live, sigma_floor_deg=0.0, sigma_net_scale=0.0, sigma_clip_gain=0.0, sigma_acc_gain=1.0,
+                                sigma_sampling_gain=0.0, sigma_gap_gain=0.0, sigma_aircraft_deg=0.0)  # σ = e
+    runs = {k: TepinnEstimator(shipped.model, c, k, shipped.checkpoint) for k, c in
+            (("offline", offline), ("live", live), ("e", probe))}  # fmt: skip
+    files = {"offline": [], "live": []}
     for p in sorted(folder.glob("*.parquet")):
         rec = read_record(p)
         if rec.meta.get("sensor_preset") != preset:
             continue
-        df = est.estimate(rec)
-        q, s = df[EST_Q_COLS].to_numpy(), df["sigma_rad"].to_numpy()
-        m = scoring_mask(rec, 5.0) & np.all(np.isfinite(q), 1) & np.isfinite(s)
-        ev = tilt_error_vector_rad(error_quat_earth(q[m], rec.q_ref_wxyz[m]))
-        files.append((np.sum(ev**2, axis=1), s[m]))
-    if not files:
+        out = {k: e.estimate(rec) for k, e in runs.items()}
+        for k in files:
+            q, s = out[k][EST_Q_COLS].to_numpy(), out[k]["sigma_rad"].to_numpy()
+            u = np.full(len(s), np.radians(1.0)) if k == "offline" else out["e"]["sigma_rad"].to_numpy()
+            m = scoring_mask(rec, 5.0) & np.all(np.isfinite(q), 1) & np.isfinite(s) & np.isfinite(u)
+            ev = tilt_error_vector_rad(error_quat_earth(q[m], rec.q_ref_wxyz[m]))
+            files[k].append((np.sum(ev**2, axis=1), s[m], u[m]))
+    if not files["offline"]:
         print(f"no simulated flights with the {preset!r} IMU in {folder} (tepinn-flight simulate --campaign "
               "flight_sims/campaigns/mixed.toml -o runs/default/data)")  # fmt: skip
         return 2
-    choice, table = fit_added_sigma(files)
-    print(f"6. σ's aircraft term on {len(files)} simulated flights with the {preset} IMU (σ² + σ_a²):")
-    for sa, n, cv in table:
-        print(f"   σ_a {sa:.2f}°: {_fmt((n, cv))}" + ("  <- the rule's choice" if sa == choice else "")
-              + ("  <- shipped" if abs(sa - shipped) < 1e-9 else ""))  # fmt: skip
-    print(f"the rule's choice: {choice}°, shipped: {shipped:g}°")
+    for k, name, unit, grid, ship in (("offline", "a. σ_a (offline, smoothed)", "°", np.arange(0.0, 1.001, 0.05),
+                                       a.sigma_aircraft_deg),
+                                      ("live", "b. c_a (live-equivalent, σ_a as shipped)", "", np.arange(0.0, 0.601, 0.025),
+                                       a.sigma_acc_gain_aircraft)):  # fmt: skip
+        choice, table = fit_added_sigma(files[k], grid=grid)
+        print(f"6{name} on {len(files[k])} simulated flights with the {preset} IMU:")
+        for x, n, cv in table:
+            print(f"   {x:.3f}{unit}: {_fmt((n, cv))}" + ("  <- the rule's choice" if x == choice else "")
+                  + ("  <- shipped" if abs(x - ship) < 1e-9 else ""))  # fmt: skip
+        print(f"   the rule's choice: {choice}{unit}, shipped: {ship:g}{unit}")
     return 0
 
 
@@ -125,7 +141,7 @@ def main() -> int:
     ap.add_argument("--rates", default="", help="decimation factors for part 4, comma-separated ('': skip)")
     ap.add_argument("--smooth", action="store_true", help="part 5: the offline smoothing's σ factor")
     ap.add_argument("--heldout", action="store_true", help="also score on the held-out drone logs (a look at them)")
-    ap.add_argument("--aircraft", metavar="DIR", help="part 6 alone: σ's aircraft term chosen on the simulated flights "
+    ap.add_argument("--aircraft", metavar="DIR", help="part 6 alone: σ's aircraft terms chosen on the simulated flights "
                     "of DIR (the training campaign, runs/default/data) with the --preset IMU")  # fmt: skip
     ap.add_argument("--preset", default="consumer", help="part 6's sensor preset (default: consumer)")
     args = ap.parse_args()

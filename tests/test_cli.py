@@ -556,6 +556,7 @@ def test_estimate_real_record_equals_the_pinned_estimates(erle, tmp_path):
     ck["anchor_config"]["gyro_step_weighting"] = False
     sigma_a_deg = ck["anchor_config"]["sigma_aircraft_deg"]  # σ's aircraft term (session 50): erle names a copter
     assert sigma_a_deg > 0
+    ck["anchor_config"]["sigma_acc_gain_aircraft"] = 0.0  # the causal motion term (rule 29) off: σ in closed form
     torch.save(ck, tmp_path / "unweighted.pt")
     out = tmp_path / "est.parquet"
     assert main(["estimate", str(erle["crop"]), "-o", str(out), "-q", "--no-gnss-aid", "--no-smooth",

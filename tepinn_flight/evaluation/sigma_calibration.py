@@ -17,12 +17,11 @@ those that keep at least ``coverage`` of the samples within 3σ, per file averag
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..model.anchor import AnchorConfig, AnchoredVQF, aircraft_var_rad2
+from ..model.anchor import AnchorConfig, AnchoredVQF, acc_gain, aircraft_var_rad2
 from ..model.streaming import TS_STEPS
 from ..record import FlightRecord
 from .harness import scoring_mask
@@ -43,11 +42,14 @@ class ErrorSamples:
     vehicle: str | None = None  # the record's vehicle_type (σ's aircraft term, rule 28)
 
     def var_rad2(self, sigma_floor_deg: float, sigma_acc_gain: float, sigma_sampling_gain: float = 0.0,
-                 sigma_aircraft_deg: float = 0.0) -> np.ndarray:  # fmt: skip
-        """σ² of each sample for (σ₀, c, g), with σ_a where the file's vehicle takes it."""
-        v = np.radians(sigma_floor_deg) ** 2 + (sigma_acc_gain * self.e_acc_rad) ** 2
+                 sigma_aircraft_deg: float = 0.0, sigma_acc_gain_aircraft: float = 0.0) -> np.ndarray:  # fmt: skip
+        """σ² of each sample of the causal estimate for (σ₀, c, g), with σ_a and c_a (rules 28, 29) where the file's
+        vehicle takes them."""
+        cfg = AnchorConfig(sigma_acc_gain=sigma_acc_gain, sigma_aircraft_deg=sigma_aircraft_deg,
+                           sigma_acc_gain_aircraft=sigma_acc_gain_aircraft)  # fmt: skip
+        v = np.radians(sigma_floor_deg) ** 2 + (acc_gain(cfg, self.vehicle, causal=True) * self.e_acc_rad) ** 2
         if sigma_aircraft_deg:
-            v = v + aircraft_var_rad2(AnchorConfig(sigma_aircraft_deg=sigma_aircraft_deg), self.vehicle)
+            v = v + aircraft_var_rad2(cfg, self.vehicle)
         if sigma_sampling_gain and self.samp_var_rad2 is not None:
             v = v + sigma_sampling_gain * self.samp_var_rad2
         if self.clip_var_rad2 is not None:
@@ -99,7 +101,8 @@ def _probes(anchor: AnchorConfig, clips: bool = False) -> tuple[AnchorConfig, ..
     """``anchor`` whose σ is e alone, and whose σ² is the sampling term at g = 1 alone (the network's
     share and the saturation term off); with ``clips`` (the gyro clips), a third whose σ is the
     saturation term alone, as ``anchor`` sets it."""
-    off = dict(sigma_floor_deg=0.0, sigma_net_scale=0.0, sigma_clip_gain=0.0, sigma_aircraft_deg=0.0)
+    off = dict(sigma_floor_deg=0.0, sigma_net_scale=0.0, sigma_clip_gain=0.0, sigma_aircraft_deg=0.0,
+               sigma_acc_gain_aircraft=0.0)  # fmt: skip
     e_only = dataclasses.replace(anchor, **off, sigma_acc_gain=1.0, sigma_sampling_gain=0.0)
     samp_only = dataclasses.replace(anchor, **off, sigma_acc_gain=0.0, sigma_sampling_gain=1.0)
     if not (clips and anchor.sigma_clip_gain > 0):
@@ -119,14 +122,16 @@ def _scored(name: str, q, e, s_samp, q_ref, mask, s_clip=None, vehicle: str | No
 
 
 def score(files: list[ErrorSamples], sigma_floor_deg: float, sigma_acc_gain: float,
-          sigma_sampling_gain: float = 0.0, sigma_aircraft_deg: float = 0.0) -> tuple[float, float]:  # fmt: skip
-    """(mean NEES, share within 3σ), each per file averaged; ``sigma_aircraft_deg``: σ_a on the files whose vehicle
-    takes it (the fit leaves it at 0: a fine-tuned model's σ₀ is its vehicle's own)."""
+          sigma_sampling_gain: float = 0.0, sigma_aircraft_deg: float = 0.0,
+          sigma_acc_gain_aircraft: float = 0.0) -> tuple[float, float]:  # fmt: skip
+    """(mean NEES, share within 3σ), each per file averaged; ``sigma_aircraft_deg``, ``sigma_acc_gain_aircraft``: σ_a
+    and c_a on the files whose vehicle takes them (the fit leaves both at 0: a fine-tuned model's σ₀ and c are its
+    vehicle's own)."""
     nees, cov = [], []
     for f in files:
         if not len(f.err2_rad2):
             continue
-        s2 = f.var_rad2(sigma_floor_deg, sigma_acc_gain, sigma_sampling_gain, sigma_aircraft_deg)
+        s2 = f.var_rad2(sigma_floor_deg, sigma_acc_gain, sigma_sampling_gain, sigma_aircraft_deg, sigma_acc_gain_aircraft)
         nees.append(float(np.mean(f.err2_rad2 / s2)))
         cov.append(float(np.mean(f.err2_rad2 <= 9.0 * s2)))
     return float(np.mean(nees)), float(np.mean(cov))
@@ -151,18 +156,18 @@ def fit_sigma(files: list[ErrorSamples], coverage: float = 0.97, nees_target: fl
     return best
 
 
-def fit_added_sigma(files: list[tuple[np.ndarray, np.ndarray]], coverage: float = 0.97, nees_target: float = 2.0,
-                    grid_deg=np.arange(0.0, 1.001, 0.05)) -> tuple[float | None, list[tuple[float, float, float]]]:  # fmt: skip
-    """σ's rule for a term added to an estimator's σ (σ² + σ_a²; rule 28's aircraft term): ``files`` each (squared 2-D
-    tilt error, σ without the term) on its scored samples → (the grid's σ_a whose per-file mean NEES is nearest
+def fit_added_sigma(files: list[tuple[np.ndarray, np.ndarray, np.ndarray | float]], coverage: float = 0.97,
+                    nees_target: float = 2.0, grid=np.arange(0.0, 1.001, 0.05)) -> tuple[float | None, list[tuple[float, float, float]]]:  # fmt: skip
+    """σ's rule for a term added to an estimator's σ, σ'² = σ² + (x·u)² (rule 28's aircraft term: x = σ_a in degrees,
+    u = 1° in radians; rule 29's causal motion term: x = c_a, u = e per sample): ``files`` each (squared 2-D tilt
+    error, σ without the term, u) on its scored samples → (the ``grid``'s x whose per-file mean NEES is nearest
     ``nees_target`` among those with at least ``coverage`` within 3σ, per file averaged — None if none reaches it —,
-    and every grid point's (σ_a, NEES, share within 3σ))."""
+    and every grid point's (x, NEES, share within 3σ))."""
     table, best, best_gap = [], None, None
-    for sa in grid_deg:
-        va = math.radians(float(sa)) ** 2
-        r = [e2 / (s * s + va) for e2, s in files if len(e2)]
-        n, cv = float(np.mean([np.mean(x) for x in r])), float(np.mean([np.mean(x <= 9.0) for x in r]))
-        table.append((round(float(sa), 4), n, cv))
+    for x in grid:
+        r = [e2 / (s * s + (float(x) * u) ** 2) for e2, s, u in files if len(e2)]
+        n, cv = float(np.mean([np.mean(v) for v in r])), float(np.mean([np.mean(v <= 9.0) for v in r]))
+        table.append((round(float(x), 4), n, cv))
         if cv >= coverage and (best_gap is None or abs(n - nees_target) < best_gap):
-            best, best_gap = round(float(sa), 4), abs(n - nees_target)
+            best, best_gap = round(float(x), 4), abs(n - nees_target)
     return best, table

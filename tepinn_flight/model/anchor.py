@@ -75,7 +75,9 @@ stopped using, session 26) — also while the uncalibrated-gyro gate's evidence 
 σ₀ and c fitted on real files with a trusted reference (and g chosen there, by the fine-tuning). On a record whose
 log names a vehicle (not a hand-held IMU, not one not known) the output σ² takes σ_a² too, after the offline
 smoothing (``sigma_aircraft_deg``, rule 28: an autopilot-grade IMU's residual errors after its routine calibration,
-chosen on simulated flights with the consumer IMU preset; :func:`aircraft_var_rad2`).
+chosen on simulated flights with the consumer IMU preset; :func:`aircraft_var_rad2`); and where the estimate is
+causal (live, ``--no-smooth``) c is ``sigma_acc_gain_aircraft`` on such a record (rule 29: the motion acceleration
+the causal filter cannot tell from gravity without the receiver; :func:`acc_gain`).
 
 Frames: VQF works in a z-up sensor frame ``S`` (body FRD turned 180° about x) and a z-up earth
 frame; conversions happen only at this module's edges (body FRD / NED outside). The frames and the
@@ -241,6 +243,13 @@ class AnchorConfig:
     # (an autopilot log's MPU-6000-class IMU; per-file NEES 2.84, 93.3 % within 3σ without it, 1.94, 97.3 % with it).
     # A fine-tuned model fits σ₀ on the vehicle's own logs and sets it to 0. 0: off (checkpoints before it)
     sigma_aircraft_deg: float = 0.35
+    # c_a (rule 29, session 50): where the estimate is causal (the live bridge, `estimate --no-smooth`) on such a record,
+    # σ's accelerometer term takes this gain instead of sigma_acc_gain: σ² += (c_a·e)², e the motion acceleration the
+    # causal filter cannot tell from gravity without the receiver (the GNSS aid and the smoothing are offline). Chosen by
+    # σ's rule on the 36 consumer training flights' live-equivalent estimate: per-file NEES 31.5, 63.3 % within 3σ
+    # without it, 1.90, 98.1 % with it. The smoothed estimate keeps sigma_acc_gain (its σ has the disagreement term).
+    # A fine-tuned model fits c on its own logs and sets it to 0. 0: sigma_acc_gain everywhere (checkpoints before it)
+    sigma_acc_gain_aircraft: float = 0.2
     # quiet blocks (speed): the windows matter only where a gate may open. A block of the older
     # fusion's bias feedback (its bias_feedback_windows tokens) whose first window shows |v̂| below
     # quiet_speed_m_s and a fusion gyro bias below quiet_bias_deg_s on every axis runs only that window
@@ -316,7 +325,7 @@ class AnchorConfig:
         check_range("rest_spike_factor", self.rest_spike_factor, 1, None)
         for name in ("clip_min_s", "quiet_speed_m_s", "quiet_bias_deg_s", "clip_hold_s", "rest_relevel_s", "clip_gate_max_deg_s", "rest_gyr_deg_s", "rest_acc_m_s2", "bias_deadzone_deg_s", "bias_gate_fusion_deg_s", "bias_gate_vqf_deg_s", "sigma_floor_deg", "sigma_acc_gain",
                      "sigma_net_scale", "sigma_sampling_gain", "sigma_clip_gain", "sigma_gap_gain", "sigma_gap_hold_s",
-                     "sigma_aircraft_deg"):  # fmt: skip
+                     "sigma_aircraft_deg", "sigma_acc_gain_aircraft"):  # fmt: skip
             check_range(name, getattr(self, name), 0, None)
 
     def quiet_in(self, fusion: FusionConfig) -> int:
@@ -433,9 +442,12 @@ class AnchoredVQF:
     The filter is float arrays and the steps are compiled (:mod:`.anchor_steps`, its VQF :mod:`.vqf_kernel`); this
     class makes the arrays from the settings and hands them over."""
 
-    def __init__(self, config: AnchorConfig, ts_s: float, use_mag: bool = False, vehicle: str | None = None):
+    def __init__(self, config: AnchorConfig, ts_s: float, use_mag: bool = False, vehicle: str | None = None,
+                 causal: bool = False):  # fmt: skip
         """``vehicle``: what the record says the vehicle is (its ``vehicle_type``; None: nothing) —
-        ``config.speed_gate_shut_for`` keeps the flight-speed gate shut for some classes of it."""
+        ``config.speed_gate_shut_for`` keeps the flight-speed gate shut for some classes of it; ``causal``: the
+        estimate is this filter's own (live, or offline without the smoothing), whose σ takes
+        :func:`acc_gain`'s gain for the vehicle."""
         self.cfg = c = config
         self.ts = ts_s = float(ts_s)
         self.use_mag = bool(use_mag)
@@ -451,7 +463,7 @@ class AnchoredVQF:
         f[S.F_T_CLIP_HIGH] = f[S.F_T_CLIP_LAST] = f[S.F_T_GATED] = -math.inf
         # σ's accelerometer term and constants as sigma_step takes them: (e, α, var0, gain, samp, var_net)
         f[S.F_SP : S.F_SP + 6] = (0.0, min(1.0, ts_s / c.sigma_acc_tau_s), math.radians(c.sigma_floor_deg) ** 2,
-                                  float(c.sigma_acc_gain), float(c.sigma_sampling_gain) * ts_s * ts_s / 12.0, 0.0)  # fmt: skip
+                                  acc_gain(c, vehicle, causal), float(c.sigma_sampling_gain) * ts_s * ts_s / 12.0, 0.0)  # fmt: skip
         f[S.F_CLIP_DECAY] = math.exp(-ts_s / c.sigma_clip_tau_s)
         f[S.F_T_PREV] = math.nan  # the previous sample's time (none yet in this segment)
         self.cb = np.empty(64)  # the saturated samples' times still remembered (anchor_steps.clip_room)
@@ -469,6 +481,11 @@ class AnchoredVQF:
     @speed_gate.setter
     def speed_gate(self, allowed: bool) -> None:
         self.k[S.K_SPEED_GATE] = float(bool(allowed))
+
+    def set_acc_gain(self, gain: float) -> None:
+        """σ's accelerometer gain from the next sample on (the live estimator, when the autopilot says what the vehicle
+        is: :func:`acc_gain`)."""
+        self.fs[S.F_SP + 3] = float(gain)
 
     # what the steps keep, as a reader wants it
     t = property(lambda self: float(self.fs[S.F_T]))
@@ -648,6 +665,15 @@ def aircraft_var_rad2(config: AnchorConfig, vehicle: str | None) -> float:
     if config.sigma_aircraft_deg <= 0 or vehicle_class(vehicle) not in AIRCRAFT_SIGMA_CLASSES:
         return 0.0
     return math.radians(config.sigma_aircraft_deg) ** 2
+
+
+def acc_gain(config: AnchorConfig, vehicle: str | None, causal: bool) -> float:
+    """σ's accelerometer gain c for a record of ``vehicle``: ``config.sigma_acc_gain_aircraft`` where the estimate is
+    ``causal`` and the vehicle takes σ's aircraft term (:data:`AIRCRAFT_SIGMA_CLASSES`; rule 29) and that gain is set,
+    else ``config.sigma_acc_gain``."""
+    if causal and config.sigma_acc_gain_aircraft > 0 and vehicle_class(vehicle) in AIRCRAFT_SIGMA_CLASSES:
+        return float(config.sigma_acc_gain_aircraft)
+    return float(config.sigma_acc_gain)
 
 
 def with_aircraft_sigma(sigma_rad: np.ndarray, var_rad2: float) -> np.ndarray:

@@ -572,7 +572,8 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag, vehicle: 
     for sl in segment_slices(seg):
         a, b = sl.start, sl.stop
         dt = np.diff(t[a : min(b, a + TS_STEPS + 1)])  # as the live estimator: its first steps
-        flt = AnchoredVQF(anchor, float(np.median(dt)) if dt.size else 0.01, use_mag, vehicle)
+        flt = AnchoredVQF(anchor, float(np.median(dt)) if dt.size else 0.01, use_mag, vehicle,
+                          causal=not anchor.smoother)  # σ's gain where nothing smooths (rule 29)
         js = np.flatnonzero((idx >= a) & (idx < b))
         ends = np.asarray(idx, np.int64)[js] - a  # each window at its last sample, for the samples after it
         q_out[a:b], s_out[a:b], b_out[a:b], gates, parts, relevel = flt.run_windows(

@@ -179,12 +179,14 @@ def fit_anchor_sigma(model, anchor, records: list[FlightRecord], warmup_s: float
     """``anchor`` with σ₀, c and the sampling term's g (0 or 1) fitted on ``records`` against their
     reference (mean NEES nearest 2 at a 3σ-coverage floor:
     :func:`~tepinn_flight.evaluation.sigma_calibration.fit_sigma`), and the fit (σ₀, c, g, NEES and
-    share within 3σ on those files). σ's aircraft term (``sigma_aircraft_deg``) is then 0: σ₀ is the vehicle's own."""
+    share within 3σ on those files). σ's aircraft terms (``sigma_aircraft_deg``, ``sigma_acc_gain_aircraft``) are
+    then 0: σ₀ and c are the vehicle's own."""
     from ..evaluation.sigma_calibration import fit_sigma
 
     fit = fit_sigma(sigma_samples(model, anchor, records, warmup_s), coverage=coverage, sampling_gains=(0.0, 1.0))
     return dataclasses.replace(anchor, sigma_floor_deg=fit.sigma_floor_deg, sigma_acc_gain=fit.sigma_acc_gain,
-                               sigma_sampling_gain=fit.sigma_sampling_gain, sigma_aircraft_deg=0.0), fit  # fmt: skip
+                               sigma_sampling_gain=fit.sigma_sampling_gain, sigma_aircraft_deg=0.0,
+                               sigma_acc_gain_aircraft=0.0), fit  # fmt: skip
 
 
 def sigma_scores(model, anchor, records: list[FlightRecord], warmup_s: float = 5.0) -> tuple[float, float]:
@@ -192,7 +194,7 @@ def sigma_scores(model, anchor, records: list[FlightRecord], warmup_s: float = 5
     from ..evaluation.sigma_calibration import score
 
     return score(sigma_samples(model, anchor, records, warmup_s), anchor.sigma_floor_deg, anchor.sigma_acc_gain,
-                 anchor.sigma_sampling_gain, anchor.sigma_aircraft_deg)  # fmt: skip
+                 anchor.sigma_sampling_gain, anchor.sigma_aircraft_deg, anchor.sigma_acc_gain_aircraft)  # fmt: skip
 
 
 def inclination_rmse_deg(rec: FlightRecord, est, warmup_s: float = 5.0) -> float:

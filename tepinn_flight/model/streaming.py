@@ -38,7 +38,8 @@ import numpy as np
 
 from ..record_gaps import GAP_PERIODS, filler_times, interpolate_rows, is_bridgeable
 from .accel_scale import AccelScaleTracker
-from .anchor import AnchorConfig, AnchoredVQF, WindowOutput, aircraft_var_rad2, fusion_tilt_f, speed_gate_allowed
+from .anchor import (AnchorConfig, AnchoredVQF, WindowOutput, acc_gain, aircraft_var_rad2, fusion_tilt_f,
+                     speed_gate_allowed)  # fmt: skip
 from .fusion import AttitudeFusion, FusionConfig, feedback_bias
 from .runtime import NetworkRunner, as_runner
 
@@ -280,6 +281,7 @@ class StreamingEstimator:
             self.sigma_add = aircraft_var_rad2(self.anchor_cfg, vehicle)
         if self.anchored is not None:
             self.anchored.speed_gate = speed_gate_allowed(self.anchor_cfg, vehicle)
+            self.anchored.set_acc_gain(acc_gain(self.anchor_cfg, vehicle, causal=True))
 
     def _bridge(self, t: float, row: tuple) -> None:
         """Push the samples that fill the gap from the previous sample to ``t`` (as offline)."""
@@ -335,7 +337,8 @@ class StreamingEstimator:
         mode = self.anchor_cfg.mode  # auto: 9-D when the segment's first samples carry a magnetometer
         use_mag = mode == "9d" or (mode == "auto" and any(p[3] is not None and all(math.isfinite(float(v)) for v in p[3])
                                                           for p in self.pending))  # fmt: skip
-        self.anchored = AnchoredVQF(self.anchor_cfg, float(np.median(dts)), use_mag=use_mag, vehicle=self.vehicle)
+        self.anchored = AnchoredVQF(self.anchor_cfg, float(np.median(dts)), use_mag=use_mag, vehicle=self.vehicle,
+                                    causal=True)  # fmt: skip
         pending, self.pending = self.pending, []
         out = None
         for t_i, g_i, a_i, m_i, c_i, e_i in pending:
