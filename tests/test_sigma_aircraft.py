@@ -1,7 +1,9 @@
-"""Rule 28 (session 50): σ's aircraft term. On a record whose log names a vehicle (multirotor, fixed wing or another
-vehicle; not a hand-held IMU, not one not known), σ² takes σ_a² (``AnchorConfig.sigma_aircraft_deg``) — offline after
-the smoothing, live sample by sample — and nothing else changes: the attitude and the bias are the same bits. Older
-checkpoints run without it; a fine-tuned model sets it to 0 (its σ₀ is fitted on the vehicle's own logs)."""
+"""Rules 28 and 29 (session 50): σ's aircraft terms. On a record whose log names a vehicle (multirotor, fixed wing or
+another vehicle; not a hand-held IMU, not one not known), σ² takes σ_a² (``AnchorConfig.sigma_aircraft_deg``) — offline
+after the smoothing, live sample by sample — and, where the estimate is causal (live, ``--no-smooth``), σ's
+accelerometer term takes the gain c_a (``sigma_acc_gain_aircraft``); nothing else changes: the attitude and the bias
+are the same bits. Older checkpoints run without them; a fine-tuned model sets both to 0 (its σ₀ and c are fitted on
+the vehicle's own logs)."""
 
 from __future__ import annotations
 
@@ -13,7 +15,7 @@ import pytest
 
 from tepinn_flight.errors import ConfigError
 from tepinn_flight.evaluation.sigma_calibration import ErrorSamples, score
-from tepinn_flight.model.anchor import AnchorConfig, aircraft_var_rad2, with_aircraft_sigma
+from tepinn_flight.model.anchor import AnchorConfig, acc_gain, aircraft_var_rad2, with_aircraft_sigma
 from tepinn_flight.model.checkpoint import ANCHOR_CONFIG_BEFORE, anchor_config_from, default_model_path, load_model
 from tepinn_flight.model.estimate import estimate_anchored
 from tepinn_flight.model.streaming import StreamingEstimator
@@ -32,6 +34,15 @@ def test_which_vehicles_take_the_term(vehicle, takes):
     cfg = AnchorConfig(sigma_aircraft_deg=0.35)
     assert aircraft_var_rad2(cfg, vehicle) == (math.radians(0.35) ** 2 if takes else 0.0)
     assert aircraft_var_rad2(AnchorConfig(sigma_aircraft_deg=0.0), vehicle) == 0.0
+
+
+@pytest.mark.parametrize("vehicle, causal, c_a, want", [
+    ("quadrotor", True, 0.2, 0.2), ("plane", True, 0.2, 0.2), ("sub", True, 0.2, 0.2),
+    ("quadrotor", False, 0.2, 0.01), ("handheld-imu", True, 0.2, 0.01), (None, True, 0.2, 0.01),
+    ("quadrotor", True, 0.0, 0.01),
+])  # fmt: skip
+def test_which_estimates_take_the_causal_gain(vehicle, causal, c_a, want):
+    assert acc_gain(AnchorConfig(sigma_acc_gain=0.01, sigma_acc_gain_aircraft=c_a), vehicle, causal) == want
 
 
 def test_the_setting_and_the_checkpoints():
