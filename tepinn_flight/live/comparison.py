@@ -5,7 +5,10 @@ ATTITUDE_QUATERNION came in the last 2 s); attitudes whose time is not newer tha
 taken are dropped and counted (``imu.ekf_dropped``). Each estimate is paired with the EKF at its
 time (:class:`~tepinn_flight.live.inputs.EkfComparator`: slerped between the bracketing EKF
 samples); the inclination differences go into a histogram (``ekf_difference_deg`` in the summary),
-the latest difference into the diagnostics and the status line. A live view
+the latest difference into the diagnostics and the status line. Each difference is also held against the estimate's
+own σ at that time (the per-axis σ of its 2-D tilt error; the inclination difference is that error's length): the
+share within 3σ and the mean NEES (d/σ)² against the autopilot (``within_3sigma``, ``nees`` in the summary; a
+calibrated σ gives 98.9 % and 2 against the truth — against an EKF the EKF's own error counts too). A live view
 (:mod:`~tepinn_flight.live.view`), when there is one, gets every EKF attitude, every estimate and
 every difference.
 
@@ -19,6 +22,7 @@ summary), as ``ingest`` turns a log's reference.
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
 
@@ -43,6 +47,10 @@ class LiveComparison:
         self.last = None  # (t_s, droll, dpitch, dincl, dheading) of the latest difference
         self.params: dict[str, float] = {}  # the autopilot's AHRS_TRIM_X/Y, as they come
         self.trim = None  # (x, y) rad once known and non-zero
+        self.sigmas: deque = deque()  # (t_s, σ rad) of the estimates not yet paired with the EKF
+        self.n_sigma = 0  # differences held against a finite σ
+        self.n_within_3sigma = 0
+        self.nees_sum = 0.0
 
     def on_param(self, m) -> None:
         """A PARAM_VALUE of an ArduPilot autopilot: its level trim."""
@@ -68,15 +76,33 @@ class LiveComparison:
         for d in self.cmp.add_ekf(a[0], a[2]):
             self._diff(d)
 
-    def on_estimate(self, t_s: float, q_nb_wxyz) -> None:
+    def on_estimate(self, t_s: float, q_nb_wxyz, sigma_rad: float | None = None) -> None:
+        """An estimate and, where given, its σ (rad)."""
         if self.view is not None:
             self.view.estimate(t_s, q_nb_wxyz)
+        if sigma_rad is not None:
+            self.sigmas.append((t_s, float(sigma_rad)))
         for d in self.cmp.add_estimate(t_s, q_nb_wxyz):
             self._diff(d)
+
+    def _sigma_at(self, t_s: float) -> float | None:
+        """The σ given with the estimate at ``t_s`` (the differences come in the estimates' order; those left out of
+        the pairing are passed over)."""
+        while self.sigmas and self.sigmas[0][0] < t_s:
+            self.sigmas.popleft()
+        if self.sigmas and self.sigmas[0][0] == t_s:
+            return self.sigmas.popleft()[1]
+        return None
 
     def _diff(self, d) -> None:
         self.hist.add(d[3])
         self.last = d
+        s = self._sigma_at(d[0])
+        if s is not None and math.isfinite(s) and s > 0 and math.isfinite(d[3]):
+            r = d[3] / s
+            self.n_sigma += 1
+            self.n_within_3sigma += r <= 3.0
+            self.nees_sum += r * r
         if self.view is not None:
             self.view.differences([d])
 
@@ -96,5 +122,8 @@ class LiveComparison:
         dif = self.hist.summary(math.degrees(1.0), 3)
         if self.hist.count:
             dif["rms"] = round(math.degrees(self.hist.rms()), 3)
+        if self.n_sigma:  # the estimate's σ against the autopilot's attitude
+            dif["within_3sigma"] = round(self.n_within_3sigma / self.n_sigma, 4)
+            dif["nees"] = round(self.nees_sum / self.n_sigma, 3)
         dif["ahrs_trim_rad"] = list(self.trim) if self.trim is not None else None
         return dif

@@ -219,7 +219,7 @@ class EstimateOutput:
         ms = est["time_boot_ms"] if est["time_boot_ms"] is not None else 0
         c = self.cfg
         msgs = estimate_msgs(ms, q, rates, c.estimate_as, est["time_usec"])
-        comparison.on_estimate(est["t_s"], q)
+        comparison.on_estimate(est["t_s"], q, est["sigma"])
         if c.diag_rate_hz > 0:
             k = math.floor(est["t_s"] * c.diag_rate_hz + 1e-9)
             if k != self.next_diag_k:

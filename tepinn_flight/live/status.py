@@ -226,6 +226,7 @@ def format_summary(s: dict) -> str:
         lines.append(
             f"  vs EKF (incl.) : mean {dif['mean']:.2f} / p50 {dif['p50']:.2f} / p90 {dif['p90']:.2f} / "
             f"max {dif['max']:.2f} deg, rms {dif.get('rms', float('nan')):.2f} deg over {dif['n']} estimates"
+            + (f"; within 3σ {100 * dif['within_3sigma']:.1f} %, NEES {dif['nees']:.2f}" if "nees" in dif else "")
         )
     elif not est.get("count"):  # (the autopilot's attitude may well have come: nothing of ours to pair it with)
         lines.append(f"  vs EKF (incl.) : no comparison (no TE-PINN estimates: {no_estimate_reason(s)})")
