@@ -93,7 +93,7 @@ def aircraft_part(folder: Path, preset: str) -> int:
     from tepinn_flight.evaluation.estimators import TepinnEstimator
     from tepinn_flight.evaluation.harness import scoring_mask
     from tepinn_flight.evaluation.metrics import error_quat_earth, tilt_error_vector_rad
-    from tepinn_flight.evaluation.sigma_calibration import fit_added_sigma
+    from tepinn_flight.evaluation.sigma_calibration import fit_added_sigma, motion_probe
     from tepinn_flight.model.checkpoint import default_model_path
     from tepinn_flight.record import EST_Q_COLS, read_record
 
@@ -101,8 +101,7 @@ def aircraft_part(folder: Path, preset: str) -> int:
     a = shipped.fusion
     offline = dataclasses.replace(a, sigma_aircraft_deg=0.0)
     live = dataclasses.replace(a, smoother=False, gnss_aid=False, gyro_selfcal=False, sigma_acc_gain_aircraft=0.0)
-    probe = dataclasses.replace(live, sigma_floor_deg=0.0, sigma_net_scale=0.0, sigma_clip_gain=0.0, sigma_acc_gain=1.0,
-                                sigma_sampling_gain=0.0, sigma_gap_gain=0.0, sigma_aircraft_deg=0.0)  # σ = e
+    probe = motion_probe(live)  # σ = e
     runs = {k: TepinnEstimator(shipped.model, c, k, shipped.checkpoint) for k, c in
             (("offline", offline), ("live", live), ("e", probe))}  # fmt: skip
     files = {"offline": [], "live": []}

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from tepinn_flight.errors import ConfigError
-from tepinn_flight.evaluation.sigma_calibration import ErrorSamples, score
+from tepinn_flight.evaluation.sigma_calibration import ErrorSamples, motion_probe, score
 from tepinn_flight.model.anchor import AnchorConfig, acc_gain, aircraft_var_rad2, with_aircraft_sigma
 from tepinn_flight.model.checkpoint import ANCHOR_CONFIG_BEFORE, anchor_config_from, default_model_path, load_model
 from tepinn_flight.model.estimate import estimate_anchored
@@ -134,10 +134,7 @@ def test_the_causal_estimate_of_an_aircraft_takes_the_motion_gain(shipped):
     rec = synthetic_record(seed=8, duration_s=12.0, rate_hz=100.0)
     s_q = estimate_anchored(model, _named(rec, "quadrotor"), causal)["sigma_rad"].to_numpy()
     s_h = estimate_anchored(model, _named(rec, "handheld-imu"), causal)["sigma_rad"].to_numpy()
-    probe = dataclasses.replace(causal, sigma_floor_deg=0.0, sigma_net_scale=0.0, sigma_clip_gain=0.0, sigma_acc_gain=1.0,
-                                sigma_sampling_gain=0.0, sigma_gap_gain=0.0, sigma_aircraft_deg=0.0,
-                                sigma_acc_gain_aircraft=0.0)  # fmt: skip
-    e = estimate_anchored(model, _named(rec, "handheld-imu"), probe)["sigma_rad"].to_numpy()
+    e = estimate_anchored(model, _named(rec, "handheld-imu"), motion_probe(causal))["sigma_rad"].to_numpy()
     ok = np.isfinite(s_h) & np.isfinite(e)
     assert ok.sum() > 0.9 * len(rec) and np.degrees(np.median(e[ok])) > 1.0  # the synthetic motion moves e
     want = s_h[ok] ** 2 + math.radians(causal.sigma_aircraft_deg) ** 2 + (causal.sigma_acc_gain_aircraft * e[ok]) ** 2

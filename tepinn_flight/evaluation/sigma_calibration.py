@@ -45,11 +45,12 @@ class ErrorSamples:
                  sigma_aircraft_deg: float = 0.0, sigma_acc_gain_aircraft: float = 0.0) -> np.ndarray:  # fmt: skip
         """σ² of each sample of the causal estimate for (σ₀, c, g), with σ_a and c_a (rules 28, 29) where the file's
         vehicle takes them."""
-        cfg = AnchorConfig(sigma_acc_gain=sigma_acc_gain, sigma_aircraft_deg=sigma_aircraft_deg,
-                           sigma_acc_gain_aircraft=sigma_acc_gain_aircraft)  # fmt: skip
-        v = np.radians(sigma_floor_deg) ** 2 + (acc_gain(cfg, self.vehicle, causal=True) * self.e_acc_rad) ** 2
-        if sigma_aircraft_deg:
-            v = v + aircraft_var_rad2(cfg, self.vehicle)
+        c, extra = sigma_acc_gain, 0.0
+        if sigma_aircraft_deg or sigma_acc_gain_aircraft:  # (a fit leaves both at 0: no settings made per grid point)
+            cfg = AnchorConfig(sigma_acc_gain=sigma_acc_gain, sigma_aircraft_deg=sigma_aircraft_deg,
+                               sigma_acc_gain_aircraft=sigma_acc_gain_aircraft)  # fmt: skip
+            c, extra = acc_gain(cfg, self.vehicle, causal=True), aircraft_var_rad2(cfg, self.vehicle)
+        v = np.radians(sigma_floor_deg) ** 2 + (c * self.e_acc_rad) ** 2 + extra
         if sigma_sampling_gain and self.samp_var_rad2 is not None:
             v = v + sigma_sampling_gain * self.samp_var_rad2
         if self.clip_var_rad2 is not None:
@@ -110,6 +111,15 @@ def _probes(anchor: AnchorConfig, clips: bool = False) -> tuple[AnchorConfig, ..
     clip_only = dataclasses.replace(anchor, **{**off, "sigma_clip_gain": anchor.sigma_clip_gain}, sigma_acc_gain=0.0,
                                     sigma_sampling_gain=0.0)  # fmt: skip
     return e_only, samp_only, clip_only
+
+
+def motion_probe(anchor: AnchorConfig) -> AnchorConfig:
+    """``anchor`` whose σ is e alone — the 1-s mean angle between the accelerometer and VQF's gravity, the witness of
+    σ's accelerometer term — every other term of σ off (floor, sampling, network, saturation, gap, aircraft terms):
+    the estimates are ``anchor``'s (σ is an output only). Rule 29's gain was chosen with it."""
+    return dataclasses.replace(anchor, sigma_floor_deg=0.0, sigma_net_scale=0.0, sigma_clip_gain=0.0, sigma_acc_gain=1.0,
+                               sigma_sampling_gain=0.0, sigma_gap_gain=0.0, sigma_aircraft_deg=0.0,
+                               sigma_acc_gain_aircraft=0.0)  # fmt: skip
 
 
 def _scored(name: str, q, e, s_samp, q_ref, mask, s_clip=None, vehicle: str | None = None) -> ErrorSamples:
