@@ -26,10 +26,10 @@ HELPER_WAIT_S = 600.0
 def _dispatchers(filters: bool = False) -> list:
     """The loops whose cache state says whether the warm-up is needed (one or two per module it warms)."""
     from .model import (accel_scale_kernels, anchor_kernels, anchor_steps, fusion, gnss_aid_kernels, gyro_selfcal,
-                        head_physics, tokens_kernels, window_features)
+                        head_physics, streaming_kernels, tokens_kernels, window_features)
 
     found = [fusion._run, fusion._step, fusion._step_live, anchor_steps.run_segment, anchor_steps.update_one,
-             anchor_kernels.step_weights,
+             streaming_kernels.live_sample, anchor_kernels.step_weights,
              anchor_kernels.blend_tilt_rows, window_features._features, head_physics._attitude,
              gnss_aid_kernels.window_sums,
              gyro_selfcal.attitude_at, accel_scale_kernels.track_step, accel_scale_kernels.quiet_rows,
@@ -194,6 +194,24 @@ def warm_anchored() -> None:
                                np.tile([30.0, 0.0, 0.0], (m, 1)), np.zeros((m, 3)), None, np.zeros(m, bool),
                                np.zeros(m, bool))  # fmt: skip
             AnchoredVQF(cfg, float(t[1] - t[0]), use_mag).run_windows(t, gyr, acc, mag, clipped, ends, wins)
+    _warm_live_sample(t, gyr, acc)
+
+
+def _warm_live_sample(t, gyr, acc) -> None:
+    """The live estimator's compiled push (:mod:`.model.streaming_kernels`) with the argument types its push passes."""
+    import numpy as np
+
+    from .model import streaming_kernels as K
+    from .model.anchor import AnchorConfig, AnchoredVQF
+    from .model.fusion import AttitudeFusion, FusionConfig
+
+    f, fus = AnchoredVQF(AnchorConfig(), float(t[1] - t[0]), False), AttitudeFusion(FusionConfig())
+    tok, out = K.new_token(), np.zeros(K.N_OUT)
+    nan = float("nan")
+    for i in range(3):
+        g, a = gyr[i].tolist(), acc[i].tolist()
+        K.token_add(tok, float(t[i]), *g, *a, nan, nan, nan, False)
+        K.live_sample(tok, fus._buf, f.buf, f.cb, float(t[i]), *g, *a, nan, nan, nan, bool(i), f.use_mag, True, 0.0, out)
 
 
 def warm_kernels() -> None:

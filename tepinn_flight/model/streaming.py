@@ -42,6 +42,8 @@ from .anchor import (AnchorConfig, AnchoredVQF, WindowOutput, acc_gain, aircraft
                      speed_gate_allowed)  # fmt: skip
 from .fusion import AttitudeFusion, FusionConfig, feedback_bias
 from .runtime import NetworkRunner, as_runner
+from .streaming_kernels import (N_OUT, OUT_BIAS, OUT_FUS_BIAS, OUT_FUS_OK, OUT_FUS_Q, OUT_Q, OUT_Q_OK, OUT_SIGMA, TOK_A,
+                                TOK_CLIP, TOK_G, TOK_M, TOK_M_N, TOK_N, TOK_T_LAST, live_sample, new_token, token_add)  # fmt: skip
 
 if TYPE_CHECKING:
     from .network import TEPINN
@@ -64,19 +66,6 @@ class Estimate:
 
 
 _NAN3 = (float("nan"),) * 3
-
-
-class _Token:
-    __slots__ = ("g", "a", "m", "m_n", "n", "t_last", "clip")
-
-    def __init__(self):
-        self.g = [0.0, 0.0, 0.0]
-        self.a = [0.0, 0.0, 0.0]
-        self.m = [0.0, 0.0, 0.0]
-        self.m_n = 0
-        self.n = 0
-        self.t_last = None
-        self.clip = 0
 
 
 class _TokenWindow:
@@ -131,6 +120,11 @@ class StreamingEstimator:
         self.acc_scale = AccelScaleTracker() if a is not None and a.accel_scale_selfcal else None
         self.vehicle = vehicle  # kept across segments (the vehicle's, not the segment's)
         self.sigma_add = aircraft_var_rad2(a, vehicle) if a is not None else 0.0  # σ² an aircraft's IMU adds (rule 28)
+        self.clip_tilt = a is not None and bool(a.clip_tilt_from_fusion)  # saturated: the older fusion's tilt
+        self._out = np.zeros(N_OUT)  # streaming_kernels.live_sample's output
+        # a push that applies no window and whose gyro is not clipped is one compiled call (session 51); False: the
+        # calls one by one from Python, as before it (the same numbers: the reference the tests hold it to)
+        self.compiled = True
         if threads:
             self.runner.set_threads(threads)
         self.reset()
@@ -151,7 +145,7 @@ class StreamingEstimator:
         self.period = None  # nominal sample period, running median of the first steps
         self._dts: list[float] = []
         self.k = 0
-        self.cur = _Token()
+        self.cur = new_token()  # the open token (streaming_kernels.TOK_*)
         k = self.cfg.window_tokens
         self.win = _TokenWindow(k)  # finished tokens
         self.last_means = None
@@ -216,24 +210,23 @@ class StreamingEstimator:
                 g, a, m, cl = self.last_means
                 self.win.append(self.t0 + j * self.delta, g, a, m, 0.0, cl)
             self.k = k
-            self.cur = _Token()
-        tok = self.cur
-        tg, ta = tok.g, tok.a
-        tg[0] += gx
-        tg[1] += gy
-        tg[2] += gz
-        ta[0] += ax
-        ta[1] += ay
-        ta[2] += az
-        if mag_ut is not None and all(math.isfinite(float(v)) for v in mag_ut):
-            for i in range(3):
-                tok.m[i] += float(mag_ut[i])
-            tok.m_n += 1
-        tok.n += 1
-        tok.clip += bool(clipped)
-        tok.t_last = t
+            self.cur = new_token()
+        mx, my, mz = mag_row
+        g_clip = bool(clipped) if gyr_clipped is None else bool(gyr_clipped)
+        anchored = self.anchored
+        if est is None and anchored is not None and not g_clip and self.compiled:  # the usual push: one compiled call
+            out = self._out
+            live_sample(self.cur, self.fusion._buf, anchored.buf, anchored.cb, t, gx, gy, gz, ax, ay, az, mx, my, mz,
+                        bool(clipped), anchored.use_mag, self.clip_tilt, self.sigma_add, out)  # fmt: skip
+            o = out.tolist()
+            self.old_q = (o[OUT_FUS_Q], o[OUT_FUS_Q + 1], o[OUT_FUS_Q + 2], o[OUT_FUS_Q + 3]) if o[OUT_FUS_OK] else None
+            self.old_bias = (o[OUT_FUS_BIAS], o[OUT_FUS_BIAS + 1], o[OUT_FUS_BIAS + 2])
+            q = (o[OUT_Q], o[OUT_Q + 1], o[OUT_Q + 2], o[OUT_Q + 3]) if o[OUT_Q_OK] else None
+            self.t_prev = t
+            return Estimate(t, q, o[OUT_SIGMA], (o[OUT_BIAS], o[OUT_BIAS + 1], o[OUT_BIAS + 2]), ran,
+                            time.perf_counter() - t0c)  # fmt: skip
+        token_add(self.cur, t, gx, gy, gz, ax, ay, az, mx, my, mz, bool(clipped))
         if self.anchor_cfg is not None:
-            g_clip = bool(clipped) if gyr_clipped is None else bool(gyr_clipped)
             q, sigma, bias = self._anchored_step(t, gyr_rad_s, acc_m_s2, mag_ut, bool(clipped), g_clip, est)
             if self.sigma_add:  # as offline (anchor.with_aircraft_sigma)
                 sigma = math.sqrt(sigma * sigma + self.sigma_add)
@@ -248,7 +241,7 @@ class StreamingEstimator:
         :data:`PREPARE_SOONEST_PERIODS` of one, would open a new token — so the next push does not wait for the network.
         The estimates are the same bits as without it (:meth:`push` takes the output, or undoes the early close where
         the next sample falls into the same token after all). → (the network ran, seconds spent)."""
-        if self.early is not None or self.t_prev is None or self.period is None or self.cur.n == 0:
+        if self.early is not None or self.t_prev is None or self.period is None or self.cur[TOK_N] == 0:
             return False, 0.0
         t_soonest = self.t_prev + PREPARE_SOONEST_PERIODS * self.period
         if int(math.ceil((t_soonest - self.t0) / self.delta - 1e-6)) <= self.k:
@@ -348,15 +341,17 @@ class StreamingEstimator:
         return out
 
     def _close_token(self):
-        tok = self.cur
-        if tok.n == 0:
+        tok = self.cur.tolist()
+        n = tok[TOK_N]
+        if n == 0:
             return None
-        g = [v / tok.n for v in tok.g]
-        a = [v / tok.n for v in tok.a]
-        m = [v / tok.m_n for v in tok.m] if tok.m_n else [float("nan")] * 3
-        cl = tok.clip / tok.n
+        g = [v / n for v in tok[TOK_G : TOK_G + 3]]
+        a = [v / n for v in tok[TOK_A : TOK_A + 3]]
+        m_n = tok[TOK_M_N]
+        m = [v / m_n for v in tok[TOK_M : TOK_M + 3]] if m_n else [float("nan")] * 3
+        cl = tok[TOK_CLIP] / n
         self.last_means = (g, a, m, cl)
-        self.win.append(tok.t_last, g, a, m, float(tok.n), cl)
+        self.win.append(tok[TOK_T_LAST], g, a, m, n, cl)
         if len(self.win) < self.cfg.window_tokens:
             return None
         return self._run_model()
