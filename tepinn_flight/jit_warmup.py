@@ -211,7 +211,8 @@ def _warm_live_sample(t, gyr, acc) -> None:
     for i in range(3):
         g, a = gyr[i].tolist(), acc[i].tolist()
         K.token_add(tok, float(t[i]), *g, *a, nan, nan, nan, False)
-        K.live_sample(tok, fus._buf, f.buf, f.cb, float(t[i]), *g, *a, nan, nan, nan, bool(i), f.use_mag, True, 0.0, out)
+        K.live_sample(tok, fus._buf, f.buf, f.cb, float(t[i]), *g, *a, nan, nan, nan, bool(i), False, False, f.use_mag,
+                      True, 0.0, out)  # fmt: skip
 
 
 def warm_kernels() -> None:

@@ -1,8 +1,9 @@
 """The live estimator's compiled push (``streaming_kernels.live_sample``, session 51) against the same push made of
 the calls one by one from Python (``StreamingEstimator.compiled = False``, the path every push took before): the
 same estimates to the bit — attitude, σ and bias — on jittered stamps with holes, a bridged dropout and a new segment,
-a gyro that saturates (the older fusion's tilt while the saturation gate holds), σ's aircraft term, the network's
-gates forced open, prepare() between samples and the magnetometer (9-D, a shared BROAD trial)."""
+a gyro that saturates (its samples queued for the saturation term; the older fusion's tilt while the saturation gate
+holds), σ's aircraft term, the network's gates forced open, prepare() between samples and the magnetometer (9-D, a
+shared BROAD trial)."""
 
 from __future__ import annotations
 

@@ -505,7 +505,7 @@ class AnchoredVQF:
         """VQF's own gyro-bias estimate (rad/s, its sensor frame)."""
         return self.sv[vqf_kernel.S_BIAS : vqf_kernel.S_BIAS + 3].copy()
 
-    def _room(self, n: int) -> None:
+    def room(self, n: int) -> None:
         """Room in the saturated samples' queue for ``n`` more."""
         if n and not S.clip_room(self.fs, self.cb, n):
             head, count = int(self.fs[S.F_CLIP_HEAD]), int(self.fs[S.F_CLIP_COUNT])
@@ -522,7 +522,7 @@ class AnchoredVQF:
         gyr_b, acc_b = _rows(gyr_b), _rows(acc_b)
         n = len(t_s)
         cl = np.zeros(n, np.bool_) if clipped is None else np.array(np.atleast_1d(clipped), np.bool_)  # (writable: one signature)
-        self._room(int(np.count_nonzero(cl)))
+        self.room(int(np.count_nonzero(cl)))
         m = self._no_mag
         if self.use_mag:
             m = np.full((n, 3), np.nan) if mag is None else _rows(mag)
@@ -539,7 +539,7 @@ class AnchoredVQF:
         ax, ay, az = acc_b
         mx, my, mz = _NAN3 if mag is None else mag
         if clipped:
-            self._room(1)
+            self.room(1)
         S.update_one(self.buf, self.cb, float(t_s), float(gx), float(gy), float(gz), float(ax), float(ay), float(az),
                      float(mx), float(my), float(mz), bool(clipped))  # fmt: skip
         o = self._out1.tolist()
@@ -568,7 +568,7 @@ class AnchoredVQF:
         gyr_b, acc_b = _rows(gyr_b), _rows(acc_b)
         n = len(t_s)
         cl = np.zeros(n, np.bool_) if clipped is None else np.array(clipped, np.bool_)  # (writable copies: one signature)
-        self._room(int(np.count_nonzero(cl)))
+        self.room(int(np.count_nonzero(cl)))
         m = (np.full((n, 3), np.nan) if mag is None else _rows(mag)) if self.use_mag else self._no_mag
         ends = np.array(ends, np.int64)
         nw = len(ends)

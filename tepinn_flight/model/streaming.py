@@ -122,7 +122,7 @@ class StreamingEstimator:
         self.sigma_add = aircraft_var_rad2(a, vehicle) if a is not None else 0.0  # σ² an aircraft's IMU adds (rule 28)
         self.clip_tilt = a is not None and bool(a.clip_tilt_from_fusion)  # saturated: the older fusion's tilt
         self._out = np.zeros(N_OUT)  # streaming_kernels.live_sample's output
-        # a push that applies no window and whose gyro is not clipped is one compiled call (session 51); False: the
+        # a push that applies no window is one compiled call (session 51, streaming_kernels.live_sample); False: the
         # calls one by one from Python, as before it (the same numbers: the reference the tests hold it to)
         self.compiled = True
         if threads:
@@ -214,10 +214,12 @@ class StreamingEstimator:
         mx, my, mz = mag_row
         g_clip = bool(clipped) if gyr_clipped is None else bool(gyr_clipped)
         anchored = self.anchored
-        if est is None and anchored is not None and not g_clip and self.compiled:  # the usual push: one compiled call
+        if est is None and anchored is not None and self.compiled:  # the usual push: one compiled call
+            if g_clip:
+                anchored.room(1)
             out = self._out
             live_sample(self.cur, self.fusion._buf, anchored.buf, anchored.cb, t, gx, gy, gz, ax, ay, az, mx, my, mz,
-                        bool(clipped), anchored.use_mag, self.clip_tilt, self.sigma_add, out)  # fmt: skip
+                        bool(clipped), g_clip, False, anchored.use_mag, self.clip_tilt, self.sigma_add, out)  # fmt: skip
             o = out.tolist()
             self.old_q = (o[OUT_FUS_Q], o[OUT_FUS_Q + 1], o[OUT_FUS_Q + 2], o[OUT_FUS_Q + 3]) if o[OUT_FUS_OK] else None
             self.old_bias = (o[OUT_FUS_BIAS], o[OUT_FUS_BIAS + 1], o[OUT_FUS_BIAS + 2])

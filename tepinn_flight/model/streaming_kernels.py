@@ -5,8 +5,7 @@ sample to the open token, steps the older fusion (the pulls' target) and the anc
 fusion's tilt while the saturation gate holds. Each of those was a compiled call already; the Python between them
 (argument checks, tuples, property reads) was most of a quiet record's cost per sample (session 51). :func:`live_sample`
 makes the same calls, in the same order, on the same buffers: the same numbers to the bit (tested against the
-push that calls them one by one from Python, which still runs where a window applies, the gyro clips or the filter
-is not yet made).
+push that calls them one by one from Python, which still runs where a window applies or the filter is not yet made).
 
 The open token is one float array (:data:`TOK_*`): sums of the gyro, accelerometer and magnetometer, the
 magnetometer's count, the sample count, the clipped count and the last sample's time.
@@ -64,15 +63,17 @@ def token_add(tok, t, gx, gy, gz, ax, ay, az, mx, my, mz, clipped):
 
 
 @njit(cache=True)
-def live_sample(tok, fus, anch, cb, t, gx, gy, gz, ax, ay, az, mx, my, mz, clipped, use_mag, clip_tilt, sigma_add,
-                out):  # fmt: skip
-    """One sample whose push applies no window and whose gyro is not clipped: into the token, the older fusion's step
-    (``fus``: :class:`.fusion.AttitudeFusion`'s buffer), the anchored filter's (``anch``, ``cb``:
-    :class:`.anchor.AnchoredVQF`'s), its 9-D attitude with ``use_mag``, the older fusion's tilt while the saturation
-    gate holds (``clip_tilt``) and σ² + ``sigma_add`` (σ's aircraft term) → ``out`` (:data:`OUT_*`)."""
+def live_sample(tok, fus, anch, cb, t, gx, gy, gz, ax, ay, az, mx, my, mz, clipped, gyr_clipped, no_window, use_mag,
+                clip_tilt, sigma_add, out):  # fmt: skip
+    """One sample whose push applies no window: into the token, the older fusion's step (``fus``:
+    :class:`.fusion.AttitudeFusion`'s buffer; ``no_window`` is False — a typed argument, not a constant: the step is
+    then the one the Python push calls, not a second compile of it), the anchored filter's (``anch``, ``cb``:
+    :class:`.anchor.AnchoredVQF`'s; with ``gyr_clipped`` the caller has made room in ``cb``), its 9-D attitude with
+    ``use_mag``, the older fusion's tilt while the saturation gate holds (``clip_tilt``) and σ² + ``sigma_add`` (σ's
+    aircraft term) → ``out`` (:data:`OUT_*`)."""
     token_add(tok, t, gx, gy, gz, ax, ay, az, mx, my, mz, clipped)
-    fus_ok = _step_live(fus, t, gx, gy, gz, clipped, False, 0.0)
-    S.update_one(anch, cb, t, gx, gy, gz, ax, ay, az, mx, my, mz, False)
+    fus_ok = _step_live(fus, t, gx, gy, gz, clipped, no_window, 0.0)
+    S.update_one(anch, cb, t, gx, gy, gz, ax, ay, az, mx, my, mz, gyr_clipped)
     o = S.O_OUT + (4 if use_mag else 0)
     qw, qx, qy, qz = anch[o], anch[o + 1], anch[o + 2], anch[o + 3]
     f = _FUS_OUT  # the older fusion's output: q (4), σ, bias (3)
