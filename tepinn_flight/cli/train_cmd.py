@@ -77,13 +77,21 @@ def run(args) -> int:
         s = finetune(args.init, args.data, out, minutes=args.minutes, progress=not args.quiet)
         # (one file: nothing is held out, and the figures below are on the file it was tuned on: said so, not "validation")
         files = "validation files" if s["val_files"] else "file it was tuned on"
+        fit = s["fitted_sigma"]
+        fitted = (f"σ₀ {fit['sigma_floor_deg']:g}°, c {fit['sigma_acc_gain']:g}, sampling term "
+                  f"{'on' if fit['sigma_sampling_gain'] else 'off'}")
+        if s["sigma_kept"] == "init":  # the fit on the training files scored worse on the others than the start's σ
+            n_f, c_f = s["val_sigma_by_choice"]["fitted"]
+            sigma = (f"σ kept from {args.init} (fitted on the training files, {fitted}, it scored NEES {n_f:.2f}, "
+                     f"{100 * c_f:.1f} % within 3σ on the {files})")
+        else:
+            sigma = fitted
         held = ("" if s["val_files"] else
                 " (no file held out: give two or more logs to validate; the figures are on the file it was tuned on)")
         print(f"fine-tuned on {len(s['train_files'])} file(s), validated on {len(s['val_files'])}{held}: "
               f"inclination RMSE {s['val_inclination_rmse_deg_before']:.3f}° -> {s['val_inclination_rmse_deg_after']:.3f}° "
               f"(VQF accelerometer time constant {s['tau_acc_s']:g} s, gyro scale "
-              f"{', '.join(f'{v:g}' for v in s['gyro_scale'])}; σ₀ {s['sigma_floor_deg']:g}°, c {s['sigma_acc_gain']:g}, sampling term "
-              f"{'on' if s['sigma_sampling_gain'] else 'off'}: "
+              f"{', '.join(f'{v:g}' for v in s['gyro_scale'])}; {sigma}: "
               f"NEES {s['val_sigma_nees_before']:.2f} -> {s['val_sigma_nees_after']:.2f}, within 3σ "
               f"{100 * s['val_sigma_within_3sigma_before']:.1f} -> {100 * s['val_sigma_within_3sigma_after']:.1f} % causal; "
               f"offline tilt smoothing {'kept' if s['smoother'] else 'off'}: training files "

@@ -147,6 +147,12 @@ def score(files: list[ErrorSamples], sigma_floor_deg: float, sigma_acc_gain: flo
     return float(np.mean(nees)), float(np.mean(cov))
 
 
+def rule_key(nees: float, share_3sigma: float, coverage: float = 0.97, nees_target: float = 2.0) -> tuple:
+    """σ's rule as a sort key (smaller is better): among σs that keep at least ``coverage`` of the samples within 3σ,
+    the mean NEES nearest ``nees_target``; any of those before one that does not, and of those the higher share."""
+    return (0, abs(nees - nees_target)) if share_3sigma >= coverage else (1, -share_3sigma)
+
+
 def fit_sigma(files: list[ErrorSamples], coverage: float = 0.97, nees_target: float = 2.0,
               floors_deg=np.arange(0.2, 1.01, 0.05), gains=np.arange(0.0, 0.151, 0.005),
               sampling_gains=(0.0,)) -> SigmaFit:  # fmt: skip
@@ -160,7 +166,7 @@ def fit_sigma(files: list[ErrorSamples], coverage: float = 0.97, nees_target: fl
         for f0 in floors_deg:
             for c in gains:
                 n, cv = score(files, float(f0), float(c), float(g))
-                key = (0, abs(n - nees_target)) if cv >= coverage else (1, -cv)
+                key = rule_key(n, cv, coverage, nees_target)
                 if best_key is None or key < best_key:
                     best, best_key = SigmaFit(round(float(f0), 4), round(float(c), 4), float(g), n, cv), key
     return best

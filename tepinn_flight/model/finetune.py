@@ -189,6 +189,25 @@ def fit_anchor_sigma(model, anchor, records: list[FlightRecord], warmup_s: float
                                sigma_acc_gain_aircraft=0.0), fit  # fmt: skip
 
 
+#: σ's terms the fine-tuning either fits on the training files or keeps from the model it starts from
+SIGMA_TERMS = ("sigma_floor_deg", "sigma_acc_gain", "sigma_sampling_gain", "sigma_aircraft_deg", "sigma_acc_gain_aircraft")
+
+
+def choose_sigma(model, fitted, init, val: list[FlightRecord], warmup_s: float = 5.0, coverage: float = SIGMA_COVERAGE):
+    """σ as fitted on the training files (``fitted``: :func:`fit_anchor_sigma`'s filter) or the starting model's σ terms
+    (``init``'s :data:`SIGMA_TERMS`, on the same tuned filter), whichever σ's rule scores better on the validation files
+    ``val`` (the fit where they tie): a σ fitted on a vehicle's calm logs can fail its dynamic ones (session 51) →
+    (the filter, "fitted" or "init", each candidate's (NEES, share within 3σ) on ``val``)."""
+    from ..evaluation.sigma_calibration import rule_key, score
+
+    kept = dataclasses.replace(fitted, **{k: getattr(init, k) for k in SIGMA_TERMS})
+    samples = sigma_samples(model, fitted, val, warmup_s)  # (σ is an output only: the same samples for both)
+    scores = {name: score(samples, *(getattr(a, k) for k in SIGMA_TERMS)) for name, a in (("fitted", fitted), ("init", kept))}
+    if rule_key(*scores["init"], coverage) < rule_key(*scores["fitted"], coverage):
+        return kept, "init", scores
+    return fitted, "fitted", scores
+
+
 def sigma_scores(model, anchor, records: list[FlightRecord], warmup_s: float = 5.0) -> tuple[float, float]:
     """(mean NEES, share within 3σ), per file averaged, of ``anchor``'s σ on ``records``."""
     from ..evaluation.sigma_calibration import score
@@ -261,8 +280,9 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     train_recs = [recs[i] for i in tr]
     wins = record_windows(model1, causal0, train_recs)  # once: no setting tuned below changes them
     anchor, table, scales = tune_anchor(model1, causal0, train_recs, windows=wins)
-    anchor, sfit = fit_anchor_sigma(model1, anchor, train_recs)
-    nees_causal = sigma_scores(model0, causal0, val), sigma_scores(model1, anchor, val)
+    fitted, sfit = fit_anchor_sigma(model1, anchor, train_recs)
+    anchor, sigma_choice, sigma_val = choose_sigma(model1, fitted, est0, val)
+    nees_causal = sigma_scores(model0, causal0, val), sigma_val[sigma_choice]
     anchor, smooth_table = tune_smoothing(model1, anchor, train_recs, windows=wins)
     save_checkpoint(out / "model.pt", model1, fusion_config_from(ck.get("fusion_config")), anchor,
                     **{k: v for k, v in ck.items() if k not in ("format", "version", "model_config", "fusion_config",
@@ -287,6 +307,9 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
         "val_sigma_nees_before": nees0, "val_sigma_nees_after": nees1,
         "val_sigma_within_3sigma_before": in3_0, "val_sigma_within_3sigma_after": in3_1,
         "sigma_note": "sigma fitted and scored on the causal estimate (estimate --no-smooth)",
+        "sigma_kept": sigma_choice, "val_sigma_by_choice": {k: list(v) for k, v in sigma_val.items()},
+        "fitted_sigma": {"sigma_floor_deg": fitted.sigma_floor_deg, "sigma_acc_gain": fitted.sigma_acc_gain,
+                         "sigma_sampling_gain": fitted.sigma_sampling_gain},
         "val_network_gates": gates, "val_network_gates_summary": gates_acted(gates),
         "validation_note": "" if va else "one file only: the figures are on the file it was tuned on",
         **{k: v for k, v in result.items() if isinstance(v, (int, float, str))},
