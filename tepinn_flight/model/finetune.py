@@ -13,7 +13,8 @@ same files and kept only where it gains 2 % (session 10: on the BROAD trials, on
 1.005 took VQF from 0.683° to 0.550°). Last, σ (``sigma_floor_deg`` σ₀, ``sigma_acc_gain`` c, and
 whether the sampling term counts, ``sigma_sampling_gain`` g: 0 or 1) is fitted on the same files against their reference (:func:`fit_anchor_sigma`): how far the estimate
 strays from the vehicle's own autopilot is the vehicle's too — the shipped σ was fitted on BROAD's
-optical truth. Then whether the offline tilt smoothing (:mod:`.smoother`, on in the shipped model since
+optical truth — kept only where it scores better than the starting model's σ on the validation files by σ's rule
+(:func:`choose_sigma`, session 51: a σ fitted on calm logs fails the dynamic ones). Then whether the offline tilt smoothing (:mod:`.smoother`, on in the shipped model since
 session 25: nearer a true attitude) stays on: only where it lowers the training files' mean RMSE against
 their reference — an autopilot's own estimate is causal, and a vehicle fine-tuned to agree with its
 autopilot usually agrees better without it (:func:`tune_smoothing`). ``RUN_DIR/model.pt`` then works with
