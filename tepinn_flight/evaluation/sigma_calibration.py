@@ -179,11 +179,12 @@ def fit_added_sigma(files: list[tuple[np.ndarray, np.ndarray, np.ndarray | float
     error, σ without the term, u) on its scored samples → (the ``grid``'s x whose per-file mean NEES is nearest
     ``nees_target`` among those with at least ``coverage`` within 3σ, per file averaged — None if none reaches it —,
     and every grid point's (x, NEES, share within 3σ))."""
-    table, best, best_gap = [], None, None
+    table, best, best_key = [], None, None
     for x in grid:
         r = [e2 / (s * s + (float(x) * u) ** 2) for e2, s, u in files if len(e2)]
         n, cv = float(np.mean([np.mean(v) for v in r])), float(np.mean([np.mean(v <= 9.0) for v in r]))
         table.append((round(float(x), 4), n, cv))
-        if cv >= coverage and (best_gap is None or abs(n - nees_target) < best_gap):
-            best, best_gap = round(float(x), 4), abs(n - nees_target)
+        key = rule_key(n, cv, coverage, nees_target)
+        if key[0] == 0 and (best_key is None or key < best_key):
+            best, best_key = round(float(x), 4), key
     return best, table

@@ -658,20 +658,25 @@ def speed_gate_allowed(config: AnchorConfig, vehicle: str | None) -> bool:
 AIRCRAFT_SIGMA_CLASSES = (MULTIROTOR, FIXED_WING, OTHER)
 
 
+def takes_aircraft_terms(vehicle: str | None) -> bool:
+    """Whether a record of ``vehicle`` (a record's ``vehicle_type``, an autopilot's MAV_TYPE name or a
+    :mod:`..vehicle_class` class) takes σ's aircraft terms (rules 28, 29): its class is one of
+    :data:`AIRCRAFT_SIGMA_CLASSES` (not a hand-held IMU, not a vehicle not known)."""
+    return vehicle_class(vehicle) in AIRCRAFT_SIGMA_CLASSES
+
+
 def aircraft_var_rad2(config: AnchorConfig, vehicle: str | None) -> float:
-    """What σ² takes on a record of ``vehicle`` (a record's ``vehicle_type``, an autopilot's MAV_TYPE name or a
-    :mod:`..vehicle_class` class): σ_a² (``config.sigma_aircraft_deg``) where its class is one of
-    :data:`AIRCRAFT_SIGMA_CLASSES`, else 0 (a hand-held IMU, a vehicle not known)."""
-    if config.sigma_aircraft_deg <= 0 or vehicle_class(vehicle) not in AIRCRAFT_SIGMA_CLASSES:
+    """What σ² takes on a record of ``vehicle``: σ_a² (``config.sigma_aircraft_deg``) where it
+    :func:`takes_aircraft_terms`, else 0."""
+    if config.sigma_aircraft_deg <= 0 or not takes_aircraft_terms(vehicle):
         return 0.0
     return math.radians(config.sigma_aircraft_deg) ** 2
 
 
 def acc_gain(config: AnchorConfig, vehicle: str | None, causal: bool) -> float:
     """σ's accelerometer gain c for a record of ``vehicle``: ``config.sigma_acc_gain_aircraft`` where the estimate is
-    ``causal`` and the vehicle takes σ's aircraft term (:data:`AIRCRAFT_SIGMA_CLASSES`; rule 29) and that gain is set,
-    else ``config.sigma_acc_gain``."""
-    if causal and config.sigma_acc_gain_aircraft > 0 and vehicle_class(vehicle) in AIRCRAFT_SIGMA_CLASSES:
+    ``causal``, the vehicle :func:`takes_aircraft_terms` (rule 29) and that gain is set, else ``config.sigma_acc_gain``."""
+    if causal and config.sigma_acc_gain_aircraft > 0 and takes_aircraft_terms(vehicle):
         return float(config.sigma_acc_gain_aircraft)
     return float(config.sigma_acc_gain)
 

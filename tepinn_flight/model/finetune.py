@@ -213,8 +213,7 @@ def sigma_scores(model, anchor, records: list[FlightRecord], warmup_s: float = 5
     """(mean NEES, share within 3σ), per file averaged, of ``anchor``'s σ on ``records``."""
     from ..evaluation.sigma_calibration import score
 
-    return score(sigma_samples(model, anchor, records, warmup_s), anchor.sigma_floor_deg, anchor.sigma_acc_gain,
-                 anchor.sigma_sampling_gain, anchor.sigma_aircraft_deg, anchor.sigma_acc_gain_aircraft)  # fmt: skip
+    return score(sigma_samples(model, anchor, records, warmup_s), *(getattr(anchor, k) for k in SIGMA_TERMS))
 
 
 def inclination_rmse_deg(rec: FlightRecord, est, warmup_s: float = 5.0) -> float:
@@ -307,7 +306,8 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
         "train_sigma_nees": sfit.nees, "train_sigma_within_3sigma": sfit.coverage_3sigma,
         "val_sigma_nees_before": nees0, "val_sigma_nees_after": nees1,
         "val_sigma_within_3sigma_before": in3_0, "val_sigma_within_3sigma_after": in3_1,
-        "sigma_note": "sigma fitted and scored on the causal estimate (estimate --no-smooth)",
+        "sigma_note": "sigma fitted and scored on the causal estimate (estimate --no-smooth); the fit or the starting "
+                      "model's sigma kept by its score on the validation files, so their sigma figures are not blind",
         "sigma_kept": sigma_choice, "val_sigma_by_choice": {k: list(v) for k, v in sigma_val.items()},
         "fitted_sigma": {"sigma_floor_deg": fitted.sigma_floor_deg, "sigma_acc_gain": fitted.sigma_acc_gain,
                          "sigma_sampling_gain": fitted.sigma_sampling_gain},
