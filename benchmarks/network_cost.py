@@ -52,7 +52,9 @@ def time_windows(runner, tok, ends: np.ndarray, batch: int) -> float:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--record", default=str(DEFAULT_RECORD), help="a record or log (default: training flight 0008)")
+    ap.add_argument("--record", default=str(DEFAULT_RECORD),
+                    help="a record or log (default: training flight 0008 in runs/default/data, flown by the default "
+                         "recipe or `simulate --campaign flight_sims/campaigns/mixed.toml -o runs/default/data`)")
     ap.add_argument("--windows", type=int, default=2400, help="windows timed per shape (the record's first)")
     ap.add_argument("--rounds", type=int, default=3, help="rounds over every shape; the best of each is printed")
     ap.add_argument("--shape", action="append", help="KEY=VALUE[,KEY=VALUE...] of the model config (repeatable)")
