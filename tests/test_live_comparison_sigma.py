@@ -65,3 +65,35 @@ def test_no_sigma_no_figures():
     s = _run([(0.2 + 0.1 * i, 0.001, None) for i in range(5)]).summary()
     assert s["n"] == 5 and "nees" not in s and "within_3sigma" not in s
     assert math.isfinite(s["mean"])
+
+
+def test_after_a_reboot_the_differences_are_still_held_against_their_sigma():
+    """The autopilot reboots (its clock and the estimates' start again near 0): the σs given before can pair with
+    nothing now, and must not stand in front of the new ones."""
+    from pymavlink.dialects.v20 import all as m2
+
+    c = LiveComparison()
+    for i in range(20):  # 50 s ... 52 s: estimates 0.001 rad off level, σ 0.01 (ratio 0.1), EKF at 10 Hz
+        t = 50.0 + 0.1 * i
+        c.on_ekf(m2.MAVLink_attitude_message(int(t * 1000), 0.0, 0.0, 0.0, 0, 0, 0), "ATTITUDE", 100.0 + 0.1 * i)
+        c.on_estimate(t + 0.05, tuple(Rotation.from_rotvec([0.001, 0, 0]).as_quat(scalar_first=True)), 0.01)
+    c.on_estimate(53.0, tuple(Rotation.from_rotvec([0.001, 0, 0]).as_quat(scalar_first=True)), 0.01)  # never paired
+    before, paired = c.n_sigma, c.hist.count
+    assert before == paired == 19
+    for i in range(20):  # after the reboot (the arrival clock goes on): 1 s ... 3 s, ratio 4 (outside 3σ)
+        t = 1.0 + 0.1 * i
+        c.on_ekf(m2.MAVLink_attitude_message(int(t * 1000), 0.0, 0.0, 0.0, 0, 0, 0), "ATTITUDE", 103.0 + 0.1 * i)
+        c.on_estimate(t + 0.05, tuple(Rotation.from_rotvec([0.04, 0, 0]).as_quat(scalar_first=True)), 0.01)
+    assert c.hist.count - paired >= 14  # paired again once the reboot is confirmed (5 attitudes)
+    assert c.n_sigma - before == c.hist.count - paired  # and each new difference against its own σ
+    assert c.n_within_3sigma == before  # none of them within 3σ
+
+
+def test_without_the_autopilots_attitude_the_sigmas_kept_stay_bounded():
+    """A bridge running for hours where the autopilot sends no attitude: the σs waiting for a pairing are bounded as
+    the comparator's own pending estimates are."""
+    c = LiveComparison()
+    q = tuple(Rotation.identity().as_quat(scalar_first=True))
+    for i in range(5000):
+        c.on_estimate(0.02 * i, q, 0.01)
+    assert len(c.sigmas) <= c.cmp.pending.maxlen

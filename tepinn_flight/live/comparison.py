@@ -47,7 +47,8 @@ class LiveComparison:
         self.last = None  # (t_s, droll, dpitch, dincl, dheading) of the latest difference
         self.params: dict[str, float] = {}  # the autopilot's AHRS_TRIM_X/Y, as they come
         self.trim = None  # (x, y) rad once known and non-zero
-        self.sigmas: deque = deque()  # (t_s, σ rad) of the estimates not yet paired with the EKF
+        # (t_s, σ rad) of the estimates not yet paired with the EKF: no more than the comparator keeps waiting
+        self.sigmas: deque = deque(maxlen=self.cmp.pending.maxlen)
         self.n_sigma = 0  # differences held against a finite σ
         self.n_within_3sigma = 0
         self.nees_sum = 0.0
@@ -81,6 +82,8 @@ class LiveComparison:
         if self.view is not None:
             self.view.estimate(t_s, q_nb_wxyz)
         if sigma_rad is not None:
+            if self.sigmas and t_s < self.sigmas[-1][0]:  # the estimates' clock started again (a reboot): the σs
+                self.sigmas.clear()  # before it pair with nothing now, and would stand in front of the new ones
             self.sigmas.append((t_s, float(sigma_rad)))
         for d in self.cmp.add_estimate(t_s, q_nb_wxyz):
             self._diff(d)
