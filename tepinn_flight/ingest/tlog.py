@@ -47,7 +47,9 @@ GNSS velocity
 
 Time
     Sample time from ``time_usec`` / ``time_boot_ms`` (since boot; ``time_usec`` above 1e15 is UNIX
-    time), never the tlog receive timestamp. A reboot is the boot clock going back by more than 1 s
+    time), never the tlog receive timestamp. ArduPilot's ``RAW_IMU.time_usec`` is a 32-bit µs count that
+    wraps 71.6 min after boot: unwrapped against the ``time_boot_ms`` written before each sample
+    (:func:`_unwrap_us32`, :mod:`.clock_wrap`). A reboot is the boot clock going back by more than 1 s
     across the autopilot's IMU and attitude messages in file order *and staying back* for the
     next :data:`REBOOT_CONFIRM` messages (a single late message, seen in ``uavlv_vtol.tlog``, is
     not a reboot). Inside a boot epoch each stream is sorted by sample time.
@@ -71,6 +73,7 @@ from ..errors import ConfigError, CorruptLog, NoImuData
 from ..mavlink_dialect import dialect
 from ..quat import quat_from_euler_zyx
 from .ahrs_trim import TRIM_PARAMS, trim_note, usable_trim, vehicle_to_board
+from .clock_wrap import US32_WRAP_S, WRAP_MIN_BACKSTEP_S, top_to_bottom, wrap_count
 from .mavlink_scan import scan_tlog
 from .saturation import accel_saturated, gyro_full_scale_rad_s, gyro_saturated
 from .streams import GnssVelStream, ImuStream, MagStream, RawLog, RefStream
@@ -173,6 +176,7 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     # ---- reference candidates
     refs = _ref_streams(frames)
     del frames
+    _unwrap_us32(live, refs, notes)
 
     # ---- select the IMU
     usable = {k: s for k, s in by_inst.items() if s["scale_known"]}
@@ -465,6 +469,42 @@ def _time_s(raw: np.ndarray, field: str) -> tuple[np.ndarray, str]:
         clock = "unix" if len(us) and np.median(us) > UNIX_TIME_THRESHOLD_US else "boot"
         return us / 1e6, clock
     return raw.astype(np.float64) / 1e3, "boot"
+
+
+def _unwrap_us32(imu_streams: list[dict], refs: dict[str, dict], notes: list[str]) -> None:
+    """Put a boot-clock ``time_usec`` IMU stream that wrapped at 2**32 µs back on a running clock, in place
+    (:mod:`.clock_wrap`).
+
+    Each sample takes the wrap count that brings it nearest to the ``time_boot_ms`` (of any reference or IMU
+    message on that clock) written just before it in the file, where one does; else the count of the sample
+    before it. A reboot sets every clock back, so it stays one (the boot epochs are found after this). With no
+    ``time_boot_ms`` message, a fall from the top of the 32-bit range to its bottom is counted as a wrap.
+    """
+    ms_clocks = [s for s in imu_streams if IMU_MESSAGES[s["name"]][0] == "time_boot_ms" and s["clock"] == "boot"]
+    ms_clocks += [r for r in refs.values() if r["clock"] == "boot"]
+    for s in imu_streams:
+        if IMU_MESSAGES[s["name"]][0] != "time_usec" or s["clock"] != "boot" or len(s["t_s"]) < 2:
+            continue
+        t = s["t_s"]
+        if not (np.nanmax(t) < US32_WRAP_S and np.any(np.diff(t) < -WRAP_MIN_BACKSTEP_S)):
+            continue
+        if ms_clocks:
+            off = np.concatenate([c["offset"] for c in ms_clocks])
+            tc = np.concatenate([c["t_s"] for c in ms_clocks])
+            o = np.argsort(off, kind="stable")
+            before = np.searchsorted(off[o], s["offset"], side="right") - 1
+            k = np.where(before >= 0, wrap_count(t, tc[o][np.maximum(before, 0)]), -1.0)
+        else:  # the stream alone
+            fell = np.zeros(len(t))
+            fell[1:] = [top_to_bottom(a, b) for a, b in zip(t[:-1], t[1:])]
+            k = np.cumsum(fell)
+        idx = np.maximum.accumulate(np.where(k >= 0, np.arange(len(t)), -1))  # no match: the count before
+        wraps = np.where(idx >= 0, k[np.maximum(idx, 0)], 0.0)
+        if np.any(wraps > 0):
+            s["t_s"] = t + wraps * US32_WRAP_S
+            s["rate_hz"] = _rate_hz(s["t_s"])
+            notes.append(f"{s['name']} time_usec wrapped at 2^32 µs ({int(wraps.max())} time(s): ArduPilot's "
+                         "32-bit clock, 71.6 min after boot): unwrapped")  # fmt: skip
 
 
 def _rate_hz(t_s: np.ndarray) -> float | None:

@@ -249,7 +249,7 @@ class Bridge:
             self.requests.attempts = 0  # back after being lost: ask again if the IMU is slow
 
     def _on_imu(self, m, t_in: float) -> None:
-        s, switched = self.imu.take(m, t_in, self.ap.autopilot, self.ap.name)
+        s, switched = self.imu.take(m, t_in, self.ap.autopilot, self.ap.name, self.ap.boot_ms_at(t_in))
         if switched:
             self.feed.reset()
         if s is None:

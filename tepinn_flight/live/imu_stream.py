@@ -5,6 +5,9 @@
   scale (RAW_IMU of a non-ArduPilot autopilot) is refused, once said. A switch to another message
   (a preferred one appears, or the current one is silent for 1 s) restarts its clock and asks for
   an estimator reset.
+* **clock**: ArduPilot's ``RAW_IMU.time_usec`` is a 32-bit µs count that wraps 71.6 min after boot; the
+  sample takes the wrap count that puts it at the autopilot's boot clock of its moment
+  (:mod:`tepinn_flight.ingest.clock_wrap`, as the tlog reader), so a long flight is not taken for a reboot.
 * **order**: samples whose own time is not newer than the newest one taken (duplicates, stale
   copies from a redundant link, reordered UDP) are dropped here (they were forwarded already) and
   counted; a reboot is told apart by :class:`~tepinn_flight.live.sample_order.SampleOrder`.
@@ -16,6 +19,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+
+from ..ingest.clock_wrap import top_to_bottom, wrap_count
 from ..ingest.tlog import MAV_AUTOPILOT_ARDUPILOTMEGA
 from ..record import MIN_ESTIMATION_RATE_HZ
 from . import MAV_COMP_ID_AUTOPILOT1
@@ -46,10 +52,16 @@ class ImuStream:
         self.time_jumps = 0
         self.order = SampleOrder()  # duplicates / out-of-order frames dropped, reboots told apart
         self.unknown_scale_noted = False
+        self.wraps = 0  # RAW_IMU's 32-bit time_usec: the wraps counted so far (clock_wrap)
+        self.wraps_noted = 0
+        self.raw_prev_t = None  # the last RAW_IMU time_usec as sent (s), for a wrap read without a boot clock
 
-    def take(self, m, t_in: float, autopilot: int | None, autopilot_name) -> tuple[ImuSample | None, bool]:
+    def take(self, m, t_in: float, autopilot: int | None, autopilot_name,
+             boot_ms_now: int | None = None) -> tuple[ImuSample | None, bool]:  # fmt: skip
         """(the sample for the estimator or None, whether the stream switched to another message:
-        the estimator must then be reset before the sample)."""
+        the estimator must then be reset before the sample). ``boot_ms_now``: the autopilot's boot clock (ms)
+        at ``t_in`` where its other messages gave one (:meth:`AutopilotTracker.boot_ms_at`), which RAW_IMU's
+        32-bit clock is unwrapped against."""
         name = m.get_type()
         if not imu_scale_known(name, autopilot):
             if not self.unknown_scale_noted:
@@ -60,6 +72,8 @@ class ImuStream:
         s = imu_sample(m, autopilot)
         if s is None or s.instance != self.instance:
             return None, False
+        if s.message == "RAW_IMU" and s.time_boot_ms is not None:
+            s = self._unwrapped(s, boot_ms_now)
         self.seen[s.message] = t_in
         cur = self.message
         switched = False
@@ -89,6 +103,24 @@ class ImuStream:
                 self.time_jumps += 1
         self.last_t = s.t_s
         return s, switched
+
+    def _unwrapped(self, s: ImuSample, boot_ms_now: int | None) -> ImuSample:
+        """``s`` on a running clock: its 32-bit ``time_usec`` plus the wraps counted (a new count where the
+        autopilot's boot clock, or the stream alone without one, shows a wrap)."""
+        k = wrap_count(s.t_s, boot_ms_now / 1e3) if boot_ms_now is not None else -1
+        if k >= 0:
+            self.wraps = k
+        elif boot_ms_now is None and self.raw_prev_t is not None and top_to_bottom(self.raw_prev_t, s.t_s):
+            self.wraps += 1
+        self.raw_prev_t = s.t_s
+        if self.wraps > self.wraps_noted:
+            self.wraps_noted = self.wraps
+            self.note(f"tepinn-flight bridge: RAW_IMU time_usec wrapped at 2^32 µs (ArduPilot's 32-bit clock, "
+                      f"{self.wraps} time(s)): unwrapped")  # fmt: skip
+        if self.wraps == 0:
+            return s
+        us = s.time_usec + (self.wraps << 32)
+        return dataclasses.replace(s, t_s=us / 1e6, time_usec=us, time_boot_ms=us // 1000)
 
     def summary(self) -> dict:
         return {
