@@ -12,10 +12,19 @@ still restart.
 
 The live estimator (:mod:`tepinn_flight.model.streaming`) bridges the same gaps with the same
 samples (:func:`filler_times`, :func:`interpolate_rows`).
+
+**A rise of the sample rate** starts a new segment too (session 53). The estimators take a segment's sample
+period from its first :data:`PERIOD_STEPS` steps (VQF's time constants, the gyro's step weights), so a stream that
+turns faster inside a segment — the bridge's own request for a faster IMU, granted mid-flight — was run on a period
+several times too long (the live tilt 80–157° off). Where more than half of the last :data:`PERIOD_STEPS` steps are
+shorter than the segment's period / :data:`RATE_RISE`, the sample there starts a new segment
+(:func:`rate_rise_cuts` offline, in :func:`bridge_gaps`; :class:`RateRise` live: the same sample). A falling rate is
+a run of gaps, bridged or restarted as above.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +40,12 @@ GAP_PERIODS = 2.5
 #: a vehicle changes within a tenth of a second, while a restart loses far more (the attitude, the
 #: gyro-bias estimate and every estimator's warm-up). Longer gaps restart.
 MAX_BRIDGED_GAP_S = 0.1
+
+#: a segment's sample period is the median of its first this-many steps (the anchored filter, offline and live)
+PERIOD_STEPS = 51
+#: ... and a new segment starts where most of the last PERIOD_STEPS steps are shorter than that period / RATE_RISE
+RATE_RISE = 1.5
+_RISE_COUNT = PERIOD_STEPS // 2 + 1  # "most": the median of PERIOD_STEPS (odd) steps is below iff this many are
 
 _INTERPOLATED = [*GYR_COLS, *ACC_COLS, *MAG_COLS, *GYR_BIAS_COLS, *ACC_BIAS_COLS, *GNSS_VEL_COLS]
 
@@ -116,9 +131,78 @@ def record_period_s(rec: FlightRecord) -> float:
     return float(np.median(dt)) if dt.size else float("nan")
 
 
+def segment_period_s(t_s: np.ndarray) -> float:
+    """A segment's sample period from its times: the median of its first :data:`PERIOD_STEPS` steps."""
+    dt = np.diff(np.asarray(t_s[: PERIOD_STEPS + 1], np.float64))
+    return float(np.median(dt)) if dt.size else float("nan")
+
+
+def rate_rise_cuts(t_s: np.ndarray, segment: np.ndarray) -> np.ndarray:
+    """The rows that start a new segment because the sample rate rose (see the module): in each segment, after
+    its first :data:`PERIOD_STEPS` steps, the first row at which more than half of the last :data:`PERIOD_STEPS`
+    steps are shorter than the segment's period / :data:`RATE_RISE`; the new segment is scanned in turn."""
+    t = np.asarray(t_s, np.float64)
+    seg = np.asarray(segment)
+    starts = np.r_[0, np.flatnonzero(np.diff(seg) != 0) + 1]
+    ends = np.r_[starts[1:], len(t)]
+    cuts = []
+    for a, b in zip(starts.tolist(), ends.tolist()):
+        while b - a > PERIOD_STEPS + 1:
+            ts = segment_period_s(t[a:b])
+            short = np.diff(t[a:b]) < ts / RATE_RISE  # short[j]: the step into row a + j + 1
+            if not (ts > 0) or int(short.sum()) < _RISE_COUNT:
+                break
+            c = np.cumsum(short)
+            last = c[PERIOD_STEPS - 1 :] - np.r_[0, c[: -PERIOD_STEPS]]  # over the steps into rows i-50 .. i
+            i = np.arange(PERIOD_STEPS, b - a)  # rows a + i whose last PERIOD_STEPS steps are all in the segment
+            hit = np.flatnonzero(last[i - PERIOD_STEPS] >= _RISE_COUNT) if len(i) else i
+            hit = hit[i[hit] > PERIOD_STEPS]  # after the steps that gave the period (the live filter is made then)
+            if not len(hit):
+                break
+            a = a + int(i[hit[0]])
+            cuts.append(a)
+    return np.asarray(cuts, np.int64)
+
+
+class RateRise:
+    """The live form of :func:`rate_rise_cuts`: ``step(dt)`` for each step after a segment's period ``ts`` is
+    known (its first :data:`PERIOD_STEPS` steps) → True at the sample that starts a new segment."""
+
+    def __init__(self, ts: float, steps: list[float]):
+        self.limit = ts / RATE_RISE
+        self.short = deque((d < self.limit for d in steps[-PERIOD_STEPS:]), maxlen=PERIOD_STEPS)
+        self.count = sum(self.short)
+
+    def step(self, dt: float) -> bool:
+        s = dt < self.limit
+        if len(self.short) == PERIOD_STEPS:
+            self.count -= self.short[0]
+        self.short.append(s)
+        self.count += s
+        return len(self.short) == PERIOD_STEPS and self.count >= _RISE_COUNT
+
+
+def _with_cuts(b: "Bridged") -> "Bridged":
+    """``b`` with its record's segments cut where the sample rate rose (:func:`rate_rise_cuts`)."""
+    rec = b.record
+    cuts = rate_rise_cuts(rec.t_s, rec.segment)
+    if not len(cuts):
+        return b
+    data = rec.data.copy()
+    is_break = np.r_[False, np.diff(rec.segment) != 0]
+    is_break[cuts] = True
+    data["segment"] = np.cumsum(is_break).astype(np.int32)
+    return Bridged(FlightRecord(data, dict(rec.meta)), b.rows, b.gaps, b.filled)
+
+
 def bridge_gaps(rec: FlightRecord, max_gap_s: float = MAX_BRIDGED_GAP_S) -> Bridged:
     """``rec`` with every segment break that is a gap of at most ``max_gap_s`` bridged (see the
-    module). The record itself is returned (``filled == 0``) when there is nothing to bridge."""
+    module), and cut where the sample rate rose (:func:`rate_rise_cuts`). The record itself is returned
+    (``filled == 0``) when there is nothing to bridge or cut."""
+    return _with_cuts(_bridged(rec, max_gap_s))
+
+
+def _bridged(rec: FlightRecord, max_gap_s: float) -> Bridged:
     n = len(rec)
     ident = Bridged(rec, np.arange(n), 0, 0)
     if n < 2:

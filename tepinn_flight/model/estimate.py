@@ -121,7 +121,7 @@ def estimate_record(model: TEPINN, rec: FlightRecord, fusion: FusionConfig | Anc
     smoothing's settings where an :class:`AnchorConfig` smooths (default: the shipped ones)."""
     if windows is None:
         br = bridge_gaps(rec)
-        if br.filled:
+        if br.record is not rec:  # gaps filled, or segments cut where the rate rose
             return br.original(estimate_record(model, br.record, fusion, batch_size, smoother=smoother))
     if isinstance(fusion, AnchorConfig):
         return estimate_anchored(model, rec, fusion, batch_size, smoother=smoother)

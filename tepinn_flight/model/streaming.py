@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..record_gaps import GAP_PERIODS, filler_times, interpolate_rows, is_bridgeable
+from ..record_gaps import GAP_PERIODS, PERIOD_STEPS, RateRise, filler_times, interpolate_rows, is_bridgeable
 from .accel_scale import AccelScaleTracker
 from .anchor import (AnchorConfig, AnchoredVQF, WindowOutput, acc_gain, aircraft_var_rad2, fusion_tilt_f,
                      speed_gate_allowed)  # fmt: skip
@@ -49,7 +49,7 @@ if TYPE_CHECKING:
     from .network import TEPINN
 
 #: the anchored filter's sample period is the median of a segment's first steps (offline the same)
-TS_STEPS = 51
+TS_STEPS = PERIOD_STEPS
 #: :meth:`StreamingEstimator.prepare` closes the token early where a next sample this many periods after the last
 #: would already open a new one (a sample sooner than that, in the same token, undoes the early close)
 PREPARE_SOONEST_PERIODS = 0.5
@@ -115,6 +115,7 @@ class StreamingEstimator:
         self.holes = 0  # non-finite samples bridged with it
         self.last_raw = None  # the previous sample's gyro, accelerometer, magnetometer: three tuples (gap filling)
         self.bridged_gaps = 0  # short logging dropouts propagated through
+        self.rate_rises = 0  # new segments where the sample rate rose (record_gaps.RateRise)
         self.delta = 1.0 / self.cfg.token_rate_hz
         # the accelerometer's scale, read causally and kept across segments (a sensor's property)
         self.acc_scale = AccelScaleTracker() if a is not None and a.accel_scale_selfcal else None
@@ -144,6 +145,7 @@ class StreamingEstimator:
         self.t_prev = None
         self.period = None  # nominal sample period, running median of the first steps
         self._dts: list[float] = []
+        self.rise = None  # RateRise, once the segment's period is known
         self.k = 0
         self.cur = new_token()  # the open token (streaming_kernels.TOK_*)
         k = self.cfg.window_tokens
@@ -190,10 +192,15 @@ class StreamingEstimator:
         if dt is None or dt <= 0 or (self.period is not None and dt > GAP_PERIODS * self.period):
             self.reset()
             self.t0 = t
-        else:
-            if len(self._dts) < 51:
-                self._dts.append(dt)
-                self.period = float(np.median(self._dts))
+        elif len(self._dts) < TS_STEPS:
+            self._dts.append(dt)
+            self.period = float(np.median(self._dts))
+            if len(self._dts) == TS_STEPS:  # the anchored filter's period (_first_samples): a rise from it is watched
+                self.rise = RateRise(self.period, self._dts)
+        elif self.rise.step(dt):  # the rate rose: a new segment here, as offline (record_gaps.rate_rise_cuts)
+            self.reset()
+            self.t0 = t
+            self.rate_rises += 1
         k = 0 if t == self.t0 else int(math.ceil((t - self.t0) / self.delta - 1e-6))
         est = None
         ran = False

@@ -1,0 +1,105 @@
+"""A rise of the IMU's sample rate inside a segment starts a new one, offline and live at the same sample
+(session 53, `record_gaps.rate_rise_cuts` / `RateRise`). The estimators take a segment's sample period from its
+first 51 steps; the bridge's own request for a faster IMU, granted mid-flight, had left the live filter on a period
+8× too long (tilt off by up to 157° on a simulated F450 flight, `/work/review53/live`)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from tepinn_flight.record import FlightRecord
+from tepinn_flight.record_gaps import PERIOD_STEPS, RateRise, bridge_gaps, rate_rise_cuts
+
+
+def _live_cuts(t: np.ndarray) -> list[int]:
+    """The rows at which the live rule (RateRise, as StreamingEstimator.push drives it) starts a new segment."""
+    cuts, dts, rise = [], [], None
+    for i in range(1, len(t)):
+        dt = t[i] - t[i - 1]
+        if len(dts) < PERIOD_STEPS:
+            dts.append(dt)
+            if len(dts) == PERIOD_STEPS:
+                rise = RateRise(float(np.median(dts)), dts)
+        elif rise.step(dt):
+            cuts.append(i)
+            dts, rise = [], None
+    return cuts
+
+
+def _times(*parts) -> np.ndarray:
+    """Times of runs of (count, rate_hz) in turn."""
+    t, out = 0.0, []
+    for n, hz in parts:
+        out.append(t + np.arange(n) / hz)
+        t = out[-1][-1] + 1.0 / hz
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("parts, want", [
+    (((100, 25.0), (200, 200.0)), [126]),  # at the 26th short step of the last 51 (row 100's is still 40 ms)
+    (((100, 25.0), (100, 50.0), (200, 200.0)), [126, 226]),  # 2× then 4×: each rise, the new period read first
+    (((100, 200.0), (200, 25.0)), []),  # a falling rate is gaps, not this
+    (((100, 100.0), (100, 120.0)), []),  # 1.2×: under the 1.5× rise
+])  # fmt: skip
+def test_cuts_offline_and_live_at_the_same_sample(parts, want):
+    t = _times(*parts)
+    assert rate_rise_cuts(t, np.zeros(len(t), np.int32)).tolist() == want
+    assert _live_cuts(t) == want
+
+
+def test_jittered_and_lost_samples_at_one_rate_cut_nothing():
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.0025, 0.0075, 20000))  # ±50 % jitter about 5 ms
+    t = np.delete(t, rng.choice(len(t), 2000, replace=False))  # and 10 % of the samples lost
+    assert len(rate_rise_cuts(t, np.zeros(len(t), np.int32))) == 0 and _live_cuts(t) == []
+
+
+def _slow_then_fast(seed: int = 4):
+    """A synthetic flight at 25 Hz for 30 s, then 200 Hz for 15 s (the bridge's request granted)."""
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    rec = synthetic_record(seed=seed, duration_s=45.0, rate_hz=200.0, max_rate_rad_s=3.0)
+    keep = (np.arange(len(rec)) % 8 == 0) | (rec.t_s >= 30.0)
+    data = rec.data[keep].reset_index(drop=True)
+    data["segment"] = np.zeros(len(data), np.int32)
+    return FlightRecord(data, {**rec.meta, "imu_rate_hz": 25.0})
+
+
+def test_a_rate_rise_cuts_the_bridged_record_once():
+    rec = _slow_then_fast()
+    br = bridge_gaps(rec)
+    assert br.filled == 0 and br.record is not rec
+    first_fast = int(np.searchsorted(rec.t_s, 30.0))
+    assert np.flatnonzero(np.diff(br.record.segment)).tolist() == [first_fast + 25]  # the 26th short step (the step into first_fast is 40 ms), a row before the cut
+    assert bridge_gaps(br.record).record is br.record  # cut once: nothing more to cut
+
+
+def test_live_equals_offline_across_a_rate_rise_and_stays_on_the_attitude():
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.estimate import estimate_record
+    from tepinn_flight.model.streaming import StreamingEstimator
+    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
+
+    from tests.live_run import live_run
+
+    rec = _slow_then_fast()
+    model, cfg, _ = load_model(default_model_path())
+    cfg = dataclasses.replace(cfg, smoother=False, gyro_selfcal=False, gnss_aid=False)  # the causal estimate
+    q_live, _ = live_run(model, cfg, rec)
+    off = estimate_record(model, rec, cfg)[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+    have = np.all(np.isfinite(q_live), 1)
+    assert have.sum() > len(rec) - 120
+    np.testing.assert_allclose(q_live[have], off[have], atol=1e-6)
+    # after the rise the tilt is as good as before it (max 5.5° against 8.1°; on a period 8× too long, as before
+    # session 53: 24.9°)
+    err = np.degrees(inclination_error_rad(error_quat_earth(off, rec.q_ref_wxyz)))
+    late = rec.t_s >= 35.0
+    early = (rec.t_s >= 10.0) & (rec.t_s < 30.0)
+    assert np.nanmax(err[late]) < 1.5 * np.nanmax(err[early])
+    se = StreamingEstimator(model, cfg)
+    for i in range(len(rec)):
+        se.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i])
+    assert se.rate_rises == 1
