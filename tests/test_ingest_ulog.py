@@ -393,3 +393,41 @@ def test_px4_clipping_fields_keep_the_gyro_apart():
     c, g = _clip_flags({"delta_velocity_clipping": acc_f, "delta_angle_clipping": gyr_f}, "delta_angle_clipping",
                        "delta_velocity_clipping", ok, 5)  # fmt: skip
     np.testing.assert_array_equal(g, [False, False, False, True, False])
+
+
+def test_a_gyro_at_its_range_is_marked_clipped_in_a_px4_log_without_a_gyro_clipping_field(tmp_path):
+    """PX4 before v1.15 logs no gyro clipping field: the value rule every reader applies (ingest.saturation) marks
+    the samples of a flip at ±2000 °/s, gyro apart (session 53: none were, where a DataFlash log's were)."""
+    from tepinn_flight.ingest import load_record
+
+    from .ulog_writer import SENSOR_COMBINED_V1_14, ULogWriter
+
+    w = ULogWriter()
+    w.fmt("sensor_combined", SENSOR_COMBINED_V1_14)
+    w.subscribe("sensor_combined")
+    full = np.radians(2000.0)
+    for k in range(2500):  # 250 Hz, 0.4 s of it at the gyro's full scale, one sample at 16 g
+        g = (full if 1000 <= k < 1100 else 0.1, 0.0, 0.0)
+        a = (0.0, 0.0, -9.8 if k != 2000 else -16 * 9.81)
+        w.data("sensor_combined", 0, 1_000_000 + 4000 * k, g, 4000, 0, a, 4000, 0)
+    rec = load_record(w.write(tmp_path / "flip.ulg"))
+    np.testing.assert_array_equal(np.flatnonzero(rec.gyr_clipped), np.arange(1000, 1100))
+    np.testing.assert_array_equal(np.flatnonzero(rec.clipped), np.r_[np.arange(1000, 1100), 2000])
+    assert any("marked clipped" in n for n in rec.meta["notes"])
+
+
+def test_sensor_combined_with_no_valid_accelerometer_sample_says_so(tmp_path):
+    from tepinn_flight.errors import NoImuData
+    from tepinn_flight.ingest import load_record
+    from tepinn_flight.ingest.ulog import RELATIVE_TIMESTAMP_INVALID
+
+    from .ulog_writer import SENSOR_COMBINED_V1_14, ULogWriter
+
+    w = ULogWriter()
+    w.fmt("sensor_combined", SENSOR_COMBINED_V1_14)
+    w.subscribe("sensor_combined")
+    for k in range(500):
+        w.data("sensor_combined", 0, 1_000_000 + 4000 * k, (0.0, 0.0, 0.0), 4000, RELATIVE_TIMESTAMP_INVALID,
+               (0.0, 0.0, -9.8), 4000, 0)  # fmt: skip
+    with pytest.raises(NoImuData, match="every accelerometer sample is marked invalid"):
+        load_record(w.write(tmp_path / "no_acc.ulg"))

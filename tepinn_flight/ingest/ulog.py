@@ -56,6 +56,7 @@ listing the attitude topics present.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import os
 import re
@@ -66,6 +67,7 @@ import numpy as np
 from ..conventions import GAUSS_TO_UT, UNIX_TIME_THRESHOLD_US
 from ..errors import ConfigError, CorruptLog, NoImuData, TepinnError
 from .assemble import GAP_PERIODS
+from .saturation import accel_saturated, gyro_saturated
 from .streams import GnssVelStream, ImuStream, MagStream, RawLog, RefStream, nominal_period_s
 
 #: Attitude topics with ``q[0..3]`` = w, x, y, z body FRD → NED, in default-preference order.
@@ -315,6 +317,9 @@ def _imu_from_sensor_combined(d: dict[str, np.ndarray], notes: list[str]) -> tup
     if rel is not None:
         rel = np.asarray(rel, np.int64)
         valid = rel != RELATIVE_TIMESTAMP_INVALID
+        if not valid.any():
+            raise NoImuData("sensor_combined: every accelerometer sample is marked invalid "
+                            "(accelerometer_timestamp_relative): no accelerometer to estimate from")  # fmt: skip
         if not np.all(valid) or np.any(rel[valid] != 0):
             t_acc = (t_us + rel)[valid].astype(np.float64)
             order = np.argsort(t_acc, kind="stable")
@@ -454,7 +459,22 @@ def _select_imu(ds, imu: int | None, notes: list[str]) -> tuple[ImuStream, dict]
     else:
         stream = _imu_from_sensor_topics(ds[("sensor_gyro", k)], ds[("sensor_accel", k)])
         notes.append(f"IMU from sensor_gyro[{k}]/sensor_accel[{k}]: raw driver output, not calibrated")
-    return stream, meta
+    return _with_value_clipping(stream, notes), meta
+
+
+def _with_value_clipping(stream: ImuStream, notes: list[str]) -> ImuStream:
+    """``stream`` with the samples at their range by value marked too (:mod:`.saturation`, the rule of every
+    reader): PX4 logs its own clipping flags for the accelerometer at most before v1.15, so a flip past the gyro's
+    range left ``gyr_clipped`` empty (session 53)."""
+    g = gyro_saturated(stream.gyr_rad_s)
+    c = g | accel_saturated(stream.acc_m_s2)
+    if not c.any():
+        return stream
+    had = np.zeros(len(c), bool) if stream.clipped is None else np.asarray(stream.clipped, bool)
+    had_g = np.zeros(len(c), bool) if stream.gyr_clipped is None else np.asarray(stream.gyr_clipped, bool)
+    notes.append(f"{int(c.sum())} IMU sample(s) at ≥98 % of the sensor's range (gyro {int(g.sum())}): marked "
+                 "clipped")  # fmt: skip
+    return dataclasses.replace(stream, clipped=had | c, gyr_clipped=had_g | g)
 
 
 # --------------------------------------------------------------------------- magnetometer, reference
