@@ -2,9 +2,12 @@
 
 * **which**: IMU messages become samples (:func:`~tepinn_flight.live.inputs.imu_sample`) of one
   instance (``--imu``), HIGHRES_IMU preferred, then RAW_IMU, then SCALED_IMU; a message of unknown
-  scale (RAW_IMU of a non-ArduPilot autopilot) is refused, once said. A switch to another message
-  (a preferred one appears, or the current one is silent for 1 s) restarts its clock and asks for
-  an estimator reset.
+  scale (RAW_IMU of a non-ArduPilot autopilot) is refused, once said. The first message taken stays
+  until another has come for :data:`SWITCH_AFTER_S` at a rate that earns it — a preferred one at
+  ≥ :data:`PREFERRED_RATE_SHARE` of the current one's rate, any other at ≥ :data:`FASTER_RATE_FACTOR` × it
+  (session 53: a ground station asking for a 1-Hz HIGHRES_IMU had taken the bridge off a 200-Hz RAW_IMU) —
+  or the current one is silent for 1 s. A switch restarts the message's clock and asks for an estimator
+  reset.
 * **clock**: ArduPilot's ``RAW_IMU.time_usec`` is a 32-bit µs count that wraps 71.6 min after boot; the
   sample takes the wrap count that puts it at the autopilot's boot clock of its moment
   (:mod:`tepinn_flight.ingest.clock_wrap`, as the tlog reader), so a long flight is not taken for a reboot.
@@ -36,6 +39,12 @@ REQUEST_ATTEMPTS = 3
 RATE_ALLOWANCE = 0.1
 #: the IMU messages the bridge reads
 IMU_NAMES = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
+#: another IMU message is weighed against the current one after coming this long (s) ...
+SWITCH_AFTER_S = 1.0
+#: ... a preferred one taken at this share of the current one's rate or more ...
+PREFERRED_RATE_SHARE = 0.8
+#: ... a less preferred one at this many times it
+FASTER_RATE_FACTOR = 1.5
 
 
 class ImuStream:
@@ -44,6 +53,7 @@ class ImuStream:
         self.note = note
         self.message: str | None = None
         self.seen: dict[str, float] = {}
+        self.meters: dict[str, RateMeter] = {}  # each message's own rate (which one to take)
         self.rate = RateMeter(2.0)
         self.samples = 0
         self.last_t = None
@@ -75,11 +85,10 @@ class ImuStream:
         if s.message == "RAW_IMU" and s.time_boot_ms is not None:
             s = self._unwrapped(s, boot_ms_now)
         self.seen[s.message] = t_in
+        self.meters.setdefault(s.message, RateMeter(2.0)).tick(t_in)
         cur = self.message
         switched = False
-        if cur != s.message and (
-            cur is None or imu_preference(s.message) < imu_preference(cur) or t_in - self.seen.get(cur, -1e9) > 1.0
-        ):
+        if cur != s.message and (cur is None or t_in - self.seen.get(cur, -1e9) > 1.0 or self._earns(s.message, t_in)):
             self.message = s.message
             switched = cur is not None
             self.last_t = None
@@ -103,6 +112,16 @@ class ImuStream:
                 self.time_jumps += 1
         self.last_t = s.t_s
         return s, switched
+
+    def _earns(self, name: str, t_in: float) -> bool:
+        """Whether message ``name``, not the current one, has come long and fast enough to take its place."""
+        m = self.meters[name]
+        if t_in - m.first < SWITCH_AFTER_S:
+            return False
+        r, r_cur = m.rate(t_in), self.meters[self.message].rate(t_in)
+        if imu_preference(name) < imu_preference(self.message):
+            return r >= PREFERRED_RATE_SHARE * r_cur
+        return r >= FASTER_RATE_FACTOR * r_cur
 
     def _unwrapped(self, s: ImuSample, boot_ms_now: int | None) -> ImuSample:
         """``s`` on a running clock: its 32-bit ``time_usec`` plus the wraps counted (a new count where the
