@@ -217,6 +217,16 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
         headline = rec_results
         notes.append("every record has an IMU too slow for windowed estimation or a reference that fails the trust "
                      "check: the summary is over them all and is not meaningful")  # fmt: skip
+    common, missing = common_records(headline, estimators)
+    if missing and common:  # the same records for every estimator's mean (as the same samples within a record)
+        shown = "; ".join(f"{k} ({', '.join(display_name(n) for n in v)})" for k, v in list(missing.items())[:5])
+        notes.append(f"{len(missing)} record(s) where not every estimator has an estimate are kept out of the summary "
+                     f"means and the paired comparison, so that each mean is over the same records: {shown}"
+                     f"{'; ...' if len(missing) > 5 else ''}")  # fmt: skip
+        headline = common
+    elif missing:
+        notes.append("no record has an estimate of every estimator: each summary mean is over that estimator's own "
+                     "records (n_records_scored), and they are not comparable")  # fmt: skip
     dataset = aggregate(headline, estimators, len(config.rate_bins_deg_s) - 1)
     comparisons = compare_learned(headline, estimators, dataset)
     info = [{"name": e.name, "kind": e.kind, "causal": bool(e.causal), "uses_mag": bool(e.uses_mag),
@@ -297,6 +307,27 @@ _HEADING_KEYS = ("heading_rmse_deg", "total_rmse_deg", "yaw_rmse_deg", "mean_qua
                  "heading_drift_deg_per_min", "heading_drift_abs_deg_per_min")
 
 
+def _scored(result: dict) -> bool:
+    """Whether one estimator's result on a record has an inclination figure."""
+    v = result.get("inclination_rmse_deg")
+    return v is not None and math.isfinite(v)
+
+
+def common_records(rec_results: list[dict], estimators) -> tuple[list[dict], dict[str, list[str]]]:
+    """(the records on which every estimator has an inclination figure, {record: the estimators without one} for
+    the others). An estimator with a figure on no record at all does not count (it leaves every record out)."""
+    have = {e.name: [_scored(r["results"][e.name]) for r in rec_results] for e in estimators}
+    counted = [n for n, h in have.items() if any(h)]
+    keep, missing = [], {}
+    for i, r in enumerate(rec_results):
+        miss = [n for n in counted if not have[n][i]]
+        if miss:
+            missing[r["name"]] = miss
+        else:
+            keep.append(r)
+    return keep, missing
+
+
 def aggregate(rec_results: list[dict], estimators, n_bins: int) -> dict:
     keys = ["inclination_rmse_deg", "roll_rmse_deg", "pitch_rmse_deg", "heading_rmse_deg", "total_rmse_deg",
             "yaw_rmse_deg", "inclination_mean_deg", "inclination_p95_deg", "mean_quat_distance",
@@ -304,7 +335,8 @@ def aggregate(rec_results: list[dict], estimators, n_bins: int) -> dict:
     out = {}
     for est in estimators:
         rs = [r["results"][est.name] for r in rec_results]
-        d = {"n_records": len(rs)}
+        d = {"n_records": len(rs),
+             "n_records_scored": sum(_scored(r) for r in rs)}
         for k in keys:
             vals = np.array([r.get(k, np.nan) for r in rs], np.float64)
             vals = vals[np.isfinite(vals)]
