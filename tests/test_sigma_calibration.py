@@ -98,3 +98,31 @@ def test_the_shipped_sigma_covers_a_real_trial_at_an_ardupilot_log_rate():
     n0, cv0 = score([f], 0.45, 0.025)  # σ as shipped before session 17
     assert 1.0 <= n <= 2.5 and cv >= 0.97, (n, cv)
     assert n0 > 2.5 and cv0 < 0.95, (n0, cv0)
+
+
+def test_sigma_is_fitted_on_the_estimate_and_samples_evaluate_scores_across_a_short_dropout():
+    """A 50-ms logging dropout is bridged by estimate and evaluate (record_gaps): the fine-tuning's σ samples are
+    that estimate's, on the harness's scored samples — not a filter restarted there with a new 5-s warm-up
+    (session 53: 1000 of the harness's samples were missing and those after the dropout were another estimate's)."""
+    from tepinn_flight.evaluation.harness import scoring_mask
+    from tepinn_flight.evaluation.metrics import error_quat_earth, tilt_error_vector_rad
+    from tepinn_flight.evaluation.sigma_calibration import estimator_error_samples
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.estimate import EST_Q_COLS, estimate_record
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import FlightRecord
+    from tepinn_flight.record_gaps import bridge_gaps
+
+    rec = synthetic_record(seed=3, duration_s=20.0, rate_hz=200.0)
+    df = rec.data[~((rec.t_s > 10.0) & (rec.t_s < 10.05))].reset_index(drop=True)
+    df["segment"] = (df["t_s"].to_numpy() > 10.0).astype(np.int32)
+    rec = FlightRecord(df, dict(rec.meta))
+    br = bridge_gaps(rec)
+    assert br.gaps == 1
+    model, anchor, _ = load_model(default_model_path())
+    es = estimator_error_samples(model, rec, anchor)
+    mask = scoring_mask(br.record, 5.0)
+    assert len(es.err2_rad2) == int(mask.sum())  # the harness's samples, the ones after the dropout among them
+    q = estimate_record(model, rec, anchor)[EST_Q_COLS].to_numpy()
+    err2 = np.sum(tilt_error_vector_rad(error_quat_earth(q, rec.q_ref_wxyz)) ** 2, axis=1)
+    np.testing.assert_allclose(es.err2_rad2, err2[mask[br.rows]], rtol=1e-9, atol=1e-15)

@@ -24,6 +24,7 @@ import numpy as np
 from ..model.anchor import AnchorConfig, AnchoredVQF, acc_gain, aircraft_var_rad2
 from ..model.streaming import TS_STEPS
 from ..record import FlightRecord
+from ..record_gaps import bridge_gaps
 from .harness import scoring_mask
 from .metrics import error_quat_earth, tilt_error_vector_rad
 
@@ -70,7 +71,9 @@ class SigmaFit:
 def error_samples(rec: FlightRecord, name: str = "", anchor: AnchorConfig | None = None,
                   warmup_s: float = 5.0) -> ErrorSamples:  # fmt: skip
     """Run the anchored filter with its learned corrections off (what real files see when no gate
-    fires) over the first segment of ``rec`` and keep the scored samples."""
+    fires) over the first segment of ``rec`` — its short dropouts bridged, as every estimate bridges them
+    (:func:`~tepinn_flight.record_gaps.bridge_gaps`) — and keep the scored samples."""
+    rec = bridge_gaps(rec).record  # (the filled samples carry no reference: never scored)
     off = (anchor or AnchorConfig()).learned_off
     seg0 = rec.segment == rec.segment[0]
     t = rec.t_s[seg0]
@@ -89,12 +92,15 @@ def estimator_error_samples(model, rec: FlightRecord, anchor: AnchorConfig, name
     """The scored samples of the whole anchored estimator ``anchor`` (every segment, its gates and
     offline steps) on ``rec``: e is read from its own σ with σ₀ = 0, c = 1 and the other parts off
     (σ = e), the sampling term with σ₀ = c = 0, g = 1 (σ² = the term; the estimates are the same: σ is
-    an output only), the saturation term alone where the gyro clips. What the fine-tuning fits σ on."""
+    an output only), the saturation term alone where the gyro clips. What the fine-tuning fits σ on: the estimate
+    ``estimate`` gives and the samples ``evaluate`` scores (short dropouts bridged, not restarted: session 53)."""
     from ..model.estimate import EST_Q_COLS, estimate_anchored
 
-    est = [estimate_anchored(model, rec, p) for p in _probes(anchor, bool(np.any(rec.gyr_clipped)))]
+    br = bridge_gaps(rec)
+    est = [br.original(estimate_anchored(model, br.record, p)) for p in _probes(anchor, bool(np.any(rec.gyr_clipped)))]
+    mask = scoring_mask(br.record, warmup_s)[br.rows]  # the harness's mask (on the bridged record), on rec's rows
     return _scored(name, est[0][EST_Q_COLS].to_numpy(), est[0]["sigma_rad"].to_numpy(),
-                   est[1]["sigma_rad"].to_numpy(), rec.q_ref_wxyz, scoring_mask(rec, warmup_s),
+                   est[1]["sigma_rad"].to_numpy(), rec.q_ref_wxyz, mask,
                    est[2]["sigma_rad"].to_numpy() if len(est) > 2 else None, rec.meta.get("vehicle_type"))  # fmt: skip
 
 
