@@ -22,7 +22,7 @@ def slow_and_fast(tmp_path_factory):
     diverged = ingest_log(real_log("aplogan_nan.log"))  # 50 Hz, its autopilot's attitude diverged
     assert slow.meta["estimation_ok"] is False and fast.meta["estimation_ok"] is True
     assert diverged.meta["estimation_ok"] is True
-    ests = [VqfEstimator(), *baseline_estimators()[:1]]
+    ests = [VqfEstimator(), *baseline_estimators()[::2]]  # (complementary, and the EKF: it gives σ)
     res = evaluate([slow, fast, diverged], ests, HarnessConfig(warmup_s=2.0), progress=False)
     return res, ests
 
@@ -66,3 +66,22 @@ def test_the_report_lists_them_apart(slow_and_fast, tmp_path):
     page = render_html(res)
     assert "Records not in the summary" in page and "reference not trusted" in page
     assert "estimation OK" in page and "no: IMU too slow, not in the summary" in page
+
+
+def test_the_uncertainty_figure_pools_the_summary_records_only(slow_and_fast):
+    """The σ-vs-error figure beside the summary's σ table takes that table's records only (session 53: a record kept
+    out for its untrusted reference had made σ look 20× over-confident there)."""
+    from tepinn_flight.evaluation.report import pooled_sigma_samples
+
+    res, ests = slow_and_fast
+    in_sum = [r["in_summary"] for r in res.records]
+    assert in_sum == [r["name"] == "ardusub_small" for r in res.records]
+    with_sigma = [e.name for e in ests if any(s["est"][e.name].get("sigma") is not None for s in res.series)]
+    assert with_sigma  # (an estimator of the fixture gives σ)
+    for name in with_sigma:
+        sig, err = pooled_sigma_samples(res, name)
+        i = in_sum.index(True)
+        e = res.series[i]["est"][name]
+        m = res.series[i]["mask"] & np.isfinite(e["sigma"]) & np.all(np.isfinite(e["tilt_err"]), axis=1)
+        np.testing.assert_array_equal(sig, e["sigma"][m])
+        np.testing.assert_array_equal(err, np.sum(e["tilt_err"][m] ** 2, axis=1))

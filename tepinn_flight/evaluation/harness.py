@@ -227,6 +227,9 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
     elif missing:
         notes.append("no record has an estimate of every estimator: each summary mean is over that estimator's own "
                      "records (n_records_scored), and they are not comparable")  # fmt: skip
+    summary = {id(r) for r in headline}
+    for r in rec_results:
+        r["in_summary"] = id(r) in summary  # (the figures that pool samples take these records only)
     dataset = aggregate(headline, estimators, len(config.rate_bins_deg_s) - 1)
     comparisons = compare_learned(headline, estimators, dataset)
     info = [{"name": e.name, "kind": e.kind, "causal": bool(e.causal), "uses_mag": bool(e.uses_mag),

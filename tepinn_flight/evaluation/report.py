@@ -272,24 +272,31 @@ def fig_per_record(result, colours, path=None):
     return _finish(fig, path)
 
 
+def pooled_sigma_samples(result, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """(σ, squared 2-D tilt error) of estimator ``name`` over the scored samples of the summary's records (those
+    left out of the summary — IMU too slow, reference untrusted, an estimator without an estimate — left out here
+    too, as from the table beside the figure; session 53)."""
+    sig, err = [np.empty(0)], [np.empty(0)]
+    for s, r in zip(result.series, result.records):
+        e = s["est"][name]
+        if not r.get("in_summary", True) or e.get("sigma") is None or e.get("tilt_err") is None:
+            continue
+        m = s["mask"] & np.isfinite(e["sigma"]) & np.all(np.isfinite(e["tilt_err"]), axis=1)
+        sig.append(e["sigma"][m])
+        err.append(np.sum(e["tilt_err"][m] ** 2, axis=1))
+    return np.concatenate(sig), np.concatenate(err)
+
+
 def fig_uncertainty(result, colours, path=None):
     plt = _plt()
     fig, ax = plt.subplots(figsize=(6, 5.5))
     any_sigma = False
     top = 0.0
     for name in result.dataset:
-        sig, err = [], []
-        for s in result.series:
-            e = s["est"][name]
-            if e.get("sigma") is None or e.get("tilt_err") is None:
-                continue
-            m = s["mask"] & np.isfinite(e["sigma"]) & np.all(np.isfinite(e["tilt_err"]), axis=1)
-            sig.append(e["sigma"][m])
-            err.append(np.sum(e["tilt_err"][m] ** 2, axis=1))
-        if not sig or not np.concatenate(sig).size:
+        sig, err = pooled_sigma_samples(result, name)
+        if not sig.size:
             continue
         any_sigma = True
-        sig, err = np.concatenate(sig), np.concatenate(err)
         qs = np.unique(np.quantile(sig, np.linspace(0, 1, 11)))
         idx = np.clip(np.digitize(sig, qs[1:-1]), 0, len(qs) - 2)
         xs, ys = [], []
