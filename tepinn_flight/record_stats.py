@@ -69,7 +69,8 @@ def summarize(rec: FlightRecord) -> dict:
         gyr_noise_deg_s=None if (g_n := sample_noise(gyr, seg, period)) is None else float(np.degrees(g_n)),
         max_bridged_gap_s=MAX_BRIDGED_GAP_S,
         max_rate_deg_s=float(np.degrees(np.nanmax(norm))) if np.any(np.isfinite(norm)) else float("nan"),
-        max_axis_rate_deg_s=np.degrees(np.nanmax(np.abs(gyr), axis=0)).round(1).tolist(),
+        max_axis_rate_deg_s=[round(float(np.degrees(np.nanmax(a))), 1) if np.any(np.isfinite(a)) else float("nan")
+                             for a in np.abs(gyr).T],  # (an all-NaN axis: NaN, without numpy's warning)
         clipped_samples=int(rec.clipped.sum()),
         has_mag=bool(np.any(np.isfinite(rec.mag_ut))),
     )

@@ -36,12 +36,14 @@ def run(args) -> int:
                                        train_variants, write_ablation)  # fmt: skip
     from ..model.train_config import load_train_config
     from ..record import read_record
+    from ..record import check_output
     from .paths import collect_records, read_records
 
     names = [v.strip() for v in args.variants.split(",") if v.strip()]
     check_variants(names)
     base = load_train_config(args.config, args.set)
     out = Path(args.output)
+    check_output(out, folder=True)  # a file, or a folder that cannot be made: one line, before the training
     out.mkdir(parents=True, exist_ok=True)
     say = (lambda s: None) if args.quiet else (lambda s: sys.stderr.write(s + "\n"))
     ckpts = train_variants(base, names, out, data_dirs=args.data, config_base=Path(args.config).resolve().parent,

@@ -46,12 +46,13 @@ def run(args) -> int:
     from ..evaluation.estimators import learned_estimators
     from ..evaluation.harness import _jsonable
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
-    from ..record import atomic_write
+    from ..record import atomic_write, check_output
 
-    if args.json:  # before the (long) run: the JSON is named as JSON and is none of the files it reads
+    if args.json:  # before the (long) run: the JSON is named as JSON, can be written and is none of the files it reads
         from .paths import check_suffix, refuse_overwriting_inputs
 
         check_suffix("--json", args.json, (".json",), "JSON")
+        check_output(args.json)
         inputs = [p for p in Path(args.folder).glob("*") if p.is_file()] if Path(args.folder).is_dir() else []
         refuse_overwriting_inputs([("--json", args.json)], [*inputs, *([args.published] if args.published else [])])
     cfg = load_suite_config(args.config, args.set)

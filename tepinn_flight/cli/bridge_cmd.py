@@ -84,8 +84,8 @@ def run(args) -> int:
     from ..live.bridge import Bridge, BridgeConfig
     from ..live.router import parse_endpoint
     from ..live.status import StatusPrinter
-    from ..record import atomic_write
-    from .paths import check_suffix, refuse_overwriting_inputs
+    from ..record import atomic_write, check_output
+    from .paths import check_suffix, refuse_overwriting_inputs, refuse_same_outputs
 
     for spec in [args.master, *args.out]:
         parse_endpoint(spec)
@@ -100,6 +100,9 @@ def run(args) -> int:
     for flag, path, suffixes, what in named:
         check_suffix(flag, path, suffixes, what)
     outputs = [(flag, path) for flag, path, _, _ in named]
+    refuse_same_outputs(outputs)
+    if args.summary_json:  # written at the session's end: refused now, not after it (the others are opened now)
+        check_output(args.summary_json)
     if args.model:
         model = Path(args.model)
         if not model.is_file():

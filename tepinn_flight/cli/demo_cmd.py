@@ -54,6 +54,10 @@ def _run(args) -> int:
     if not args.duration > 10:
         raise ConfigError(f"--duration must be > 10 s, got {args.duration}")
     out = Path(args.output)
+    from ..record import check_output
+
+    check_output(out, folder=True)  # before the flights: refused now, not after them
+    learned = [TepinnEstimator.from_checkpoint(args.model, "tepinn")] if args.model else None  # (a bad --model too)
     say = (lambda s: None) if args.quiet else (lambda s: sys.stderr.write(s + "\n"))
     from ..jit_warmup import start
 
@@ -71,7 +75,7 @@ def _run(args) -> int:
     finally:
         warm.stop()  # (an error or Ctrl-C while simulating: the helper ends with the demo)
     notes: list[str] = []
-    estimators = [TepinnEstimator.from_checkpoint(args.model, "tepinn")] if args.model else default_learned(notes)
+    estimators = learned if learned is not None else default_learned(notes)
     estimators += baseline_estimators()
     estimators += peer_estimators(notes=notes)
     result = evaluate(records, estimators, HarnessConfig(), progress=not args.quiet, notes=notes)

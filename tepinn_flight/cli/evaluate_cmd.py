@@ -62,6 +62,7 @@ def run(args) -> int:
 
 def _run(args) -> int:
     import dataclasses
+    from pathlib import Path
 
     from ..errors import ConfigError, TepinnError
     from ..evaluation.estimators import learned_estimators
@@ -72,7 +73,8 @@ def _run(args) -> int:
     from ..ingest import load_record
     from ..record import check_output
     from ..evaluation.left_out import left_out
-    from .paths import check_folder_name, collect_records, read_records
+    from ..evaluation.report import report_files
+    from .paths import check_folder_name, collect_records, read_records, refuse_overwriting_inputs
 
     check_folder_name(args.output, "evaluate writes a report folder (report.md, report.html, metrics.json, figures)")
     check_output(args.output, folder=True)  # before the (long) evaluation
@@ -85,6 +87,8 @@ def _run(args) -> int:
         raise ConfigError(f"--noise-levels must be numbers >= 0, got {args.noise_levels!r}")
     hcfg = HarnessConfig(warmup_s=args.warmup_s, noise_levels=levels)
     paths = collect_records(args.records, args.recursive)
+    # the report's files replace those of an earlier report in -o: never one of the records read
+    refuse_overwriting_inputs([("-o", Path(args.output) / n) for n in report_files()], paths)
     notes: list[str] = []
     if args.tune_ekf_on:
         from ..evaluation.filters.ekf import tune

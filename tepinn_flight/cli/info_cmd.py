@@ -63,5 +63,7 @@ def run(args) -> int:
         else:
             print(render_info(path, s))
     if args.json:
-        print(json.dumps(results, indent=2, default=str))
+        from ..evaluation.harness import _jsonable
+
+        print(json.dumps(_jsonable(results), indent=2, default=str, allow_nan=False))  # NaN: null (JSON has no NaN)
     return 2 if failures else 0

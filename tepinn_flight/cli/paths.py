@@ -92,6 +92,22 @@ def refuse_overwriting_inputs(outputs, inputs) -> None:
             raise ConfigError(f"{flag} {out} is the input {given[k]}: writing it would replace it; name another output")
 
 
+def refuse_same_outputs(outputs) -> None:
+    """A :class:`~..errors.ConfigError` before any work where two options name the same output (``outputs``: pairs
+    of the option and its path): the one written last would replace the other — ``bridge --tlog s --summary-json s``
+    left the session's JSON summary where its telemetry log had been."""
+    from ..errors import ConfigError
+    from ..record import file_key
+
+    seen: dict = {}
+    for flag, out in outputs:
+        for k in {Path(out).resolve(), file_key(out)} - {None}:
+            if k in seen:
+                raise ConfigError(f"{flag} {out} is also {seen[k][0]} {seen[k][1]}: one would replace the other; "
+                                  "name two outputs")  # fmt: skip
+            seen[k] = (flag, out)
+
+
 def add_recursive(p) -> None:
     """``-r/--recursive``: a folder stands for what its subfolders hold too (a PX4 SD card's dated folders)."""
     p.add_argument("-r", "--recursive", action="store_true",

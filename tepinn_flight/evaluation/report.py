@@ -519,6 +519,11 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     return "\n".join(L)
 
 
+def report_files() -> tuple[str, ...]:
+    """The names of the files a report writes in its folder (those of an earlier report there are replaced)."""
+    return ("report.md", HTML_REPORT, "metrics.json", *FIGURES.values())
+
+
 def write_report(result: EvalResult, out_dir: str | os.PathLike, title: str = "Attitude estimation report") -> list[Path]:
     """Write figures, ``metrics.json`` and (last) ``report.md`` into ``out_dir``; returns the paths.
 
@@ -527,7 +532,7 @@ def write_report(result: EvalResult, out_dir: str | os.PathLike, title: str = "A
     describing other records), and no figure of an earlier run stays (a ``--noise-sweep`` one)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    for name in ("report.md", HTML_REPORT, "metrics.json", *FIGURES.values()):
+    for name in report_files():
         try:
             (out / name).unlink()
         except FileNotFoundError:

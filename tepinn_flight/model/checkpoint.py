@@ -21,11 +21,12 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .. import conventions
-from ..errors import TepinnError
+from ..errors import ConfigError, TepinnError
 from ..record import atomic_write
 from .anchor import AnchorConfig
 from .config import ModelConfig
@@ -140,7 +141,9 @@ def read_checkpoint(path: str | os.PathLike) -> dict:
     if not p.exists():
         raise CheckpointError("no such checkpoint", p)
     try:
-        ckpt = torch.load(p, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # torch warns of a plain pickle's protocol before refusing it: the one line below
+            warnings.simplefilter("ignore", UserWarning)
+            ckpt = torch.load(p, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types on corrupt files
         raise CheckpointError(_load_failure(exc), p) from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
@@ -182,6 +185,8 @@ def load_model(path: str | os.PathLike) -> tuple[TEPINN, FusionConfig | AnchorCo
         model.load_state_dict(ckpt["state_dict"])
     except CheckpointError as exc:  # a removed option: say which file
         raise CheckpointError(exc.reason, path) from None
+    except ConfigError as exc:  # a value its settings refuse: which file too
+        raise CheckpointError(f"settings refused: {exc}", path) from None
     except (TypeError, KeyError, RuntimeError) as exc:
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:200]
         raise CheckpointError(f"checkpoint does not match this model ({first})", path) from None
