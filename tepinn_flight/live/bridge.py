@@ -352,6 +352,7 @@ class Bridge:
                 "sent_after_network": out.after_network,  # sent estimates whose push ran the network
                 "worker": self.cfg.worker,
                 "worker_restarts": self.feed.restarts,
+                "worker_hangs": self.feed.hangs,
                 "worker_error": self.feed.fatal or self.feed.error,
             },
             "latency_ms": out.lat_hist.summary(1e3, 3),

@@ -3,7 +3,10 @@
 :class:`EstimatorFeed` runs the estimator off the forwarding path (:mod:`~tepinn_flight.live.worker`:
 a child process, or a thread) and feeds it: a sample is dropped (and counted) when the worker is
 not ready or its bounded queue is full; a worker that dies after it was ready is restarted with a
-backoff (2, 4, 8, 16, 30 s) while forwarding goes on, one that never got ready stops the bridge.
+backoff (2, 4, 8, 16, 30 s) while forwarding goes on, one that never got ready stops the bridge. A
+worker process that sends nothing for :data:`HANG_S` while samples wait for it (it answers every batch
+within :data:`~tepinn_flight.live.worker.STATS_INTERVAL_S`) is hung: killed and restarted the same way
+(session 53: a stopped worker had left the bridge without estimates for the rest of the flight, silently).
 
 :class:`EstimateOutput` turns each estimate (decimated by the worker to ``rate_hz`` on the
 autopilot's clock) into the messages of ``--estimate-as`` from (autopilot sysid, our compid),
@@ -23,6 +26,8 @@ from .status import RateMeter, latency_histogram
 from .worker import COUNTERS, ProcessWorker, ThreadWorker, pack_sample, reset_record, unpack_estimate, vehicle_record
 
 RESTART_BACKOFF_S = (2.0, 4.0, 8.0, 16.0, 30.0)
+#: a ready worker process silent this long (s) while samples wait for it is taken for hung
+HANG_S = 10.0
 _NOT_TOLD = object()  # EstimatorFeed.vehicle_told before the worker was told anything (None: told "not known")
 _ZERO = (0, 0, 0, 0, 0, 0.0, 0.0, 0)  # the worker's counters: processed, stale, resets, errors, model runs, model s, step s, steps
 
@@ -49,6 +54,8 @@ class EstimatorFeed:
         self.seq = 0
         self.vehicle_told = _NOT_TOLD  # what the current worker was told the vehicle is (its MAV_TYPE name)
         self.controls = 0  # reset and vehicle records the current worker was sent (not samples: never processed)
+        self.waiting_since = None  # when a sample was first sent after the worker last said anything
+        self.hangs = 0
 
     # ------------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -61,6 +68,7 @@ class EstimatorFeed:
         self.wc = list(_ZERO)
         self.vehicle_told = _NOT_TOLD  # a new worker knows nothing of the vehicle
         self.controls = 0
+        self.waiting_since = None
 
     def _died(self, now: float) -> None:
         w = self.worker
@@ -87,7 +95,10 @@ class EstimatorFeed:
     def read(self, now: float, emit, internal_error) -> None:
         """What the worker sent: estimates to ``emit(est)`` (an exception there goes to
         ``internal_error(exc, "estimate")``), counters, ready / error / fatal notes."""
-        for kind, payload in self.worker.read():
+        frames = self.worker.read()
+        if frames:
+            self.waiting_since = None  # it answers
+        for kind, payload in frames:
             if kind == b"E":
                 est, counters = unpack_estimate(payload)
                 self.wc = list(counters)
@@ -121,6 +132,16 @@ class EstimatorFeed:
             self.start()
         if self.worker is not None and self.worker.exit_code() is not None and not self.worker.eof:
             self.read(now, emit, internal_error)  # drain what is left; EOF follows
+        w = self.worker
+        if (w is not None and self.worker_ready and self.waiting_since is not None and now - self.waiting_since > HANG_S
+                and hasattr(w, "proc") and w.exit_code() is None):  # fmt: skip
+            self.hangs += 1
+            self.fatal = None
+            w.proc.kill()  # (a thread cannot be stopped: the thread worker is the tests' and the benchmarks')
+            w.proc.wait()
+            self.fatal = f"no reply for {now - self.waiting_since:.0f} s while fed: hung, killed"
+            self._died(now)
+            self.fatal = None
 
     @property
     def failed_to_start(self) -> bool:
@@ -172,6 +193,8 @@ class EstimatorFeed:
                           clipped=s.clipped, gyr_clipped=s.gyr_clipped)  # fmt: skip
         if not w.submit(rec):
             self.dropped_queue += 1
+        elif self.waiting_since is None:
+            self.waiting_since = t_in
 
     # ------------------------------------------------------------------ reporting
     def counters(self) -> list:
