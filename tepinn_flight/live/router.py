@@ -3,7 +3,7 @@
 Endpoint forms (``mavlink.md`` §2: always say which way a UDP socket goes):
 
 =========================  ===================================================================
-``udpin:HOST:PORT``        bind and listen; replies go to every peer that has sent to it
+``udpin:HOST:PORT``        bind and listen; replies go to every peer heard from in the last 10 s
 ``udpout:HOST:PORT``       send to HOST:PORT; replies arrive on the same socket
 ``tcp:HOST:PORT``          connect (reconnected every second while the peer is away)
 ``tcpin:HOST:PORT``        listen for one TCP client (a new client may connect after it leaves)
@@ -34,6 +34,10 @@ _NET = ("udpin", "udpout", "tcp", "tcpin")
 READ_SIZE = 65536
 RECONNECT_S = 1.0
 CONNECT_TIMEOUT_S = 0.5
+#: a ``udpin:`` endpoint stops sending to a peer silent this long (s) — a ground station restarted from another port,
+#: a laptop whose address changed — but keeps the last one it heard (pymavlink's ``udp_timeout``); before session 53
+#: every peer ever heard got every frame for ever
+UDP_PEER_TIMEOUT_S = 10.0
 #: UDP socket buffers asked for: a burst (a flood of 7000 datagrams in 5 s lost ~10 % of the valid
 #: frames in the kernel with the default ~208 KiB) or a scheduling stall of the bridge must fit.
 #: Linux caps SO_RCVBUF at ``net.core.rmem_max``; SO_RCVBUFFORCE (privileged) is tried first, and
@@ -137,6 +141,8 @@ class Link:
             device, kw = f"{self.kind}:{self.host}:{self.port}", {}
         if self.kind == "tcp":
             kw.update(retries=0, autoreconnect=False)
+        if self.kind == "udpin":  # a peer not heard from for this long is sent nothing more (one is always kept)
+            kw.update(udp_timeout=UDP_PEER_TIMEOUT_S)
         old_timeout = socket.getdefaulttimeout()
         try:
             if self.kind == "tcp":  # pymavlink connects blocking: bound how long a dead peer stalls us
