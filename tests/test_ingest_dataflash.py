@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 from tests.consistency import rate_consistency
 from tepinn_flight.errors import ConfigError, CorruptLog, NoImuData, TepinnError
-from tepinn_flight.ingest import ingest_log, read_raw
+from tepinn_flight.ingest import ingest_log, load_record, read_raw
 from tepinn_flight.ingest import dataflash_scan as dfs
 from tepinn_flight.ingest.dataflash import _merged_epochs, read
 from tepinn_flight.ingest.streams import detect_epochs
@@ -475,3 +475,32 @@ def test_log_cut_before_its_first_imu_row_says_so(tmp_path):
     cut.write_bytes(src[: src.index(b"\nIMU,") + 1])  # everything before the first IMU row
     with pytest.raises(NoImuData, match=r"holds no IMU rows \(.*ends before its first IMU row"):
         ingest_log(cut)
+
+
+@pytest.mark.parametrize("corrupt", ["XKQ", "MAG"])
+def test_dataflash_one_corrupt_reference_or_mag_time_is_no_reboot(tmp_path, corrupt):
+    """DataFlash has no checksums: one XKQ or MAG row whose TimeUS reads 0 is dropped, not taken for a reboot that
+    splits the flight into two segments (session 53; a corrupt IMU stamp was already handled)."""
+    from .test_ingest_gnss import IMU_F, _df, _df_fmt
+
+    xkq_f, mag_f = "QBffff", "QBhhhhhhhhhBI"
+    out = [
+        struct.pack("<BBBBB4s16s64s", 0xA3, 0x95, 0x80, 0x80, 89, b"FMT", b"BBnNZ", b"Type,Length,Name,Format,Columns"),
+        _df_fmt(10, "IMU", IMU_F, "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz"),
+        _df_fmt(12, "XKQ", xkq_f, "TimeUS,C,Q1,Q2,Q3,Q4"),
+        _df_fmt(13, "MAG", mag_f, "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health,S"),
+    ]
+    for k in range(2000):
+        t = 50_000_000 + 10_000 * k
+        out.append(_df(10, IMU_F, t, 0, 0.01, 0.02, 0.03, 0.0, 0.0, -9.8, 0, 0, 25.0, 1, 1, 1000, 1000))
+        if k % 2 == 0:
+            out.append(_df(12, xkq_f, 0 if (corrupt == "XKQ" and k == 1000) else t + 50, 0, 1.0, 0.0, 0.0, 0.0))
+        if k % 10 == 0:
+            out.append(_df(13, mag_f, 0 if (corrupt == "MAG" and k == 1000) else t + 70, 0, 200, -100, 400,
+                           0, 0, 0, 0, 0, 0, 1, 0))  # fmt: skip
+    path = tmp_path / f"corrupt_{corrupt}.bin"
+    path.write_bytes(b"".join(out))
+    rec = load_record(path)
+    assert rec.meta["boot_epochs"] == 1 and rec.meta["segments"] == 1 and len(rec) == 2000
+    assert any(f"1 {corrupt} row(s) with a corrupt time stamp dropped" in n for n in rec.meta["notes"])
+    assert np.isfinite(rec.q_ref_wxyz[100:-100]).all()

@@ -134,7 +134,7 @@ def test_dataflash_gps_timems_is_used_only_on_the_imu_clock(tmp_path):
     np.testing.assert_allclose(boot.gnss.vel_ne_m_s, orig.gnss.vel_ne_m_s, rtol=0, atol=1e-12)
 
 
-_ST = {"Q": "Q", "B": "B", "f": "f", "I": "I", "H": "H", "c": "h", "L": "i", "e": "i"}
+_ST = {"Q": "Q", "B": "B", "f": "f", "I": "I", "H": "H", "h": "h", "c": "h", "L": "i", "e": "i"}
 IMU_F, GPS_F = "QBffffffIIfBBHH", "QBBIHBcLLeffffB"
 
 
@@ -406,3 +406,4 @@ def test_info_says_whether_a_record_carries_gnss_velocity():
     assert "GNSS velocity        GPS at 5.0 Hz" in render_info("erle", s)
     bare = summarize(load_record(real_log("ardusub_small.BIN")))
     assert "gnss" not in bare and "GNSS velocity        no" in render_info("sub", bare)
+

@@ -52,7 +52,7 @@ SPIKE_PERIODS = 50.0
 MAX_QUAT_NORM_ERR = 0.1
 
 
-def _time_spikes(t: np.ndarray) -> np.ndarray:
+def time_spikes(t: np.ndarray) -> np.ndarray:
     """Samples whose time stamp is a corrupt spike (see ``SPIKE_*``), in file order."""
     n = len(t)
     if n < 3:
@@ -113,7 +113,7 @@ def drop_implausible(raw: RawLog, source_path: str | os.PathLike) -> tuple[RawLo
                   & np.all(np.abs(gyr) <= MAX_GYRO_RAD_S, axis=1) & np.all(np.abs(acc) <= MAX_ACC_M_S2, axis=1))  # fmt: skip
     spikes = np.zeros(n, bool)
     idx = np.flatnonzero(ok_val)
-    spikes[idx] = _time_spikes(t[idx])
+    spikes[idx] = time_spikes(t[idx])
     keep = ok_val & ~spikes
     notes: list[str] = []
     n_val, n_spk = int((~ok_val).sum()), int(spikes.sum())

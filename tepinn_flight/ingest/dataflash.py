@@ -54,6 +54,7 @@ from ..errors import ConfigError, CorruptLog, NoImuData
 from ..quat import quat_from_euler_zyx, quat_normalize
 from . import dataflash_scan as dfs
 from .ahrs_trim import TRIM_PARAMS, trim_note, usable_trim, vehicle_to_board
+from .assemble import time_spikes
 from .dataflash_binary import BinarySource
 from .dataflash_source import DECODE_BLOCK_ROWS, DataflashSource, instance_col
 from .dataflash_text import TextSource
@@ -308,6 +309,18 @@ def _rate(t: np.ndarray) -> float | None:
     return round(1.0 / p, 3) if np.isfinite(p) and p > 0 else None
 
 
+def _unspiked(name: str, t: np.ndarray, cols: tuple, order: np.ndarray, notes: list[str]):
+    """((t, *cols), order) without the rows whose time stamp is a lone corrupt spike (:func:`.assemble.time_spikes`,
+    the IMU's rule): DataFlash has no checksums, and one such reference or magnetometer row had been taken for a
+    reboot on the merged clock (a restart of the estimators mid-flight; session 53)."""
+    bad = time_spikes(t)
+    if not bad.any():
+        return (t, *cols), order
+    notes.append(f"{int(bad.sum())} {name} row(s) with a corrupt time stamp dropped")
+    keep = ~bad
+    return (t[keep], *(c[keep] for c in cols)), order[keep]
+
+
 def _merged_epochs(parts: list[tuple[np.ndarray, np.ndarray]]) -> list[np.ndarray]:
     """Boot epochs of several streams from their merged clock in file order.
 
@@ -454,8 +467,9 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     if mags:
         msel = next((i for i in mags if i.instance == sel.instance), mags[0])
         t_mag, m = _timed(src, msel, MAGC)
+        (t_mag, m), o_mag = _unspiked("MAG", t_mag, (m,), _order(src, msel), notes)
         mag = MagStream(t_mag, m * MILLIGAUSS_TO_UT)
-        parts.append((t_mag, _order(src, msel)))
+        parts.append((t_mag, o_mag))
         meta["mag_instance"] = msel.instance
 
     # ---- reference
@@ -473,12 +487,13 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
         label, rinst = pick
         rinst = _with_rows(src, rinst)
         t_ref, q = _ref_quaternions(src, rinst)
+        (t_ref, q), o_ref = _unspiked(rinst.name, t_ref, (q,), _order(src, rinst), notes)
         if rinst.name not in QUAT_REFS and trim is not None:  # reported in the vehicle's frame (.ahrs_trim)
             q = vehicle_to_board(q, *trim)
             meta["ahrs_trim_rad"] = list(trim)
             notes.append(trim_note(label, trim))
         ref = RefStream(t_ref, q, label)
-        parts.append((t_ref, _order(src, rinst)))
+        parts.append((t_ref, o_ref))
     else:
         notes.append("no reference attitude (XKQ/NKQ/ATT/AHR2/EKF1 with a time field) in the log")
 
