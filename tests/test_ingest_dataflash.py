@@ -504,3 +504,22 @@ def test_dataflash_one_corrupt_reference_or_mag_time_is_no_reboot(tmp_path, corr
     assert rec.meta["boot_epochs"] == 1 and rec.meta["segments"] == 1 and len(rec) == 2000
     assert any(f"1 {corrupt} row(s) with a corrupt time stamp dropped" in n for n in rec.meta["notes"])
     assert np.isfinite(rec.q_ref_wxyz[100:-100]).all()
+
+
+@pytest.mark.parametrize("edit, want", [
+    (lambda s: s, "copter"),
+    (lambda s: s.replace("PARM, SYSID_SW_MREV, 120", "MSG, Frame: HELI\nPARM, SYSID_SW_MREV, 120", 1), "helicopter"),
+    (lambda s: s.replace("ArduCopter V3.1", "ArduPlane V3.9.0")
+             .replace("PARM, SYSID_SW_MREV, 120", "PARM, Q_ENABLE, 1\nPARM, SYSID_SW_MREV, 120", 1), "vtol"),
+])  # fmt: skip
+def test_dataflash_names_the_vehicle_as_its_heartbeat_would(tmp_path, edit, want):
+    """A helicopter runs ArduCopter and a QuadPlane ArduPlane: their DataFlash logs name them as their tlogs' MAV_TYPE
+    does (session 53: a heli's .bin said "copter", a multirotor, and its tlog "helicopter": another vehicle class)."""
+    from tepinn_flight.vehicle_class import OTHER, vehicle_class
+
+    p = tmp_path / "v.log"
+    p.write_text(edit(real_log("aplogan_nan.log").read_text()))
+    vt = read_raw(p).meta["vehicle_type"]
+    assert vt == want
+    if want != "copter":
+        assert vehicle_class(vt) == OTHER == vehicle_class("helicopter") == vehicle_class("vtol_quadrotor")

@@ -80,7 +80,8 @@ EULER_REFS = ("ATT", "AHR2", "XKF1", "NKF1", "EKF1")
 DEFAULT_ORDER = ("XKQ", "NKQ1", "NKQ", "XKQ1", "ATT")
 
 _FIRMWARE_RE = re.compile(r"^\s*((Ardu\w+|APM:\w+|APMrover2|AntennaTracker|Blimp)\s+V?\d[^\s]*)")
-_VEHICLES = (("copter", "copter"), ("heli", "copter"), ("plane", "plane"), ("sub", "sub"),
+#: a firmware string's family → the record's ``vehicle_type`` (a helicopter build first: its name holds "copter" too)
+_VEHICLES = (("heli", "helicopter"), ("copter", "copter"), ("plane", "plane"), ("sub", "sub"),
              ("rover", "rover"), ("tracker", "antenna_tracker"), ("blimp", "blimp"))  # fmt: skip
 
 
@@ -411,6 +412,12 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     }
     if frame:
         meta["frame"] = frame
+    # what the vehicle is, as its heartbeat would say it (a tlog's MAV_TYPE: vehicle_class.py): ArduCopter's
+    # helicopter frames and ArduPlane's QuadPlanes run the copter and plane firmware (session 53)
+    if meta["vehicle_type"] == "copter" and frame and frame.upper().startswith("HELI"):
+        meta["vehicle_type"] = "helicopter"
+    elif meta["vehicle_type"] == "plane" and (_param(src, "Q_ENABLE") or 0) >= 1:
+        meta["vehicle_type"] = "vtol"
     notes: list[str] = []
 
     # ---- IMU
