@@ -855,3 +855,18 @@ def test_model_default_names_the_shipped_model_in_every_verb(tmp_path, capsys):
     a, b = pd.read_parquet(tmp_path / "a.parquet"), pd.read_parquet(tmp_path / "b.parquet")
     assert a.equals(b)
     assert main(["evaluate", str(src), "-o", str(tmp_path / "rep"), "--model", "default", "--no-peers", "-q"]) == 0
+
+
+def test_a_log_through_a_pipe_is_one_clear_line(capsys):
+    """A log is read from its start more than once: a pipe (`info <(cat f.tlog)`) is refused as such, in one line
+    (session 53: it had been "not a … tlog"; a FIFO with no writer hung the command)."""
+    head = real_log("ardusub_small.tlog").read_bytes()[:8192]
+    r, w = os.pipe()
+    try:
+        os.write(w, head)
+        os.close(w)
+        assert main(["info", f"/dev/fd/{r}"]) == 2
+    finally:
+        os.close(r)
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "a pipe or a device, not a file" in err

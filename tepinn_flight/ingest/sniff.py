@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import stat
 
 from ..conventions import UNIX_TIME_THRESHOLD_US
 from ..errors import UnknownLogFormat
@@ -50,7 +51,16 @@ def sniff_bytes(head: bytes) -> str:
 
 
 def sniff(path: str | os.PathLike) -> str:
-    """Format of the file at ``path``; one-line errors for missing, empty or unknown files."""
+    """Format of the file at ``path``; one-line errors for missing, empty or unknown files, and for a pipe or a
+    device (a log is read more than once, from its start: ``info <(cat f.tlog)`` had been "not a … tlog", and a FIFO
+    with no writer had hung the command)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        mode = None  # (said by open below)
+    if mode is not None and not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        raise UnknownLogFormat("a pipe or a device, not a file: logs are read from their start more than once; "
+                               "save it to a file first", path)  # fmt: skip
     try:
         with open(path, "rb") as f:
             head = f.read(1024)
