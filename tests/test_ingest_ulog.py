@@ -226,23 +226,48 @@ def test_header_duration_misleads_samples_do_not():
     assert rec.meta["segments"] == 2
 
 
-def test_short_dropout_still_ends_a_segment():
-    """One missing sample (2 periods) is no gap for the assembler; a dropout there must still split."""
+def test_ensure_breaks_ends_coverage_at_a_break():
+    """ensure_breaks (what leaves the reference uncovered across an EKF reset): one missing sample (2 periods) is no
+    gap for the assembler; a break there drops the samples after it until the step is one."""
     t = np.arange(100) * 0.004
     t = np.delete(t, 50)  # step 49 -> 51 is 8 ms = 2 periods < 2.5
     n = len(t)
     raw = RawLog(ImuStream(t, np.zeros((n, 3)), np.tile([0, 0, -9.81], (n, 1))), meta={"source_kind": "ulog"})
-    assert build_record(raw, "x.ulg").meta["segments"] == 1  # without the dropout rule
+    assert build_record(raw, "x.ulg").meta["segments"] == 1  # without the rule
     keep, info = ensure_breaks(t, np.array([t[49] + 0.001]))
     assert info[0]["samples_dropped"] == 1 and not keep[50] and keep.sum() == n - 1
     m = n - 1
     raw2 = RawLog(ImuStream(t[keep], np.zeros((m, 3)), np.tile([0, 0, -9.81], (m, 1))), meta={"source_kind": "ulog"})
     rec = build_record(raw2, "x.ulg")
     assert rec.meta["segments"] == 2 and rec.segment[49] == 0 and rec.segment[50] == 1
-    # a dropout that already lies inside a gap costs nothing; one outside the samples neither
+    # a break that already lies inside a gap costs nothing; one outside the samples neither
     t_gap = np.r_[np.arange(50) * 0.004, 1.0 + np.arange(50) * 0.004]
     keep, info = ensure_breaks(t_gap, np.array([0.5, 5.0]))
     assert keep.all() and [i["inside_span"] for i in info] == [True, False]
+
+
+def test_a_logging_dropout_keeps_every_imu_sample(tmp_path):
+    """A logging dropout where the IMU lost no sample (other topics did) keeps every IMU sample, and one where it
+    lost some leaves the longer step its stamps show (session 53: samples after each dropout were dropped to force a
+    segment break, which the estimators then bridged anyway)."""
+    from tepinn_flight.ingest import load_record
+
+    from .ulog_writer import SENSOR_COMBINED_V1_14, ULogWriter
+
+    w = ULogWriter()
+    w.fmt("sensor_combined", SENSOR_COMBINED_V1_14)
+    w.subscribe("sensor_combined")
+    stamps = [1_000_000 + 4000 * k for k in range(2500) if k not in (1801, 1802)]  # two samples lost at the second
+    for k, t in enumerate(stamps):
+        if k in (1000, 1801):  # (pyulog stamps a dropout with the last timestamp before it)
+            w.dropout(3)
+        w.data("sensor_combined", 0, t, (0.0, 0.0, 0.0), 4000, 0, (0.0, 0.0, -9.8), 4000, 0)
+    rec = load_record(w.write(tmp_path / "drops.ulg"))
+    assert len(rec) == len(stamps)  # none dropped
+    lost = [d["imu_samples_lost"] for d in rec.meta["ulog_dropouts"]]
+    assert lost == [0, 2]
+    assert any("no IMU sample lost there" in n for n in rec.meta["notes"])
+    assert any("2 IMU sample(s) lost there" in n for n in rec.meta["notes"])
 
 
 def test_decimated_log_is_ingested_but_flagged():

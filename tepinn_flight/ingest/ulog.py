@@ -42,10 +42,11 @@ Time: µs since boot, or UNIX µs (above 1e15, PX4 v1.15 SITL) → seconds (``me
 UNIX stamps are counted from their first whole second (``meta["time_origin_unix_s"]``) to keep µs
 resolution in float64. A ULog has one boot, so no epochs; durations come from the samples, never
 from the header (``pyulog_sample_log_small.ulg``'s last timestamp is 1174 s after its data).
-Logging dropouts (``ulog.dropouts``) must end a segment: where the IMU step across a dropout is
-not already a gap (> 2.5 nominal periods, the assembler's rule), the first samples after it are
-dropped until it is (a few ms of data; noted in ``meta["ulog_dropouts"]``). pyulog stamps a
-dropout with the latest timestamp it has read, so only topics we parse can move that stamp.
+Logging dropouts (``ulog.dropouts``): the IMU's own stamps say what each cost it (``meta["ulog_dropouts"]``, and a
+note: the samples lost there, or none); a lost sample is a longer step, which the estimators integrate over its own
+time or, past 2.5 periods, bridge or restart at (:mod:`tepinn_flight.record_gaps`). Until session 53 samples were
+dropped after a dropout to force a segment break even where the IMU had lost none. pyulog stamps a dropout with the
+latest timestamp it has read, so only topics we parse can move that stamp.
 
 Errors: anything pyulog cannot parse (truncated header, garbage after the magic, a definitions
 section it would loop on forever) becomes a one-line :class:`CorruptLog`; a log that parses
@@ -598,21 +599,26 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     # a "dropout" of 0 ms lost nothing (pyulog lists them): not a dropout
     dropouts = [d for d in (getattr(ulog, "dropouts", []) or []) if int(d.duration) > 0]
     drop_t = us_to_s(np.array([int(d.timestamp) - origin_us for d in dropouts], np.int64))
-    keep, drop_info = ensure_breaks(imu_stream.t_s, drop_t)
-    t0 = float(imu_stream.t_s[0]) if len(imu_stream.t_s) else 0.0  # notes in record time, as `info` shows it
-    for rec, d in zip(drop_info, dropouts):
-        rec["duration_s"] = float(d.duration) * 1e-3
-        at = f"t={rec['t_s'] - t0:.3f} s (record time)"
-        if not rec["inside_span"]:
+    # the IMU's own stamps say what a dropout cost it: a lost sample is a longer step (integrated over its own time, or a
+    # gap bridged or restarted by record_gaps' rules); samples are never dropped to force a break there (before session
+    # 53 they were, where the IMU had lost none, and the estimators then bridged the break they made anyway)
+    t_imu = imu_stream.t_s
+    period = nominal_period_s(t_imu)
+    t0 = float(t_imu[0]) if len(t_imu) else 0.0  # notes in record time, as `info` shows it
+    drop_info = []
+    for tb, d in zip(drop_t, dropouts):
+        at = f"t={tb - t0:.3f} s (record time)"
+        inside = bool(len(t_imu) and t_imu[0] <= tb < t_imu[-1])
+        lost = None
+        if not inside:
             notes.append(f"logging dropout of {d.duration} ms stamped {at}, outside the IMU samples")
-        elif rec["samples_dropped"]:
+        elif np.isfinite(period) and period > 0:
+            i = int(np.searchsorted(t_imu, tb, side="right")) - 1
+            lost = max(0, int(round((t_imu[i + 1] - t_imu[i]) / period)) - 1)
             notes.append(f"logging dropout of {d.duration} ms at {at}: "
-                         f"{rec['samples_dropped']} IMU sample(s) dropped so that a segment ends there")  # fmt: skip
-    if not keep.all():
-        gc = imu_stream.gyr_clipped
-        imu_stream = ImuStream(imu_stream.t_s[keep], imu_stream.gyr_rad_s[keep], imu_stream.acc_m_s2[keep],
-                               None if imu_stream.clipped is None else imu_stream.clipped[keep],
-                               gyr_clipped=None if gc is None else gc[keep])  # fmt: skip
+                         + (f"{lost} IMU sample(s) lost there" if lost else "no IMU sample lost there"))  # fmt: skip
+        drop_info.append({"t_s": float(tb), "inside_span": inside, "duration_s": float(d.duration) * 1e-3,
+                          "imu_samples_lost": lost})  # fmt: skip
     if getattr(ulog, "_tepinn_truncated", False):
         notes.append("the log is truncated (it ends inside a message: the logger stopped mid-write or the "
                      "file was cut); the samples up to the cut are kept")  # fmt: skip
