@@ -103,3 +103,30 @@ def test_live_equals_offline_across_a_rate_rise_and_stays_on_the_attitude():
     for i in range(len(rec)):
         se.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i])
     assert se.rate_rises == 1
+
+
+def test_a_lone_sample_between_two_gaps_is_its_own_segment_live_as_offline():
+    """Right after a restart the live estimator tells gaps by the last segment's period, as ingest does by the
+    record's (session 53: a lone sample between two gaps had been one segment with what followed, live only)."""
+    from tepinn_flight.ingest.assemble import segments_from_time
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.estimate import estimate_record
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    from tests.live_run import live_run
+
+    rec = synthetic_record(seed=5, duration_s=30.0, rate_hz=200.0)
+    t = rec.t_s
+    keep = ~(((t > 10.0) & (t < 10.5)) | ((t > 10.5) & (t < 10.8)))  # a lone sample at 10.5 s between two gaps
+    data = rec.data[keep].reset_index(drop=True)
+    data["segment"] = segments_from_time(data["t_s"].to_numpy(), np.zeros(len(data), np.int64), 0.005)
+    rec = FlightRecord(data, dict(rec.meta))
+    assert int(rec.segment.max()) == 2  # three segments offline: before, the lone sample, after
+    model, cfg, _ = load_model(default_model_path())
+    cfg = dataclasses.replace(cfg, smoother=False, gyro_selfcal=False, gnss_aid=False)
+    q_live, _ = live_run(model, cfg, rec)
+    off = estimate_record(model, rec, cfg)[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+    have = np.all(np.isfinite(q_live), 1)
+    after = rec.t_s > 10.8
+    assert have[after].sum() > after.sum() - 60
+    np.testing.assert_allclose(q_live[have], off[have], atol=1e-6)

@@ -116,6 +116,9 @@ class StreamingEstimator:
         self.last_raw = None  # the previous sample's gyro, accelerometer, magnetometer: three tuples (gap filling)
         self.bridged_gaps = 0  # short logging dropouts propagated through
         self.rate_rises = 0  # new segments where the sample rate rose (record_gaps.RateRise)
+        # the last segment's sample period: a new segment's first steps are told gaps by it (offline: the record's
+        # nominal period) until the segment's own is known (a lone sample between two gaps had been one segment live)
+        self.prev_period = None
         self.delta = 1.0 / self.cfg.token_rate_hz
         # the accelerometer's scale, read causally and kept across segments (a sensor's property)
         self.acc_scale = AccelScaleTracker() if a is not None and a.accel_scale_selfcal else None
@@ -136,6 +139,10 @@ class StreamingEstimator:
         different IMU, or samples that were not the vehicle's (the bridge's warm-up)."""
         if sensor and self.acc_scale is not None:
             self.acc_scale = AccelScaleTracker(self.acc_scale.cfg)
+        if sensor:
+            self.prev_period = None
+        elif getattr(self, "period", None) is not None:
+            self.prev_period = self.period
         self.fusion = AttitudeFusion(self.fusion_cfg)
         self.old_q = None  # the older fusion's estimate at the previous sample (the pulls' target)
         self.old_bias = None  # ... and its gyro-bias estimate
@@ -180,16 +187,18 @@ class StreamingEstimator:
             (gx, gy, gz), (ax, ay, az) = gyr_rad_s, acc_m_s2
             self.holes += 1
         mag_row = _NAN3 if mag_ut is None else tuple(float(v) for v in mag_ut)
-        if self.t_prev is not None and self.period is not None and self.last_raw is not None \
-                and t - self.t_prev > GAP_PERIODS * self.period and is_bridgeable(t - self.t_prev, self.period):  # fmt: skip
-            self._bridge(t, (*gyr_rad_s, *acc_m_s2, *mag_row))
+        period = self.period if self.period is not None else self.prev_period
+        if self.t_prev is not None and period is not None and self.last_raw is not None \
+                and t - self.t_prev > GAP_PERIODS * period and is_bridgeable(t - self.t_prev, period):  # fmt: skip
+            self._bridge(t, (*gyr_rad_s, *acc_m_s2, *mag_row), period)
         self.last_raw = (gyr_rad_s, acc_m_s2, mag_row)  # (joined only where a gap is bridged)
         if self.acc_scale is not None:  # divided by the accelerometer's scale once read (where ≥ 10 % off)
             acc_m_s2 = self.acc_scale.update(t, gyr_rad_s, acc_m_s2)
             ax, ay, az = acc_m_s2
         t_prev = self.t_prev  # a new segment: the first sample, a time reversal or a gap (not bridged above)
         dt = None if t_prev is None else t - t_prev
-        if dt is None or dt <= 0 or (self.period is not None and dt > GAP_PERIODS * self.period):
+        period = self.period if self.period is not None else self.prev_period  # (the bridge's pushes may set it)
+        if dt is None or dt <= 0 or (period is not None and dt > GAP_PERIODS * period):
             self.reset()
             self.t0 = t
         elif len(self._dts) < TS_STEPS:
@@ -285,10 +294,10 @@ class StreamingEstimator:
             self.anchored.speed_gate = speed_gate_allowed(self.anchor_cfg, vehicle)
             self.anchored.set_acc_gain(acc_gain(self.anchor_cfg, vehicle, causal=True))
 
-    def _bridge(self, t: float, row: tuple) -> None:
-        """Push the samples that fill the gap from the previous sample to ``t`` (as offline)."""
+    def _bridge(self, t: float, row: tuple, period: float) -> None:
+        """Push the samples that fill the gap from the previous sample to ``t`` at ``period`` (as offline)."""
         t_a = self.t_prev
-        tf = filler_times(t_a, t, self.period)
+        tf = filler_times(t_a, t, period)
         g, a, m = self.last_raw
         vals = interpolate_rows(t_a, np.asarray((*g, *a, *m)), t, np.asarray(row), tf)
         for t_i, v in zip(tf, vals):
