@@ -317,9 +317,9 @@ def load_runner(path, runtime: str = "auto", threads: int | None = None):
     """(runner, estimator settings, metadata dict) of a checkpoint or an ``.onnx`` export.
 
     ``runtime``: ``torch`` (a checkpoint in PyTorch), ``onnx`` (an ``.onnx`` file in onnxruntime; a
-    checkpoint is exported in memory first where torch is installed, else the ``.onnx`` of the same
-    name beside it is run; an export beside it made from exactly that file — :func:`export_in_sync` — is
-    always used) or ``auto`` (``onnx`` for an ``.onnx`` file, for a checkpoint with an export in sync
+    checkpoint is exported in memory first where torch is installed; an export beside it made from exactly that
+    file — :func:`export_in_sync` — is always used, and without torch nothing else: another export beside it is
+    refused, session 53) or ``auto`` (``onnx`` for an ``.onnx`` file, for a checkpoint with an export in sync
     beside it — the shipped model: 13× faster offline than PyTorch here, equal to it to 1e-5 — or when
     torch is absent, else ``torch``). The settings are those :func:`~.checkpoint.load_model` gives for the checkpoint."""
     path = Path(path)
@@ -343,8 +343,11 @@ def load_runner(path, runtime: str = "auto", threads: int | None = None):
             from .export import export_bytes
 
             runner = OnnxRunner(export_bytes(path), threads)
-        elif beside.is_file():  # without torch the export beside it is all there is
-            runner = OnnxRunner(beside, threads)
+        elif beside.is_file():  # without torch, an export beside it made from another file is not this model
+            raise ConfigError(f"{path}: {beside.name} beside it was not exported from this checkpoint (it changed since, "
+                              "or it is another's), and without PyTorch the checkpoint cannot be read: export it again "
+                              f"where torch is installed (tepinn-flight export {path.name} -o {beside.name}) or pass "
+                              "the .onnx itself")  # fmt: skip
         else:
             raise ConfigError(f"{path}: a checkpoint needs PyTorch to be read; without it, export it once where torch is "
                               f"installed (tepinn-flight export {path.name} -o model.onnx) and pass the .onnx")  # fmt: skip
