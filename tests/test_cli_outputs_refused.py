@@ -125,3 +125,18 @@ def test_a_plain_pickle_checkpoint_is_one_line_and_not_run(tmp_path, capsys):
         assert main(["estimate", str(p), "-o", str(tmp_path / "e.parquet"), "-q", "--model", str(bad)]) == 2
     assert not [w for w in seen if "pickle" in str(w.message).lower()]
     _one_error_line(capsys, "pickled.pt", "not a readable checkpoint")
+
+
+def test_export_never_writes_over_its_checkpoint_through_a_link(tmp_path, capsys):
+    import shutil
+
+    from tepinn_flight.model.checkpoint import default_model_path
+
+    ck = tmp_path / "mine.pt"
+    shutil.copy(default_model_path(), ck)
+    before = ck.read_bytes()
+    link = tmp_path / "mine_link.onnx"
+    link.symlink_to(ck)
+    assert main(["export", str(ck), "-o", str(link), "-q"]) == 2
+    _one_error_line(capsys, "is the input")
+    assert ck.read_bytes() == before

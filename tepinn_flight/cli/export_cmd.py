@@ -43,6 +43,9 @@ def run(args) -> int:
     if not out.parent.is_dir():
         what = "is a file, not a folder" if out.parent.exists() else "does not exist"
         raise ConfigError(f"-o {out}: folder {out.parent} {what}")
+    from .paths import refuse_overwriting_inputs
+
+    refuse_overwriting_inputs([("-o", out)], [src])  # (a link named .onnx to the checkpoint had replaced it)
     try:
         import onnx  # noqa: F401
         import torch  # noqa: F401
