@@ -327,3 +327,22 @@ def test_the_fine_tuning_keeps_the_starting_sigma_where_its_fit_fails_the_valida
         assert rule_key(*got, SIGMA_COVERAGE) < rule_key(*alt, SIGMA_COVERAGE)
     assert scores["fitted"][1] < 0.9  # (the fit on calm flights misses the agile one's error: the case it guards)
 
+
+
+def test_the_fine_tuning_reports_the_split_the_training_made(tmp_path):
+    """The records the fine-tuning splits are in the order the training reads the same paths (resolve_records),
+    each once: a log named twice, or given in another order, had the network train on the file reported as
+    validation (session 53)."""
+    from tepinn_flight.model.finetune import training_order
+    from tepinn_flight.model.train_data import resolve_records
+
+    files = []
+    for name in ("b[1].parquet", "a.parquet", "c.parquet"):
+        f = tmp_path / name
+        f.write_bytes(b"x")
+        files.append(str(f.resolve()))
+    given = [files[2], files[0], files[1], files[0]]  # another order, one of them twice
+    paths, recs = training_order(given, [f"rec:{p}" for p in given])
+    assert paths == [str(p) for p in resolve_records(given, tmp_path)]
+    assert recs == [f"rec:{p}" for p in paths]
+    assert len(paths) == 3

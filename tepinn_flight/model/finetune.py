@@ -81,6 +81,17 @@ def collect_logs(items) -> list[Path]:
     return sorted(set(out))
 
 
+def training_order(paths: list[str], recs: list) -> tuple[list[str], list]:
+    """(paths, records) in the training data's own order — :func:`.train_data.resolve_records`: the paths sorted, each
+    once — so that the split by file the fine-tuning reports is the one the training made (session 53: a log named
+    twice, or the order a link's target sorts in, had the network train on the file reported as validation)."""
+    by_path: dict = {}
+    for pth, r in zip(paths, recs):
+        by_path.setdefault(Path(pth), r)
+    order = sorted(by_path)
+    return [str(k) for k in order], [by_path[k] for k in order]
+
+
 #: vehicle classes (:mod:`..vehicle_class`: a DataFlash log says "copter", a tlog "quadrotor") → one name per kind;
 #: other names as the log gives them, a DataFlash "sub" as a tlog's "submarine"
 _KIND = {MULTIROTOR: "multirotor", FIXED_WING: "fixed wing"}
@@ -263,6 +274,7 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     if not recs:
         raise ConfigError("none of the --data logs can be learned from (each needs an IMU of >= 20 Hz and a reference "
                           "attitude that turns as its gyro does and agrees with its accelerometer's gravity)")  # fmt: skip
+    paths, recs = training_order(paths, recs)
     vehicles = sorted({v for v in map(vehicle_of, recs) if v})
     if len(vehicles) > 1:  # a vehicle's gyro scale, time constant and σ, fitted on several: right for none of them
         print(f"warning: the logs come from {len(vehicles)} different vehicles or boards ({'; '.join(vehicles)}): the "

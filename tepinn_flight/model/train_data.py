@@ -26,13 +26,13 @@ def resolve_records(patterns, base: Path) -> list[Path]:
             if not found:
                 raise ConfigError(f"no flight records (*.parquet) in training data folder {pat}")
             out += found
+        elif p.exists():  # a file whose name holds [, * or ? is that file, not a pattern (session 53)
+            out.append(p)
         elif any(ch in str(pat) for ch in "*?["):
             found = sorted(Path(p.anchor).glob(str(p.relative_to(p.anchor))) if p.is_absolute() else base.glob(str(pat)))
             if not found:
                 raise ConfigError(f"training data pattern matches nothing: {pat}")
             out += found
-        elif p.exists():
-            out.append(p)
         else:
             raise ConfigError(f"training data not found: {pat}")
     return sorted(set(out))
