@@ -140,3 +140,18 @@ def test_export_never_writes_over_its_checkpoint_through_a_link(tmp_path, capsys
     assert main(["export", str(ck), "-o", str(link), "-q"]) == 2
     _one_error_line(capsys, "is the input")
     assert ck.read_bytes() == before
+
+
+def test_fine_tuning_never_writes_over_the_model_it_starts_from(tmp_path, capsys):
+    import shutil
+
+    from tepinn_flight.model.checkpoint import default_model_path
+
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy(default_model_path(), run / "model.pt")
+    before = (run / "model.pt").read_bytes()
+    p = _record(tmp_path)
+    assert main(["train", "--init", str(run / "model.pt"), "--data", str(p), "-o", str(run), "-q"]) == 2
+    _one_error_line(capsys, "is the input")
+    assert (run / "model.pt").read_bytes() == before

@@ -74,6 +74,7 @@ def run(args) -> int:
         from ..model.finetune import finetune
 
         out = check_output(args.output, folder=True)
+        _refuse_init_in_run(args.init, out)
         s = finetune(args.init, args.data, out, minutes=args.minutes, progress=not args.quiet)
         # (one file: nothing is held out, and the figures below are on the file it was tuned on: said so, not "validation")
         files = "validation files" if s["val_files"] else "file it was tuned on"
@@ -116,6 +117,20 @@ def run(args) -> int:
     # a place that cannot be written is a one-line error before any work (creates nothing);
     # train() refuses a folder holding a run (last.pt) without --resume
     out = check_output(args.output, folder=True)
+    if args.init:
+        _refuse_init_in_run(args.init, out)
     train(cfg, out, data_dirs=args.data, resume=args.resume, config_base=Path(args.config).resolve().parent,
           progress=not args.quiet, device=args.device)  # fmt: skip
     return 0
+
+
+def _refuse_init_in_run(init: str, out) -> None:
+    """The run writes ``model.pt`` and ``last.pt`` in ``out``: never over the model it starts from (``--init
+    RUN/model.pt -o RUN`` had replaced it; session 53)."""
+    from pathlib import Path
+
+    if init == "default":
+        return
+    from .paths import refuse_overwriting_inputs
+
+    refuse_overwriting_inputs([("-o", Path(out) / n) for n in ("model.pt", "last.pt", "model.onnx")], [init])
