@@ -209,12 +209,15 @@ def _bridged(rec: FlightRecord, max_gap_s: float) -> Bridged:
         return ident
     t, seg = rec.t_s, rec.segment
     period = record_period_s(rec)
-    breaks = np.flatnonzero(np.diff(seg) != 0) + 1  # first row of each later segment
+    # a step inside a segment longer than GAP_PERIODS periods is a gap too, as the live estimator takes it (a record
+    # whose rate fell, in one segment: its long steps had been integrated as 2.5 periods each; session 53)
+    inner = (np.diff(seg) == 0) & (np.diff(t) > GAP_PERIODS * period) if np.isfinite(period) else np.zeros(n - 1, bool)
+    is_break = np.r_[False, (np.diff(seg) != 0) | inner]
+    breaks = np.flatnonzero(is_break)  # first row of each later segment
     bridge = [int(b) for b in breaks if is_bridgeable(t[b] - t[b - 1], period, max_gap_s)]
-    if not bridge:
+    if not bridge and not inner.any():
         return ident
     data = rec.data.copy()
-    is_break = np.r_[False, np.diff(seg) != 0]
     is_break[bridge] = False
     data["segment"] = np.cumsum(is_break).astype(np.int32)
     seg = data["segment"].to_numpy()
@@ -239,6 +242,8 @@ def _bridged(rec: FlightRecord, max_gap_s: float) -> Bridged:
         fill_at.append((b, len(tf)))
         prev = b
     pieces.append(data.iloc[prev:])
+    if not bridge:  # inner gaps longer than a bridge: breaks only
+        return Bridged(FlightRecord(data, dict(rec.meta)), np.arange(n), 0, 0)
     out = pd.concat(pieces, ignore_index=True)
     for c in data.columns:
         out[c] = out[c].astype(data[c].dtype)

@@ -130,3 +130,32 @@ def test_a_lone_sample_between_two_gaps_is_its_own_segment_live_as_offline():
     after = rec.t_s > 10.8
     assert have[after].sum() > after.sum() - 60
     np.testing.assert_allclose(q_live[have], off[have], atol=1e-6)
+
+
+def test_a_rate_fall_inside_a_segment_is_bridged_as_live():
+    """A one-segment record whose rate falls 5× (a record made without ingest's gap rule): its long steps are gaps,
+    bridged as the live estimator bridges them (session 53: they had been integrated as 2.5 periods each, the tilt
+    off by up to 151° on a BROAD trial)."""
+    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.estimate import estimate_record
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    from tests.live_run import live_run
+
+    rec = synthetic_record(seed=6, duration_s=40.0, rate_hz=200.0, max_rate_rad_s=3.0)
+    keep = (rec.t_s < 20.0) | (np.arange(len(rec)) % 5 == 0)
+    data = rec.data[keep].reset_index(drop=True)
+    data["segment"] = np.zeros(len(data), np.int32)
+    rec = FlightRecord(data, {**rec.meta, "imu_rate_hz": 200.0})
+    br = bridge_gaps(rec)
+    assert br.gaps > 0.9 * (rec.t_s >= 20.0).sum() and br.filled == 4 * br.gaps
+    assert np.diff(br.record.t_s).max() < 0.0051
+    model, cfg, _ = load_model(default_model_path())
+    cfg = dataclasses.replace(cfg, smoother=False, gyro_selfcal=False, gnss_aid=False)
+    off = estimate_record(model, rec, cfg)[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
+    q_live, _ = live_run(model, cfg, rec)
+    have = np.all(np.isfinite(q_live), 1)
+    np.testing.assert_allclose(q_live[have], off[have], atol=1e-6)
+    err = np.degrees(inclination_error_rad(error_quat_earth(off, rec.q_ref_wxyz)))
+    assert np.nanmax(err[rec.t_s >= 25.0]) < 1.5 * np.nanmax(err[(rec.t_s >= 5.0) & (rec.t_s < 20.0)])
