@@ -346,3 +346,13 @@ def test_the_fine_tuning_reports_the_split_the_training_made(tmp_path):
     assert paths == [str(p) for p in resolve_records(given, tmp_path)]
     assert recs == [f"rec:{p}" for p in paths]
     assert len(paths) == 3
+
+
+def test_a_log_too_short_to_score_is_not_tuned_on():
+    """A log with under MIN_SCORED_S scored after the 5-s warm-up is skipped (session 53: its NaN figures had chosen
+    the settings by NaN comparisons)."""
+    from tepinn_flight.model.finetune import MIN_SCORED_S, usable
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    assert not usable(synthetic_record(seed=1, duration_s=5.0 + MIN_SCORED_S - 2.0, rate_hz=100.0))
+    assert usable(synthetic_record(seed=1, duration_s=5.0 + MIN_SCORED_S + 2.0, rate_hz=100.0))

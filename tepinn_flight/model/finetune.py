@@ -114,9 +114,20 @@ def vehicle_of(rec: FlightRecord) -> str | None:
     return " ".join(str(x) for x in (ap, kind, hw) if x)
 
 
+#: a log scored for less than this (s, after each segment's 5-s warm-up) is too short to tune or validate on: its
+#: figures were NaN, and the settings then chosen by NaN comparisons (session 53)
+MIN_SCORED_S = 10.0
+
+
 def usable(rec: FlightRecord) -> bool:
-    """A log the fine-tuning can learn from: fast enough IMU and a reference on most samples."""
-    return estimation_ok(rec.meta) and float(np.mean(np.all(np.isfinite(rec.q_ref_wxyz), axis=1))) > 0.5
+    """A log the fine-tuning can learn from: fast enough IMU, a reference on most samples, and at least
+    :data:`MIN_SCORED_S` of samples scored after the warm-up."""
+    if not (estimation_ok(rec.meta) and float(np.mean(np.all(np.isfinite(rec.q_ref_wxyz), axis=1))) > 0.5):
+        return False
+    from ..evaluation.harness import scoring_mask
+
+    rate = rec.meta.get("imu_rate_hz") or (1.0 / float(np.median(np.diff(rec.t_s))) if len(rec) > 1 else 0.0)
+    return bool(rate > 0 and scoring_mask(rec, 5.0).sum() / rate >= MIN_SCORED_S)
 
 
 def record_windows(model, anchor, records: list[FlightRecord]) -> list:
@@ -262,7 +273,8 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
             print(f"note: {p}: skipped ({exc.reason})", file=sys.stderr)
             continue
         if not usable(r):
-            print(f"note: {p}: skipped (IMU too slow or no reference attitude to learn from)", file=sys.stderr)
+            print(f"note: {p}: skipped (IMU below 20 Hz, no reference attitude on most samples, or under "
+                  f"{MIN_SCORED_S:.0f} s scored after the warm-up: nothing to learn from)", file=sys.stderr)  # fmt: skip
             continue
         chk = check_reference(r)  # a reference that is not the IMU's attitude would teach everything wrong
         ref_checks[str(p.resolve())] = chk.describe()
@@ -327,7 +339,10 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
         "validation_note": "" if va else "one file only: the figures are on the file it was tuned on",
         **{k: v for k, v in result.items() if isinstance(v, (int, float, str))},
     }  # fmt: skip
-    atomic_write(out / "finetune.json", lambda tmp: Path(tmp).write_text(json.dumps(summary, indent=2)))
+    from ..evaluation.harness import _jsonable
+
+    text = json.dumps(_jsonable(summary), indent=2, allow_nan=False)  # (NaN: null; JSON has none)
+    atomic_write(out / "finetune.json", lambda tmp: Path(tmp).write_text(text))
     return summary
 
 
