@@ -155,3 +155,14 @@ def test_fine_tuning_never_writes_over_the_model_it_starts_from(tmp_path, capsys
     assert main(["train", "--init", str(run / "model.pt"), "--data", str(p), "-o", str(run), "-q"]) == 2
     _one_error_line(capsys, "is the input")
     assert (run / "model.pt").read_bytes() == before
+
+
+def test_a_sensor_step_past_its_range_is_refused():
+    from tepinn_flight.errors import ConfigError
+    from tepinn_flight.sim.sensors import AccelConfig, GyroConfig
+
+    with pytest.raises(ConfigError, match="'lsb_deg_s' must be below 'range_deg_s'"):
+        GyroConfig(lsb_deg_s=1e9)
+    with pytest.raises(ConfigError, match="'lsb_mg' must be below 'range_g'"):
+        AccelConfig(range_g=2.0, lsb_mg=2500.0)
+    AccelConfig(range_g=16.0, lsb_mg=20.0)  # (mg against g: a coarse step well inside the range is fine)

@@ -175,6 +175,11 @@ def _check_triad(cfg, range_name: str) -> None:
             continue
         finite_nonneg(f, getattr(cfg, f), allow_inf=f == "bias_corr_time_s")
     check(cfg.bias_corr_time_s > 0, f"'bias_corr_time_s' must be > 0 (inf for a random walk), got {cfg.bias_corr_time_s!r}")
+    lsb_name = next(f for f in cfg.__dataclass_fields__ if f.startswith("lsb_"))
+    lsb = getattr(cfg, lsb_name) / (1000.0 if lsb_name == "lsb_mg" else 1.0)  # (mg against a range in g)
+    # a step past the range read every sample 0 and clipped (session 53)
+    check(lsb < getattr(cfg, range_name), f"'{lsb_name}' must be below '{range_name}' (the quantization step is a "
+          f"fraction of the range), got {getattr(cfg, lsb_name)!r} against {getattr(cfg, range_name)!r}")  # fmt: skip
 
 
 def _json_safe(v):
