@@ -315,7 +315,9 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     ests = [_est(model1, anchor, r) for r in val]
     after = [inclination_rmse_deg(r, e) for r, e in zip(val, ests)]
     # where the fine-tuned network's gates act on the validation files (a network out of its domain can open one)
-    gates = {str(r.meta.get("source_file", i)): e.attrs.get("network_gates", "") for i, (r, e) in enumerate(zip(val, ests))}
+    # keyed by the file's path (ArduPilot names every SD card's first log 00000001.BIN: a base name loses all but one)
+    val_paths = [paths[i] for i in va] if va else [paths[i] for i in tr]
+    gates = {val_paths[i]: e.attrs.get("network_gates", "") for i, e in enumerate(ests)}
     (nees0, in3_0), (nees1, in3_1) = nees_causal
     summary = {
         "init": str(init_path), "files": paths, "train_files": [paths[i] for i in tr], "val_files": [paths[i] for i in va],
