@@ -121,7 +121,7 @@ class Link:
         self.rcvbuf_bytes = None  # UDP: the receive buffer the kernel granted (getsockopt)
         self.down = False
         self.next_reconnect = 0.0
-        self._probe = None  # tcp, while the peer is away: a non-blocking connect polled (socket, started at)
+        self._opening = None  # tcp, while the peer is away: the reconnecting thread's {"done", "conn"}
         self._dest = None
         if self.kind in ("udpout", "tcp"):
             try:
@@ -133,7 +133,9 @@ class Link:
             raise EndpointError(f"{role} {spec}: no such serial device {self.host}")
         self.conn = self._open()
 
-    def _open(self):
+    def _open(self, bounded: bool = True):
+        """The endpoint opened through pymavlink; ``bounded``: a ``tcp:`` connect waits at most
+        :data:`CONNECT_TIMEOUT_S` (a process-wide socket default, set around it: not from a thread)."""
         mu = mavutil()
         if self.kind == "serial":
             device, kw = self.host, {"baud": self.port}
@@ -145,7 +147,7 @@ class Link:
             kw.update(udp_timeout=UDP_PEER_TIMEOUT_S)
         old_timeout = socket.getdefaulttimeout()
         try:
-            if self.kind == "tcp":  # pymavlink connects blocking: bound how long a dead peer stalls us
+            if self.kind == "tcp" and bounded:  # pymavlink connects blocking: bound how long a dead peer stalls us
                 socket.setdefaulttimeout(CONNECT_TIMEOUT_S)
             conn = mu.mavlink_connection(device, source_system=self._src[0], source_component=self._src[1], **kw)
         except ImportError as exc:
@@ -281,14 +283,14 @@ class Link:
             pass
 
     def maintain(self, now: float) -> bool:
-        """Reopen a lost TCP/serial link (once per second). True when it came back. A ``tcp:`` peer is first reached
-        by a non-blocking connect polled here (:meth:`_peer_answers`): pymavlink connects blocking, and a host gone
-        from the network held the bridge's one loop — every other link's frames and the estimates — for the connect's
-        timeout each second (session 53: p99 forwarding 4 → 492 ms)."""
+        """Reopen a lost TCP/serial link (once per second). True when it came back. A ``tcp:`` peer is connected to in
+        a thread (:meth:`_open_beside`): pymavlink connects blocking, and a host gone from the network held the
+        bridge's one loop — every other link's frames and the estimates — for the connect's timeout each second
+        (session 53: p99 forwarding 4 → 492 ms)."""
         if not self.down:
             return False
-        if self.kind == "tcp" and not self._peer_answers(now):
-            return False
+        if self.kind == "tcp":
+            return self._open_beside(now)
         if now < self.next_reconnect:
             return False
         self.next_reconnect = now + RECONNECT_S
@@ -299,45 +301,44 @@ class Link:
         self.down = False
         return True
 
-    def _peer_answers(self, now: float) -> bool:
-        """Whether the ``tcp:`` peer accepts a connection, without waiting: a non-blocking connect started (once per
-        :data:`RECONNECT_S`) and polled on each call; True once it connected (the probe closed: the link itself is then
-        opened, at once)."""
-        import select
+    def _open_beside(self, now: float) -> bool:
+        """The ``tcp:`` reconnection: a thread makes the connection (once per :data:`RECONNECT_S` at most, one at a
+        time); True on the call that finds it made."""
+        import threading
 
-        if self._probe is None:
+        box = self._opening
+        if box is None:
             if now < self.next_reconnect:
                 return False
             self.next_reconnect = now + RECONNECT_S
-            sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-            sock.setblocking(False)
-            err = sock.connect_ex(self._dest or (self.host, self.port))
-            if err not in (0, errno.EINPROGRESS, errno.EWOULDBLOCK, errno.EALREADY):
-                sock.close()
-                return False
-            self._probe = (sock, now)
-        sock, t0 = self._probe
-        try:
-            _, ready, _ = select.select([], [sock], [], 0)
-        except (OSError, ValueError):
-            ready = [sock]
-        if not ready:
-            if now - t0 > RECONNECT_S:  # a peer that drops the connect: another try, from a fresh socket
-                sock.close()
-                self._probe = None
+            box = self._opening = {"done": threading.Event()}
+
+            def connect():
+                try:
+                    box["conn"] = self._open(bounded=False)  # (no process-wide socket timeout from a thread)
+                except EndpointError:
+                    pass
+                finally:
+                    box["done"].set()
+
+            threading.Thread(target=connect, name=f"tepinn-reconnect-{self.role}", daemon=True).start()
             return False
-        err = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
-        sock.close()
-        self._probe = None
-        if err:
+        if not box["done"].is_set():
             return False
-        self.next_reconnect = 0.0  # the peer is there: open the link now
+        self._opening = None
+        if "conn" not in box:
+            return False
+        self.conn = box["conn"]
+        self.down = False
         return True
 
     def close(self) -> None:
-        if self._probe is not None:
-            self._probe[0].close()
-            self._probe = None
+        box, self._opening = self._opening, None
+        if box is not None and box.get("conn") is not None:  # a reconnection that finished after the link's end
+            try:
+                box["conn"].close()
+            except Exception:
+                pass
         try:
             self.conn.close()
         except Exception:
