@@ -42,6 +42,7 @@ def test_finetuning_on_a_vehicles_logs_improves_a_held_out_log_of_it(tmp_path, c
     run = tmp_path / "run"
     assert main(["train", "--init", "default", "--data", str(data), "-o", str(run), "--minutes", "0.5", "-q"]) == 0
     summary = json.loads((run / "finetune.json").read_text())
+    assert (run / "model.pt").exists() and not (run / "model.untuned.pt").exists()  # tuned: under its name alone
     assert len(summary["train_files"]) == 2 and len(summary["val_files"]) == 1  # split by whole file
     rec = read_record(held)
     m0, e0, _ = load_model(default_model_path())
@@ -356,3 +357,21 @@ def test_a_log_too_short_to_score_is_not_tuned_on():
 
     assert not usable(synthetic_record(seed=1, duration_s=5.0 + MIN_SCORED_S - 2.0, rate_hz=100.0))
     assert usable(synthetic_record(seed=1, duration_s=5.0 + MIN_SCORED_S + 2.0, rate_hz=100.0))
+
+
+@pytest.mark.slow
+def test_a_fine_tuning_stopped_while_tuning_leaves_no_untuned_model(tmp_path, monkeypatch):
+    """Stopped after the network trained but before its filter's settings and σ are tuned, RUN_DIR holds no
+    model.pt for `estimate --model` to take (session 53: the untuned one was left there under that name)."""
+    import tepinn_flight.model.finetune as F
+
+    def stopped(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(F, "tune_anchor", stopped)
+    data, _ = _quarters(tmp_path)
+    run = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        F.finetune("default", [str(data)], run, minutes=0.2, progress=False)
+    assert not (run / "model.pt").exists() and (run / F.UNTUNED_NAME).exists()
+    assert not (run / "finetune.json").exists()

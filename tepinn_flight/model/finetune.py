@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -113,6 +114,9 @@ def vehicle_of(rec: FlightRecord) -> str | None:
     kind = _kind(kind) if kind else None
     return " ".join(str(x) for x in (ap, kind, hw) if x)
 
+
+#: the trained network's checkpoint while its filter's settings and σ are being tuned (then: model.pt)
+UNTUNED_NAME = "model.untuned.pt"
 
 #: a log scored for less than this (s, after each segment's 5-s warm-up) is too short to tune or validate on: its
 #: figures were NaN, and the settings then chosen by NaN comparisons (session 53)
@@ -295,9 +299,13 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     cfg = dataclasses.replace(finetune_config(model0.config, paths, minutes, seed), init=str(init_path))
     out = Path(out_dir)
     result = train(cfg, out, progress=progress, report_gates=False)  # reported below, after the tuning
+    # the network before its filter's settings and σ are tuned: not RUN_DIR/model.pt until they are (a run stopped
+    # while tuning had left an untuned model.pt that `estimate --model` took without a word; session 53)
+    untuned = out / UNTUNED_NAME
+    os.replace(out / "model.pt", untuned)
     tr, va = split_by_flight(len(recs), cfg.data.val_fraction, seed)
     val = [recs[i] for i in va] or [recs[i] for i in tr]
-    model1, _, ck = load_model(out / "model.pt")
+    model1, _, ck = load_model(untuned)
     # the filter's settings and σ₀, c, g are tuned on the causal estimate (the live bridge's; the offline
     # smoothing scales σ by its own factor where it applies), as the shipped ones were
     causal0 = dataclasses.replace(est0, smoother=False)
@@ -345,6 +353,7 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
 
     text = json.dumps(_jsonable(summary), indent=2, allow_nan=False)  # (NaN: null; JSON has none)
     atomic_write(out / "finetune.json", lambda tmp: Path(tmp).write_text(text))
+    untuned.unlink(missing_ok=True)  # model.pt is the tuned one now
     return summary
 
 
