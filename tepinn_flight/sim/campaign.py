@@ -260,14 +260,25 @@ def _digest(definition: dict) -> str:
     return hashlib.sha256(json.dumps(definition, sort_keys=True, default=str).encode()).hexdigest()
 
 
-def _manifest(cfg: CampaignConfig, flights: list[FlightSpec], sensors: dict) -> dict:
+def _relative_digest(definition: dict, base: Path | None) -> str:
+    """The digest of ``definition`` with the sensor files under the campaign file's folder (``base``) named relative
+    to it: a campaign moved with its sensor files keeps its digest (session 53: the absolute path in it had refused
+    the resume). (The paths sit inside the resolved sensors' JSON keys too: replaced in the text.)"""
+    text = json.dumps(definition, sort_keys=True, default=str)
+    if base is not None:
+        text = text.replace(str(Path(base).resolve()) + os.sep, "./")
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _manifest(cfg: CampaignConfig, flights: list[FlightSpec], sensors: dict, base: Path | None = None) -> dict:
     definition = {"campaign": to_dict(cfg), "sensors_resolved": sensors,
                   "flights": [[f.file, f.seed, f.sensor] for f in flights]}  # fmt: skip
-    digest = _digest(definition)
+    absolute = _digest(definition)  # (what earlier versions wrote: a folder they made resumes)
+    digest = _relative_digest(definition, base)
     # the same definition as written before SENSOR_FIELDS_ADDED existed, where each keeps its neutral value
     older = {k: {f: v for f, v in s.items() if not (f in SENSOR_FIELDS_ADDED and v == SENSOR_FIELDS_ADDED[f])}
              if isinstance(s, dict) else s for k, s in sensors.items()}  # fmt: skip
-    same_as = sorted({digest, _digest({**definition, "sensors_resolved": older})})
+    same_as = sorted({digest, absolute, _digest({**definition, "sensors_resolved": older})})
     return {
         "name": cfg.name,
         "description": cfg.description,
@@ -318,7 +329,7 @@ def run_campaign(
     flights = expand(cfg, base=path.parent)
     sensors = validate(cfg, flights)
     out = Path(out_dir)
-    _prepare_dir(out, _manifest(cfg, flights, sensors))
+    _prepare_dir(out, _manifest(cfg, flights, sensors, base=path.parent))
     pending = [f for f in flights if not (out / f.file).exists()]
     res = CampaignResult(total=len(flights), skipped=len(flights) - len(pending))
     n_workers = min(workers or os.cpu_count() or 1, max(len(pending), 1))
