@@ -131,10 +131,11 @@ def record_period_s(rec: FlightRecord) -> float:
     return float(np.median(dt)) if dt.size else float("nan")
 
 
-def segment_period_s(t_s: np.ndarray) -> float:
-    """A segment's sample period from its times: the median of its first :data:`PERIOD_STEPS` steps."""
+def segment_period_s(t_s, default: float = float("nan")) -> float:
+    """A segment's sample period from its times: the median of its first :data:`PERIOD_STEPS` steps (``default``
+    for a segment of one sample). What the anchored filter, its offline VQF runs and the live estimator take."""
     dt = np.diff(np.asarray(t_s[: PERIOD_STEPS + 1], np.float64))
-    return float(np.median(dt)) if dt.size else float("nan")
+    return float(np.median(dt)) if dt.size else default
 
 
 def rate_rise_cuts(t_s: np.ndarray, segment: np.ndarray) -> np.ndarray:

@@ -35,8 +35,7 @@ def run(args) -> int:
     from ..evaluation.ablation import (ablation_markdown, check_variants, evaluate_variants, heldout_records,
                                        train_variants, write_ablation)  # fmt: skip
     from ..model.train_config import load_train_config
-    from ..record import read_record
-    from ..record import check_output
+    from ..record import check_output, read_record
     from .paths import collect_records, read_records
 
     names = [v.strip() for v in args.variants.split(",") if v.strip()]

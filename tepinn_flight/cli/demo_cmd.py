@@ -48,14 +48,12 @@ def _run(args) -> int:
     from ..evaluation.names import display_name
     from ..evaluation.report import write_report
     from ..evaluation.suite import baseline_estimators, peer_estimators
-    from ..record import write_record
+    from ..record import check_output, write_record
     from ..sim.simulate import simulate_record
 
     if not args.duration > 10:
         raise ConfigError(f"--duration must be > 10 s, got {args.duration}")
     out = Path(args.output)
-    from ..record import check_output
-
     check_output(out, folder=True)  # before the flights: refused now, not after them
     learned = [TepinnEstimator.from_checkpoint(args.model, "tepinn")] if args.model else None  # (a bad --model too)
     say = (lambda s: None) if args.quiet else (lambda s: sys.stderr.write(s + "\n"))

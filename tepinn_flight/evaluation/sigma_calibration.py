@@ -22,9 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model.anchor import AnchorConfig, AnchoredVQF, acc_gain, aircraft_var_rad2
-from ..model.streaming import TS_STEPS
 from ..record import FlightRecord
-from ..record_gaps import bridge_gaps
+from ..record_gaps import bridge_gaps, segment_period_s
 from .harness import scoring_mask
 from .metrics import error_quat_earth, tilt_error_vector_rad
 
@@ -77,11 +76,10 @@ def error_samples(rec: FlightRecord, name: str = "", anchor: AnchorConfig | None
     off = (anchor or AnchorConfig()).learned_off
     seg0 = rec.segment == rec.segment[0]
     t = rec.t_s[seg0]
-    dt = np.diff(t[: TS_STEPS + 1])
     clipped = rec.gyr_clipped[seg0]
     outs = []
     for probe in _probes(off, bool(np.any(clipped))):
-        flt = AnchoredVQF(probe, float(np.median(dt)) if dt.size else 0.01)
+        flt = AnchoredVQF(probe, segment_period_s(t, 0.01))
         outs.append(flt.update(t, rec.gyr_rad_s[seg0], rec.acc_m_s2[seg0], None, clipped))
     return _scored(name, outs[0][0], outs[0][2], outs[1][2], rec.q_ref_wxyz[seg0],
                    (scoring_mask(rec, warmup_s) & seg0)[seg0], outs[2][2] if len(outs) > 2 else None)  # fmt: skip

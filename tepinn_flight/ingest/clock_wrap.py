@@ -30,7 +30,8 @@ def wrap_count(t_s, boot_s):
     return int(out) if np.ndim(out) == 0 else out
 
 
-def top_to_bottom(t_prev_s: float, t_s: float) -> bool:
+def top_to_bottom(t_prev_s, t_s):
     """Whether a 32-bit ``time_usec`` stream falling from ``t_prev_s`` to ``t_s`` (s) wrapped, read from the
-    stream alone (no boot clock to compare with): from its last :data:`WRAP_MATCH_S` to its first."""
-    return US32_WRAP_S - WRAP_MATCH_S < t_prev_s < US32_WRAP_S and 0.0 <= t_s < WRAP_MATCH_S
+    stream alone (no boot clock to compare with): from its last :data:`WRAP_MATCH_S` to its first (floats, or
+    arrays element by element)."""
+    return (US32_WRAP_S - WRAP_MATCH_S < t_prev_s) & (t_prev_s < US32_WRAP_S) & (0.0 <= t_s) & (t_s < WRAP_MATCH_S)

@@ -495,9 +495,7 @@ def _unwrap_us32(imu_streams: list[dict], refs: dict[str, dict], notes: list[str
             before = np.searchsorted(off[o], s["offset"], side="right") - 1
             k = np.where(before >= 0, wrap_count(t, tc[o][np.maximum(before, 0)]), -1.0)
         else:  # the stream alone
-            fell = np.zeros(len(t))
-            fell[1:] = [top_to_bottom(a, b) for a, b in zip(t[:-1], t[1:])]
-            k = np.cumsum(fell)
+            k = np.cumsum(np.r_[False, top_to_bottom(t[:-1], t[1:])]).astype(np.float64)
         idx = np.maximum.accumulate(np.where(k >= 0, np.arange(len(t)), -1))  # no match: the count before
         wraps = np.where(idx >= 0, k[np.maximum(idx, 0)], 0.0)
         if np.any(wraps > 0):

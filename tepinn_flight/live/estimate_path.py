@@ -70,7 +70,7 @@ class EstimatorFeed:
         self.controls = 0
         self.waiting_since = None
 
-    def _died(self, now: float) -> None:
+    def _died(self, now: float, why: str | None = None) -> None:
         w = self.worker
         w.read_stderr()
         w.stop(0.5)
@@ -79,7 +79,7 @@ class EstimatorFeed:
             how = f"killed by signal {-code}"
         else:
             how = f"exit code {code}"
-        why = self.fatal or w.last_stderr_line() or how
+        why = why or self.fatal or w.last_stderr_line() or how
         self.worker = None
         self.worker_ready = False
         self.wc_done = [a + b for a, b in zip(self.wc_done, self.wc)]
@@ -136,12 +136,9 @@ class EstimatorFeed:
         if (w is not None and self.worker_ready and self.waiting_since is not None and now - self.waiting_since > HANG_S
                 and hasattr(w, "proc") and w.exit_code() is None):  # fmt: skip
             self.hangs += 1
-            self.fatal = None
             w.proc.kill()  # (a thread cannot be stopped: the thread worker is the tests' and the benchmarks')
             w.proc.wait()
-            self.fatal = f"no reply for {now - self.waiting_since:.0f} s while fed: hung, killed"
-            self._died(now)
-            self.fatal = None
+            self._died(now, f"no reply for {now - self.waiting_since:.0f} s while fed: hung, killed")
 
     @property
     def failed_to_start(self) -> bool:

@@ -20,7 +20,7 @@ import pandas as pd
 
 from ..errors import TepinnError
 from ..record import ACC_COLS, EST_BIAS_COLS, EST_Q_COLS, FlightRecord, segment_slices
-from ..record_gaps import GAP_PERIODS, bridge_gaps
+from ..record_gaps import GAP_PERIODS, bridge_gaps, segment_period_s
 from ..vehicle_class import vehicle_class
 from .anchor import (AnchorConfig, AnchoredVQF, _rows, aircraft_var_rad2, ffill_rows, q_nb_from_vqf, speed_gate_allowed,
                      to_sensor, window_rows, with_aircraft_sigma, with_fusion_tilt)  # fmt: skip
@@ -32,7 +32,6 @@ from .gnss_aid import GnssAidConfig, gnss_evidence, motion_acc_body, summarize
 from .gyro_selfcal import GyroSelfCal, self_calibrate
 from .runtime import as_runner
 from .smoother import SmootherConfig, smooth
-from .streaming import TS_STEPS
 from .tokens import tokenize, tokenize_record
 
 if TYPE_CHECKING:
@@ -530,8 +529,7 @@ def offline_vqf(anchor: AnchorConfig, t_s, gyr_b, acc_b) -> np.ndarray:
     ``gyro_step_weighting``) → its 6-D attitude, body→NED, per sample."""
     import vqf
 
-    dt = np.diff(t_s[: TS_STEPS + 1])
-    ts = float(np.median(dt)) if dt.size else 0.01
+    ts = segment_period_s(t_s, 0.01)
     g = np.asarray(gyr_b, np.float64) * np.asarray(anchor.gyro_scale)
     if anchor.gyro_step_weighting:  # each sample over its own step, as the anchored filter integrates it
         w = np.empty(len(g))
@@ -571,8 +569,7 @@ def _anchored_pass(anchor: AnchorConfig, seg, cols, idx, out, use_mag, vehicle: 
     mc = _rows(cols[3]) if use_mag else None
     for sl in segment_slices(seg):
         a, b = sl.start, sl.stop
-        dt = np.diff(t[a : min(b, a + TS_STEPS + 1)])  # as the live estimator: its first steps
-        flt = AnchoredVQF(anchor, float(np.median(dt)) if dt.size else 0.01, use_mag, vehicle,
+        flt = AnchoredVQF(anchor, segment_period_s(t[a:b], 0.01), use_mag, vehicle,  # (as the live estimator)
                           causal=not anchor.smoother)  # σ's gain where nothing smooths (rule 29)
         js = np.flatnonzero((idx >= a) & (idx < b))
         ends = np.asarray(idx, np.int64)[js] - a  # each window at its last sample, for the samples after it

@@ -36,7 +36,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..record_gaps import GAP_PERIODS, PERIOD_STEPS, RateRise, filler_times, interpolate_rows, is_bridgeable
+from ..record_gaps import (GAP_PERIODS, PERIOD_STEPS, RateRise, filler_times, interpolate_rows, is_bridgeable,
+                           segment_period_s)  # fmt: skip
 from .accel_scale import AccelScaleTracker
 from .anchor import (AnchorConfig, AnchoredVQF, WindowOutput, acc_gain, aircraft_var_rad2, fusion_tilt_f,
                      speed_gate_allowed)  # fmt: skip
@@ -344,11 +345,11 @@ class StreamingEstimator:
         self.pending.append((t, gyr, acc, mag, gyr_clipped, est))
         if len(self.pending) <= TS_STEPS:
             return None
-        dts = np.diff([p[0] for p in self.pending])
         mode = self.anchor_cfg.mode  # auto: 9-D when the segment's first samples carry a magnetometer
         use_mag = mode == "9d" or (mode == "auto" and any(p[3] is not None and all(math.isfinite(float(v)) for v in p[3])
                                                           for p in self.pending))  # fmt: skip
-        self.anchored = AnchoredVQF(self.anchor_cfg, float(np.median(dts)), use_mag=use_mag, vehicle=self.vehicle,
+        self.anchored = AnchoredVQF(self.anchor_cfg, segment_period_s([p[0] for p in self.pending]), use_mag=use_mag,
+                                    vehicle=self.vehicle,
                                     causal=True)  # fmt: skip
         pending, self.pending = self.pending, []
         out = None

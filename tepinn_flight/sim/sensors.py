@@ -73,7 +73,7 @@ class GyroConfig:
     cross_axis_pct: float = 0.0  # σ of each off-diagonal cross-axis coefficient
 
     def __post_init__(self):
-        _check_triad(self, "range_deg_s")
+        _check_triad(self, "range_deg_s", "lsb_deg_s")
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ class AccelConfig:
     cross_axis_pct: float = 0.0
 
     def __post_init__(self):
-        _check_triad(self, "range_g")
+        _check_triad(self, "range_g", "lsb_mg", 1e-3)  # (a step in mg, the range in g)
 
 
 @dataclass(frozen=True)
@@ -168,15 +168,14 @@ class SensorConfig:
         return _json_safe(to_dict(self))
 
 
-def _check_triad(cfg, range_name: str) -> None:
+def _check_triad(cfg, range_name: str, lsb_name: str, lsb_in_range_units: float = 1.0) -> None:
     check(getattr(cfg, range_name) > 0, f"'{range_name}' must be > 0, got {getattr(cfg, range_name)!r}")
     for f in cfg.__dataclass_fields__:
         if f == range_name:
             continue
         finite_nonneg(f, getattr(cfg, f), allow_inf=f == "bias_corr_time_s")
     check(cfg.bias_corr_time_s > 0, f"'bias_corr_time_s' must be > 0 (inf for a random walk), got {cfg.bias_corr_time_s!r}")
-    lsb_name = next(f for f in cfg.__dataclass_fields__ if f.startswith("lsb_"))
-    lsb = getattr(cfg, lsb_name) / (1000.0 if lsb_name == "lsb_mg" else 1.0)  # (mg against a range in g)
+    lsb = getattr(cfg, lsb_name) * lsb_in_range_units
     # a step past the range read every sample 0 and clipped (session 53)
     check(lsb < getattr(cfg, range_name), f"'{lsb_name}' must be below '{range_name}' (the quantization step is a "
           f"fraction of the range), got {getattr(cfg, lsb_name)!r} against {getattr(cfg, range_name)!r}")  # fmt: skip
