@@ -12,7 +12,8 @@ import numpy as np
 from tepinn_flight.conventions import GRAVITY_M_S2
 from tepinn_flight.quat_scalar import down_in_body
 from tepinn_flight.record_gaps import GAP_PERIODS
-from tepinn_flight.model.anchor import AnchorConfig, WindowOutput, _rows, ffill_rows, q_nb_from_vqf, speed_gate_allowed, to_sensor
+from tepinn_flight.model.anchor import (AnchorConfig, WindowOutput, _rows, bias_fusion_gate_allowed, ffill_rows, q_nb_from_vqf,
+                                        speed_gate_allowed, to_sensor)
 from tepinn_flight.model.anchor_steps import BIAS_EVIDENCE_S, CLIP_SIGMA_CAP_RAD, THRUST_TAU_S
 from numba import njit
 
@@ -132,6 +133,7 @@ class AnchoredVQFReference:
         self.cfg = c = config
         self.centripetal = bool(c.centripetal)
         self.speed_gate = speed_gate_allowed(c, vehicle)
+        self.bias_fusion_gate = bias_fusion_gate_allowed(c, vehicle)  # (rule 31)
         self.use_mag = use_mag
         self.ts = ts_s
         self.f = vqf.VQF(ts_s, tauAcc=c.tau_acc_s, biasClip=c.bias_clip_deg_s)
@@ -350,7 +352,7 @@ class AnchoredVQFReference:
         if c.bias_gate_weight > 0 and not self.bias_latched:
             b = self.f.getBiasEstimate()[0].tolist()
             self.bias_latched = max(abs(b[0]), abs(b[1]), abs(b[2])) >= 0.95 * math.radians(c.bias_clip_deg_s)
-            if c.bias_gate_fusion_deg_s > 0 and w.fusion_bias_rad_s is not None:  # for 2 s on end
+            if c.bias_gate_fusion_deg_s > 0 and self.bias_fusion_gate and w.fusion_bias_rad_s is not None:  # 2 s on end
                 over = _norm3(b_h) > math.radians(c.bias_gate_fusion_deg_s)
                 over &= max(abs(b[0]), abs(b[1]), abs(b[2])) >= math.radians(c.bias_gate_vqf_deg_s)  # VQF agrees
                 if c.bias_gate_thrust_deg > 0:  # ... in the network's domain

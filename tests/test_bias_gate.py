@@ -79,6 +79,7 @@ def test_a_real_trial_started_mid_motion_no_longer_latches_the_gate_on_the_fusio
     rec.data = rec0.data[rec0.t_s >= rec0.t_s[0] + 40.0].reset_index(drop=True)
     model, anchor, _ = load_model(default_model_path())
     assert anchor.bias_gate_vqf_deg_s == 0.2  # the shipped estimator asks VQF
+    anchor = dataclasses.replace(anchor, bias_gate_fusion_shut_for=())  # this rule alone (rule 31 shuts the path here)
 
     def scores(r):
         w = anchored_windows(model, r, 256, anchor.fusion_config, anchor)
@@ -127,6 +128,7 @@ def test_a_real_trial_with_the_imu_on_its_side_no_longer_latches_the_gate():
         side.data[cols] = rot.inv().apply(np.array(up.data[cols].to_numpy(), dtype=float))
     side.data[QREF_COLS] = quat_mul(np.array(up.q_ref_wxyz), np.tile(rot.as_quat(scalar_first=True), (len(up), 1)))
     model, anchor, _ = load_model(default_model_path())
+    anchor = dataclasses.replace(anchor, bias_gate_fusion_shut_for=())  # this rule alone (rule 31 shuts the path here)
 
     def rmse(r, a):
         return inclination_rmse_deg(r, estimate_anchored(model, r, a, windows=anchored_windows(model, r, 256, anchor.fusion_config, a)))
@@ -137,3 +139,105 @@ def test_a_real_trial_with_the_imu_on_its_side_no_longer_latches_the_gate():
     now, upright = rmse(side, anchor), rmse(up, anchor)
     assert now == pytest.approx(upright, abs=0.02), (now, upright)  # VQF turns with its sensor; the gate stays shut
     assert now <= vqf_rmse + 0.02
+
+
+# ---------------------------------------------------------------- rule 31: the older fusion's path by vehicle
+
+
+def _latched_on(cfg: AnchorConfig, vehicle, gyro_bias_deg_s: float, fusion_bias_deg_s: float, acc=(0.0, 0.0, -9.81)) -> bool:
+    """:func:`_latched`'s IMU at rest for 30 s, the filter told the record's vehicle."""
+    ts = 0.01
+    f = AnchoredVQF(cfg, ts, vehicle=vehicle)
+    gyr = np.array([math.radians(gyro_bias_deg_s), 0.0, 0.0])
+    fb = np.array([math.radians(fusion_bias_deg_s), 0.0, 0.0])
+    for k in range(300):
+        t = k * 0.1 + np.arange(10) * ts
+        f.update(t, np.tile(gyr, (10, 1)), np.tile(np.asarray(acc, float), (10, 1)))
+        f.correct(WindowOutput(LEVEL, 0.01, np.zeros(3), np.zeros(3), np.zeros(3), fb))
+    return f.bias_latched
+
+
+@pytest.mark.parametrize("vehicle, latched", [("handheld-imu", False), ("quadrotor", True), ("plane", True),
+                                              (None, True), ("helicopter", True)])  # fmt: skip
+def test_on_a_hand_held_imu_the_fusions_evidence_never_latches_the_gate(vehicle, latched):
+    """Rule 31: a 1 °/s gyro at rest with the older fusion claiming 5 °/s (the path of the test above) latches the
+    gate on any vehicle but a hand-held IMU; without the rule on that one too."""
+    cfg = AnchorConfig()
+    assert cfg.bias_gate_fusion_shut_for == ("handheld",)
+    assert _latched_on(cfg, vehicle, 1.0, 5.0) is latched
+    assert _latched_on(dataclasses.replace(cfg, bias_gate_fusion_shut_for=()), vehicle, 1.0, 5.0)
+
+
+def test_on_a_hand_held_imu_vqfs_own_bias_at_its_clip_still_latches_the_gate():
+    """A 3 °/s gyro at rest: VQF's rest bias estimate runs into its 2 °/s clip — the gate's first path, kept on a
+    hand-held IMU — with no evidence from the older fusion; 1 °/s does not."""
+    cfg = AnchorConfig()
+    assert _latched_on(cfg, "handheld-imu", 3.0, 0.0)
+    assert not _latched_on(cfg, "handheld-imu", 1.0, 0.0)
+
+
+def test_the_setting_names_classes_the_live_estimator_takes_it_and_old_checkpoints_latch_on_any_vehicle():
+    from tepinn_flight.errors import ConfigError
+    from tepinn_flight.model.checkpoint import ANCHOR_CONFIG_BEFORE, anchor_config_from, default_model_path, load_model
+    from tepinn_flight.model.streaming import StreamingEstimator
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    assert AnchorConfig(bias_gate_fusion_shut_for=["handheld", "multirotor"]).bias_gate_fusion_shut_for == ("handheld", "multirotor")
+    with pytest.raises(ConfigError, match="bias_gate_fusion_shut_for"):
+        AnchorConfig(bias_gate_fusion_shut_for=("handheld-imu",))  # a vehicle name, not a class
+    assert ANCHOR_CONFIG_BEFORE["bias_gate_fusion_shut_for"] == ()
+    raw = {k: v for k, v in dataclasses.asdict(AnchorConfig()).items() if k not in ("fusion_config", "bias_gate_fusion_shut_for")}
+    assert anchor_config_from({"anchor_config": raw}).bias_gate_fusion_shut_for == ()
+    model, shipped, _ = load_model(default_model_path())
+    assert shipped.bias_gate_fusion_shut_for == ("handheld",)
+    # the setting off (bias_gate_fusion_deg_s 0) keeps the path off whatever the vehicle
+    assert not AnchoredVQF(dataclasses.replace(shipped, bias_gate_fusion_deg_s=0.0), 0.01, vehicle="quadrotor").bias_fusion_gate
+    # live: told the vehicle after the start, as the bridge learns it from the heartbeat
+    live = StreamingEstimator(model, dataclasses.replace(shipped, smoother=False))
+    rec = synthetic_record(seed=1, duration_s=3.0, rate_hz=100.0)
+    for i in range(len(rec)):
+        live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i])
+    assert live.anchored is not None and live.anchored.bias_fusion_gate
+    live.set_vehicle("handheld-imu")
+    assert not live.anchored.bias_fusion_gate and live.anchored.speed_gate is False
+    live.set_vehicle("quadrotor")
+    assert live.anchored.bias_fusion_gate
+
+
+def test_a_real_hand_held_trial_held_tilted_45_degrees_no_longer_latches_the_gate():
+    """BROAD trial 12 (slow translation; seen by the network) with the IMU mounted 45° about x (sensor axes and
+    optical reference turned by scipy's Rotation): inside the 60° cone, the older fusion's bias — the network out of
+    its domain — latched the gate on the calibrated gyro (3.25° against VQF's 0.25°, session 53); with rule 31 the
+    estimate is the upright one's, and `estimate` says why."""
+    from scipy.spatial.transform import Rotation
+
+    from tepinn_flight.evaluation.peers import VqfEstimator
+    from tepinn_flight.ingest import load_record
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.estimate import anchored_windows, estimate_anchored
+    from tepinn_flight.model.finetune import inclination_rmse_deg
+    from tepinn_flight.quat import quat_mul
+    from tepinn_flight.record import ACC_COLS, GYR_COLS, QREF_COLS
+
+    up = load_record(broad_trial("broad_12_*.hdf5"))
+    assert up.meta["vehicle_type"] == "handheld-imu"
+    rot = Rotation.from_euler("x", 45.0, degrees=True)  # body → mounted sensor: v_s = Rᵀ v_b
+    held = copy.copy(up)
+    held.data = up.data.copy()
+    for cols in (ACC_COLS, GYR_COLS):
+        held.data[cols] = rot.inv().apply(np.array(up.data[cols].to_numpy(), dtype=float))
+    held.data[QREF_COLS] = quat_mul(np.array(up.q_ref_wxyz), np.tile(rot.as_quat(scalar_first=True), (len(up), 1)))
+    model, anchor, _ = load_model(default_model_path())
+
+    def est(r, a):
+        return estimate_anchored(model, r, a, windows=anchored_windows(model, r, 256, anchor.fusion_config, a))
+
+    vqf_rmse = inclination_rmse_deg(held, VqfEstimator().estimate(held))
+    before = est(held, dataclasses.replace(anchor, bias_gate_fusion_shut_for=()))
+    assert inclination_rmse_deg(held, before) > max(1.5 * vqf_rmse, vqf_rmse + 0.5), (inclination_rmse_deg(held, before), vqf_rmse)
+    assert "uncalibrated gyro" in before.attrs["network_gates"]
+    now = est(held, anchor)
+    assert inclination_rmse_deg(held, now) == pytest.approx(inclination_rmse_deg(up, est(up, anchor)), abs=0.02)
+    assert inclination_rmse_deg(held, now) <= vqf_rmse + 0.02
+    assert now.attrs["bias_gate"] == ("uncalibrated-gyro gate: opens only on VQF's own bias estimate on a handheld log "
+                                      "(it names a handheld-imu)")  # fmt: skip

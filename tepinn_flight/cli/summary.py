@@ -20,14 +20,16 @@ def record_summary_line(rec) -> str:
 
 def _vehicle(vehicle_type) -> str:
     """The log's vehicle and its class (:mod:`..vehicle_class`), with what the shipped estimator does with it."""
-    from ..model.anchor import AnchorConfig, speed_gate_allowed
+    from ..model.anchor import AnchorConfig, bias_fusion_gate_allowed, speed_gate_allowed
     from ..vehicle_class import UNKNOWN, vehicle_class
 
     cls = vehicle_class(vehicle_type)
     if cls == UNKNOWN:
         return f"{vehicle_type or 'unknown'} (not named: TE-PINN's gates as for any vehicle)"
-    gate = "may open" if speed_gate_allowed(AnchorConfig(), vehicle_type) else "stays shut"
-    return f"{vehicle_type} (class {cls}: TE-PINN's flight-speed gate {gate})"
+    shipped = AnchorConfig()
+    gate = "may open" if speed_gate_allowed(shipped, vehicle_type) else "stays shut"
+    bias = "" if bias_fusion_gate_allowed(shipped, vehicle_type) else ", its uncalibrated-gyro gate opens on VQF's bias only"
+    return f"{vehicle_type} (class {cls}: TE-PINN's flight-speed gate {gate}{bias})"
 
 
 def render_info(path, s: dict) -> str:

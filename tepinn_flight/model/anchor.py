@@ -35,7 +35,8 @@ and its rate ``â``. Each enters only where there is run-time evidence that VQF'
   for 2 s while VQF's own estimate reaches ``bias_gate_vqf_deg_s`` and the accelerometer's 10-s mean
   lies within ``bias_gate_thrust_deg`` of the body's −z axis, the vehicles the network learned): from
   then on, in that segment, the network's bias beyond ``bias_deadzone_deg_s`` is removed from the
-  gyro VQF sees, and its tilt pulls with weight ``bias_gate_weight``.
+  gyro VQF sees, and its tilt pulls with weight ``bias_gate_weight``. The older fusion's path stays shut on a
+  record that names a hand-held IMU (``bias_gate_fusion_shut_for``, rule 31): only VQF's own bias opens it there.
 
 **Below the rates the network learned** (``min_network_rate_hz``, 20 Hz: a segment whose sample period, as the
 filter takes it, is longer) no gate opens at all: the windows are out of the network's domain (rule 18).
@@ -200,6 +201,12 @@ class AnchorConfig:
     # out of its domain there and the older fusion's bias with it (seen BROAD trials mounted 90° about
     # x latched the gate on 12 of 17, each then over the per-file bound)
     bias_gate_thrust_deg: float = 60.0
+    # ... and that path (the older fusion's evidence) stays shut on a record whose log names a vehicle of these classes
+    # (:mod:`..vehicle_class`; VQF's own bias at its clip still opens the gate there): the network never trained on
+    # hand-held motion, so its bias and the older fusion's are out of domain there, as its speed is (rule 24). Session
+    # 53's review: a hand-held IMU held tilted 30–55° latched it on calibrated gyros (12 of the 17 seen BROAD trials
+    # turned 45° over the per-file bound). Session 54, rule 31; () — any vehicle — before
+    bias_gate_fusion_shut_for: tuple[str, ...] = ("handheld",)
     sigma_floor_deg: float = 0.45  # σ₀ (fitted on the 17 BROAD trials the network was trained or validated on)
     # c: 0.025 before session 17; refitted with the sampling term on the same trials, σ₀ kept (c = 0
     # nearest NEES 2 at >= 97.5 % within 3σ: VQF's 3-s low-pass leaves the motion acceleration that e
@@ -304,12 +311,12 @@ class AnchorConfig:
         for v in gs:
             check_range("gyro_scale", v, 0.5, 2.0)
         object.__setattr__(self, "gyro_scale", tuple(float(v) for v in gs))
-        shut = self.speed_gate_shut_for
-        shut = (shut,) if isinstance(shut, str) else tuple(shut) if isinstance(shut, (list, tuple)) else None
-        if shut is None or any(v not in VEHICLE_CLASSES for v in shut):
-            raise ConfigError(f"'speed_gate_shut_for' must name vehicle classes among {', '.join(VEHICLE_CLASSES)}, "
-                              f"got {self.speed_gate_shut_for!r}")  # fmt: skip
-        object.__setattr__(self, "speed_gate_shut_for", shut)
+        for name in ("speed_gate_shut_for", "bias_gate_fusion_shut_for"):
+            given = getattr(self, name)
+            shut = (given,) if isinstance(given, str) else tuple(given) if isinstance(given, (list, tuple)) else None
+            if shut is None or any(v not in VEHICLE_CLASSES for v in shut):
+                raise ConfigError(f"'{name}' must name vehicle classes among {', '.join(VEHICLE_CLASSES)}, got {given!r}")
+            object.__setattr__(self, name, shut)
         for name in ("tau_acc_s", "bias_clip_deg_s", "sigma_acc_tau_s", "sigma_clip_tau_s"):
             check_range(name, getattr(self, name), 0, None, lo_open=True)
         check_range("tau_acc_flight_s", self.tau_acc_flight_s, 0, None)  # 0: tau_acc_s
@@ -456,7 +463,7 @@ class AnchoredVQF:
         self.k, self.fs = buf[S.O_K : S.O_F], buf[S.O_F : S.O_CV]
         self.cv, self.sv = buf[S.O_CV : S.O_SV], buf[S.O_SV : S.O_ROWS]
         self.cv[:], self.sv[:] = vqf_kernel.new_filter(ts_s, tauAcc=c.tau_acc_s, biasClip=c.bias_clip_deg_s)
-        self.k[:] = _settings(c, ts_s, self.use_mag, speed_gate_allowed(c, vehicle))
+        self.k[:] = _settings(c, ts_s, self.use_mag, speed_gate_allowed(c, vehicle), bias_fusion_gate_allowed(c, vehicle))
         f = self.fs  # the steps' state beside VQF's
         f[S.F_T_BIAS_OVER] = math.nan  # none
         f[S.F_TAU_ACC] = c.tau_acc_s
@@ -481,6 +488,16 @@ class AnchoredVQF:
     @speed_gate.setter
     def speed_gate(self, allowed: bool) -> None:
         self.k[S.K_SPEED_GATE] = float(bool(allowed))
+
+    @property
+    def bias_fusion_gate(self) -> bool:
+        """Whether the uncalibrated-gyro gate may open on the older fusion's evidence (the vehicle's class, and the
+        setting on; the live estimator sets it when the autopilot says what the vehicle is)."""
+        return bool(self.k[S.K_BIAS_GATE_FUSION_ON])
+
+    @bias_fusion_gate.setter
+    def bias_fusion_gate(self, allowed: bool) -> None:
+        self.k[S.K_BIAS_GATE_FUSION_ON] = float(bool(allowed) and self.cfg.bias_gate_fusion_deg_s > 0)
 
     def set_acc_gain(self, gain: float) -> None:
         """σ's accelerometer gain from the next sample on (the live estimator, when the autopilot says what the vehicle
@@ -583,8 +600,10 @@ class AnchoredVQF:
 _NAN3 = (math.nan, math.nan, math.nan)
 
 
-def _settings(c: AnchorConfig, ts_s: float, use_mag: bool, speed_gate: bool) -> np.ndarray:
-    """The steps' settings array (:data:`.anchor_steps.K_*`) of a filter: angles in radians, flags 0/1."""
+def _settings(c: AnchorConfig, ts_s: float, use_mag: bool, speed_gate: bool, bias_fusion_gate: bool) -> np.ndarray:
+    """The steps' settings array (:data:`.anchor_steps.K_*`) of a filter: angles in radians, flags 0/1;
+    ``speed_gate`` / ``bias_fusion_gate``: whether the flight-speed gate and the uncalibrated-gyro gate's older-fusion
+    path may open for the record's vehicle."""
     k = np.zeros(S.N_K)
     rest_gyr2 = math.radians(c.rest_gyr_deg_s) ** 2
     gscale = c.gyro_scale != (1.0, 1.0, 1.0)
@@ -600,7 +619,7 @@ def _settings(c: AnchorConfig, ts_s: float, use_mag: bool, speed_gate: bool) -> 
         (S.K_SIGMA_CLIP_TAU_S, c.sigma_clip_tau_s), (S.K_SPEED_LO, c.speed_lo_m_s), (S.K_SPEED_HI, c.speed_hi_m_s),
         (S.K_GNSS_AID_IN_FLIGHT, c.gnss_aid_in_flight), (S.K_BIAS_GATE_WEIGHT, c.bias_gate_weight),
         (S.K_BIAS_LATCH_RAD_S, 0.95 * math.radians(c.bias_clip_deg_s)),
-        (S.K_BIAS_GATE_FUSION_ON, c.bias_gate_fusion_deg_s > 0),
+        (S.K_BIAS_GATE_FUSION_ON, c.bias_gate_fusion_deg_s > 0 and bias_fusion_gate),
         (S.K_BIAS_GATE_FUSION_RAD_S, math.radians(c.bias_gate_fusion_deg_s)),
         (S.K_BIAS_GATE_VQF_RAD_S, math.radians(c.bias_gate_vqf_deg_s)),
         (S.K_BIAS_GATE_THRUST_ON, c.bias_gate_thrust_deg > 0),
@@ -652,6 +671,13 @@ def speed_gate_allowed(config: AnchorConfig, vehicle: str | None) -> bool:
     name or a :mod:`..vehicle_class` class; None: not known): not for the classes ``config.speed_gate_shut_for``
     names (rule 24, session 32)."""
     return vehicle_class(vehicle) not in config.speed_gate_shut_for
+
+
+def bias_fusion_gate_allowed(config: AnchorConfig, vehicle: str | None) -> bool:
+    """Whether the uncalibrated-gyro gate may open on the older fusion's evidence for ``vehicle`` (as
+    :func:`speed_gate_allowed` takes it): not for the classes ``config.bias_gate_fusion_shut_for`` names (rule 31,
+    session 54); VQF's own bias at its clip opens it on any vehicle."""
+    return vehicle_class(vehicle) not in config.bias_gate_fusion_shut_for
 
 
 #: the vehicle classes whose σ takes :attr:`AnchorConfig.sigma_aircraft_deg` (rule 28)

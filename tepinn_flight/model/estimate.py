@@ -22,8 +22,8 @@ from ..errors import TepinnError
 from ..record import ACC_COLS, EST_BIAS_COLS, EST_Q_COLS, FlightRecord, segment_slices
 from ..record_gaps import GAP_PERIODS, bridge_gaps, segment_period_s
 from ..vehicle_class import vehicle_class
-from .anchor import (AnchorConfig, AnchoredVQF, _rows, aircraft_var_rad2, ffill_rows, q_nb_from_vqf, speed_gate_allowed,
-                     to_sensor, window_rows, with_aircraft_sigma, with_fusion_tilt)  # fmt: skip
+from .anchor import (AnchorConfig, AnchoredVQF, _rows, aircraft_var_rad2, bias_fusion_gate_allowed, ffill_rows, q_nb_from_vqf,
+                     speed_gate_allowed, to_sensor, window_rows, with_aircraft_sigma, with_fusion_tilt)  # fmt: skip
 from .anchor_kernels import step_weights
 from .beside import MAX_WAIT_S_PER_SAMPLE, WAIT_S_PER_SAMPLE, Beside, BesideFailed, worth_it
 from .fusion import FusionConfig, FusionRun, feedback_bias
@@ -43,7 +43,7 @@ OFFLINE_STEPS = ("accel_scale_selfcal", "gyro_selfcal", "gnss_aid", "smoother")
 #: what an anchored estimate reports in its ``attrs`` (one line each; ``estimate`` prints and stores them,
 #: ``evaluate`` keeps them per record): the offline steps, the re-levelling at rest after a saturation and
 #: where the network's gates acted (elsewhere the estimate is VQF's on the inputs the steps gave it)
-REPORTED_STEPS = (*OFFLINE_STEPS, "rest_relevel", "network_gates", "speed_gate")
+REPORTED_STEPS = (*OFFLINE_STEPS, "rest_relevel", "network_gates", "speed_gate", "bias_gate")
 #: the anchored filter's gates, in :attr:`.anchor.AnchoredVQF.gate_parts`' order, as a user reads them
 GATE_NAMES = ("flight speed", "gyro saturation", "uncalibrated gyro")
 
@@ -485,6 +485,9 @@ def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, 
     df.attrs["network_gates"] = describe_gates(gates_open, float(steps[gate > 0].sum()), float(steps.sum()))
     if not speed_gate_allowed(anchor, vehicle):  # why the flight-speed gate never opened here (rule 24)
         df.attrs["speed_gate"] = f"flight-speed gate: not used on a {vehicle_class(vehicle)} log (it names a {vehicle})"
+    if anchor.bias_gate_fusion_deg_s > 0 and not bias_fusion_gate_allowed(anchor, vehicle):  # rule 31
+        df.attrs["bias_gate"] = (f"uncalibrated-gyro gate: opens only on VQF's own bias estimate on a {vehicle_class(vehicle)} "
+                                 f"log (it names a {vehicle})")  # fmt: skip
     return df
 
 
