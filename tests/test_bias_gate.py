@@ -18,6 +18,23 @@ from tests.conftest import broad_trial
 LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
 
 
+def _mounted(rec, x_deg: float):
+    """``rec`` with its IMU mounted turned ``x_deg`` about x: sensor axes and optical reference turned by scipy's
+    Rotation (body → mounted sensor: v_s = Rᵀ v_b)."""
+    from scipy.spatial.transform import Rotation
+
+    from tepinn_flight.quat import quat_mul
+    from tepinn_flight.record import ACC_COLS, GYR_COLS, QREF_COLS
+
+    rot = Rotation.from_euler("x", x_deg, degrees=True)
+    out = copy.copy(rec)
+    out.data = rec.data.copy()
+    for cols in (ACC_COLS, GYR_COLS):
+        out.data[cols] = rot.inv().apply(np.array(rec.data[cols].to_numpy(), dtype=float))
+    out.data[QREF_COLS] = quat_mul(np.array(rec.q_ref_wxyz), np.tile(rot.as_quat(scalar_first=True), (len(rec), 1)))
+    return out
+
+
 def _latched(cfg: AnchorConfig, gyro_bias_deg_s: float, fusion_bias_deg_s: float, seconds: float = 30.0,
              acc=(0.0, 0.0, -9.81)) -> bool:  # fmt: skip
     """An IMU at rest (level, or as ``acc`` says; gyro reading ``gyro_bias_deg_s`` on x) for ``seconds``
@@ -110,23 +127,14 @@ def test_a_real_trial_with_the_imu_on_its_side_no_longer_latches_the_gate():
     """BROAD trial 12 (slow translation; seen by the network) with the IMU mounted 90° about x (sensor
     axes and optical reference turned by scipy's Rotation): the older fusion's bias, the network out of
     its domain, latched the gate (8.75° against VQF's 0.25°); now the estimate is the upright one's."""
-    from scipy.spatial.transform import Rotation
-
     from tepinn_flight.evaluation.peers import VqfEstimator
     from tepinn_flight.ingest import load_record
     from tepinn_flight.model.checkpoint import default_model_path, load_model
     from tepinn_flight.model.estimate import anchored_windows, estimate_anchored
     from tepinn_flight.model.finetune import inclination_rmse_deg
-    from tepinn_flight.quat import quat_mul
-    from tepinn_flight.record import ACC_COLS, GYR_COLS, QREF_COLS
 
     up = load_record(broad_trial("broad_12_*.hdf5"))
-    rot = Rotation.from_euler("x", 90.0, degrees=True)  # body → mounted sensor: v_s = Rᵀ v_b
-    side = copy.copy(up)
-    side.data = up.data.copy()
-    for cols in (ACC_COLS, GYR_COLS):
-        side.data[cols] = rot.inv().apply(np.array(up.data[cols].to_numpy(), dtype=float))
-    side.data[QREF_COLS] = quat_mul(np.array(up.q_ref_wxyz), np.tile(rot.as_quat(scalar_first=True), (len(up), 1)))
+    side = _mounted(up, 90.0)
     model, anchor, _ = load_model(default_model_path())
     anchor = dataclasses.replace(anchor, bias_gate_fusion_shut_for=())  # this rule alone (rule 31 shuts the path here)
 
@@ -209,24 +217,15 @@ def test_a_real_hand_held_trial_held_tilted_45_degrees_no_longer_latches_the_gat
     optical reference turned by scipy's Rotation): inside the 60° cone, the older fusion's bias — the network out of
     its domain — latched the gate on the calibrated gyro (3.25° against VQF's 0.25°, session 53); with rule 31 the
     estimate is the upright one's, and `estimate` says why."""
-    from scipy.spatial.transform import Rotation
-
     from tepinn_flight.evaluation.peers import VqfEstimator
     from tepinn_flight.ingest import load_record
     from tepinn_flight.model.checkpoint import default_model_path, load_model
     from tepinn_flight.model.estimate import anchored_windows, estimate_anchored
     from tepinn_flight.model.finetune import inclination_rmse_deg
-    from tepinn_flight.quat import quat_mul
-    from tepinn_flight.record import ACC_COLS, GYR_COLS, QREF_COLS
 
     up = load_record(broad_trial("broad_12_*.hdf5"))
     assert up.meta["vehicle_type"] == "handheld-imu"
-    rot = Rotation.from_euler("x", 45.0, degrees=True)  # body → mounted sensor: v_s = Rᵀ v_b
-    held = copy.copy(up)
-    held.data = up.data.copy()
-    for cols in (ACC_COLS, GYR_COLS):
-        held.data[cols] = rot.inv().apply(np.array(up.data[cols].to_numpy(), dtype=float))
-    held.data[QREF_COLS] = quat_mul(np.array(up.q_ref_wxyz), np.tile(rot.as_quat(scalar_first=True), (len(up), 1)))
+    held = _mounted(up, 45.0)
     model, anchor, _ = load_model(default_model_path())
 
     def est(r, a):
