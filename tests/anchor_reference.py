@@ -12,7 +12,7 @@ import numpy as np
 from tepinn_flight.conventions import GRAVITY_M_S2
 from tepinn_flight.quat_scalar import down_in_body
 from tepinn_flight.record_gaps import GAP_PERIODS
-from tepinn_flight.model.anchor import (AnchorConfig, WindowOutput, _rows, bias_fusion_gate_allowed, ffill_rows, q_nb_from_vqf,
+from tepinn_flight.model.anchor import (AnchorConfig, WindowOutput, _rows, bias_fusion_gate_allowed, bias_pull_allowed, ffill_rows, q_nb_from_vqf,
                                         speed_gate_allowed, to_sensor)
 from tepinn_flight.model.anchor_steps import BIAS_EVIDENCE_S, CLIP_SIGMA_CAP_RAD, THRUST_TAU_S
 from numba import njit
@@ -134,6 +134,7 @@ class AnchoredVQFReference:
         self.centripetal = bool(c.centripetal)
         self.speed_gate = speed_gate_allowed(c, vehicle)
         self.bias_fusion_gate = bias_fusion_gate_allowed(c, vehicle)  # (rule 31)
+        self.bias_pull = bias_pull_allowed(c, vehicle)  # (rule 33)
         self.use_mag = use_mag
         self.ts = ts_s
         self.f = vqf.VQF(ts_s, tauAcc=c.tau_acc_s, biasClip=c.bias_clip_deg_s)
@@ -388,7 +389,7 @@ class AnchoredVQFReference:
             nb = _norm3(b_h)
             dz = math.radians(c.bias_deadzone_deg_s)
             self.gyr_corr = np.array(b_h) * max(0.0, 1.0 - dz / nb) if nb > 0 else np.zeros(3)
-        k = c.pull_gain * self.gate
+        k = c.pull_gain * (self.gate if self.bias_pull else max(g_flight, g_clip))  # (rule 33: no pull of the bias gate)
         if k > 0:
             d = down_in_body(*_floats(w.q_nb_wxyz))  # the target's down in body axes; its up in S: (−d₀, d₁, d₂)
             self.pull(tilt_pull_f(qw, qx, qy, qz, -d[0], d[1], d[2], float(k)))

@@ -20,7 +20,7 @@ def record_summary_line(rec) -> str:
 
 def _vehicle(vehicle_type) -> str:
     """The log's vehicle and its class (:mod:`..vehicle_class`), with what the shipped estimator does with it."""
-    from ..model.anchor import AnchorConfig, bias_fusion_gate_allowed, speed_gate_allowed
+    from ..model.anchor import AnchorConfig, bias_fusion_gate_allowed, bias_pull_allowed, speed_gate_allowed
     from ..vehicle_class import UNKNOWN, vehicle_class
 
     cls = vehicle_class(vehicle_type)
@@ -29,6 +29,7 @@ def _vehicle(vehicle_type) -> str:
     shipped = AnchorConfig()
     gate = "may open" if speed_gate_allowed(shipped, vehicle_type) else "stays shut"
     bias = "" if bias_fusion_gate_allowed(shipped, vehicle_type) else ", its uncalibrated-gyro gate opens on VQF's bias only"
+    bias += "" if bias_pull_allowed(shipped, vehicle_type) else " and does not pull the tilt"
     return f"{vehicle_type} (class {cls}: TE-PINN's flight-speed gate {gate}{bias})"
 
 

@@ -36,7 +36,8 @@ and its rate ``â``. Each enters only where there is run-time evidence that VQF'
   lies within ``bias_gate_thrust_deg`` of the body's −z axis, the vehicles the network learned): from
   then on, in that segment, the network's bias beyond ``bias_deadzone_deg_s`` is removed from the
   gyro VQF sees, and its tilt pulls with weight ``bias_gate_weight``. The older fusion's path stays shut on a
-  record that names a hand-held IMU (``bias_gate_fusion_shut_for``, rule 31): only VQF's own bias opens it there.
+  record that names a hand-held IMU (``bias_gate_fusion_shut_for``, rule 31): only VQF's own bias opens it there,
+  and there it takes the network's bias out of the gyro without pulling the tilt (``bias_pull_shut_for``, rule 33).
 
 **Below the rates the network learned** (``min_network_rate_hz``, 20 Hz: a segment whose sample period, as the
 filter takes it, is longer) no gate opens at all: the windows are out of the network's domain (rule 18).
@@ -207,6 +208,12 @@ class AnchorConfig:
     # 53's review: a hand-held IMU held tilted 30–55° latched it on calibrated gyros (12 of the 17 seen BROAD trials
     # turned 45° over the per-file bound). Session 54, rule 31; () — any vehicle — before
     bias_gate_fusion_shut_for: tuple[str, ...] = ("handheld",)
+    # ... and once latched on a record whose log names a vehicle of these classes, the gate removes the network's bias
+    # beyond bias_deadzone_deg_s from the gyro VQF sees but does not pull the tilt toward the network's: the seen BROAD
+    # trials with 2 °/s added (the first path latching at VQF's clip) read 2.92° against VQF's 1.49° with the pull,
+    # 1.02° without; the bias removal is what helps at large biases (at 10 °/s the whole gate shut read 5.47° against
+    # 3.88°: rule 32, not shipped). Session 54, rule 33; () — the pull on any vehicle — before
+    bias_pull_shut_for: tuple[str, ...] = ("handheld",)
     sigma_floor_deg: float = 0.45  # σ₀ (fitted on the 17 BROAD trials the network was trained or validated on)
     # c: 0.025 before session 17; refitted with the sampling term on the same trials, σ₀ kept (c = 0
     # nearest NEES 2 at >= 97.5 % within 3σ: VQF's 3-s low-pass leaves the motion acceleration that e
@@ -311,7 +318,7 @@ class AnchorConfig:
         for v in gs:
             check_range("gyro_scale", v, 0.5, 2.0)
         object.__setattr__(self, "gyro_scale", tuple(float(v) for v in gs))
-        for name in ("speed_gate_shut_for", "bias_gate_fusion_shut_for"):
+        for name in ("speed_gate_shut_for", "bias_gate_fusion_shut_for", "bias_pull_shut_for"):
             given = getattr(self, name)
             shut = (given,) if isinstance(given, str) else tuple(given) if isinstance(given, (list, tuple)) else None
             if shut is None or any(v not in VEHICLE_CLASSES for v in shut):
@@ -463,7 +470,8 @@ class AnchoredVQF:
         self.k, self.fs = buf[S.O_K : S.O_F], buf[S.O_F : S.O_CV]
         self.cv, self.sv = buf[S.O_CV : S.O_SV], buf[S.O_SV : S.O_ROWS]
         self.cv[:], self.sv[:] = vqf_kernel.new_filter(ts_s, tauAcc=c.tau_acc_s, biasClip=c.bias_clip_deg_s)
-        self.k[:] = _settings(c, ts_s, self.use_mag, speed_gate_allowed(c, vehicle), bias_fusion_gate_allowed(c, vehicle))
+        self.k[:] = _settings(c, ts_s, self.use_mag, speed_gate_allowed(c, vehicle), bias_fusion_gate_allowed(c, vehicle),
+                              bias_pull_allowed(c, vehicle))  # fmt: skip
         f = self.fs  # the steps' state beside VQF's
         f[S.F_T_BIAS_OVER] = math.nan  # none
         f[S.F_TAU_ACC] = c.tau_acc_s
@@ -498,6 +506,16 @@ class AnchoredVQF:
     @bias_fusion_gate.setter
     def bias_fusion_gate(self, allowed: bool) -> None:
         self.k[S.K_BIAS_GATE_FUSION_ON] = float(bool(allowed) and self.cfg.bias_gate_fusion_deg_s > 0)
+
+    @property
+    def bias_pull(self) -> bool:
+        """Whether the uncalibrated-gyro gate, once latched, pulls the tilt toward the network's (the vehicle's class;
+        the live estimator sets it when the autopilot says what the vehicle is)."""
+        return bool(self.k[S.K_BIAS_PULL])
+
+    @bias_pull.setter
+    def bias_pull(self, allowed: bool) -> None:
+        self.k[S.K_BIAS_PULL] = float(bool(allowed))
 
     def set_acc_gain(self, gain: float) -> None:
         """σ's accelerometer gain from the next sample on (the live estimator, when the autopilot says what the vehicle
@@ -600,10 +618,11 @@ class AnchoredVQF:
 _NAN3 = (math.nan, math.nan, math.nan)
 
 
-def _settings(c: AnchorConfig, ts_s: float, use_mag: bool, speed_gate: bool, bias_fusion_gate: bool) -> np.ndarray:
+def _settings(c: AnchorConfig, ts_s: float, use_mag: bool, speed_gate: bool, bias_fusion_gate: bool,
+              bias_pull: bool) -> np.ndarray:  # fmt: skip
     """The steps' settings array (:data:`.anchor_steps.K_*`) of a filter: angles in radians, flags 0/1;
-    ``speed_gate`` / ``bias_fusion_gate``: whether the flight-speed gate and the uncalibrated-gyro gate's older-fusion
-    path may open for the record's vehicle."""
+    ``speed_gate`` / ``bias_fusion_gate`` / ``bias_pull``: whether the flight-speed gate and the uncalibrated-gyro
+    gate's older-fusion path may open, and whether that gate pulls, for the record's vehicle."""
     k = np.zeros(S.N_K)
     rest_gyr2 = math.radians(c.rest_gyr_deg_s) ** 2
     gscale = c.gyro_scale != (1.0, 1.0, 1.0)
@@ -628,7 +647,7 @@ def _settings(c: AnchorConfig, ts_s: float, use_mag: bool, speed_gate: bool, bia
         (S.K_SIGMA_GAP_BIAS_EVIDENCE, c.sigma_gap_bias_evidence), (S.K_QUIET_BIAS_RAD_S, math.radians(c.quiet_bias_deg_s)),
         (S.K_PULL_GAIN, c.pull_gain), (S.K_TAU_ACC_FLIGHT_S, c.tau_acc_flight_s), (S.K_TAU_ACC_S, c.tau_acc_s),
         (S.K_SIGMA_NET_SCALE, c.sigma_net_scale), (S.K_REST_KEEPS_RUN, c.rest_keeps_run),
-        (S.K_BIAS_DEADZONE_RAD_S, math.radians(c.bias_deadzone_deg_s)),
+        (S.K_BIAS_DEADZONE_RAD_S, math.radians(c.bias_deadzone_deg_s)), (S.K_BIAS_PULL, bias_pull),
     ):  # fmt: skip
         k[slot] = float(v)
     k[S.K_GSCALE : S.K_GSCALE + 3] = c.gyro_scale
@@ -678,6 +697,13 @@ def bias_fusion_gate_allowed(config: AnchorConfig, vehicle: str | None) -> bool:
     :func:`speed_gate_allowed` takes it): not for the classes ``config.bias_gate_fusion_shut_for`` names (rule 31,
     session 54); VQF's own bias at its clip opens it on any vehicle."""
     return vehicle_class(vehicle) not in config.bias_gate_fusion_shut_for
+
+
+def bias_pull_allowed(config: AnchorConfig, vehicle: str | None) -> bool:
+    """Whether the uncalibrated-gyro gate, once latched, pulls the tilt toward the network's for ``vehicle`` (as
+    :func:`speed_gate_allowed` takes it): not for the classes ``config.bias_pull_shut_for`` names (rule 33, session
+    54); its bias removal acts on any vehicle."""
+    return vehicle_class(vehicle) not in config.bias_pull_shut_for
 
 
 #: the vehicle classes whose σ takes :attr:`AnchorConfig.sigma_aircraft_deg` (rule 28)

@@ -46,8 +46,8 @@ K_SIGMA_CLIP_TAU_S, K_SPEED_LO, K_SPEED_HI, K_GNSS_AID_IN_FLIGHT, K_BIAS_GATE_WE
 K_BIAS_LATCH_RAD_S, K_BIAS_GATE_FUSION_RAD_S, K_BIAS_GATE_VQF_RAD_S, K_BIAS_GATE_THRUST_COS = 23, 24, 25, 26
 K_BIAS_GATE_THRUST_ON, K_SIGMA_GAP_GAIN, K_SIGMA_GAP_HOLD_S, K_SIGMA_GAP_BIAS_EVIDENCE = 27, 28, 29, 30
 K_QUIET_BIAS_RAD_S, K_PULL_GAIN, K_TAU_ACC_FLIGHT_S, K_TAU_ACC_S, K_SIGMA_NET_SCALE = 31, 32, 33, 34, 35
-K_REST_KEEPS_RUN, K_BIAS_DEADZONE_RAD_S, K_BIAS_GATE_FUSION_ON = 36, 37, 38
-N_K = 39
+K_REST_KEEPS_RUN, K_BIAS_DEADZONE_RAD_S, K_BIAS_GATE_FUSION_ON, K_BIAS_PULL = 36, 37, 38, 39
+N_K = 40
 
 # ---------------------------------------------------------------- state beside VQF's (f)
 F_VEL, F_ACC_V, F_TURN_ON, F_GYR_CORR = 0, 3, 6, 7  # (3, 3, 1, 3)
@@ -392,7 +392,8 @@ def _correct(k, f, cv, sv, cb, win):
             f[F_GYR_CORR], f[F_GYR_CORR + 1], f[F_GYR_CORR + 2] = bh0 * s, bh1 * s, bh2 * s
         else:
             f[F_GYR_CORR : F_GYR_CORR + 3] = 0.0
-    kk = k[K_PULL_GAIN] * gate
+    # the uncalibrated-gyro gate pulls only where the vehicle allows it (rule 33); its bias removal above acts anyway
+    kk = k[K_PULL_GAIN] * (gate if k[K_BIAS_PULL] != 0.0 else _pymax(g_flight, g_clip))
     if kk > 0:
         d = down_in_body(win[W_Q], win[W_Q + 1], win[W_Q + 2], win[W_Q + 3])
         p = tilt_pull_f(qw, qx, qy, qz, -d[0], d[1], d[2], kk)

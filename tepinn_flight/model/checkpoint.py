@@ -55,7 +55,7 @@ MODEL_CONFIG_BEFORE = {
 #: every token (no quiet blocks), the gyro's scale not read from the record, the older fusion's bias
 #: evidence counted without VQF's and in any orientation, σ without the sampling term and the saturation term,
 #: no re-levelling at rest after a saturation, the saturation gate's pull at any gyro range, no offline
-#: tilt smoothing (opt-in before session 25), no gap term in σ, the filter's own tilt while the saturation gate is on, the gates at any IMU rate, VQF fed each gyro sample over one fixed period, no gap term while the uncalibrated-gyro gate's evidence builds, each sample of the still run below the rest rate and a fresh one at a re-levelling, the flight-speed gate on any vehicle, the uncalibrated-gyro gate's older-fusion path on any vehicle, |v̂| making a block busy on any vehicle, no aircraft term in σ and the causal σ's accelerometer gain the same on every vehicle
+#: tilt smoothing (opt-in before session 25), no gap term in σ, the filter's own tilt while the saturation gate is on, the gates at any IMU rate, VQF fed each gyro sample over one fixed period, no gap term while the uncalibrated-gyro gate's evidence builds, each sample of the still run below the rest rate and a fresh one at a re-levelling, the flight-speed gate on any vehicle, the uncalibrated-gyro gate's older-fusion path and its pull on any vehicle, |v̂| making a block busy on any vehicle, no aircraft term in σ and the causal σ's accelerometer gain the same on every vehicle
 ANCHOR_CONFIG_BEFORE = {"tau_acc_flight_s": 0.0, "bias_gate_fusion_deg_s": 0.0, "quiet_blocks": False, "clip_min_s": 0.0,
                         "gyro_selfcal": False, "gnss_aid": False, "gnss_aid_in_flight": False,
                         "bias_gate_vqf_deg_s": 0.0, "bias_gate_thrust_deg": 0.0,
@@ -65,7 +65,7 @@ ANCHOR_CONFIG_BEFORE = {"tau_acc_flight_s": 0.0, "bias_gate_fusion_deg_s": 0.0, 
                         "min_network_rate_hz": 0.0, "gyro_step_weighting": False,
                         "sigma_gap_bias_evidence": False, "rest_spike_factor": 1.0,
                         "rest_keeps_run": False, "speed_gate_shut_for": (), "quiet_speed_needs_gate": False,
-                        "bias_gate_fusion_shut_for": (),
+                        "bias_gate_fusion_shut_for": (), "bias_pull_shut_for": (),
                         "sigma_aircraft_deg": 0.0, "sigma_acc_gain_aircraft": 0.0}  # fmt: skip
 #: Anchor options removed after they measured worse: key → (the value kept, the one this tepinn-flight
 #: runs and drops from the checkpoint; the value of checkpoints written before the key existed; a key

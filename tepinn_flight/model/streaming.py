@@ -40,7 +40,7 @@ from ..record_gaps import (GAP_PERIODS, PERIOD_STEPS, RateRise, filler_times, in
                            segment_period_s)  # fmt: skip
 from .accel_scale import AccelScaleTracker
 from .anchor import (AnchorConfig, AnchoredVQF, WindowOutput, acc_gain, aircraft_var_rad2, bias_fusion_gate_allowed,
-                     fusion_tilt_f, speed_gate_allowed)  # fmt: skip
+                     bias_pull_allowed, fusion_tilt_f, speed_gate_allowed)  # fmt: skip
 from .fusion import AttitudeFusion, FusionConfig, feedback_bias
 from .runtime import NetworkRunner, as_runner
 from .streaming_kernels import (N_OUT, OUT_BIAS, OUT_FUS_BIAS, OUT_FUS_OK, OUT_FUS_Q, OUT_Q, OUT_Q_OK, OUT_SIGMA, TOK_A,
@@ -294,6 +294,7 @@ class StreamingEstimator:
         if self.anchored is not None:
             self.anchored.speed_gate = speed_gate_allowed(self.anchor_cfg, vehicle)
             self.anchored.bias_fusion_gate = bias_fusion_gate_allowed(self.anchor_cfg, vehicle)
+            self.anchored.bias_pull = bias_pull_allowed(self.anchor_cfg, vehicle)
             self.anchored.set_acc_gain(acc_gain(self.anchor_cfg, vehicle, causal=True))
 
     def _bridge(self, t: float, row: tuple, period: float) -> None:
