@@ -28,8 +28,9 @@ def _vehicle(vehicle_type) -> str:
         return f"{vehicle_type or 'unknown'} (not named: TE-PINN's gates as for any vehicle)"
     shipped = AnchorConfig()
     gate = "may open" if speed_gate_allowed(shipped, vehicle_type) else "stays shut"
-    bias = "" if bias_fusion_gate_allowed(shipped, vehicle_type) else ", its uncalibrated-gyro gate opens on VQF's bias only"
-    bias += "" if bias_pull_allowed(shipped, vehicle_type) else " and does not pull the tilt"
+    said = ([] if bias_fusion_gate_allowed(shipped, vehicle_type) else ["opens on VQF's bias only"]) + (
+        [] if bias_pull_allowed(shipped, vehicle_type) else ["does not pull the tilt"])  # fmt: skip
+    bias = f", its uncalibrated-gyro gate {' and '.join(said)}" if said else ""
     return f"{vehicle_type} (class {cls}: TE-PINN's flight-speed gate {gate}{bias})"
 
 

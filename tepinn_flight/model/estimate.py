@@ -22,8 +22,9 @@ from ..errors import TepinnError
 from ..record import ACC_COLS, EST_BIAS_COLS, EST_Q_COLS, FlightRecord, segment_slices
 from ..record_gaps import GAP_PERIODS, bridge_gaps, segment_period_s
 from ..vehicle_class import vehicle_class
-from .anchor import (AnchorConfig, AnchoredVQF, _rows, aircraft_var_rad2, bias_fusion_gate_allowed, bias_pull_allowed, ffill_rows, q_nb_from_vqf,
-                     speed_gate_allowed, to_sensor, window_rows, with_aircraft_sigma, with_fusion_tilt)  # fmt: skip
+from .anchor import (AnchorConfig, AnchoredVQF, _rows, aircraft_var_rad2, bias_fusion_gate_allowed, bias_pull_allowed,
+                     ffill_rows, q_nb_from_vqf, speed_gate_allowed, to_sensor, window_rows, with_aircraft_sigma,
+                     with_fusion_tilt)  # fmt: skip
 from .anchor_kernels import step_weights
 from .beside import MAX_WAIT_S_PER_SAMPLE, WAIT_S_PER_SAMPLE, Beside, BesideFailed, worth_it
 from .fusion import FusionConfig, FusionRun, feedback_bias
