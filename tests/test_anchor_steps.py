@@ -74,9 +74,9 @@ def _windows(seed: int, n_win: int):
                 fast=rng.random(n_win) < 0.5)  # fmt: skip
 
 
-def _reference(cfg, ts, use_mag, rec, ends, w, with_fusion=True):
+def _reference(cfg, ts, use_mag, rec, ends, w, with_fusion=True, vehicle=None):
     t, gyr, acc, mag, clipped = rec
-    ref = AnchoredVQFReference(cfg, ts, use_mag)
+    ref = AnchoredVQFReference(cfg, ts, use_mag, vehicle)
     n = len(t)
     q, s, b = np.full((n, 4), np.nan), np.full(n, np.nan), np.full((n, 3), np.nan)
     gates, parts, cur = [], [], 0
@@ -149,6 +149,30 @@ def test_a_segment_at_once_and_in_blocks_is_the_reference(name, seed, use_mag):
     q2[cur:], s2[cur:], b2[cur:] = q9 if use_mag else q6, sg, bb
     _same(q2, s2, b2, r_q, r_s, r_b)
     assert blk.relevel_t == r_rl
+
+
+def test_a_hand_held_imu_is_the_reference_too():
+    """Rules 31 and 33 (the uncalibrated-gyro gate's older-fusion path shut, and no pull of that gate, on a hand-held
+    IMU): the compiled steps against the reference, told the vehicle, where every gate acts, with and without those
+    rules — which change the estimate (the scenario reaches them; the flight-speed gate is shut in both)."""
+    rec = _record(1)
+    ts = float(np.median(np.diff(rec[0][:50])))
+    ends = np.arange(40, len(rec[0]) - 5, 16)
+    w = _windows(1, len(ends))
+    wins = window_rows(w["q"], w["sigma"], w["bias"], w["vel"], w["acc_v"], w["fusion"], w["aided"], w["fast"])
+    every = CONFIGS["every gate"]
+    out = []
+    for cfg, latches in ((every, False),  # rule 31: the older fusion's evidence, which latches it here, not used
+                         (dataclasses.replace(every, bias_gate_fusion_shut_for=()), True),  # rule 33 alone: no pull
+                         (dataclasses.replace(every, bias_gate_fusion_shut_for=(), bias_pull_shut_for=()), True)):  # fmt: skip
+        r_q, r_s, r_b, r_g, r_p, _, _ = _reference(cfg, ts, False, rec, ends, w, vehicle="handheld-imu")
+        q, s, b, gates, parts, _ = AnchoredVQF(cfg, ts, False, "handheld-imu").run_windows(*rec, ends, wins)
+        _same(q, s, b, r_q, r_s, r_b)
+        np.testing.assert_array_equal(gates, r_g)
+        np.testing.assert_array_equal(parts, r_p)
+        assert parts[:, 0].max() == 0 and bool(parts[:, 2].max() > 0) is latches  # never the flight-speed gate
+        out.append(q)
+    assert np.nanmax(np.abs(out[1] - out[2])) > 1e-3  # the pull
 
 
 @pytest.mark.parametrize("seed,use_mag", [(4, False), (5, True)])
