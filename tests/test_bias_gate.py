@@ -190,14 +190,15 @@ def test_the_setting_names_classes_the_live_estimator_takes_it_and_old_checkpoin
     from tepinn_flight.model.streaming import StreamingEstimator
     from tepinn_flight.model.synthetic import synthetic_record
 
-    assert AnchorConfig(bias_gate_fusion_shut_for=["handheld", "multirotor"]).bias_gate_fusion_shut_for == ("handheld", "multirotor")
-    with pytest.raises(ConfigError, match="bias_gate_fusion_shut_for"):
-        AnchorConfig(bias_gate_fusion_shut_for=("handheld-imu",))  # a vehicle name, not a class
-    assert ANCHOR_CONFIG_BEFORE["bias_gate_fusion_shut_for"] == ()
-    raw = {k: v for k, v in dataclasses.asdict(AnchorConfig()).items() if k not in ("fusion_config", "bias_gate_fusion_shut_for")}
-    assert anchor_config_from({"anchor_config": raw}).bias_gate_fusion_shut_for == ()
     model, shipped, _ = load_model(default_model_path())
-    assert shipped.bias_gate_fusion_shut_for == ("handheld",)
+    for key in ("bias_gate_fusion_shut_for", "bias_pull_shut_for"):  # rules 31 and 33
+        assert getattr(AnchorConfig(**{key: ["handheld", "multirotor"]}), key) == ("handheld", "multirotor")
+        with pytest.raises(ConfigError, match=key):
+            AnchorConfig(**{key: ("handheld-imu",)})  # a vehicle name, not a class
+        assert ANCHOR_CONFIG_BEFORE[key] == ()
+        raw = {k: v for k, v in dataclasses.asdict(AnchorConfig()).items() if k not in ("fusion_config", key)}
+        assert getattr(anchor_config_from({"anchor_config": raw}), key) == ()
+        assert getattr(shipped, key) == ("handheld",)
     # the setting off (bias_gate_fusion_deg_s 0) keeps the path off whatever the vehicle
     assert not AnchoredVQF(dataclasses.replace(shipped, bias_gate_fusion_deg_s=0.0), 0.01, vehicle="quadrotor").bias_fusion_gate
     # live: told the vehicle after the start, as the bridge learns it from the heartbeat
@@ -205,11 +206,12 @@ def test_the_setting_names_classes_the_live_estimator_takes_it_and_old_checkpoin
     rec = synthetic_record(seed=1, duration_s=3.0, rate_hz=100.0)
     for i in range(len(rec)):
         live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i])
-    assert live.anchored is not None and live.anchored.bias_fusion_gate
+    a = live.anchored
+    assert a is not None and a.bias_fusion_gate and a.bias_pull
     live.set_vehicle("handheld-imu")
-    assert not live.anchored.bias_fusion_gate and live.anchored.speed_gate is False
+    assert not a.bias_fusion_gate and not a.bias_pull and a.speed_gate is False
     live.set_vehicle("quadrotor")
-    assert live.anchored.bias_fusion_gate
+    assert a.bias_fusion_gate and a.bias_pull
 
 
 def test_a_real_hand_held_trial_held_tilted_45_degrees_no_longer_latches_the_gate():
@@ -276,30 +278,6 @@ def test_on_a_hand_held_imu_the_gate_takes_the_bias_out_without_pulling_the_tilt
     assert (tilt_deg > 6.0) if pulled else (tilt_deg < 0.5), tilt_deg
     latched, tilt_deg, _ = _pulled_tilt_deg(dataclasses.replace(cfg, bias_pull_shut_for=()), vehicle)
     assert latched and tilt_deg > 6.0, tilt_deg
-
-
-def test_rule_33_s_setting_old_checkpoints_and_the_live_estimator():
-    from tepinn_flight.errors import ConfigError
-    from tepinn_flight.model.checkpoint import ANCHOR_CONFIG_BEFORE, anchor_config_from, default_model_path, load_model
-    from tepinn_flight.model.streaming import StreamingEstimator
-    from tepinn_flight.model.synthetic import synthetic_record
-
-    with pytest.raises(ConfigError, match="bias_pull_shut_for"):
-        AnchorConfig(bias_pull_shut_for=("handheld-imu",))
-    assert ANCHOR_CONFIG_BEFORE["bias_pull_shut_for"] == ()
-    raw = {k: v for k, v in dataclasses.asdict(AnchorConfig()).items() if k not in ("fusion_config", "bias_pull_shut_for")}
-    assert anchor_config_from({"anchor_config": raw}).bias_pull_shut_for == ()
-    model, shipped, _ = load_model(default_model_path())
-    assert shipped.bias_pull_shut_for == ("handheld",)
-    live = StreamingEstimator(model, dataclasses.replace(shipped, smoother=False))
-    rec = synthetic_record(seed=2, duration_s=3.0, rate_hz=100.0)
-    for i in range(len(rec)):
-        live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i])
-    assert live.anchored is not None and live.anchored.bias_pull
-    live.set_vehicle("handheld-imu")
-    assert not live.anchored.bias_pull
-    live.set_vehicle("plane")
-    assert live.anchored.bias_pull
 
 
 def test_a_real_hand_held_trial_with_a_2_deg_s_gyro_bias_is_no_longer_pulled_off():
