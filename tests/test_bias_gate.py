@@ -36,12 +36,12 @@ def _mounted(rec, x_deg: float):
 
 
 def _latched(cfg: AnchorConfig, gyro_bias_deg_s: float, fusion_bias_deg_s: float, seconds: float = 30.0,
-             acc=(0.0, 0.0, -9.81)) -> bool:  # fmt: skip
+             acc=(0.0, 0.0, -9.81), vehicle=None) -> bool:  # fmt: skip
     """An IMU at rest (level, or as ``acc`` says; gyro reading ``gyro_bias_deg_s`` on x) for ``seconds``
     at 100 Hz, a window every 0.1 s whose older-fusion bias is ``fusion_bias_deg_s`` on x (horizontal)
     → the gate latched?"""
     ts = 0.01
-    f = AnchoredVQF(cfg, ts)
+    f = AnchoredVQF(cfg, ts, vehicle=vehicle)
     gyr = np.array([math.radians(gyro_bias_deg_s), 0.0, 0.0])
     acc = np.asarray(acc, float)
     fb = np.array([math.radians(fusion_bias_deg_s), 0.0, 0.0])
@@ -152,19 +152,6 @@ def test_a_real_trial_with_the_imu_on_its_side_no_longer_latches_the_gate():
 # ---------------------------------------------------------------- rule 31: the older fusion's path by vehicle
 
 
-def _latched_on(cfg: AnchorConfig, vehicle, gyro_bias_deg_s: float, fusion_bias_deg_s: float, acc=(0.0, 0.0, -9.81)) -> bool:
-    """:func:`_latched`'s IMU at rest for 30 s, the filter told the record's vehicle."""
-    ts = 0.01
-    f = AnchoredVQF(cfg, ts, vehicle=vehicle)
-    gyr = np.array([math.radians(gyro_bias_deg_s), 0.0, 0.0])
-    fb = np.array([math.radians(fusion_bias_deg_s), 0.0, 0.0])
-    for k in range(300):
-        t = k * 0.1 + np.arange(10) * ts
-        f.update(t, np.tile(gyr, (10, 1)), np.tile(np.asarray(acc, float), (10, 1)))
-        f.correct(WindowOutput(LEVEL, 0.01, np.zeros(3), np.zeros(3), np.zeros(3), fb))
-    return f.bias_latched
-
-
 @pytest.mark.parametrize("vehicle, latched", [("handheld-imu", False), ("quadrotor", True), ("plane", True),
                                               (None, True), ("helicopter", True)])  # fmt: skip
 def test_on_a_hand_held_imu_the_fusions_evidence_never_latches_the_gate(vehicle, latched):
@@ -172,16 +159,16 @@ def test_on_a_hand_held_imu_the_fusions_evidence_never_latches_the_gate(vehicle,
     gate on any vehicle but a hand-held IMU; without the rule on that one too."""
     cfg = AnchorConfig()
     assert cfg.bias_gate_fusion_shut_for == ("handheld",)
-    assert _latched_on(cfg, vehicle, 1.0, 5.0) is latched
-    assert _latched_on(dataclasses.replace(cfg, bias_gate_fusion_shut_for=()), vehicle, 1.0, 5.0)
+    assert _latched(cfg, 1.0, 5.0, vehicle=vehicle) is latched
+    assert _latched(dataclasses.replace(cfg, bias_gate_fusion_shut_for=()), 1.0, 5.0, vehicle=vehicle)
 
 
 def test_on_a_hand_held_imu_vqfs_own_bias_at_its_clip_still_latches_the_gate():
     """A 3 °/s gyro at rest: VQF's rest bias estimate runs into its 2 °/s clip — the gate's first path, kept on a
     hand-held IMU — with no evidence from the older fusion; 1 °/s does not."""
     cfg = AnchorConfig()
-    assert _latched_on(cfg, "handheld-imu", 3.0, 0.0)
-    assert not _latched_on(cfg, "handheld-imu", 1.0, 0.0)
+    assert _latched(cfg, 3.0, 0.0, vehicle="handheld-imu")
+    assert not _latched(cfg, 1.0, 0.0, vehicle="handheld-imu")
 
 
 def test_the_setting_names_classes_the_live_estimator_takes_it_and_old_checkpoints_latch_on_any_vehicle():

@@ -192,7 +192,8 @@ def test_info_says_what_the_estimator_does_with_the_vehicle_a_log_names():
     line = lambda v: next(x for x in render_info("log", {"vehicle_type": v}).splitlines() if x.strip().startswith("vehicle"))  # noqa: E731
     assert line("copter").endswith("copter (class multirotor: TE-PINN's flight-speed gate stays shut)")
     assert line("handheld-imu").endswith("(class handheld: TE-PINN's flight-speed gate stays shut, its uncalibrated-gyro "
-                                         "gate opens on VQF's bias only and does not pull the tilt)")  # (rules 31, 33)
+                                         "gate opens only on VQF's own bias estimate and takes the network's bias out of "
+                                         "the gyro without pulling the tilt)")  # (rules 31, 33)
     assert line("fixed_wing").endswith("(class fixed-wing: TE-PINN's flight-speed gate may open)")
     assert line(None).endswith("unknown (not named: TE-PINN's gates as for any vehicle)")
 

@@ -115,7 +115,8 @@ def test_a_sample_inside_the_token_undoes_the_early_close(rate_hz, settings):
 
 def _run_worker(make_estimator, records: list[bytes]):
     """``worker_loop`` over ``records`` (one write each, so each is its own batch) → the frames it wrote, as
-    (kind, payload) in order."""
+    (kind, payload) in order. Each record is written only once the worker has called the estimator's ``prepare``
+    after the previous one, so each is its own batch however slow or loaded the machine (no timing in the test)."""
     import os
 
     import tepinn_flight.live.worker as worker
@@ -127,7 +128,20 @@ def _run_worker(make_estimator, records: list[bytes]):
     try:
         import threading
 
-        done, ready = threading.Event(), threading.Event()
+        done, ready, batch_done = threading.Event(), threading.Event(), threading.Event()
+
+        def paced():
+            est = make_estimator()
+            prepare = est.prepare
+
+            def prepare_then_signal():
+                try:
+                    return prepare()
+                finally:
+                    batch_done.set()  # the worker is through this batch: the feeder may write the next record
+
+            est.prepare = prepare_then_signal
+            return est
 
         def read_all():
             buf = b""
@@ -149,17 +163,17 @@ def _run_worker(make_estimator, records: list[bytes]):
         th.start()
 
         def feed():
-            import time
-
             ready.wait(60)  # (the worker compiles and warms up first: records written before would arrive as one batch)
-            for rec in records:  # one at a time, as an IMU streams (a batch merged now and then changes nothing)
+            for rec in records:  # one at a time, as an IMU streams, each its own batch
+                batch_done.clear()
                 os.write(w_in, rec)
-                time.sleep(0.002)
+                if not batch_done.wait(60):
+                    break  # the worker stopped calling prepare: the counts below fail the test
             os.close(w_in)
 
         feeder = threading.Thread(target=feed, daemon=True)
         feeder.start()
-        assert worker.worker_loop(r_in, w_out, make_estimator, rate_hz=1000.0, max_age_s=1e9) == 0
+        assert worker.worker_loop(r_in, w_out, paced, rate_hz=1000.0, max_age_s=1e9) == 0
         feeder.join()
         os.close(w_out)
         done.wait(10)

@@ -20,7 +20,7 @@ def record_summary_line(rec) -> str:
 
 def _vehicle(vehicle_type) -> str:
     """The log's vehicle and its class (:mod:`..vehicle_class`), with what the shipped estimator does with it."""
-    from ..model.anchor import AnchorConfig, bias_fusion_gate_allowed, bias_pull_allowed, speed_gate_allowed
+    from ..model.anchor import AnchorConfig, bias_gate_limits, speed_gate_allowed
     from ..vehicle_class import UNKNOWN, vehicle_class
 
     cls = vehicle_class(vehicle_type)
@@ -28,8 +28,7 @@ def _vehicle(vehicle_type) -> str:
         return f"{vehicle_type or 'unknown'} (not named: TE-PINN's gates as for any vehicle)"
     shipped = AnchorConfig()
     gate = "may open" if speed_gate_allowed(shipped, vehicle_type) else "stays shut"
-    said = ([] if bias_fusion_gate_allowed(shipped, vehicle_type) else ["opens on VQF's bias only"]) + (
-        [] if bias_pull_allowed(shipped, vehicle_type) else ["does not pull the tilt"])  # fmt: skip
+    said = bias_gate_limits(shipped, vehicle_type)
     bias = f", its uncalibrated-gyro gate {' and '.join(said)}" if said else ""
     return f"{vehicle_type} (class {cls}: TE-PINN's flight-speed gate {gate}{bias})"
 

@@ -699,6 +699,19 @@ def bias_fusion_gate_allowed(config: AnchorConfig, vehicle: str | None) -> bool:
     return vehicle_class(vehicle) not in config.bias_gate_fusion_shut_for
 
 
+def bias_gate_limits(config: AnchorConfig, vehicle: str | None) -> list[str]:
+    """What the uncalibrated-gyro gate does not do on a record of ``vehicle`` (rules 31, 33), as a user reads it
+    (``estimate``'s ``bias_gate`` line, ``info``'s vehicle line); empty where it acts as on any vehicle."""
+    if config.bias_gate_weight <= 0:
+        return []
+    said = []
+    if config.bias_gate_fusion_deg_s > 0 and not bias_fusion_gate_allowed(config, vehicle):
+        said.append("opens only on VQF's own bias estimate")
+    if not bias_pull_allowed(config, vehicle):
+        said.append("takes the network's bias out of the gyro without pulling the tilt")
+    return said
+
+
 def bias_pull_allowed(config: AnchorConfig, vehicle: str | None) -> bool:
     """Whether the uncalibrated-gyro gate, once latched, pulls the tilt toward the network's for ``vehicle`` (as
     :func:`speed_gate_allowed` takes it): not for the classes ``config.bias_pull_shut_for`` names (rule 33, session

@@ -22,9 +22,8 @@ from ..errors import TepinnError
 from ..record import ACC_COLS, EST_BIAS_COLS, EST_Q_COLS, FlightRecord, segment_slices
 from ..record_gaps import GAP_PERIODS, bridge_gaps, segment_period_s
 from ..vehicle_class import vehicle_class
-from .anchor import (AnchorConfig, AnchoredVQF, _rows, aircraft_var_rad2, bias_fusion_gate_allowed, bias_pull_allowed,
-                     ffill_rows, q_nb_from_vqf, speed_gate_allowed, to_sensor, window_rows, with_aircraft_sigma,
-                     with_fusion_tilt)  # fmt: skip
+from .anchor import (AnchorConfig, AnchoredVQF, _rows, aircraft_var_rad2, bias_gate_limits, ffill_rows, q_nb_from_vqf,
+                     speed_gate_allowed, to_sensor, window_rows, with_aircraft_sigma, with_fusion_tilt)  # fmt: skip
 from .anchor_kernels import step_weights
 from .beside import MAX_WAIT_S_PER_SAMPLE, WAIT_S_PER_SAMPLE, Beside, BesideFailed, worth_it
 from .fusion import FusionConfig, FusionRun, feedback_bias
@@ -486,19 +485,11 @@ def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, 
     df.attrs["network_gates"] = describe_gates(gates_open, float(steps[gate > 0].sum()), float(steps.sum()))
     if not speed_gate_allowed(anchor, vehicle):  # why the flight-speed gate never opened here (rule 24)
         df.attrs["speed_gate"] = f"flight-speed gate: not used on a {vehicle_class(vehicle)} log (it names a {vehicle})"
-    if anchor.bias_gate_weight > 0 and not (bias_fusion_gate_allowed(anchor, vehicle) and bias_pull_allowed(anchor, vehicle)):
-        df.attrs["bias_gate"] = _bias_gate_line(anchor, vehicle)  # rules 31, 33
+    limits = bias_gate_limits(anchor, vehicle)  # what the uncalibrated-gyro gate does not do here (rules 31, 33)
+    if limits:
+        df.attrs["bias_gate"] = (f"uncalibrated-gyro gate: {' and '.join(limits)} on a {vehicle_class(vehicle)} log "
+                                 f"(it names a {vehicle})")  # fmt: skip
     return df
-
-
-def _bias_gate_line(anchor: AnchorConfig, vehicle: str | None) -> str:
-    """What the uncalibrated-gyro gate does not do on a log of ``vehicle`` (rules 31, 33), one line for a user."""
-    said = []
-    if anchor.bias_gate_fusion_deg_s > 0 and not bias_fusion_gate_allowed(anchor, vehicle):
-        said.append("opens only on VQF's own bias estimate")
-    if not bias_pull_allowed(anchor, vehicle):
-        said.append("takes the network's bias out of the gyro without pulling the tilt")
-    return f"uncalibrated-gyro gate: {' and '.join(said)} on a {vehicle_class(vehicle)} log (it names a {vehicle})"
 
 
 def describe_gates(gates_open: dict, open_s: float, span_s: float) -> str:
