@@ -7,9 +7,9 @@ and the estimator's other loops (:func:`warm_kernels`, ~7 s) — and then everyt
 is warm it does nothing.
 
 The warm calls go through the same entry points the estimator calls (each loop is compiled for one signature
-whatever its callers pass: ``tests/test_compiled_signatures.py``), on a few made-up samples. A loop they miss is
+whatever its callers pass: ``tests/test_first_run_compile.py``), on a few made-up samples. A loop they miss is
 compiled where it is first used, as without the warm-up; the helper failing or missing its time costs the same.
-``tests/test_jit_warmup.py`` checks that an estimate after the warm-up compiles nothing.
+``tests/test_first_run_compile.py`` checks that an estimate after the warm-up compiles nothing.
 """
 
 from __future__ import annotations

@@ -104,7 +104,7 @@ def rest_rows(st, gyr_b, acc_b, gyr_max2, acc_dev2, spike2):
 def _read_only(x) -> np.ndarray:
     """``x`` C-contiguous and read-only (a view where it is C-contiguous already): a record's columns are read-only, so
     that is the one signature a kernel reading them is compiled for, whoever calls it (a caller's writable array was
-    a second compile: tests/test_compiled_signatures.py)."""
+    a second compile: tests/test_first_run_compile.py)."""
     v = np.ascontiguousarray(x).view()
     v.flags.writeable = False
     return v

@@ -1,12 +1,11 @@
-"""The one-line notice while numba compiles the package's loops (first run after installing): said
-once when something compiles, not when the loops load from the cache, not for other packages'
-functions, not in quiet mode. Each case runs in a fresh process with its own ``NUMBA_CACHE_DIR``
-(numba reads it at import), so the cache state is known."""
+"""The one-line notice while numba compiles the package's loops (first run after installing): said once when
+something compiles, not when the loops load from the cache, not for other packages' functions, not in quiet mode
+(for ``estimate``: ``tests/test_first_run_compile.py``, with the first run's other checks). Each case runs in a fresh
+process with its own ``NUMBA_CACHE_DIR`` (numba reads it at import), so the cache state is known."""
 
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 import textwrap
@@ -58,38 +57,6 @@ def test_notice_once_on_compile_and_not_on_a_cache_load(tmp_path):
     again = _run(_PROBE, tmp_path / "cache")  # the same cache: every signature loads, nothing compiles
     assert again.returncode == 0, again.stderr
     assert again.stdout.splitlines()[1] == "lines 0"
-
-
-@pytest.mark.slow
-def test_estimate_says_it_compiles_once_then_not_and_never_with_quiet(tmp_path):
-    pytest.importorskip("torch")
-    from tepinn_flight.model.synthetic import synthetic_record
-    from tepinn_flight.record import write_record
-
-    write_record(synthetic_record(seed=1, duration_s=12.0, rate_hz=100.0), tmp_path / "r.parquet")
-    args = ["estimate", str(tmp_path / "r.parquet"), "-o", str(tmp_path / "e.parquet")]
-    cold = _run(args, tmp_path / "cache", module=True)
-    assert cold.returncode == 0, cold.stderr
-    said = [ln for ln in cold.stderr.splitlines() if COMPILE_NOTICE in ln]
-    assert said == [f"tepinn-flight estimate: note: {COMPILE_NOTICE}"], cold.stderr
-    warm = _run(args, tmp_path / "cache", module=True)
-    assert warm.returncode == 0 and COMPILE_NOTICE not in warm.stderr, warm.stderr
-    # the warm cache less the anchored filter's steps: only those compile (seconds, not the whole set) — said once
-    # without -q, and not at all with it (and compiled all the same: cached again)
-    for name, extra in (("part", []), ("quiet", ["-q"])):
-        part = tmp_path / name
-        shutil.copytree(tmp_path / "cache", part)
-        gone = sorted(f.name for f in part.rglob("anchor_steps.*"))
-        assert gone, sorted(f.name for f in part.rglob("*"))
-        for f in part.rglob("anchor_steps.*"):
-            f.unlink()
-        p = _run([*args, *extra], part, module=True)
-        assert p.returncode == 0, p.stderr
-        if extra:
-            assert p.stderr == "", p.stderr
-        else:
-            assert [ln for ln in p.stderr.splitlines() if COMPILE_NOTICE in ln] == said, p.stderr
-        assert sorted(f.name for f in part.rglob("anchor_steps.*")) == gone
 
 
 @pytest.mark.slow

@@ -1,18 +1,34 @@
-"""Each compiled loop is compiled for one signature, whatever its callers pass: the offline and the
-live fusion share ``_step``'s, and a record's read-only Fortran-ordered columns, C arrays, 6-D and
-9-D calls give each filter one; so do the anchored VQF's kernels, offline and live, from record
-columns, lists, tuples and configs holding ints, and the live accelerometer-scale reading's step. (Every extra signature is another full compile on first use —
-seconds each; ``benchmarks/jit_compile.py``.) Run in a fresh process, so the dispatchers hold only
-what these calls compiled."""
+"""The first run after installing, on a cold numba cache, checked in one fresh process (each full compile is ~40 s
+of a core here, so the checks share one; ``NUMBA_CACHE_DIR`` is the test's own, read by numba at import, so the
+cache state is known):
+
+- the notice: a cold ``estimate`` says once that it compiles, a warm one nothing; with only the anchored filter's
+  steps missing from the cache (the helper process's share) it is said once without ``-q`` and not with it
+  (``tepinn_flight/jit_notice.py``);
+- the warm-up (``tepinn_flight/jit_warmup.py``): the helper process compiles the anchored filter's steps and its
+  VQF, the command's process the fusion's and the estimator's other loops, and afterwards an offline estimate (GNSS
+  aid, a clipped gyro, rests, a magnetometer) and the live estimator compile nothing; on a warm cache it does
+  nothing;
+- one signature per loop, whatever its callers pass: the offline and the live fusion share ``_step``'s, and a
+  record's read-only Fortran-ordered columns, C arrays, 6-D and 9-D calls give each filter one; so do the anchored
+  VQF's kernels, offline and live, from record columns, lists, tuples and configs holding ints, and the live
+  accelerometer-scale reading's step (every extra signature is another full compile on first use: seconds each;
+  ``benchmarks/jit_compile.py``). The fusion's loops are compiled in this process (the warm-up's own share), so a
+  kernel only its compiled callers call (``fusion._step``) shows every signature compiled for it; the anchored
+  filter's steps and kernels, compiled by the helper, are each called from Python and so counted as they load."""
 
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
 
+import numpy as np
 import pytest
+
+from tepinn_flight.jit_notice import COMPILE_NOTICE
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -20,8 +36,64 @@ REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ANCHOR_KERNELS = ("q_nb_rows", "tilt_pull_f", "fusion_tilt_f", "fusion_tilt_rows")
 #: the anchored filter's compiled steps (model/anchor_steps.py), offline and live
 ANCHOR_STEPS = ("update_rows", "update_one", "correct", "run_segment", "clip_room", "pull")
+#: every loop whose signatures are counted (``name`` as the script prints it)
+COUNTED = ("ask.track_step", "ask.quiet_rows", "fusion._run", "fusion._step", "fusion._step_live", "wf._features",
+           "hp._attitude", "gs.attitude_at", "complementary._run", "madgwick._run", "ekf._loop", "gk.window_sums",
+           "gk.rotate_rows") + tuple(f"ak.{k}" for k in ANCHOR_KERNELS) + tuple(f"st.{k}" for k in ANCHOR_STEPS)
 
-_CALLS = textwrap.dedent("""
+#: the cold estimate of a flight (not quiet: the notice), with the warm-up's own compiles recorded apart; then an
+#: estimate of the turns and the live estimator on them, which must compile nothing; then the warm-up on a warm cache
+_FIRST_RUN = """
+    import sys
+    from numba.core import event
+    from tepinn_flight import jit_warmup
+    from tepinn_flight.ingest import load_record
+
+    names = []
+
+    class Compiles(event.Listener):
+        def on_start(self, ev):
+            f = ev.data["dispatcher"].py_func
+            if f.__module__.startswith("tepinn_flight."):
+                names.append(f.__module__ + "." + f.__qualname__)
+
+        def on_end(self, ev):
+            pass
+
+    warm_up = jit_warmup.warm_up
+
+    def recorded_warm_up(*args, **kwargs):  # what the estimate's warm-up compiled in this process, apart
+        ran = warm_up(*args, **kwargs)
+        print("@@ ran", ran)
+        print("@@ here", " ".join(sorted(set(names))))
+        names.clear()
+        return ran
+
+    jit_warmup.warm_up = recorded_warm_up
+    flight, turns = sys.argv[1:3]
+    with event.install_listener("numba:compile", Compiles()):
+        print("@@ cold", jit_warmup.cold())
+        from tepinn_flight.cli.main import main
+
+        assert main(["estimate", flight, "-o", flight + ".est.parquet"]) == 0
+        print("@@ cold", jit_warmup.cold())
+        print("@@ notice", file=sys.stderr)  # the notices before this line are the cold estimate's
+        assert main(["estimate", turns, "-o", turns + ".est.parquet"]) == 0
+        from tepinn_flight.model.runtime import default_onnx_path, load_runner
+        from tepinn_flight.model.streaming import StreamingEstimator
+
+        runner, settings, _ = load_runner(default_onnx_path(), "onnx")
+        rec = load_record(turns)
+        live = StreamingEstimator(runner, settings, threads=1)
+        mag = rec.mag_ut
+        for i in range(len(rec)):
+            live.push(rec.t_s[i], rec.gyr_rad_s[i], rec.acc_m_s2[i], mag[i], bool(rec.clipped[i]), bool(rec.gyr_clipped[i]))
+        print("@@ after", " ".join(sorted(set(names))))
+        print("@@ ran", warm_up())
+"""
+
+#: the same loops called as every caller does (after the estimates above, in the same process)
+_CALLS = """
     import numpy as np
     from tepinn_flight.evaluation.estimators import FilterEstimator
     from tepinn_flight.evaluation.filters import Complementary, Ekf, Madgwick, complementary, ekf, madgwick
@@ -143,17 +215,82 @@ _CALLS = textwrap.dedent("""
                     ("complementary._run", complementary._run), ("madgwick._run", madgwick._run),
                     ("ekf._loop", ekf._loop)) + tuple((f"ak.{k}", getattr(ak, k)) for k in ANCHOR_KERNELS) + tuple(
                         (f"st.{k}", getattr(st, k)) for k in ANCHOR_STEPS):
-        print(name, len(d.signatures))
-""").replace("ANCHOR_KERNELS", repr(ANCHOR_KERNELS)).replace("ANCHOR_STEPS", repr(ANCHOR_STEPS))
+        print("@@ sig", name, len(d.signatures))
+"""
+
+_SCRIPT = (textwrap.dedent(_FIRST_RUN) + textwrap.dedent(_CALLS)).replace("ANCHOR_KERNELS", repr(ANCHOR_KERNELS)).replace(
+    "ANCHOR_STEPS", repr(ANCHOR_STEPS))
+
+
+def _env(cache) -> dict:
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": REPO}
+    env.pop("NUMBA_DISABLE_JIT", None)
+    return env
 
 
 @pytest.mark.slow
-def test_every_loop_is_compiled_for_one_signature(tmp_path):
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": REPO}
-    env.pop("NUMBA_DISABLE_JIT", None)
-    p = subprocess.run([sys.executable, "-c", _CALLS], capture_output=True, text=True, env=env, cwd=REPO, timeout=600)
+def test_the_first_run_compiles_each_loop_once_in_two_processes_and_says_so_once(tmp_path):
+    pytest.importorskip("torch")
+    pytest.importorskip("onnxruntime")
+    from tepinn_flight.record import MAG_COLS, write_record
+    from tepinn_flight.sim.simulate import simulate_record
+    from tests.test_gyro_selfcal import turns_with_rests
+
+    flight = simulate_record("F450", 12.0, rate_hz=200.0, seed=2)  # a receiver: the GNSS aid
+    assert flight.gnss_vel_ne_m_s is not None
+    turns, _ = turns_with_rests(clipped_turn=6, n_turns=8)  # rests (the self-calibration), a clipped gyro
+    turns.data[MAG_COLS] = np.tile([20.0, 0.0, 45.0], (len(turns), 1))  # 9-D
+    paths = [tmp_path / "flight.parquet", tmp_path / "turns.parquet"]
+    write_record(flight, paths[0])
+    write_record(turns, paths[1])
+    cache = tmp_path / "cache"
+    p = subprocess.run([sys.executable, "-c", _SCRIPT, *map(str, paths)], capture_output=True, text=True,
+                       env=_env(cache), cwd=REPO, timeout=900)  # fmt: skip
     assert p.returncode == 0, p.stderr
-    counts = dict(line.split() for line in p.stdout.splitlines())
-    assert counts == {k: "1" for k in ("ask.track_step", "ask.quiet_rows", "fusion._run", "fusion._step", "fusion._step_live", "wf._features", "hp._attitude", "gs.attitude_at", "complementary._run", "madgwick._run",
-                                       "ekf._loop", "gk.window_sums", "gk.rotate_rows")
-                      + tuple(f"ak.{k}" for k in ANCHOR_KERNELS) + tuple(f"st.{k}" for k in ANCHOR_STEPS)}, p.stdout  # fmt: skip
+    said = [ln[3:].split(" ", 1) for ln in p.stdout.splitlines() if ln.startswith("@@ ")]
+    said = [(k, v[0] if v else "") for k, *v in said]
+    keys = [k for k, _ in said]
+    # each estimate's warm-up records what this process compiled until it ended: the first the whole of its share, the
+    # second (the turns') what the rest of the flight's estimate compiled after the warm-up: nothing
+    assert keys.count("sig") == len(COUNTED) and keys[:8] == ["cold", "ran", "here", "cold", "ran", "here", "after",
+                                                              "ran"], p.stdout  # fmt: skip
+    assert [v for k, v in said if k == "cold"] == ["True", "False"], p.stdout
+    assert [v for k, v in said if k == "ran"] == ["True", "False", "False"], p.stdout  # warm: nothing started
+    got = dict(said[6:7])
+    here = set(said[2][1].split())
+    assert said[5][1] == "", f"the flight's estimate compiled after the warm-up: {said[5][1]}"
+    assert {"tepinn_flight.model.fusion._run", "tepinn_flight.model.fusion._step", "tepinn_flight.model.fusion._step_live",
+            "tepinn_flight.model.window_features._features", "tepinn_flight.model.gnss_aid_kernels.window_sums",
+            "tepinn_flight.model.gyro_selfcal.attitude_at"} <= here, said[2][1]  # (this process's share)
+    # the helper's share was compiled there, not here
+    helper_only = {"tepinn_flight.model.anchor_steps.run_segment", "tepinn_flight.model.anchor_steps.update_one",
+                   "tepinn_flight.model.anchor_steps.correct", "tepinn_flight.model.vqf_kernel.update"}
+    assert not here & helper_only, said[2][1]
+    assert got["after"] == "", f"compiled after the warm-up: {got['after']}"
+    # the notice: said once by the cold estimate (the first stage of stderr), not by the warm one
+    cold_err, warm_err = p.stderr.split("@@ notice\n")
+    assert [ln for ln in cold_err.splitlines() if COMPILE_NOTICE in ln] == [
+        f"tepinn-flight estimate: note: {COMPILE_NOTICE}"], p.stderr  # fmt: skip
+    assert COMPILE_NOTICE not in warm_err, p.stderr
+    # one signature per loop
+    counts = {name: n for k, v in said if k == "sig" for name, n in [v.split()]}
+    assert counts == {k: "1" for k in COUNTED}, p.stdout
+    # the warm cache less the anchored filter's steps: only those compile (seconds, not the whole set) — said once
+    # without -q, and not at all with it (and compiled all the same: cached again)
+    args = ["estimate", str(paths[0]), "-o", str(tmp_path / "e.parquet")]
+    for name, extra in (("part", []), ("quiet", ["-q"])):
+        part = tmp_path / name
+        shutil.copytree(cache, part)
+        gone = sorted(f.name for f in part.rglob("anchor_steps.*"))
+        assert gone, sorted(f.name for f in part.rglob("*"))
+        for f in part.rglob("anchor_steps.*"):
+            f.unlink()
+        q = subprocess.run([sys.executable, "-m", "tepinn_flight", *args, *extra], capture_output=True, text=True,
+                           env=_env(part), cwd=REPO, timeout=600)  # fmt: skip
+        assert q.returncode == 0, q.stderr
+        if extra:
+            assert q.stderr == "", q.stderr
+        else:
+            assert [ln for ln in q.stderr.splitlines() if COMPILE_NOTICE in ln] == [
+                f"tepinn-flight estimate: note: {COMPILE_NOTICE}"], q.stderr  # fmt: skip
+        assert sorted(f.name for f in part.rglob("anchor_steps.*")) == gone
