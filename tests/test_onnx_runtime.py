@@ -245,9 +245,9 @@ def _index_reachable(tmp: Path) -> str | None:
 
 
 @pytest.mark.slow
-def test_fresh_venv_runtime_extra_without_torch(tmp_path, exported):
+def test_fresh_venv_runtime_extra_without_torch(tmp_path, exported, monkeypatch):
     """`pip install ".[runtime]"` into a plain venv: no torch; `estimate --runtime onnx` works there and gives the torch
-    path's estimates, and so does the bridge end to end (replay → the venv's bridge on the .onnx → listener: every
+    path's estimates, the installed live modules import, and the bridge run by that venv's Python works end to end (replay → the venv's bridge on the .onnx → listener: every
     autopilot frame forwarded, estimates on the 50 Hz grid, equal to the torch StreamingEstimator's on the same
     samples). Where pip cannot reach the package index it is skipped; the live estimator without torch is still tested
     in-process (test_estimate_and_live_worker_run_without_torch)."""
@@ -272,7 +272,10 @@ def test_fresh_venv_runtime_extra_without_torch(tmp_path, exported):
 
     rec = simulate_record("F450", 5.0, rate_hz=200.0, seed=2)
     write_record(rec, tmp_path / "r.parquet")
+    # numba's compilation off in the venv (NUMBA_DISABLE_JIT, its debugging switch: the loops run as Python): the
+    # compile of a first run is ~60 s of CI's time, and is tested on its own (tests/test_first_run_compile.py)
     exe = venv / "bin" / "tepinn-flight"
+    monkeypatch.setenv("NUMBA_DISABLE_JIT", "1")  # for the venv's commands
     p = subprocess.run([str(exe), "estimate", "--runtime", "onnx", "--model", str(exported), str(tmp_path / "r.parquet"),
                         "-o", str(tmp_path / "e.parquet")], capture_output=True, text=True, timeout=300, cwd=tmp_path)  # fmt: skip
     assert p.returncode == 0, p.stderr
@@ -287,13 +290,21 @@ def test_fresh_venv_runtime_extra_without_torch(tmp_path, exported):
     ref = estimate_record(model, rec, settings)
     got = pd.read_parquet(tmp_path / "e.parquet")
     np.testing.assert_allclose(got.to_numpy(), ref.to_numpy(), rtol=0, atol=1e-5, equal_nan=True)
-    # the bridge, run by the venv without torch (its worker process on onnxruntime)
+    # the bridge, run by the venv's Python without torch (its worker process on onnxruntime), compiled: a live
+    # estimator running as Python would not keep up with 400 Hz on a loaded machine. So it is this checkout's bridge
+    # (PYTHONPATH), whose loops numba's cache holds; the installed copy's live modules are imported here first
+    p = subprocess.run([str(py), "-c", "import importlib, pkgutil, tepinn_flight.live as L; print(L.__file__); "
+                        "[importlib.import_module(m.name) for m in pkgutil.iter_modules(L.__path__, L.__name__ + '.')]"],
+                       capture_output=True, text=True, timeout=300, cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 0 and p.stdout.startswith(str(venv)), p.stdout + p.stderr
     from tests.test_bridge import _check_chain, _offline_estimates, _run_chain, _sim_tlog
 
+    monkeypatch.delenv("NUMBA_DISABLE_JIT")
+    monkeypatch.setenv("PYTHONPATH", str(REPO))
     chain = tmp_path / "chain"
     chain.mkdir()
     _, tlog = _sim_tlog(chain, 6.0, 400.0)
-    lis, summary, _ = _run_chain(chain, exported, tlog, speed=1.0, bridge_cli=[str(exe)])
+    lis, summary, _ = _run_chain(chain, exported, tlog, speed=1.0, bridge_cli=[str(py), "-m", "tepinn_flight"])
     aq, ms = _check_chain(lis, tlog, summary)
     ref = _offline_estimates(default_model_path(), tlog)  # torch
     q_live = np.array([[m.q1, m.q2, m.q3, m.q4] for m in aq])
