@@ -420,8 +420,8 @@ def test_sigterm_of_estimate_with_workers_stops_them_and_leaves_no_partial_file(
         pytest.skip("reads the session's processes from /proc")
     src, out = tmp_path / "in", tmp_path / "out"
     src.mkdir()
-    for seed in range(6):
-        write_record(synthetic_record(seed=seed, duration_s=60.0, rate_hz=100.0), src / f"s{seed}.parquet")
+    for seed in range(4):
+        write_record(synthetic_record(seed=seed, duration_s=30.0, rate_hz=100.0), src / f"s{seed}.parquet")
     cmd = [sys.executable, "-m", "tepinn_flight", "estimate", str(src), "-o", str(out), "--workers", "2", "-q"]
     proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -437,9 +437,9 @@ def test_sigterm_of_estimate_with_workers_stops_them_and_leaves_no_partial_file(
         _kill_session(proc.pid)
     assert not (out.exists() and list(out.glob(".*"))), "a temporary was left"
     done = len(list(out.glob("*.parquet"))) if out.exists() else 0
-    assert done < 6, "it finished before the signal: the test saw nothing"
+    assert done < 4, "it finished before the signal: the test saw nothing"
     r = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0 and len(list(out.glob("*.parquet"))) == 6, r.stderr
+    assert r.returncode == 0 and len(list(out.glob("*.parquet"))) == 4, r.stderr
 
 
 def test_sigterm_in_a_command_removes_its_temporary_and_exits_143(tmp_path, capsys, monkeypatch):
