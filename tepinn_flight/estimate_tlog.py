@@ -71,9 +71,10 @@ def _record_length(data: bytes, off: int) -> int:
 
 
 def _imu_frames(base: Path, imu_name: str, instance: int, sysid: int):
-    """(file offsets, sample times in s, clock, boot epoch) of the autopilot's chosen IMU stream."""
+    """(file offsets, sample times in s, clock, boot epoch, gyro rad/s as the reader converts it) of the autopilot's
+    chosen IMU stream."""
     from .ingest.mavlink_scan import scan_tlog
-    from .ingest.tlog import IMU_MESSAGES, MAV_COMP_ID_AUTOPILOT1, _time_s, boot_epochs
+    from .ingest.tlog import IMU_MESSAGES, MAV_COMP_ID_AUTOPILOT1, _imu_si, _time_s, boot_epochs
 
     if imu_name not in IMU_MESSAGES:
         raise TepinnError(f"the record's IMU message {imu_name!r} is not a MAVLink IMU message")
@@ -83,7 +84,22 @@ def _imu_frames(base: Path, imu_name: str, instance: int, sysid: int):
     m = (fr.sysid == sysid) & (fr.compid == MAV_COMP_ID_AUTOPILOT1) & (inst == instance)
     t_src, clock = _time_s(fr.fields[tfield][m], tfield)
     epoch = boot_epochs(t_src) if clock == "boot" else np.zeros(len(t_src), np.int64)
-    return fr.offset[m], t_src, clock, epoch
+    return fr.offset[m], t_src, clock, epoch, _imu_si(imu_name, fr.fields[m])[0]
+
+
+#: a source tlog's gyro sample and the record's at the same time agree to this (rad/s): the record holds the reader's
+#: conversion of that very sample (float32 fields, stored as float64), so they are equal but for rounding
+SAME_SAMPLE_RAD_S = 1e-5
+
+
+def _same_samples(gyr_rec: np.ndarray, gyr_src: np.ndarray) -> bool:
+    """Whether the matched samples are the record's own: at least half of those with finite values on both sides
+    equal (another flight of the same autopilot matches in boot time, not in its gyro's noise)."""
+    ok = np.all(np.isfinite(gyr_rec), axis=1) & np.all(np.isfinite(gyr_src), axis=1)
+    if not ok.any():
+        return True  # nothing to compare (the times matched)
+    same = np.all(np.abs(gyr_rec[ok] - gyr_src[ok]) <= SAME_SAMPLE_RAD_S, axis=1)
+    return bool(np.mean(same) >= 0.5)
 
 
 def _tlog_clock(rec: FlightRecord) -> tuple[float, float]:
@@ -145,10 +161,10 @@ def write_estimate_tlog(
                 raise TepinnError(f"the record was not ingested from a tlog (source_kind {meta.get('source_kind')!r})")
             imu_name, instance, sysid = meta["imu_message"], int(meta["imu_instance"]), int(meta["autopilot_sysid"])
             offsets = {int(k): float(v) for k, v in (meta.get("epoch_time_offsets_s") or {"0": 0.0}).items()}
-        off, t_src, clock, epoch = _imu_frames(base, imu_name, instance, sysid)
+        off, t_src, clock, epoch, gyr_src = _imu_frames(base, imu_name, instance, sysid)
         known = np.isin(epoch, list(offsets))
         t_rec = t_src[known] + np.array([offsets[int(e)] for e in epoch[known]])
-        off, t_src = off[known], t_src[known]
+        off, t_src, gyr_src = off[known], t_src[known], gyr_src[known]
 
         # estimates due: finite, at about rate_hz of log time (every sample of a log at that rate, jitter and all)
         rows = np.flatnonzero(due_at_rate(t, rate_hz, np.all(np.isfinite(q), axis=1)))
@@ -167,6 +183,9 @@ def write_estimate_tlog(
             match[good] = order[best[good]]
         if len(rows) and np.mean(match >= 0) < 0.5:
             raise TepinnError(f"{base.name} does not hold the record's {imu_name} samples (wrong source log?)")
+        if source is not None and not _same_samples(rec.gyr_rad_s[rows[match >= 0]], gyr_src[match[match >= 0]]):
+            raise TepinnError(f"{base.name} holds {imu_name} samples at the record's times but not the record's gyro "
+                              "readings (another flight of the same autopilot?): pass the tlog it was ingested from")
 
         data = base.read_bytes()
         enc = Encoder(sysid, compid)

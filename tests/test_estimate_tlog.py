@@ -135,6 +135,30 @@ def test_estimate_tlog_bad_options_are_one_line_errors(flight, capsys):
         assert not (flight / "x.parquet").exists() and not (flight / "x.tlog").exists()
 
 
+def test_a_source_log_of_another_flight_is_refused(flight, tmp_path, capsys, monkeypatch):
+    """Another flight of the same autopilot, logged from the same boot time at the same rate, holds IMU samples at
+    the record's times: it was taken as the source and the record's estimate written among that flight's messages.
+    Its gyro readings are not the record's: one line, exit 2, no tlog."""
+    from tepinn_flight import estimate_tlog
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    other = tmp_path / "other.tlog"
+    write_tlog(other, synthetic_record(seed=4, duration_s=10.0, rate_hz=100.0))
+    args = ["estimate", str(flight / "flight.parquet"), "-o", str(tmp_path / "e.parquet"), "-q", "--tlog",
+            str(tmp_path / "e.tlog")]  # fmt: skip
+    code = main([*args, "--source-log", str(other)])
+    err = capsys.readouterr().err
+    assert code == 2 and "not the record's gyro readings" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "e.tlog").exists()
+    # the times alone matched it (the check the samples' values now add)
+    monkeypatch.setattr(estimate_tlog, "_same_samples", lambda a, b: True)
+    assert main([*args, "--source-log", str(other)]) == 0 and (tmp_path / "e.tlog").exists()
+    # the record's own tlog passes, named or found next to the record
+    (tmp_path / "e.tlog").unlink()
+    monkeypatch.undo()
+    assert main([*args, "--source-log", str(flight / "flight.tlog")]) == 0 and (tmp_path / "e.tlog").exists()
+
+
 def test_mavexplorer_graphs_evaluate_on_the_written_tlog(flight):
     """tools/mavexplorer_tepinn.xml: well-formed, and every expression evaluates (pymavlink's own
     evaluator, as MAVExplorer's grapher uses it) once the tlog's messages are seen."""
