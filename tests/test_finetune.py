@@ -214,6 +214,20 @@ def test_the_sigma_fitted_on_some_trials_is_calibrated_on_the_others_of_the_same
     assert in3_1 > in3_g0 + 0.01, (in3_1, in3_g0)
 
 
+def test_a_folder_left_by_a_stopped_fine_tuning_gets_advice_fine_tuning_can_follow(tmp_path, capsys):
+    """A fine-tuning killed while training leaves RUN_DIR/last.pt. Run again into that folder it was refused with "use
+    --resume to continue it", an option fine-tuning refuses: now it says what to do, before any work."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "last.pt").write_bytes(b"a stopped run's checkpoint")
+    code = main(["train", "--init", "default", "--data", str(tmp_path), "-o", str(run), "-q"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert "pick a new folder or remove that one" in err and "use --resume" not in err, err
+    assert main(["train", "--init", "default", "--data", str(tmp_path), "-o", str(run), "--resume", "-q"]) == 2
+    assert "--resume" in capsys.readouterr().err  # (and --resume is still refused as a recipe's option)
+
+
 def test_the_vehicle_a_log_names_is_read_alike_from_every_format():
     """Logs of one vehicle give one answer whatever the reader calls its kind (a DataFlash log says "copter", a
     tlog "quadrotor"); a board named in the log tells two PX4 quads apart; a log that says nothing gives None."""

@@ -265,6 +265,10 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     from .reference_trust import check_reference
     from .train_data import split_by_flight
 
+    out = Path(out_dir)
+    if (out / "last.pt").exists():  # (train() said "use --resume", which fine-tuning does not take; session 56)
+        raise ConfigError(f"{out} already holds a run (last.pt): fine-tuning starts from the start each time (it has "
+                          "no --resume); pick a new folder or remove that one")  # fmt: skip
     init_path = default_model_path() if init == "default" else Path(init)
     model0, est0, ck0 = load_model(init_path)
     if not isinstance(est0, AnchorConfig):
@@ -297,7 +301,6 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
               "fine-tuning fits one vehicle's gyro calibration, accelerometer time constant and σ — give it one "
               "vehicle's logs", file=sys.stderr)  # fmt: skip
     cfg = dataclasses.replace(finetune_config(model0.config, paths, minutes, seed), init=str(init_path))
-    out = Path(out_dir)
     result = train(cfg, out, progress=progress, report_gates=False)  # reported below, after the tuning
     # the network before its filter's settings and σ are tuned: not RUN_DIR/model.pt until they are (a run stopped
     # while tuning had left an untuned model.pt that `estimate --model` took without a word; session 53)
