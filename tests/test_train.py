@@ -187,6 +187,15 @@ def test_strict_config_one_line_error(tmp_path, capsys, toml_extra, overrides, k
     assert not out.exists(), "nothing may be written on a config error"
 
 
+def test_minutes_with_a_recipe_is_refused_not_ignored(tmp_path, capsys):
+    """``--minutes`` (the fine-tuning's time limit) beside ``--config`` was taken and ignored: the recipe ran its own
+    length. One line naming the recipe's setting, nothing written."""
+    out = tmp_path / "run"
+    line = one_line_error(capsys, main(["train", "--config", str(TINY), "-o", str(out), "-q", "--minutes", "2"]))
+    assert "--set optim.max_minutes=2" in line, line
+    assert not out.exists()
+
+
 def test_bad_data_folder_is_a_one_line_error(tmp_path, capsys):
     out = tmp_path / "run"
     line = one_line_error(capsys, main(["train", "--config", str(TINY), "-o", str(out), "-q", "--data", str(tmp_path / "nope")]))

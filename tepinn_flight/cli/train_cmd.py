@@ -35,7 +35,8 @@ def add_arguments(p) -> None:
     p.add_argument("--data", action="extend", nargs="+", default=[], metavar="PATH",
                    help="folder(s) of flight records (added to the recipe's); with --init alone: logs or folders of logs "
                         "in any format ingest reads (one or more after --data, and --data may be repeated)")
-    p.add_argument("--minutes", type=float, default=6.0, help="fine-tuning: training time limit (default 6)")
+    p.add_argument("--minutes", type=float, default=None,
+                   help="fine-tuning: training time limit (default 6); a recipe's is optim.max_minutes (--set)")
     p.add_argument("-o", "--output", required=True, metavar="RUN_DIR", help="run folder (checkpoints, metrics)")
     p.add_argument("--resume", action="store_true", help="continue from RUN_DIR/last.pt")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a recipe value, e.g. optim.epochs=5")
@@ -63,7 +64,7 @@ def run(args) -> int:
             raise ConfigError("give --config TOML (train from a recipe) or --init MODEL (fine-tune on --data)")
         if not args.data:
             raise ConfigError("--init without --config fine-tunes on your logs: give --data LOG_OR_DIR")
-        if not args.minutes > 0:
+        if args.minutes is not None and not args.minutes > 0:
             raise ConfigError(f"--minutes must be > 0, got {args.minutes}")
         ignored = [f for f, given in (("--set", args.set), ("--resume", args.resume), ("--device", args.device != "auto"))
                    if given]  # fmt: skip
@@ -75,7 +76,8 @@ def run(args) -> int:
 
         out = check_output(args.output, folder=True)
         _refuse_init_in_run(args.init, out)
-        s = finetune(args.init, args.data, out, minutes=args.minutes, progress=not args.quiet)
+        length = {} if args.minutes is None else {"minutes": args.minutes}  # (None: the fine-tuning's own default)
+        s = finetune(args.init, args.data, out, progress=not args.quiet, **length)
         # (one file: nothing is held out, and the figures below are on the file it was tuned on: said so, not "validation")
         files = "validation files" if s["val_files"] else "file it was tuned on"
         fit = s["fitted_sigma"]
@@ -109,6 +111,9 @@ def run(args) -> int:
                   f"({s['val_inclination_rmse_deg_before']:.3f}° -> {s['val_inclination_rmse_deg_after']:.3f}°): keep using "
                   f"{args.init}, or add logs of this vehicle (finetune.json: the figures per setting)", file=sys.stderr)  # fmt: skip
         return 0
+    if args.minutes is not None:  # (it was taken and ignored: the recipe's own time limit ran)
+        raise ConfigError(f"--minutes is the fine-tuning's time limit (--init without --config); a recipe's is "
+                          f"optim.max_minutes: --set optim.max_minutes={args.minutes:g}")  # fmt: skip
     cfg = load_train_config(args.config, args.set)
     if args.init:
         import dataclasses
