@@ -1,6 +1,7 @@
 """The one-line notice while numba compiles the package's loops (first run after installing): said once when
 something compiles, not when the loops load from the cache, not for other packages' functions, not in quiet mode
-(for ``estimate``: ``tests/test_first_run_compile.py``, with the first run's other checks). Each case runs in a fresh
+(for ``estimate``: ``tests/test_first_run_compile.py``, with the first run's other checks; for
+``simulate``: ``tests/test_quad_flight_kernel.py``, with its loop's signature count). Each case runs in a fresh
 process with its own ``NUMBA_CACHE_DIR`` (numba reads it at import), so the cache state is known."""
 
 from __future__ import annotations
@@ -9,8 +10,6 @@ import os
 import subprocess
 import sys
 import textwrap
-
-import pytest
 
 from tepinn_flight.jit_notice import COMPILE_NOTICE
 
@@ -57,18 +56,6 @@ def test_notice_once_on_compile_and_not_on_a_cache_load(tmp_path):
     again = _run(_PROBE, tmp_path / "cache")  # the same cache: every signature loads, nothing compiles
     assert again.returncode == 0, again.stderr
     assert again.stdout.splitlines()[1] == "lines 0"
-
-
-@pytest.mark.slow
-def test_simulate_says_it_compiles_once_then_not(tmp_path):
-    """A first flight after installing compiles the simulation's loop (seconds): said once, then not."""
-    args = ["simulate", "--aircraft", "agile_quad", "--duration", "0.5", "-o", str(tmp_path / "f.parquet")]
-    cold = _run(args, tmp_path / "cache", module=True)
-    assert cold.returncode == 0, cold.stderr
-    assert [ln for ln in cold.stderr.splitlines() if COMPILE_NOTICE in ln] == [
-        f"tepinn-flight simulate: note: {COMPILE_NOTICE}"], cold.stderr  # fmt: skip
-    warm = _run(args, tmp_path / "cache", module=True)
-    assert warm.returncode == 0 and COMPILE_NOTICE not in warm.stderr, warm.stderr
 
 
 def test_a_campaign_announces_the_compile_its_workers_do(monkeypatch, tmp_path, capsys):

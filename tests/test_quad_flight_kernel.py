@@ -209,6 +209,12 @@ def test_native_write_is_the_bindings():
 
 _SIGNATURES = """
 import os
+import sys
+from tepinn_flight.cli.main import main
+
+# a first flight after installing compiles the simulation's loop: said once (stderr, before the mark)
+assert main(["simulate", "--aircraft", "agile_quad", "--duration", "0.5", "-o", sys.argv[1]]) == 0
+print("@@ mark", file=sys.stderr)
 from tepinn_flight.sim import preload  # noqa: F401  (what a campaign's workers start from: warm())
 from tepinn_flight.sim.flight import fly
 from tepinn_flight.sim.quad_flight_kernel import fly_quad
@@ -218,7 +224,7 @@ for aircraft, rate in (("F450", 400.0), ("agile_quad", 100.0)):
     fly(aircraft, 3.0, rate, seed=1)
 os.environ["TEPINN_JSBSIM_NATIVE"] = "0"
 fly("F450", 3.0, 400.0, seed=2)
-print(len(fly_quad.signatures), len(maneuver_update.signatures), len(control_update.signatures))
+print("@@", len(fly_quad.signatures), len(maneuver_update.signatures), len(control_update.signatures))
 """
 
 
@@ -226,14 +232,25 @@ print(len(fly_quad.signatures), len(maneuver_update.signatures), len(control_upd
 @needs_layout
 def test_the_loop_and_laws_compile_once(tmp_path):
     """The forkserver's warm-up compiles the loop for the signature flights call it with, and the laws called
-    from Python (the binding's path) share theirs: one compile each (each extra one is seconds per process)."""
+    from Python (the binding's path) share theirs, and so does `simulate`: one compile each (each extra one is seconds
+    per process). The first flight after installing (a fresh cache) says once that it compiles, the next does not
+    (``tepinn_flight/jit_notice.py``; checked here, where the cold compile is paid anyway)."""
+    from tepinn_flight.jit_notice import COMPILE_NOTICE
+
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": repo}
     env.pop("NUMBA_DISABLE_JIT", None)
-    p = subprocess.run([sys.executable, "-c", _SIGNATURES], capture_output=True, text=True, env=env, cwd=repo,
+    flight = str(tmp_path / "f.parquet")
+    p = subprocess.run([sys.executable, "-c", _SIGNATURES, flight], capture_output=True, text=True, env=env, cwd=repo,
                        timeout=600)  # fmt: skip
     assert p.returncode == 0, p.stderr
-    assert p.stdout.split() == ["1", "1", "1"], p.stdout
+    assert [ln.split()[1:] for ln in p.stdout.splitlines() if ln.startswith("@@ ")] == [["1", "1", "1"]], p.stdout
+    cold = p.stderr.split("@@ mark\n")[0]
+    assert [ln for ln in cold.splitlines() if COMPILE_NOTICE in ln] == [
+        f"tepinn-flight simulate: note: {COMPILE_NOTICE}"], p.stderr  # fmt: skip
+    warm = subprocess.run([sys.executable, "-m", "tepinn_flight", "simulate", "--aircraft", "agile_quad", "--duration",
+                           "0.5", "-o", flight], capture_output=True, text=True, env=env, cwd=repo, timeout=600)  # fmt: skip
+    assert warm.returncode == 0 and COMPILE_NOTICE not in warm.stderr, warm.stderr
 
 
 def test_the_loops_context_holds_the_controllers_reads():
