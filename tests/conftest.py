@@ -16,10 +16,10 @@ BROAD = SHARED / "broad"
 @pytest.fixture(scope="session", autouse=True)
 def _loops_compiled_once(tmp_path_factory):
     """numba's cache for this checkout filled before the first test (a fresh clone's is empty) by the warm-up the
-    commands run (``tepinn_flight/jit_warmup.py``: two processes at once), by one xdist worker at a time: the other
-    waits, then finds the cache warm. Otherwise each worker compiled the same loops as its tests first needed them
-    (a test paid ~40-60 s in CI that takes ~6 s on a warm cache). Tests of the cold cache use their own
-    ``NUMBA_CACHE_DIR``."""
+    commands run (``tepinn_flight/jit_warmup.py``: two processes at once) and the simulation's preload, by one xdist
+    worker at a time: the other waits, then finds the cache warm. Otherwise each worker compiled the same loops as its
+    tests first needed them (a test paid ~40-60 s in CI that takes ~6 s on a warm cache). Tests of the cold cache use
+    their own ``NUMBA_CACHE_DIR``."""
     if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):
         return
     try:
@@ -31,6 +31,7 @@ def _loops_compiled_once(tmp_path_factory):
     with open(tmp_path_factory.getbasetemp().parent / "numba-warm-up.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # (released as the file closes)
         jit_warmup.warm_up(filters=True)
+        import tepinn_flight.sim.preload  # noqa: F401  (the simulation's loops, as a campaign's forkserver loads them)
 
 
 def real_log(name: str) -> Path:
