@@ -113,3 +113,90 @@ def test_info_says_whether_a_logs_reference_is_the_imus_attitude(capsys):
     assert main(["info", str(good), "--json"]) == 0
     chk = json.loads(capsys.readouterr().out)[str(good)]["reference_check"]
     assert chk["trusted"] and chk["turn_share"] < 0.05 and chk["intervals"] > 100 and chk["gravity_deg"] < 2.0
+
+
+def _shifted(q: np.ndarray, n: int) -> np.ndarray:
+    """The reference ``n`` samples late (negative: early), the rows it leaves without one NaN."""
+    out = np.roll(q, n, axis=0)
+    out[slice(0, n) if n > 0 else slice(n, None)] = np.nan
+    return out
+
+
+@pytest.mark.parametrize("lag_s", [0.5, -0.3, 0.12, 0.05])
+def test_a_reference_off_the_imus_time_is_read_back_and_refused_past_a_tenth_of_a_second(lag_s):
+    """The turns' own reference moved later or earlier (a logger's clock, a stamp taken on receipt): the shift at
+    which its body rate best matches the gyro's is read back to a few milliseconds; past 0.1 s it is not trusted
+    (learned from, it would teach the network to lag)."""
+    rec, q = turns_with_rests(seed=1)  # 100 Hz
+    chk = check_reference(_with(rec, ref=_shifted(q, int(round(lag_s / 0.01)))))
+    assert chk.lag_s == pytest.approx(lag_s, abs=0.005)
+    assert chk.trusted == (abs(lag_s) <= 0.1)
+    if not chk.trusted:
+        assert "off the IMU's time" in chk.describe() and ("behind" if lag_s > 0 else "ahead of") in chk.describe()
+    assert chk.frame_deg < 1.0  # a late reference is still the IMU's frame
+
+
+@pytest.mark.parametrize("deg", [90.0, 180.0, 35.0])
+def test_a_board_turned_about_the_vertical_is_read_back_as_another_frame(deg):
+    """The reference of a board mounted turned about its z axis (q ⊗ R_z): the rotation that carries the reference's
+    body rates onto the gyro's is R_z itself — its angle read back to a degree — and past 20° it is not trusted."""
+    rec, q = turns_with_rests(seed=3)
+    chk = check_reference(_with(rec, ref=quat_mul(q, quat_from_rotvec(np.radians([0.0, 0.0, deg])))))
+    assert chk.frame_deg == pytest.approx(deg, abs=1.0) and abs(chk.lag_s) < 0.005
+    assert not chk.trusted and "another mounting" in chk.describe()
+
+
+def test_the_frame_is_the_least_squares_rotation_scipy_finds():
+    """Independent reference: scipy's ``Rotation.align_vectors`` on the same rate pairs gives the same rotation
+    angle as the check's own SVD, for a board turned about a skew axis."""
+    from scipy.spatial.transform import Rotation
+
+    from tepinn_flight.model.reference_trust import _centred, rates_on_grid
+
+    rec, q = turns_with_rests(seed=6)
+    off = np.radians([20.0, -30.0, 40.0])
+    turned = _with(rec, ref=quat_mul(q, quat_from_rotvec(off)))
+    segs, _ = rates_on_grid(turned, 0.02)
+    g, r = (np.concatenate([_centred(s[k]) for s in segs]) for k in (0, 1))
+    m = np.isfinite(g).all(axis=1) & np.isfinite(r).all(axis=1)
+    rot, _ = Rotation.align_vectors(g[m], r[m])
+    chk = check_reference(turned)
+    assert chk.frame_deg == pytest.approx(np.degrees(rot.magnitude()), abs=0.05)
+    assert chk.frame_deg == pytest.approx(np.degrees(np.linalg.norm(off)), abs=1.0)
+
+
+def test_turns_about_one_axis_or_no_motion_leave_timing_and_frame_unjudged():
+    """Turns about z alone leave a rotation about z unknown (the frame is not judged; the timing still is), a
+    record at rest has no rates to match (neither), and a telemetry-rate IMU is too coarse to time."""
+    rec, q = turns_with_rests(seed=1)
+    t = rec.t_s
+    yaw = np.radians(60.0) * np.sin(0.7 * t)
+    q_z = quat_from_rotvec(np.outer(yaw, [0.0, 0.0, 1.0]))
+    gyr = np.zeros((len(t), 3))
+    gyr[:, 2] = np.radians(60.0) * 0.7 * np.cos(0.7 * t)
+    chk = check_reference(_with(rec, ref=quat_mul(q_z, quat_from_rotvec(np.radians([0.0, 0.0, 90.0]))), gyr=gyr))
+    assert chk.frame_deg is None and abs(chk.lag_s) < 0.01
+    still = _with(rec, ref=np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1)), gyr=np.zeros((len(t), 3)))
+    assert check_reference(still).lag_s is None and check_reference(still).frame_deg is None
+    from tepinn_flight.ingest import ingest_log
+
+    slow = check_reference(ingest_log(real_log("ardusub_2023-04-18_11-03-34.tlog")))  # its IMU at 2 Hz
+    assert slow.lag_s is None and slow.frame_deg is None
+
+
+def test_a_real_flight_turned_or_late_is_refused_where_the_older_checks_let_it_pass():
+    """erle's ArduCopter flight: as recorded its reference is within 0.03 s and 3° of the gyro; turned 90° about the
+    vertical or 0.5 s late it passed the turn and gravity checks (the flight is too gentle for them: session 53's
+    review) and now fails on the frame and the timing, each read back."""
+    from tepinn_flight.ingest import ingest_log
+
+    rec = ingest_log(real_log("erle_pxf_copter_15-12-2014_16.BIN"))
+    q = rec.q_ref_wxyz
+    ok = check_reference(rec)
+    assert ok.trusted and abs(ok.lag_s) < 0.03 and ok.frame_deg < 3.0
+    turned = check_reference(_with(rec, ref=quat_mul(q, quat_from_rotvec(np.radians([0.0, 0.0, 90.0])))))
+    assert turned.turn_share <= 0.2 and turned.gravity_deg <= 10.0  # what the older checks see: nothing wrong
+    assert not turned.trusted and turned.frame_deg == pytest.approx(90.0, abs=3.0)
+    late = check_reference(_with(rec, ref=_shifted(q, 25)))  # 50 Hz: 0.5 s
+    assert late.turn_share <= 0.2 and late.gravity_deg <= 10.0
+    assert not late.trusted and late.lag_s == pytest.approx(0.5 + ok.lag_s, abs=0.01)

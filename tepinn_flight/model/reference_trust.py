@@ -26,6 +26,22 @@ cannot judge (what the fine-tuning did before them):
   a reference tilted by a fixed offset where the vehicle turns too little for the gyro check to, and a
   drift so steady over most of a log that the gyro check takes it for the gyro's bias.
 
+Two more read the reference's body rate against the gyro's on a grid of ``step_s`` (20 ms, or the IMU's
+period where slower), each passing where it cannot judge (too little motion, or no rate agreement to speak of):
+
+- **timing**: the shift of the reference against the gyro (within ±``max_shift_s``, 1 s) at which their
+  rates correlate best (judged where the IMU's period is at most half of ``max_lag_s``: not on the 2-Hz IMU
+  stream of a telemetry log); a reference more than ``max_lag_s`` (0.1 s) early or late is not the IMU's attitude
+  at the IMU's time (a logger's clock, a stamp taken on receipt, a delayed stream): learned from, it
+  teaches the network to lag. An autopilot's attitude messages are interpolated onto the IMU's times, and
+  its estimator predicts to the IMU's time, so a healthy log shows a few milliseconds;
+- **frame**: the rotation that best carries the reference's body rates onto the gyro's (the least-squares
+  rotation of the two rate sets, at the best shift); more than ``max_frame_deg`` (20°) is a reference of
+  another body frame — a board mounted turned about the vertical, which the gravity check cannot see on a
+  level vehicle, nor the turn check on a gentle one. Judged only where the rates agree once turned
+  (correlation ≥ ``min_corr``, 0.5) and at least two axes turn (the second singular value of their
+  cross-covariance ≥ a tenth of the first: turns about one axis leave a rotation about it unknown).
+
 On the shared files (the 13 logs that ``ingest`` reads, the 17 BROAD trials, the 76 held-out and every
 third training simulated flight) every reference passes but that one log's: its reference turns unlike
 its gyro on 31 % of its seconds; the others on at most 3 % (1-s intervals over 10 °/s, the simulated
@@ -38,7 +54,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..quat import gravity_body, quat_angle, quat_conj, quat_mul, quat_to_rotvec
+from ..quat import gravity_body, quat_angle, quat_conj, quat_mul, quat_to_rotvec, slerp
 from ..record import FlightRecord, segment_slices
 from .accel_scale import quiet_samples
 from .gyro_selfcal import attitude_at
@@ -54,6 +70,12 @@ class ReferenceTrustConfig:
     min_intervals: int = 5
     max_gravity_deg: float = 10.0
     min_quiet_s: float = 2.0
+    step_s: float = 0.02
+    max_shift_s: float = 1.0
+    max_lag_s: float = 0.1
+    max_frame_deg: float = 20.0
+    min_corr: float = 0.5
+    min_rate_s: float = 10.0  # seconds of grid cells with both rates, at least
 
 
 @dataclass(frozen=True)
@@ -65,12 +87,16 @@ class ReferenceCheck:
     gravity_deg: float | None  # median angle to the quiet accelerometer's gravity
     quiet_s: float
     config: ReferenceTrustConfig = ReferenceTrustConfig()
+    lag_s: float | None = None  # the reference's delay behind the gyro (negative: ahead)
+    frame_deg: float | None = None  # the rotation between the reference's body frame and the gyro's
 
     @property
     def trusted(self) -> bool:
         c = self.config
-        return (self.turn_share is None or self.turn_share <= c.max_share) and (
-            self.gravity_deg is None or self.gravity_deg <= c.max_gravity_deg)  # fmt: skip
+        return ((self.turn_share is None or self.turn_share <= c.max_share)
+                and (self.gravity_deg is None or self.gravity_deg <= c.max_gravity_deg)
+                and (self.lag_s is None or abs(self.lag_s) <= c.max_lag_s)
+                and (self.frame_deg is None or self.frame_deg <= c.max_frame_deg))  # fmt: skip
 
     def describe(self) -> str:
         """One line for a user."""
@@ -80,9 +106,20 @@ class ReferenceCheck:
                 f"{self.intervals} {c.interval_s:g}-s intervals")  # fmt: skip
         grav = ("gravity: too little quiet time to check" if self.gravity_deg is None else
                 f"{self.gravity_deg:.1f}° from the accelerometer's gravity (median over {self.quiet_s:.0f} s quiet)")  # fmt: skip
-        verdict = "trusted" if self.trusted else (
-            f"not trusted (over {100 * c.max_share:.0f} % or {c.max_gravity_deg:g}°: an estimator that failed, or another frame)")  # fmt: skip
-        return f"reference attitude: {gyro}; {grav}; {verdict}"
+        timing = ("timing: too little motion to check" if self.lag_s is None else
+                  f"{abs(self.lag_s):.2f} s {'behind' if self.lag_s >= 0 else 'ahead of'} the gyro")  # fmt: skip
+        frame = ("" if self.frame_deg is None else f", its body frame {self.frame_deg:.0f}° from the gyro's")
+        why = []
+        if self.turn_share is not None and self.turn_share > c.max_share:
+            why.append(f"over {100 * c.max_share:.0f} % of intervals: an estimator that failed, or another frame")
+        if self.gravity_deg is not None and self.gravity_deg > c.max_gravity_deg:
+            why.append(f"over {c.max_gravity_deg:g}° from gravity: another frame, or an estimator that failed")
+        if self.lag_s is not None and abs(self.lag_s) > c.max_lag_s:
+            why.append(f"over {c.max_lag_s:g} s off the IMU's time: a clock or stamp fault")
+        if self.frame_deg is not None and self.frame_deg > c.max_frame_deg:
+            why.append(f"over {c.max_frame_deg:g}° between the frames: another mounting")
+        verdict = "trusted" if not why else f"not trusted ({'; '.join(why)})"
+        return f"reference attitude: {gyro}; {grav}; {timing}{frame}; {verdict}"
 
 
 def turn_disagreement_deg_s(rec: FlightRecord, interval_s: float = 1.0) -> np.ndarray:
@@ -139,11 +176,113 @@ def gravity_disagreement_deg(rec: FlightRecord) -> tuple[np.ndarray, float]:
     return np.degrees(np.arccos(cos)), float(m.sum()) * step
 
 
+def rates_on_grid(rec: FlightRecord, step_s: float) -> tuple[list[tuple[np.ndarray, np.ndarray]], float]:
+    """Per segment, the gyro's mean rate and the reference's body rate (its turn over the cell, as a rotation
+    vector, per second) over consecutive cells of a uniform time grid of ``step_s``, or the IMU's period where
+    longer: ((gyro, reference) (n, 3) rad/s each, NaN where a cell lacks a reference at an end, a finite gyro or
+    holds a saturated sample), the grid's step (s). The gyro's integral is read between samples as its
+    zero-order hold gives it, the reference slerped: so a shift of k cells is k steps of time, whatever the
+    stamps' jitter."""
+    t_all = rec.t_s
+    dts = np.diff(t_all)
+    dts = dts[dts > 0]
+    step = max(step_s, float(np.median(dts)) if len(dts) else step_s)
+    out = []
+    q_ref = rec.q_ref_wxyz
+    for sl in segment_slices(rec.segment):
+        t = t_all[sl]
+        if len(t) < 3 or t[-1] - t[0] < 3 * step:
+            continue
+        grid = t[0] + step * np.arange(int((t[-1] - t[0]) / step) + 1)
+        gyr = rec.gyr_rad_s[sl]
+        dt = np.r_[np.diff(t), 0.0]
+        cum = np.r_[np.zeros((1, 3)), np.cumsum(np.nan_to_num(gyr) * dt[:, None], axis=0)[:-1]]  # ∫ up to t[k]
+        turn_gyr = np.stack([np.interp(grid, t, cum[:, k]) for k in range(3)], axis=1)
+        w_gyr = np.diff(turn_gyr, axis=0) / step
+        q = q_ref[sl]
+        with np.errstate(invalid="ignore"):
+            n = np.linalg.norm(q, axis=1)
+            has = n > 0.5
+        q = np.where(has[:, None], q / np.where(has, n, 1.0)[:, None], [1.0, 0.0, 0.0, 0.0])
+        q_g = slerp(grid, t, q)
+        w_ref = quat_to_rotvec(quat_mul(quat_conj(q_g[:-1]), q_g[1:])) / step
+        i = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 2)  # the samples around each grid time
+        ref_ok = has[i] & has[i + 1]
+        bad = np.r_[0, np.cumsum(~np.isfinite(gyr).all(axis=1) | rec.gyr_clipped[sl])]  # bad samples before k
+        ok = ref_ok[:-1] & ref_ok[1:] & (bad[i[1:] + 1] - bad[i[:-1]] == 0)
+        w_gyr[~ok] = np.nan
+        w_ref[~ok] = np.nan
+        out.append((w_gyr, w_ref))
+    return out, step
+
+
+def _centred(x: np.ndarray) -> np.ndarray:
+    """Less its mean over the finite rows (a gyro's constant bias, a reference's steady turn)."""
+    ok = np.isfinite(x).all(axis=1)
+    return x - (x[ok].mean(axis=0) if ok.any() else 0.0)
+
+
+def rate_alignment(rec: FlightRecord, cfg: ReferenceTrustConfig | None = None) -> tuple[float | None, float | None, float]:
+    """(the reference's delay behind the gyro (s; None: not judged), the angle between the two body frames (°;
+    None: not judged), the best correlation of the two rates) — the timing and frame checks of the module
+    docstring. Positive delay: the reference shows at ``t + lag`` the turn the gyro shows at ``t``."""
+    cfg = cfg or ReferenceTrustConfig()
+    segs, step = rates_on_grid(rec, cfg.step_s)
+    segs = [(_centred(g), _centred(r)) for g, r in segs]
+    n_cells = sum(int((np.isfinite(g).all(axis=1) & np.isfinite(r).all(axis=1)).sum()) for g, r in segs)
+    if n_cells * step < cfg.min_rate_s or step > cfg.max_lag_s / 2.0:  # a telemetry-rate IMU: too coarse to time
+        return None, None, float("nan")
+    max_k = int(round(cfg.max_shift_s / step))
+
+    def turned(k: int) -> tuple[float, float, np.ndarray]:
+        """Gyro at i against the reference at i + k over every segment's finite pairs: (their correlation once the
+        reference's rates are turned by the least-squares rotation onto the gyro's, that rotation's angle (°), the
+        singular values of the cross-covariance Σ r gᵀ)."""
+        h, aa, bb, n = np.zeros((3, 3)), 0.0, 0.0, 0
+        for g, r in segs:
+            if abs(k) >= len(g):
+                continue
+            a, b = (g[: len(g) - k], r[k:]) if k >= 0 else (g[-k:], r[: len(r) + k])
+            m = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1)
+            a, b = a[m], b[m]
+            h += b.T @ a
+            aa += float(np.sum(a * a))
+            bb += float(np.sum(b * b))
+            n += len(a)
+        if n * step < cfg.min_rate_s or aa <= 0.0 or bb <= 0.0:
+            return float("nan"), float("nan"), np.zeros(3)
+        u, sv, vt = np.linalg.svd(h)  # H = U S Vᵀ: R = V diag(1, 1, d) Uᵀ carries r onto g, Σ g·(R r) = tr(R H)
+        d = 1.0 if np.linalg.det(vt.T @ u.T) >= 0.0 else -1.0
+        rot = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+        ang = float(np.degrees(np.arccos(np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0))))
+        return float((sv[0] + sv[1] + d * sv[2]) / np.sqrt(aa * bb)), ang, sv
+
+    # the shift is judged on the rates turned into the gyro's frame: a reference of another mounting still has
+    # a timing, and its untouched rates may not correlate at all (turned 90°)
+    found = [(turned(k)[0], k) for k in range(-max_k, max_k + 1)]
+    found = [(c, k) for c, k in found if np.isfinite(c)]
+    if not found:
+        return None, None, float("nan")
+    best_c, best_k = max(found, key=lambda ck: (ck[0], -abs(ck[1])))
+    if best_c < cfg.min_corr:
+        return None, None, best_c
+    _, ang, sv = turned(best_k)
+    shift = float(best_k)
+    by_k = dict((k, c) for c, k in found)
+    if best_k - 1 in by_k and best_k + 1 in by_k:  # the peak between cells: a parabola through its three
+        lo, hi = by_k[best_k - 1], by_k[best_k + 1]
+        curv = lo - 2.0 * best_c + hi
+        if curv < 0.0:
+            shift += float(np.clip(0.5 * (lo - hi) / curv, -0.5, 0.5))
+    return shift * step, (ang if sv[1] >= 0.1 * sv[0] else None), best_c
+
+
 def check_reference(rec: FlightRecord, cfg: ReferenceTrustConfig | None = None) -> ReferenceCheck:
-    """Both checks of the module docstring on one record."""
+    """The checks of the module docstring on one record."""
     cfg = cfg or ReferenceTrustConfig()
     turn = turn_disagreement_deg_s(rec, cfg.interval_s)
     share = float(np.mean(turn > cfg.max_turn_deg_s)) if len(turn) >= cfg.min_intervals else None
     grav, quiet_s = gravity_disagreement_deg(rec)
     gdeg = float(np.median(grav)) if quiet_s >= cfg.min_quiet_s else None
-    return ReferenceCheck(share, len(turn), gdeg, quiet_s, cfg)
+    lag, frame, _ = rate_alignment(rec, cfg)
+    return ReferenceCheck(share, len(turn), gdeg, quiet_s, cfg, lag, frame)
