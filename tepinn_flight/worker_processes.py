@@ -6,13 +6,18 @@ die at once: no ``finally``, no temporaries removed, a pool's workers left orpha
 :func:`terminate_on_sigterm` turns it into :class:`Terminated` (a ``KeyboardInterrupt``) in the main thread, so
 every Ctrl-C path runs. Pool workers are the forkserver's children, not the main process's: :func:`worker_init`
 makes them ignore Ctrl-C (the main process stops them) and exit within 0.5 s of the main process, even one killed
-with ``kill -9``.
+with ``kill -9`` (or left a zombie by a parent that has not reaped it), and write nothing more to the terminal once it
+is gone: a worker that finished a job in that half second failed to hand its result back and printed the pool's
+``BrokenPipeError`` tracebacks after the user's prompt. :func:`quiet_tracker_after_kill` keeps multiprocessing's
+resource tracker, which outlives a killed main process by a moment, from warning about the pool's semaphores it
+then cleans up.
 """
 
 from __future__ import annotations
 
 import os
 import signal
+import sys
 import threading
 import time
 from contextlib import contextmanager
@@ -62,19 +67,57 @@ def signals_held():
 
 def worker_init(main_pid: int | None = None) -> None:
     """A pool worker's start: ignore Ctrl-C and SIGTERM's conversion (the main process terminates its workers), and
-    exit when ``main_pid`` is gone (a watchdog thread polls it every 0.5 s)."""
+    exit when ``main_pid`` is gone (a watchdog thread polls it every 0.5 s), writing nothing to stderr from then
+    on."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     if main_pid is not None:
+        sys.stderr = _SilentWithout(sys.stderr, main_pid)
         threading.Thread(target=_exit_without, args=(main_pid,), daemon=True, name="worker-watchdog").start()
+
+
+def quiet_tracker_after_kill() -> None:
+    """Processes this one starts from now on (the forkserver, spawned workers, the resource tracker) ignore the
+    resource tracker's warning about semaphores left by a process that was killed: a pool's, cleaned up by it."""
+    opt = "ignore:resource_tracker:UserWarning"
+    if opt not in sys.warnoptions:
+        sys.warnoptions.append(opt)  # passed on as ``-W`` (multiprocessing.util._args_from_interpreter_flags)
+
+
+def main_gone(pid: int) -> bool:
+    """Whether process ``pid`` has ended: no such process, or a zombie not yet reaped by its parent (``kill(pid,
+    0)`` still succeeds on one)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:  # alive, someone else's (cannot happen for our parent)
+        return False
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            state = fh.read().rsplit(b")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return False  # not Linux, or gone between the two looks (the next poll sees it)
+    return state in (b"Z", b"X")
+
+
+class _SilentWithout:
+    """A worker's stderr that writes nothing once the main process has ended (its other attributes: the stream's)."""
+
+    def __init__(self, stream, main_pid: int):
+        self._stream, self._main_pid = stream, main_pid
+
+    def write(self, text):
+        if main_gone(self._main_pid):
+            return len(text)
+        return self._stream.write(text)
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
 
 
 def _exit_without(pid: int) -> None:
     while True:
         time.sleep(0.5)
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
+        if main_gone(pid):
             os._exit(1)
-        except PermissionError:  # alive, someone else's (cannot happen for our parent; keep waiting)
-            pass

@@ -360,7 +360,9 @@ def _in_workers(jobs, opts, ckpt_path, runtime, fusion, workers):
 
     methods = multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
-    from ..worker_processes import signals_held
+    from ..worker_processes import quiet_tracker_after_kill, signals_held
+
+    quiet_tracker_after_kill()
 
     pool = None
     try:

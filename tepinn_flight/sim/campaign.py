@@ -34,7 +34,7 @@ import numpy as np
 from ..config import check, from_dict, load_toml, to_dict
 from ..errors import ConfigError, TepinnError
 from ..record import atomic_write
-from ..worker_processes import signals_held, terminate_on_sigterm, worker_init
+from ..worker_processes import quiet_tracker_after_kill, signals_held, terminate_on_sigterm, worker_init
 
 MANIFEST = "campaign.json"
 #: A worker process is replaced after this many flights (bounds any memory growth in JSBSim).
@@ -363,6 +363,7 @@ def run_campaign(
             with terminate_on_sigterm():
                 pool = None
                 try:
+                    quiet_tracker_after_kill()
                     with signals_held():  # (a signal while the pool starts: raised once it has, and it is stopped)
                         pool = _mp_context().Pool(n_workers, initializer=worker_init, initargs=(os.getpid(),),
                                                   maxtasksperchild=MAX_TASKS_PER_WORKER)  # fmt: skip
