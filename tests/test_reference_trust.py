@@ -200,3 +200,27 @@ def test_a_real_flight_turned_or_late_is_refused_where_the_older_checks_let_it_p
     late = check_reference(_with(rec, ref=_shifted(q, 25)))  # 50 Hz: 0.5 s
     assert late.turn_share <= 0.2 and late.gravity_deg <= 10.0
     assert not late.trusted and late.lag_s == pytest.approx(0.5 + ok.lag_s, abs=0.01)
+
+
+def test_a_fixed_wings_gentle_turns_are_not_taken_for_gravity():
+    """A simulated c172x (true attitude as reference, GNSS receiver): quiet by the rate and the accelerometer's
+    norm, its gentle coordinated turns (0.05–0.1 rad/s at ~50 m/s) lean the accelerometer by their bank, and the
+    gravity check refused the truth itself (11.8° over 2 s) — a third of twelve such flights. The averaged rate times
+    the GNSS speed now keeps those out: the truth passes; without a GNSS speed a fixed wing's quiet is not judged;
+    and a reference truly turned 30° is still refused on a flight with straight, steady stretches."""
+    from dataclasses import replace
+
+    from tepinn_flight.record import GNSS_VEL_COLS
+    from tepinn_flight.sim.simulate import simulate_record
+
+    rec = simulate_record("c172x", 120.0, 400.0, 2)
+    before = check_reference(rec, replace(ReferenceTrustConfig(), max_turn_acc_m_s2=float("inf")))
+    assert not before.trusted and before.gravity_deg > 10.0
+    assert check_reference(rec).trusted
+    no_gnss = FlightRecord(rec.data.drop(columns=GNSS_VEL_COLS), dict(rec.meta))
+    assert gravity_disagreement_deg(no_gnss)[1] == 0.0  # a fixed wing without a speed: no quiet taken
+    straight = simulate_record("c172x", 120.0, 400.0, 7)
+    ok = check_reference(straight)
+    assert ok.trusted and ok.quiet_s >= 10.0 and ok.gravity_deg < 6.0
+    off = check_reference(_with(straight, ref=quat_mul(straight.q_ref_wxyz, quat_from_rotvec(np.radians([30.0, 0, 0])))))
+    assert not off.trusted and off.gravity_deg > 20.0

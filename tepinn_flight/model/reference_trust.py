@@ -24,7 +24,10 @@ cannot judge (what the fine-tuning did before them):
   ``max_gravity_deg`` (10°: five times what a 0.1-g bias or a coordinated 14° bank gives, far from a
   wrong frame's tens of degrees), over at least ``min_quiet_s`` (2 s) of quiet samples. This one sees
   a reference tilted by a fixed offset where the vehicle turns too little for the gyro check to, and a
-  drift so steady over most of a log that the gyro check takes it for the gyro's bias.
+  drift so steady over most of a log that the gyro check takes it for the gyro's bias. Since session 57 a
+  quiet sample must also turn gently for its speed where a GNSS speed is known (the averaged rate times it
+  under ``max_turn_acc_m_s2``, 0.05 g), and a fixed wing without one gives none: a simulated c172x's gentle
+  coordinated turns had leaned its "gravity" 11–12° off its true attitude (4 of 12 flights refused).
 
 Two more read the reference's body rate against the gyro's on a grid of ``step_s`` (20 ms, or the IMU's
 period where slower), each passing where it cannot judge (too little motion, or no rate agreement to speak of):
@@ -56,7 +59,8 @@ import numpy as np
 
 from ..quat import gravity_body, quat_angle, quat_conj, quat_mul, quat_to_rotvec, slerp
 from ..record import FlightRecord, segment_slices
-from .accel_scale import quiet_samples
+from ..vehicle_class import FIXED_WING, vehicle_class
+from .accel_scale import AccelScaleConfig, quiet_samples
 from .gyro_selfcal import attitude_at
 
 
@@ -70,6 +74,7 @@ class ReferenceTrustConfig:
     min_intervals: int = 5
     max_gravity_deg: float = 10.0
     min_quiet_s: float = 2.0
+    max_turn_acc_m_s2: float = 0.49  # 0.05 g: the lean of a 2.9° bank (inf: quiet alone, as before session 57)
     step_s: float = 0.02
     max_shift_s: float = 1.0
     max_lag_s: float = 0.1
@@ -160,13 +165,19 @@ def turn_disagreement_deg_s(rec: FlightRecord, interval_s: float = 1.0) -> np.nd
     return np.concatenate(out) if out else np.zeros(0)
 
 
-def gravity_disagreement_deg(rec: FlightRecord) -> tuple[np.ndarray, float]:
+def gravity_disagreement_deg(rec: FlightRecord, cfg: ReferenceTrustConfig | None = None) -> tuple[np.ndarray, float]:
     """(the angle (°) between the reference's down direction and the averaged accelerometer's at each quiet
-    sample with a finite reference, the quiet seconds those make)."""
+    sample with a finite reference, the quiet seconds those make). Quiet is not enough in flight: a gentle
+    coordinated turn (0.05–0.1 rad/s, under the quiet test's rate) at an aircraft's 50 m/s pulls 2.5–5 m/s²
+    sideways, and the accelerometer's "gravity" leans by the bank. So where the GNSS speed is known a quiet sample
+    also needs its turn's centripetal acceleration, the averaged rate times that speed, under
+    ``max_turn_acc_m_s2``; on a fixed wing without a GNSS speed none is taken (its speed is unknown)."""
+    cfg = cfg or ReferenceTrustConfig()
     found = quiet_samples(rec.t_s, rec.gyr_rad_s, rec.acc_m_s2)
     if found is None:
         return np.zeros(0), 0.0
     quiet, acc_lp, step = found
+    quiet = quiet & _slow_turns(rec, step, cfg.max_turn_acc_m_s2)
     q = rec.q_ref_wxyz
     with np.errstate(invalid="ignore"):
         m = quiet & (np.linalg.norm(q, axis=1) > 0.5)  # a finite reference (a zero quaternion is none)
@@ -174,6 +185,23 @@ def gravity_disagreement_deg(rec: FlightRecord) -> tuple[np.ndarray, float]:
     down_acc = -acc_lp[m] / np.linalg.norm(acc_lp[m], axis=1, keepdims=True)  # specific force at rest points up
     cos = np.clip(np.einsum("ij,ij->i", down_ref, down_acc), -1.0, 1.0)
     return np.degrees(np.arccos(cos)), float(m.sum()) * step
+
+
+def _slow_turns(rec: FlightRecord, step: float, max_turn_acc_m_s2: float) -> np.ndarray:
+    """The samples whose turn pulls less than ``max_turn_acc_m_s2`` sideways: the rate averaged over the quiet test's
+    window times the GNSS horizontal speed; where no speed is known, every sample but a fixed wing's."""
+    n = len(rec.t_s)
+    if not np.isfinite(max_turn_acc_m_s2):
+        return np.ones(n, bool)
+    vel = rec.gnss_vel_ne_m_s
+    speed = np.full(n, np.nan) if vel is None else np.hypot(vel[:, 0], vel[:, 1])
+    k = max(1, int(round(AccelScaleConfig().avg_s / step)))
+    gyr = np.nan_to_num(rec.gyr_rad_s)
+    box = np.ones(k) / k
+    rate = np.linalg.norm(np.stack([np.convolve(gyr[:, i], box, mode="same") for i in range(3)], axis=1), axis=1)
+    unknown_ok = vehicle_class(rec.meta.get("vehicle_type")) != FIXED_WING
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(speed), rate * speed <= max_turn_acc_m_s2, unknown_ok)
 
 
 def rates_on_grid(rec: FlightRecord, step_s: float) -> tuple[list[tuple[np.ndarray, np.ndarray]], float]:
@@ -282,7 +310,7 @@ def check_reference(rec: FlightRecord, cfg: ReferenceTrustConfig | None = None) 
     cfg = cfg or ReferenceTrustConfig()
     turn = turn_disagreement_deg_s(rec, cfg.interval_s)
     share = float(np.mean(turn > cfg.max_turn_deg_s)) if len(turn) >= cfg.min_intervals else None
-    grav, quiet_s = gravity_disagreement_deg(rec)
+    grav, quiet_s = gravity_disagreement_deg(rec, cfg)
     gdeg = float(np.median(grav)) if quiet_s >= cfg.min_quiet_s else None
     lag, frame, _ = rate_alignment(rec, cfg)
     return ReferenceCheck(share, len(turn), gdeg, quiet_s, cfg, lag, frame)
