@@ -293,7 +293,8 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
         recs.append(r)
     if not recs:
         raise ConfigError("none of the --data logs can be learned from (each needs an IMU of >= 20 Hz and a reference "
-                          "attitude that turns as its gyro does and agrees with its accelerometer's gravity)")  # fmt: skip
+                          "attitude that turns as its gyro does, agrees with its accelerometer's gravity and is on the IMU's time "
+                          "and in its frame: the notes above say which failed where)")  # fmt: skip
     paths, recs = training_order(paths, recs)
     vehicles = sorted({v for v in map(vehicle_of, recs) if v})
     if len(vehicles) > 1:  # a vehicle's gyro scale, time constant and σ, fitted on several: right for none of them
