@@ -111,7 +111,7 @@ class ReferenceCheck:
                 f"{self.intervals} {c.interval_s:g}-s intervals")  # fmt: skip
         grav = ("gravity: too little quiet time to check" if self.gravity_deg is None else
                 f"{self.gravity_deg:.1f}° from the accelerometer's gravity (median over {self.quiet_s:.0f} s quiet)")  # fmt: skip
-        timing = ("timing: too little motion to check" if self.lag_s is None else
+        timing = (f"timing: not judged (too little motion, or an IMU under {2.0 / c.max_lag_s:g} Hz)" if self.lag_s is None else
                   f"{abs(self.lag_s):.2f} s {'behind' if self.lag_s >= 0 else 'ahead of'} the gyro")  # fmt: skip
         frame = ("" if self.frame_deg is None else f", its body frame {self.frame_deg:.0f}° from the gyro's")
         why = []
