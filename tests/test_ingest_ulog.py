@@ -456,3 +456,19 @@ def test_sensor_combined_with_no_valid_accelerometer_sample_says_so(tmp_path):
                (0.0, 0.0, -9.8), 4000, 0)  # fmt: skip
     with pytest.raises(NoImuData, match="every accelerometer sample is marked invalid"):
         load_record(w.write(tmp_path / "no_acc.ulg"))
+
+
+def test_a_corrupt_float_in_a_ulog_field_is_cast_without_numpys_warning():
+    """A damaged ULog can hold a signalling NaN in a float32 field: numpy's cast to float64 printed "RuntimeWarning:
+    invalid value encountered in cast" with a source line into `estimate`'s output (a fuzzed copy of a shared PX4
+    log, session 57). The row becomes NaN, which the readers judge as a non-finite sample."""
+    import warnings
+
+    from tepinn_flight.ingest.ulog import vec
+
+    snan = np.array([0x7F800001], np.uint32).view(np.float32)
+    data = {f"gyro_rad[{i}]": np.concatenate([np.float32([0.5]), snan]) for i in range(3)}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = vec(data, "gyro_rad")
+    assert out.dtype == np.float64 and (out[0] == 0.5).all() and np.isnan(out[1]).all()

@@ -160,8 +160,10 @@ def rate_hz(t_s: np.ndarray) -> float | None:
 
 
 def vec(data: dict[str, np.ndarray], prefix: str, n: int = 3) -> np.ndarray:
-    """Stack pyulog's flattened array fields ``prefix[0]``..``prefix[n-1]`` into ``(N, n)`` float64."""
-    return np.column_stack([np.asarray(data[f"{prefix}[{i}]"], np.float64) for i in range(n)])
+    """Stack pyulog's flattened array fields ``prefix[0]``..``prefix[n-1]`` into ``(N, n)`` float64. (A corrupt
+    value — a signalling NaN in a damaged file — is cast without numpy's warning: the readers judge non-finite rows.)"""
+    with np.errstate(invalid="ignore", over="ignore"):
+        return np.column_stack([np.asarray(data[f"{prefix}[{i}]"], np.float64) for i in range(n)])
 
 
 def sample_times_us(data: dict[str, np.ndarray]) -> tuple[np.ndarray, bool]:
