@@ -64,6 +64,23 @@ SOURCE_KINDS = ("tlog", "dataflash", "ulog", "broad", "jsbsim", "synthetic")
 #: the kinds whose reference is a simulator's truth; the others are real recordings
 SIMULATED_KINDS = ("jsbsim", "synthetic")
 
+# Physical limits, beyond the range of any sensor a drone or aircraft carries (the one home of these limits): the
+# readers drop a sample outside them as a corrupt row (``ingest/assemble.drop_implausible``), and a record holding
+# one is refused (:meth:`FlightRecord.validate`: a damaged file, or one written in other units).
+#: |gyro| per axis (rad/s): ±4000 °/s, the widest MEMS range, is 70 rad/s
+MAX_GYRO_RAD_S = 100.0
+#: |specific force| per axis (m/s²): about 200 g (high-g accelerometers reach ±200 g)
+MAX_ACC_M_S2 = 2000.0
+#: |magnetic field| per axis (µT): the Earth's is 25–65 µT; a motor or magnet next to the sensor
+#: saturates magnetometers at a few thousand µT
+MAX_MAG_UT = 5000.0
+#: |GNSS velocity| per axis (m/s): beyond any aircraft these tools serve (a corrupt row)
+MAX_GNSS_SPEED_M_S = 600.0
+#: |sample time| (s): boot times and UNIX times (1.7e9 s) alike are below this
+MAX_ABS_TIME_S = 1e10
+#: |quaternion component| of a reference: a unit quaternion's are ≤ 1 (a zero one means "none")
+MAX_QUAT_COMPONENT = 1.5
+
 #: Below this IMU rate windowed estimation is not meaningful; records are still written.
 MIN_ESTIMATION_RATE_HZ = 20.0
 
@@ -170,6 +187,22 @@ class FlightRecord:
                 raise RecordFormatError("t_s does not strictly increase inside a segment")
         if "gyr_clipped" in self.data and np.any(self.gyr_clipped & ~self.clipped):
             raise RecordFormatError("gyr_clipped marks samples that clipped does not")
+        if np.any(np.abs(t) > MAX_ABS_TIME_S):
+            raise RecordFormatError(f"t_s holds times beyond {MAX_ABS_TIME_S:g} s (a damaged file?)")
+        for cols, limit, unit, hint in ((GYR_COLS, MAX_GYRO_RAD_S, "rad/s", " (degrees per second written as rad/s?)"),
+                                        (ACC_COLS, MAX_ACC_M_S2, "m/s²", " (milli-g written as m/s²?)"),
+                                        (MAG_COLS, MAX_MAG_UT, "µT", " (nanotesla or milligauss written as µT?)"),
+                                        (GNSS_VEL_COLS, MAX_GNSS_SPEED_M_S, "m/s", ""),
+                                        (QREF_COLS, MAX_QUAT_COMPONENT, "", " (not a quaternion)")):  # fmt: skip
+            if cols[0] not in self.data:
+                continue
+            v = self.data[cols].to_numpy(np.float64)
+            with np.errstate(invalid="ignore"):
+                over = np.abs(v) > limit  # (NaN: a hole, allowed)
+            if over.any():
+                j = int(np.argmax(over.any(axis=0)))
+                raise RecordFormatError(f"{cols[j]} holds {int(over[:, j].sum())} value(s) beyond ±{limit:g} {unit}".rstrip()
+                                        + f", past any sensor: a damaged file{hint}")  # fmt: skip
 
 
 def segment_slices(segment: np.ndarray) -> list[slice]:

@@ -308,3 +308,42 @@ def test_info_reads_the_sensors_noise_per_sample_through_motion():
     rec = sample_record(n=3000)
     st = summarize(rec)
     assert st["acc_noise_m_s2"] == pytest.approx(sample_noise(rec.acc_m_s2, rec.segment, 1.0 / rec.meta["imu_rate_hz"]))
+
+
+def test_a_record_holding_values_past_any_sensor_is_refused_in_one_line(tmp_path, capsys):
+    """A damaged record (a flipped byte made a gyro sample 2e295 rad/s: `info` and `estimate` printed pages of numpy
+    overflow warnings and `evaluate` an internal ZeroDivisionError, session 57's fuzzing) is refused on reading with
+    the column named, as is one written in other units (deg/s as rad/s); NaN holes and zero quaternions (no
+    reference) stay allowed, and values at the limits pass."""
+    from tepinn_flight.cli.main import main
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import MAX_GYRO_RAD_S, FlightRecord
+
+    rec = synthetic_record(seed=1, duration_s=10.0, rate_hz=100.0)
+    holes = rec.data.copy()
+    holes.loc[5, "gyr_y_rad_s"] = np.nan
+    holes.loc[7, ["q_ref_w", "q_ref_x", "q_ref_y", "q_ref_z"]] = 0.0
+    holes.loc[9, "gyr_x_rad_s"] = MAX_GYRO_RAD_S
+    write_record(FlightRecord(holes, dict(rec.meta)), tmp_path / "ok.parquet")
+    assert read_record(tmp_path / "ok.parquet").gyr_rad_s[9, 0] == MAX_GYRO_RAD_S
+
+    damaged = rec.data.copy()
+    damaged.loc[100, "acc_y_m_s2"] = 9.8e307
+    with pytest.raises(RecordFormatError, match=r"acc_y_m_s2 holds 1 value\(s\) beyond ±2000 m/s², past any sensor"):
+        FlightRecord(damaged, dict(rec.meta)).validate()
+    degrees = rec.data.copy()
+    degrees[["gyr_x_rad_s", "gyr_y_rad_s", "gyr_z_rad_s"]] *= 3000.0  # a hand-written record in the wrong unit
+    with pytest.raises(RecordFormatError, match=r"degrees per second written as rad/s"):
+        FlightRecord(degrees, dict(rec.meta)).validate()
+
+    path = tmp_path / "damaged.parquet"  # written around the check, as a damaged file would be
+    import pyarrow as pa
+
+    table = pa.Table.from_pandas(damaged, preserve_index=False)
+    meta = {k.encode(): json.dumps(v).encode() for k, v in {**rec.meta, "format_version": FORMAT_VERSION}.items()}
+    pq.write_table(table.replace_schema_metadata({**(table.schema.metadata or {}), **meta}), path)
+    for verb in (["info", str(path)], ["estimate", str(path), "-o", str(tmp_path / "e.parquet")],
+                 ["evaluate", str(path), "-o", str(tmp_path / "ev"), "--no-peers", "-q"]):  # fmt: skip
+        assert main(verb) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "acc_y_m_s2 holds 1 value(s)" in err[0] and "Warning" not in err[0], err

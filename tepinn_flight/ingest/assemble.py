@@ -10,7 +10,8 @@ import numpy as np
 from .. import __version__, conventions
 from ..errors import NoImuData
 from ..quat import quat_canonical, slerp
-from ..record import FORMAT_VERSION, MIN_ESTIMATION_RATE_HZ, FlightRecord, make_frame
+from ..record import (FORMAT_VERSION, MAX_ABS_TIME_S, MAX_ACC_M_S2, MAX_GNSS_SPEED_M_S, MAX_GYRO_RAD_S,  # noqa: F401
+                      MAX_MAG_UT, MIN_ESTIMATION_RATE_HZ, FlightRecord, make_frame)  # (the limits: tests read them here)
 from ..record_gaps import GAP_PERIODS  # a new segment starts where the IMU step exceeds this many periods
 from .streams import GnssVelStream, ImuStream, MagStream, RawLog, RefStream, nominal_period_s
 
@@ -29,20 +30,10 @@ SLOW_IMU_ADVICE = {
 # --------------------------------------------------------------------------- plausibility
 # Physical limits, beyond the range of any sensor a drone or aircraft carries: a sample outside
 # them is a corrupt row (DataFlash has no checksums; a flipped byte makes 1e27 rad/s), dropped and
-# counted with the reader's corrupt frames. The one place these limits live: every reader's
-# streams pass through :func:`drop_implausible` on their way into a record.
+# counted with the reader's corrupt frames. They live with the record format (``record.py``, whose
+# ``validate`` refuses a record holding such a value); every reader's streams pass through
+# :func:`drop_implausible` on their way into a record.
 
-#: |gyro| per axis (rad/s): ±4000 °/s, the widest MEMS range, is 70 rad/s
-MAX_GYRO_RAD_S = 100.0
-#: |specific force| per axis (m/s²): about 200 g (high-g accelerometers reach ±200 g)
-MAX_ACC_M_S2 = 2000.0
-#: |magnetic field| per axis (µT): the Earth's is 25–65 µT; a motor or magnet next to the sensor
-#: saturates magnetometers at a few thousand µT
-MAX_MAG_UT = 5000.0
-#: |GNSS velocity| per axis (m/s): beyond any aircraft these tools serve (a corrupt row)
-MAX_GNSS_SPEED_M_S = 600.0
-#: |sample time| (s): boot times and UNIX times (1.7e9 s) alike are below this
-MAX_ABS_TIME_S = 1e10
 #: a sample whose time lies this far from both its neighbours' and from the median of the
 #: samples around it (in file order) is a corrupt time stamp, not a gap or a reboot:
 #: max(SPIKE_MIN_S, SPIKE_PERIODS nominal periods)
