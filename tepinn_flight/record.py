@@ -80,10 +80,25 @@ MAX_GNSS_SPEED_M_S = 600.0
 MAX_ABS_TIME_S = 1e10
 #: |quaternion component| of a reference: a unit quaternion's are ≤ 1 (a zero one means "none")
 MAX_QUAT_COMPONENT = 1.5
+#: a reference quaternion whose norm is off 1 by more than this is no attitude: the readers drop it as a corrupt row,
+#: and :attr:`FlightRecord.q_ref_wxyz` gives NaN for it (a zero quaternion, as a broken logger writes "none", too)
+MAX_QUAT_NORM_ERR = 0.1
 
 #: Below this IMU rate windowed estimation is not meaningful; records are still written.
 MIN_ESTIMATION_RATE_HZ = 20.0
 
+
+
+def no_imu_reason(rec: "FlightRecord") -> str | None:
+    """Why a record gives nothing to estimate — no sample, or no finite gyro or accelerometer sample (nothing to
+    bridge a hole with: a constant attitude, not an estimate) — or None where it does. ``estimate`` refuses such a
+    record and ``evaluate`` too (it had scored every estimator on a record without an accelerometer sample)."""
+    if len(rec) == 0:
+        return "the record holds no IMU sample"
+    for what, v in (("gyro", rec.gyr_rad_s), ("accelerometer", rec.acc_m_s2)):
+        if not np.all(np.isfinite(v), 1).any():
+            return f"no finite {what} sample in the record"
+    return None
 
 
 def estimation_ok(meta: dict) -> bool:
@@ -127,7 +142,16 @@ class FlightRecord:
 
     @property
     def q_ref_wxyz(self) -> np.ndarray:
-        return self.data[QREF_COLS].to_numpy(np.float64)
+        """(N, 4) the reference attitude; NaN where there is none — NaN in the file, or a quaternion that is no
+        rotation (its norm off 1 by more than :data:`MAX_QUAT_NORM_ERR`: zeros, a damaged row), which every
+        scorer had taken for an attitude (an all-zero reference scored 180° for every estimator)."""
+        q = self.data[QREF_COLS].to_numpy(np.float64)
+        with np.errstate(invalid="ignore"):
+            none = np.abs(np.sqrt(np.einsum("ij,ij->i", q, q)) - 1.0) > MAX_QUAT_NORM_ERR
+        if none.any():
+            q = q.copy()
+            q[none] = np.nan
+        return q
 
     @property
     def gnss_vel_ne_m_s(self) -> np.ndarray | None:

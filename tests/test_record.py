@@ -347,3 +347,56 @@ def test_a_record_holding_values_past_any_sensor_is_refused_in_one_line(tmp_path
         assert main(verb) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "acc_y_m_s2 holds 1 value(s)" in err[0] and "Warning" not in err[0], err
+
+
+def test_a_reference_quaternion_that_is_no_rotation_is_no_reference(tmp_path, capsys):
+    """Zeros (a broken logger's "none") or a row whose norm is off 1 by more than 0.1 read as NaN from
+    ``q_ref_wxyz`` — every scorer had taken them for attitudes: an all-zero reference scored 180° for all nine
+    estimators. On a record half zeros, `evaluate` scores the other half against the truth."""
+    from tepinn_flight.cli.main import main
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    rec = synthetic_record(seed=3, duration_s=30.0, rate_hz=100.0)
+    d = rec.data.copy()
+    q = d[["q_ref_w", "q_ref_x", "q_ref_y", "q_ref_z"]].to_numpy().copy()
+    q[: len(q) // 2] = 0.0
+    q[-3] *= 1.2  # a damaged row
+    d[["q_ref_w", "q_ref_x", "q_ref_y", "q_ref_z"]] = q
+    half = FlightRecord(d, dict(rec.meta))
+    got = half.q_ref_wxyz
+    assert np.isnan(got[: len(q) // 2]).all() and np.isnan(got[-3]).all()
+    assert np.array_equal(got[len(q) // 2 : -3], q[len(q) // 2 : -3])  # unit rows untouched, to the bit
+    write_record(half, tmp_path / "half.parquet")
+    assert main(["evaluate", str(tmp_path / "half.parquet"), "-o", str(tmp_path / "ev"), "--no-peers", "-q"]) == 0
+    metrics = json.loads((tmp_path / "ev" / "metrics.json").read_text())
+    capsys.readouterr()
+    text = json.dumps(metrics)
+    assert "180.0" not in text
+    d[["q_ref_w", "q_ref_x", "q_ref_y", "q_ref_z"]] = 0.0
+    write_record(FlightRecord(d, dict(rec.meta)), tmp_path / "none.parquet")
+    assert main(["evaluate", str(tmp_path / "none.parquet"), "-o", str(tmp_path / "ev2"), "--no-peers", "-q"]) == 2
+    assert "no reference" in capsys.readouterr().err
+
+
+def test_evaluate_refuses_a_record_without_an_accelerometer_sample_and_leaves_it_out_of_a_folder(tmp_path, capsys):
+    """As `estimate` does: a record without one finite accelerometer (or gyro) sample has nothing to estimate; named,
+    it is a one-line error; in a folder it is left out with a note and the others are scored (every estimator had
+    been scored on it: TE-PINN 85°, RIANN 113°)."""
+    from tepinn_flight.cli.main import main
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    rec = synthetic_record(seed=4, duration_s=20.0, rate_hz=100.0)
+    d = rec.data.copy()
+    d[["acc_x_m_s2", "acc_y_m_s2", "acc_z_m_s2"]] = np.nan
+    folder = tmp_path / "in"
+    folder.mkdir()
+    write_record(FlightRecord(d, dict(rec.meta)), folder / "no_acc.parquet")
+    assert main(["evaluate", str(folder / "no_acc.parquet"), "-o", str(tmp_path / "ev"), "--no-peers", "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no finite accelerometer sample in the record" in err[0]
+    write_record(rec, folder / "good.parquet")
+    assert main(["evaluate", str(folder), "-o", str(tmp_path / "ev2"), "--no-peers", "-q"]) == 0
+    capsys.readouterr()
+    assert "no_acc.parquet: left out (no finite accelerometer sample" in (tmp_path / "ev2" / "report.md").read_text()
+    names = [r["name"] for r in json.loads((tmp_path / "ev2" / "metrics.json").read_text())["records"]]
+    assert names == ["good"]

@@ -249,7 +249,7 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
     from ..csv_table import write_csv
     from ..model.estimate import REPORTED_STEPS, estimate_record
     from ..quat import quat_zero_yaw
-    from ..record import EST_Q_COLS, atomic_write
+    from ..record import EST_Q_COLS, atomic_write, no_imu_reason
     from .paths import output_format
 
     out, err = [], []
@@ -269,11 +269,9 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
                        f"{'rate unknown' if rate is None else f'at {rate:.1f} Hz'} is too slow for windowed "
                        "estimation (estimation_ok is false); estimating anyway with VQF alone where the filter takes it "
                        "below 20 Hz (the network's gates stay shut: min_network_rate_hz), expect a poor attitude")  # fmt: skip
-        if len(rec) == 0:
-            raise NoImuData("the record holds no IMU sample: nothing to estimate")
-        for what, v in (("gyro", rec.gyr_rad_s), ("accelerometer", rec.acc_m_s2)):
-            if not np.all(np.isfinite(v), 1).any():  # nothing to bridge a hole with: a constant attitude, not an estimate
-                raise NoImuData(f"no finite {what} sample in the record: nothing to estimate")
+        why = no_imu_reason(rec)
+        if why:
+            raise NoImuData(f"{why}: nothing to estimate")
         holes = int(np.sum(~(np.all(np.isfinite(rec.gyr_rad_s), 1) & np.all(np.isfinite(rec.acc_m_s2), 1))))
         if holes:
             err.append(f"tepinn-flight estimate: note: {src}: {holes} non-finite IMU sample(s) bridged with "

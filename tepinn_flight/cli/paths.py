@@ -126,14 +126,18 @@ def read_records(items: list[str], paths: list[Path], notes: list[str]) -> list:
     """The flight records at ``paths`` (from :func:`collect_records` of ``items``; logs ingested on the fly), each
     named after its file. A file named on the command line that cannot be read is a one-line error; one a folder
     brought in is left out with a note in ``notes`` (a log folder holds logs without IMU data, older formats...)."""
-    from ..errors import TepinnError
+    from ..errors import NoImuData, TepinnError
     from ..ingest import load_record
+    from ..record import no_imu_reason
 
     named = {Path(i) for i in items if not Path(i).is_dir()}
     records = []
     for p in paths:
         try:
             rec = load_record(p)
+            why = no_imu_reason(rec)
+            if why:
+                raise NoImuData(f"{why}: nothing to estimate", p)
         except TepinnError as exc:
             if p in named:
                 raise

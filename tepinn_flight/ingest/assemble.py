@@ -11,7 +11,7 @@ from .. import __version__, conventions
 from ..errors import NoImuData
 from ..quat import quat_canonical, slerp
 from ..record import (FORMAT_VERSION, MAX_ABS_TIME_S, MAX_ACC_M_S2, MAX_GNSS_SPEED_M_S, MAX_GYRO_RAD_S,  # noqa: F401
-                      MAX_MAG_UT, MIN_ESTIMATION_RATE_HZ, FlightRecord, make_frame)  # (the limits: tests read them here)
+                      MAX_MAG_UT, MAX_QUAT_NORM_ERR, MIN_ESTIMATION_RATE_HZ, FlightRecord, make_frame)  # (the limits: tests read them here)
 from ..record_gaps import GAP_PERIODS  # a new segment starts where the IMU step exceeds this many periods
 from .streams import GnssVelStream, ImuStream, MagStream, RawLog, RefStream, nominal_period_s
 
@@ -39,8 +39,6 @@ SLOW_IMU_ADVICE = {
 #: max(SPIKE_MIN_S, SPIKE_PERIODS nominal periods)
 SPIKE_MIN_S = 1.0
 SPIKE_PERIODS = 50.0
-#: quaternion norm tolerance for the reference: |‖q‖ − 1| above this is a corrupt row
-MAX_QUAT_NORM_ERR = 0.1
 
 
 def time_spikes(t: np.ndarray) -> np.ndarray:
