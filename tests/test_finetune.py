@@ -281,7 +281,7 @@ def test_finetuning_warns_when_its_sigma_fails_the_validation_files(tmp_path, ca
     only on a worse RMSE). The summary below is what `finetune` returns; the warning is the CLI's."""
     import tepinn_flight.model.finetune as ft
 
-    def fake(init, items, out, minutes=6.0, progress=True, seed=0):
+    def fake(init, items, out, minutes=6.0, progress=True, seed=0, align_reference=False):
         return {"train_files": ["a", "b"], "val_files": ["c"], "val_inclination_rmse_deg_before": 0.25,
                 "val_inclination_rmse_deg_after": 0.24, "tau_acc_s": 3.0, "gyro_scale": [1.0, 1.0, 1.0],
                 "sigma_floor_deg": 0.3, "sigma_acc_gain": 0.01, "sigma_sampling_gain": 1.0, "sigma_kept": "fitted",
@@ -390,3 +390,40 @@ def test_a_fine_tuning_stopped_while_tuning_leaves_no_untuned_model(tmp_path, mo
         F.finetune("default", [str(data)], run, minutes=0.2, progress=False)
     assert not (run / "model.pt").exists() and (run / F.UNTUNED_NAME).exists()
     assert not (run / "finetune.json").exists()
+
+
+@pytest.mark.slow
+def test_a_late_reference_is_skipped_or_with_align_reference_moved_and_learned_from(tmp_path, capsys):
+    """A simulated F450 flight whose reference (its true attitude) is logged 0.3 s late: the fine-tuning skips it
+    (the timing check), with nothing else to learn from in one line; with --align-reference it is moved back by the
+    lag its check reads, passes, and is learned from through its moved copy in RUN_DIR/aligned/ — whose reference
+    is the truth again."""
+    from tepinn_flight.quat import quat_angle_between
+    from tepinn_flight.record import QREF_COLS, FlightRecord, read_record, write_record
+    from tepinn_flight.sim.simulate import simulate_record
+
+    rec = simulate_record("F450", 20.0, 400.0, 6)
+    q = rec.q_ref_wxyz
+    late = np.roll(q, 120, axis=0)  # 0.3 s at 400 Hz
+    late[:120] = np.nan
+    data = rec.data.copy()
+    data[QREF_COLS] = late
+    log = tmp_path / "late.parquet"
+    write_record(FlightRecord(data, dict(rec.meta)), log)
+    assert main(["train", "--init", "default", "--data", str(log), "-o", str(tmp_path / "r0"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "late.parquet: skipped (reference attitude:" in err and "0.30 s behind the gyro" in err
+    assert main(["train", "--init", "default", "--data", str(log), "-o", str(tmp_path / "r"), "--minutes", "0.05",
+                 "--align-reference", "-q"]) == 0
+    err = capsys.readouterr().err
+    import re
+
+    assert re.search(r"late\.parquet: reference moved 0\.(29[89]|30[012]) s earlier", err), err
+    moved = read_record(tmp_path / "r" / "aligned" / "late.parquet")
+    e = np.degrees(quat_angle_between(moved.q_ref_wxyz, q))
+    # the truth again, to the lag's reading (half a 400-Hz step off: ~1° at the flight's fastest turns)
+    assert np.nanmedian(e) < 0.1 and np.nanpercentile(e, 99) < 0.5 and np.isfinite(e).mean() > 0.95
+    summary = json.loads((tmp_path / "r" / "finetune.json").read_text())
+    assert summary["train_files"] == [str((tmp_path / "r" / "aligned" / "late.parquet").resolve())]
+    assert main(["train", "--config", "train/tiny.toml", "--align-reference", "-o", str(tmp_path / "r2")]) == 2
+    assert "--align-reference is the fine-tuning's" in capsys.readouterr().err

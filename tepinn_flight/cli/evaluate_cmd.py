@@ -48,6 +48,10 @@ def add_arguments(p) -> None:
     p.add_argument("--no-peers", action="store_true", help="skip the published peers (VQF, RIANN, Fusion)")
     p.add_argument("--config", metavar="TOML", help="filter parameters: [madgwick], [complementary], [ekf] tables, peers = [...]")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config value, e.g. ekf.acc_noise_m_s2=2")
+    p.add_argument("--align-reference", action="store_true",
+                   help="where a record's reference is refused for being off the IMU's time (> 0.1 s) or frame (> 20°), "
+                        "score against it moved by the lag and turned by the rotation its check measures (motion capture "
+                        "on another clock or body frame); a note says what was done to which record")
     p.add_argument("--tune-ekf-on", nargs="+", default=[], metavar="RECORD",
                    help="tune the EKF's noise parameters on these TRAINING records first (must not overlap the evaluated ones)")
     add_recursive(p)
@@ -104,6 +108,13 @@ def _run(args) -> int:
         notes.append(f"EKF tuned on {len(train)} training record(s): " + ", ".join(
             f"{k}={getattr(best, k):g}" for k in ("gyro_noise_rad_s_sqrt_hz", "acc_noise_m_s2", "bias_walk_rad_s_sqrt_s")))
     records = read_records(args.records, paths, notes)
+    if args.align_reference:
+        from ..model.reference_trust import aligned_if_refused
+
+        for i, rec in enumerate(records):
+            records[i], what = aligned_if_refused(rec)
+            if what:
+                notes.append(f"{rec.meta.get('name')}: {what}")
     if len({record_name(r) for r in records}) < len(records):
         notes.append("some records share a name; they are numbered #2, #3, ... in the tables")
     estimators = []

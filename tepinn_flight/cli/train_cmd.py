@@ -37,6 +37,10 @@ def add_arguments(p) -> None:
                         "in any format ingest reads (one or more after --data, and --data may be repeated)")
     p.add_argument("--minutes", type=float, default=None,
                    help="fine-tuning: training time limit (default 6); a recipe's is optim.max_minutes (--set)")
+    p.add_argument("--align-reference", action="store_true",
+                   help="fine-tuning: a log whose reference is refused for being off the IMU's time (> 0.1 s) or frame "
+                        "(> 20°) is learned from once moved by the lag and turned by the rotation its check measures, "
+                        "where it then passes (the moved copies in RUN_DIR/aligned/); without it such a log is skipped")
     p.add_argument("-o", "--output", required=True, metavar="RUN_DIR", help="run folder (checkpoints, metrics)")
     p.add_argument("--resume", action="store_true", help="continue from RUN_DIR/last.pt")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a recipe value, e.g. optim.epochs=5")
@@ -77,7 +81,7 @@ def run(args) -> int:
         out = check_output(args.output, folder=True)
         _refuse_init_in_run(args.init, out)
         length = {} if args.minutes is None else {"minutes": args.minutes}  # (None: the fine-tuning's own default)
-        s = finetune(args.init, args.data, out, progress=not args.quiet, **length)
+        s = finetune(args.init, args.data, out, progress=not args.quiet, align_reference=args.align_reference, **length)
         # (one file: nothing is held out, and the figures below are on the file it was tuned on: said so, not "validation")
         files = "validation files" if s["val_files"] else "file it was tuned on"
         fit = s["fitted_sigma"]
@@ -111,6 +115,9 @@ def run(args) -> int:
                   f"({s['val_inclination_rmse_deg_before']:.3f}° -> {s['val_inclination_rmse_deg_after']:.3f}°): keep using "
                   f"{args.init}, or add logs of this vehicle (finetune.json: the figures per setting)", file=sys.stderr)  # fmt: skip
         return 0
+    if args.align_reference:  # (a recipe reads records as they are: align them with evaluate's check first)
+        raise ConfigError("--align-reference is the fine-tuning's (--init without --config); a recipe reads its records "
+                          "as they are")  # fmt: skip
     if args.minutes is not None:  # (it was taken and ignored: the recipe's own time limit ran)
         raise ConfigError(f"--minutes is the fine-tuning's time limit (--init without --config); a recipe's is "
                           f"optim.max_minutes: --set optim.max_minutes={args.minutes:g}")  # fmt: skip

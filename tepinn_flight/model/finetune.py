@@ -255,14 +255,19 @@ def inclination_rmse_deg(rec: FlightRecord, est, warmup_s: float = 5.0) -> float
     return float(np.degrees(np.sqrt(np.mean(e**2))))
 
 
-def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = True, seed: int = 0) -> dict:
-    """Fine-tune ``init`` (a checkpoint path or "default") on the logs in ``items``; see module doc."""
+def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = True, seed: int = 0,
+             align_reference: bool = False) -> dict:
+    """Fine-tune ``init`` (a checkpoint path or "default") on the logs in ``items``; see module doc. With
+    ``align_reference`` a log refused for its reference's timing or frame is learned from once moved onto the IMU's
+    (:func:`.reference_trust.aligned_if_refused`), where it then passes: its moved copy is written to
+    ``out_dir/aligned/`` and trained from."""
     from ..ingest import load_record
     from .checkpoint import default_model_path, fusion_config_from, load_model, save_checkpoint
     from .anchor import AnchorConfig
     from .train import train
     from .estimate import gates_acted
-    from .reference_trust import check_reference
+    from ..record import write_record
+    from .reference_trust import aligned_if_refused, check_reference
     from .train_data import split_by_flight
 
     out = Path(out_dir)
@@ -284,12 +289,25 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
             print(f"note: {p}: skipped (IMU below 20 Hz, no reference attitude on most samples, or under "
                   f"{MIN_SCORED_S:.0f} s scored after the warm-up: nothing to learn from)", file=sys.stderr)  # fmt: skip
             continue
+        src = p
+        if align_reference:
+            moved, what = aligned_if_refused(r)
+            if what:
+                print(f"note: {p}: {what}", file=sys.stderr)
+            if moved is not r:  # learned from the moved copy (training reads its files by path)
+                stem, k = Path(p).stem, 1
+                p = out / "aligned" / f"{stem}.parquet"
+                while p.exists():  # (two logs of one name in different folders)
+                    k += 1
+                    p = out / "aligned" / f"{stem}-{k}.parquet"
+                write_record(moved, p)
+                r = moved
         chk = check_reference(r)  # a reference that is not the IMU's attitude would teach everything wrong
-        ref_checks[str(p.resolve())] = chk.describe()
+        ref_checks[str(Path(src).resolve())] = chk.describe()
         if not chk.trusted:
-            print(f"note: {p}: skipped ({chk.describe()})", file=sys.stderr)
+            print(f"note: {src}: skipped ({chk.describe()})", file=sys.stderr)
             continue
-        paths.append(str(p.resolve()))
+        paths.append(str(Path(p).resolve()))
         recs.append(r)
     if not recs:
         raise ConfigError("none of the --data logs can be learned from (each needs an IMU of >= 20 Hz and a reference "

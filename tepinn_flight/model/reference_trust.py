@@ -53,12 +53,12 @@ uncalibrated gyros' turn-on biases of up to 20 °/s taken out), and agree with g
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..quat import gravity_body, quat_angle, quat_conj, quat_mul, quat_to_rotvec, slerp
-from ..record import FlightRecord, segment_slices
+from ..record import QREF_COLS, FlightRecord, segment_slices
 from ..vehicle_class import FIXED_WING, vehicle_class
 from .accel_scale import AccelScaleConfig, quiet_samples
 from .gyro_selfcal import attitude_at
@@ -94,6 +94,7 @@ class ReferenceCheck:
     config: ReferenceTrustConfig = ReferenceTrustConfig()
     lag_s: float | None = None  # the reference's delay behind the gyro (negative: ahead)
     frame_deg: float | None = None  # the rotation between the reference's body frame and the gyro's
+    frame_rotation: np.ndarray | None = field(default=None, compare=False, repr=False)  # R: gyro ≈ R · reference
 
     @property
     def trusted(self) -> bool:
@@ -208,8 +209,8 @@ def rates_on_grid(rec: FlightRecord, step_s: float) -> tuple[list[tuple[np.ndarr
     """Per segment, the gyro's mean rate and the reference's body rate (its turn over the cell, as a rotation
     vector, per second) over consecutive cells of a uniform time grid of ``step_s``, or the IMU's period where
     longer: ((gyro, reference) (n, 3) rad/s each, NaN where a cell lacks a reference at an end, a finite gyro or
-    holds a saturated sample), the grid's step (s). The gyro's integral is read between samples as its
-    zero-order hold gives it, the reference slerped: so a shift of k cells is k steps of time, whatever the
+    holds a saturated sample), the grid's step (s). The gyro's integral is read between samples as the trapezoid
+    rule gives it, the reference slerped: so a shift of k cells is k steps of time, whatever the
     stamps' jitter."""
     t_all = rec.t_s
     dts = np.diff(t_all)
@@ -224,7 +225,10 @@ def rates_on_grid(rec: FlightRecord, step_s: float) -> tuple[list[tuple[np.ndarr
         grid = t[0] + step * np.arange(int((t[-1] - t[0]) / step) + 1)
         gyr = rec.gyr_rad_s[sl]
         dt = np.r_[np.diff(t), 0.0]
-        cum = np.r_[np.zeros((1, 3)), np.cumsum(np.nan_to_num(gyr) * dt[:, None], axis=0)[:-1]]  # ∫ up to t[k]
+        g0 = np.nan_to_num(gyr)
+        # ∫ up to t[k], trapezoidal: a sample is the rate at its instant (a forward hold had read every reference
+        # half a period early: −1.2 ms on a 400-Hz simulation, whose moved copy then missed by ~1° in flips)
+        cum = np.r_[np.zeros((1, 3)), np.cumsum(0.5 * (g0[:-1] + g0[1:]) * dt[:-1, None], axis=0)]
         turn_gyr = np.stack([np.interp(grid, t, cum[:, k]) for k in range(3)], axis=1)
         w_gyr = np.diff(turn_gyr, axis=0) / step
         q = q_ref[sl]
@@ -250,22 +254,23 @@ def _centred(x: np.ndarray) -> np.ndarray:
     return x - (x[ok].mean(axis=0) if ok.any() else 0.0)
 
 
-def rate_alignment(rec: FlightRecord, cfg: ReferenceTrustConfig | None = None) -> tuple[float | None, float | None, float]:
+def rate_alignment(rec: FlightRecord, cfg: ReferenceTrustConfig | None = None):
     """(the reference's delay behind the gyro (s; None: not judged), the angle between the two body frames (°;
-    None: not judged), the best correlation of the two rates) — the timing and frame checks of the module
-    docstring. Positive delay: the reference shows at ``t + lag`` the turn the gyro shows at ``t``."""
+    None: not judged), that rotation R (3×3, carrying the reference's body axes onto the gyro's: g ≈ R r; None: not
+    judged), the best correlation of the two rates) — the timing and frame checks of the module docstring. Positive
+    delay: the reference shows at ``t + lag`` the turn the gyro shows at ``t``."""
     cfg = cfg or ReferenceTrustConfig()
     segs, step = rates_on_grid(rec, cfg.step_s)
     segs = [(_centred(g), _centred(r)) for g, r in segs]
     n_cells = sum(int((np.isfinite(g).all(axis=1) & np.isfinite(r).all(axis=1)).sum()) for g, r in segs)
     if n_cells * step < cfg.min_rate_s or step > cfg.max_lag_s / 2.0:  # a telemetry-rate IMU: too coarse to time
-        return None, None, float("nan")
+        return None, None, None, float("nan")
     max_k = int(round(cfg.max_shift_s / step))
 
-    def turned(k: int) -> tuple[float, float, np.ndarray]:
+    def turned(k: int) -> tuple[float, float, np.ndarray, np.ndarray]:
         """Gyro at i against the reference at i + k over every segment's finite pairs: (their correlation once the
         reference's rates are turned by the least-squares rotation onto the gyro's, that rotation's angle (°), the
-        singular values of the cross-covariance Σ r gᵀ)."""
+        singular values of the cross-covariance Σ r gᵀ, the rotation)."""
         h, aa, bb, n = np.zeros((3, 3)), 0.0, 0.0, 0
         for g, r in segs:
             if abs(k) >= len(g):
@@ -278,23 +283,23 @@ def rate_alignment(rec: FlightRecord, cfg: ReferenceTrustConfig | None = None) -
             bb += float(np.sum(b * b))
             n += len(a)
         if n * step < cfg.min_rate_s or aa <= 0.0 or bb <= 0.0:
-            return float("nan"), float("nan"), np.zeros(3)
+            return float("nan"), float("nan"), np.zeros(3), np.eye(3)
         u, sv, vt = np.linalg.svd(h)  # H = U S Vᵀ: R = V diag(1, 1, d) Uᵀ carries r onto g, Σ g·(R r) = tr(R H)
         d = 1.0 if np.linalg.det(vt.T @ u.T) >= 0.0 else -1.0
         rot = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
         ang = float(np.degrees(np.arccos(np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0))))
-        return float((sv[0] + sv[1] + d * sv[2]) / np.sqrt(aa * bb)), ang, sv
+        return float((sv[0] + sv[1] + d * sv[2]) / np.sqrt(aa * bb)), ang, sv, rot
 
     # the shift is judged on the rates turned into the gyro's frame: a reference of another mounting still has
     # a timing, and its untouched rates may not correlate at all (turned 90°)
     found = [(turned(k)[0], k) for k in range(-max_k, max_k + 1)]
     found = [(c, k) for c, k in found if np.isfinite(c)]
     if not found:
-        return None, None, float("nan")
+        return None, None, None, float("nan")
     best_c, best_k = max(found, key=lambda ck: (ck[0], -abs(ck[1])))
     if best_c < cfg.min_corr:
-        return None, None, best_c
-    _, ang, sv = turned(best_k)
+        return None, None, None, best_c
+    _, ang, sv, rot = turned(best_k)
     shift = float(best_k)
     by_k = dict((k, c) for c, k in found)
     if best_k - 1 in by_k and best_k + 1 in by_k:  # the peak between cells: a parabola through its three
@@ -302,7 +307,8 @@ def rate_alignment(rec: FlightRecord, cfg: ReferenceTrustConfig | None = None) -
         curv = lo - 2.0 * best_c + hi
         if curv < 0.0:
             shift += float(np.clip(0.5 * (lo - hi) / curv, -0.5, 0.5))
-    return shift * step, (ang if sv[1] >= 0.1 * sv[0] else None), best_c
+    judged = sv[1] >= 0.1 * sv[0]
+    return shift * step, (ang if judged else None), (rot if judged else None), best_c
 
 
 def check_reference(rec: FlightRecord, cfg: ReferenceTrustConfig | None = None) -> ReferenceCheck:
@@ -312,5 +318,63 @@ def check_reference(rec: FlightRecord, cfg: ReferenceTrustConfig | None = None) 
     share = float(np.mean(turn > cfg.max_turn_deg_s)) if len(turn) >= cfg.min_intervals else None
     grav, quiet_s = gravity_disagreement_deg(rec, cfg)
     gdeg = float(np.median(grav)) if quiet_s >= cfg.min_quiet_s else None
-    lag, frame, _ = rate_alignment(rec, cfg)
-    return ReferenceCheck(share, len(turn), gdeg, quiet_s, cfg, lag, frame)
+    lag, frame, rot, _ = rate_alignment(rec, cfg)
+    return ReferenceCheck(share, len(turn), gdeg, quiet_s, cfg, lag, frame, rot)
+
+
+def align_reference(rec: FlightRecord, chk: ReferenceCheck) -> tuple[FlightRecord, float, float]:
+    """``rec`` with its reference moved onto the IMU's time and frame where ``chk`` refused it for either — by the
+    measured lag (the reference slerped at ``t + lag``, NaN past its ends and where a row had none) and turned by the
+    measured frame rotation (q_ref ⊗ R⁻¹: the reference's body axes onto the gyro's) — and (the shift applied (s), the
+    turn applied (°)); each 0 where that check passed or could not judge (a measured 2-ms lag or 1° is the
+    measurement's own noise: left alone). What a researcher does with motion capture on another clock or another
+    body frame (``--align-reference``); the caller checks the result again."""
+    from ..quat import rotmat_to_quat
+
+    c = chk.config
+    shift = chk.lag_s if chk.lag_s is not None and abs(chk.lag_s) > c.max_lag_s else 0.0
+    turn = chk.frame_deg if chk.frame_deg is not None and chk.frame_deg > c.max_frame_deg else 0.0
+    if not shift and not turn:
+        return rec, 0.0, 0.0
+    q = rec.q_ref_wxyz
+    if shift:
+        out = np.full_like(q, np.nan)
+        t = rec.t_s
+        for sl in segment_slices(rec.segment):
+            ts, qs = t[sl], q[sl]
+            has = np.isfinite(qs).all(axis=1)
+            if has.sum() < 2:
+                continue
+            moved = slerp(ts + shift, ts[has], qs[has])
+            # a row takes the reference only where the reference had rows on both sides of t + lag (no bridging of
+            # its own holes)
+            i = np.clip(np.searchsorted(ts, ts + shift, side="right") - 1, 0, len(ts) - 2)
+            ok = has[i] & has[i + 1]
+            out[sl] = np.where(ok[:, None], moved, np.nan)
+        q = out
+    if turn:
+        q = quat_mul(q, quat_conj(rotmat_to_quat(chk.frame_rotation)))
+    data = rec.data.copy()
+    data[QREF_COLS] = q
+    meta = dict(rec.meta, reference_aligned={"shift_s": float(shift), "turned_deg": float(turn)})
+    return FlightRecord(data, meta), float(shift), float(turn)
+
+
+def aligned_if_refused(rec: FlightRecord, cfg: ReferenceTrustConfig | None = None) -> tuple[FlightRecord, str | None]:
+    """``--align-reference``: a record whose reference the check refuses on its timing or frame, moved onto the IMU's
+    (:func:`align_reference`) where that makes it pass every check — (the record to use, a line saying what was done,
+    or None where nothing was: trusted as it is, refused for another reason, or still refused once aligned; the
+    record is then returned as recorded)."""
+    chk = check_reference(rec, cfg)
+    if chk.trusted:
+        return rec, None
+    moved, shift, turn = align_reference(rec, chk)
+    if not (shift or turn):
+        return rec, None
+    what = ", ".join(p for p in (f"moved {abs(shift):.3f} s {'earlier' if shift > 0 else 'later'}" if shift else "",
+                                 f"turned {turn:.1f}° into the gyro's axes" if turn else "") if p)  # fmt: skip
+    after = check_reference(moved, cfg)
+    if not after.trusted:
+        return rec, f"reference {what} but still not trusted ({after.describe()}): left as recorded"
+    fit = "; a turn fitted from the rates carries that fit's own error, about 1° on a real flight" if turn else ""
+    return moved, f"reference {what} (it was {chk.describe()}){fit}"
