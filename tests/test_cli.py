@@ -870,3 +870,16 @@ def test_a_log_through_a_pipe_is_one_clear_line(capsys):
         os.close(r)
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "a pipe or a device, not a file" in err
+
+
+def test_export_at_an_opset_it_cannot_write_prints_one_line_not_torchs_graph(tmp_path, capfd):
+    """Below the network's opsets torch's exporter printed the whole graph (176 lines, from C++: past Python's
+    streams) before our one-line error; outside torch's own range (7–23 for this torch) it is refused before any
+    export. At the file descriptors: one line, exit 2, no file."""
+    pytest.importorskip("torch")
+    for opset, words in (("8", "torch cannot export the network at this opset"), ("99", "this torch exports opsets")):
+        capfd.readouterr()
+        assert main(["export", "-o", str(tmp_path / "m.onnx"), "--opset", opset]) == 2
+        out, err = capfd.readouterr()
+        assert out == "" and len(err.strip().splitlines()) == 1 and words in err, err[-500:]
+        assert not (tmp_path / "m.onnx").exists()

@@ -56,10 +56,21 @@ def run(args) -> int:
     if args.opset is not None and args.opset < 1:
         raise ConfigError(f"--opset {args.opset}: an ONNX opset is a positive number (default {OPSET})")
     opset = OPSET if args.opset is None else args.opset
+    try:  # torch's own range: outside it its exporter prints a page of graph before it fails (session 57)
+        from torch.onnx import _constants as onnx_range
+
+        lo, hi = int(onnx_range.ONNX_MIN_OPSET), int(onnx_range.ONNX_MAX_OPSET)
+    except (ImportError, AttributeError):
+        lo = hi = None
+    if lo is not None and not lo <= opset <= hi:
+        raise ConfigError(f"--opset {opset}: this torch exports opsets {lo}–{hi} (default {OPSET}, the one tested)")
     try:
-        export_onnx(src, out, opset)
+        with _native_output_held() as held:  # (torch prints the whole graph from C++ before an opset failure)
+            export_onnx(src, out, opset)
+        held.replay()  # exported: whatever it printed is shown
     except Exception as exc:  # noqa: BLE001 - torch's exporter raises several types for an opset it cannot write
         if opset == OPSET:
+            held.replay()
             raise  # the tested opset failing is a bug: an internal error
         first = (str(exc).strip().splitlines() or [type(exc).__name__])[0][:160]
         raise TepinnError(f"--opset {opset}: torch cannot export the network at this opset ({first}); "
@@ -73,3 +84,55 @@ def run(args) -> int:
     if not args.quiet:
         print(msg)
     return 0
+
+
+class _Held:
+    """What the process wrote to its stdout and stderr file descriptors inside :func:`_native_output_held`."""
+
+    def __init__(self):
+        self.out, self.err = b"", b""
+
+    def replay(self) -> None:
+        import sys
+
+        for data, stream in ((self.out, sys.stdout), (self.err, sys.stderr)):
+            if data:
+                stream.flush()
+                stream.buffer.write(data) if hasattr(stream, "buffer") else stream.write(data.decode(errors="replace"))
+                stream.flush()
+
+
+class _native_output_held:
+    """Hold what native code writes to file descriptors 1 and 2 (Python's own ``print`` too) until the caller decides:
+    torch's ONNX exporter dumps its whole graph there, 176 lines, before it fails at an opset it cannot write."""
+
+    def __enter__(self) -> _Held:
+        import os
+        import sys
+        import tempfile
+
+        self.held = _Held()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        self.files = [tempfile.TemporaryFile() for _ in range(2)]
+        self.saved = [os.dup(1), os.dup(2)]
+        for fd, f in zip((1, 2), self.files):
+            os.dup2(f.fileno(), fd)
+        return self.held
+
+    def __exit__(self, *exc) -> bool:
+        import os
+        import sys
+
+        sys.stdout.flush()
+        sys.stderr.flush()
+        for fd, saved in zip((1, 2), self.saved):
+            os.dup2(saved, fd)
+            os.close(saved)
+        data = []
+        for f in self.files:
+            f.seek(0)
+            data.append(f.read())
+            f.close()
+        self.held.out, self.held.err = data
+        return False
