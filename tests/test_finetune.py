@@ -130,6 +130,10 @@ def test_finetuning_needs_data_and_says_so_in_one_line(tmp_path, capsys):
     for extra in (["--set", "optim.epochs=3"], ["--resume"], ["--device", "cpu"]):  # (they were taken and ignored)
         assert main(["train", "--init", "default", "--data", str(empty), "-o", str(tmp_path / "r"), *extra]) == 2
         assert f"{extra[0]}: options of a recipe" in capsys.readouterr().err
+    for minutes in ("0", "-1", "nan", "inf"):  # (inf was refused as the recipe's 'max_minutes', a name not given)
+        assert main(["train", "--init", "default", "--data", str(empty), "-o", str(tmp_path / "r"), "--minutes",
+                     minutes]) == 2
+        assert f"--minutes must be a finite number > 0, got {float(minutes)}" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
 
 

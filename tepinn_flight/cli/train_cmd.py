@@ -68,8 +68,8 @@ def run(args) -> int:
             raise ConfigError("give --config TOML (train from a recipe) or --init MODEL (fine-tune on --data)")
         if not args.data:
             raise ConfigError("--init without --config fine-tunes on your logs: give --data LOG_OR_DIR")
-        if args.minutes is not None and not args.minutes > 0:
-            raise ConfigError(f"--minutes must be > 0, got {args.minutes}")
+        if args.minutes is not None and not 0 < args.minutes < float("inf"):
+            raise ConfigError(f"--minutes must be a finite number > 0, got {args.minutes}")
         ignored = [f for f, given in (("--set", args.set), ("--resume", args.resume), ("--device", args.device != "auto"))
                    if given]  # fmt: skip
         if ignored:  # (they were taken and ignored: a recipe's options, which the built-in fine-tuning has no use for)
