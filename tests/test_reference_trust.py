@@ -275,3 +275,20 @@ def test_evaluate_align_reference_scores_against_the_moved_reference_and_says_so
     assert "late: reference moved 0.40" in page and "s earlier" in page
     err = {k: [v["inclination_rmse_deg"] for v in r[0]["results"].values()] for k, r in runs.items()}
     assert max(err[True]) < 0.5 * min(err[False])
+
+
+def test_gravity_tilt_reads_a_small_lean_of_the_reference_from_the_rests():
+    """The rate-fitted turn leans by the IMU's own axis errors (half a degree on BROAD's tapping trial); at the record's
+    rests the accelerometer reads gravity alone, and `gravity_tilt` reads the lean back: a reference leaning 2° about x
+    and 1° about y comes back level to 0.05°. Without a rest (every sample turning) it reads nothing."""
+    from tepinn_flight.model.reference_trust import gravity_tilt
+    from tepinn_flight.quat import quat_angle_between
+
+    rec, q = turns_with_rests(seed=5)
+    lean = np.radians([2.0, 1.0, 0.0])
+    leaning = quat_mul(q, quat_from_rotvec(np.tile(lean, (len(q), 1))))
+    phi = gravity_tilt(rec, leaning, ReferenceTrustConfig())
+    back = quat_mul(leaning, quat_from_rotvec(np.tile(phi, (len(q), 1))))
+    assert np.degrees(np.nanmax(quat_angle_between(back, q))) < 0.05
+    spinning = _with(rec, gyr=rec.gyr_rad_s + np.radians([0.0, 0.0, 5.0]))  # 5 °/s on z throughout: never at rest
+    assert gravity_tilt(spinning, leaning, ReferenceTrustConfig()) is None

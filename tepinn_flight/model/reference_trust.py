@@ -57,7 +57,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..quat import gravity_body, quat_angle, quat_conj, quat_mul, quat_to_rotvec, slerp
+from ..quat import gravity_body, quat_angle, quat_conj, quat_from_rotvec, quat_mul, quat_to_rotvec, slerp
 from ..record import QREF_COLS, FlightRecord, segment_slices
 from ..vehicle_class import FIXED_WING, vehicle_class
 from .accel_scale import AccelScaleConfig, quiet_samples
@@ -352,12 +352,61 @@ def align_reference(rec: FlightRecord, chk: ReferenceCheck) -> tuple[FlightRecor
             ok = has[i] & has[i + 1]
             out[sl] = np.where(ok[:, None], moved, np.nan)
         q = out
+    tilt = 0.0
     if turn:
         q = quat_mul(q, quat_conj(rotmat_to_quat(chk.frame_rotation)))
+        phi = gravity_tilt(rec, q, c)  # the fit from rates leans by the IMU's own axis errors: gravity says how much
+        if phi is not None:
+            q = quat_mul(q, quat_from_rotvec(phi))
+            tilt = float(np.degrees(np.linalg.norm(phi)))
     data = rec.data.copy()
     data[QREF_COLS] = q
-    meta = dict(rec.meta, reference_aligned={"shift_s": float(shift), "turned_deg": float(turn)})
+    meta = dict(rec.meta, reference_aligned={"shift_s": float(shift), "turned_deg": float(turn), "tilt_from_gravity_deg": tilt})
     return FlightRecord(data, meta), float(shift), float(turn)
+
+
+#: a sample at rest for :func:`gravity_tilt`: its rate averaged over the quiet test's window under this (rad/s, 0.6 °/s).
+#: Quiet is not enough there: a multirotor hovering in wind reads its thrust, not gravity (erle's hover leaned a
+#: refinement 3° off its reference); at rest, on the ground or in the hand, the accelerometer reads gravity alone.
+STILL_RATE_RAD_S = 0.01
+
+
+def _still(rec: FlightRecord, step: float) -> np.ndarray:
+    """The samples whose rate, averaged over the quiet test's window, is under :data:`STILL_RATE_RAD_S`."""
+    k = max(1, int(round(AccelScaleConfig().avg_s / step)))
+    gyr = np.nan_to_num(rec.gyr_rad_s)
+    box = np.ones(k) / k
+    rate = np.linalg.norm(np.stack([np.convolve(gyr[:, i], box, mode="same") for i in range(3)], axis=1), axis=1)
+    return rate < STILL_RATE_RAD_S
+
+
+#: the largest tilt correction :func:`gravity_tilt` applies (°): past it the quiet samples disagree with the fitted
+#: frame by more than an axis error could, and the fit is left as it is
+MAX_GRAVITY_TILT_DEG = 5.0
+
+
+def gravity_tilt(rec: FlightRecord, q_nb: np.ndarray, cfg: ReferenceTrustConfig) -> np.ndarray | None:
+    """The small turn φ (rotation vector, body axes) that brings the reference ``q_nb``'s down direction onto the
+    accelerometer's at the record's quiet samples (as the gravity check takes them): q_nb ⊗ exp(φ) is then level as the
+    accelerometer says, read at the samples at rest (:func:`_still`). Least squares of [d]× φ = d_acc − d (d_acc ≈ Eᵀ d for the small turn E); where the quiet
+    samples share one orientation the turn about down is left at 0 (minimum norm). None where the quiet samples
+    last under ``min_quiet_s`` or the turn would pass :data:`MAX_GRAVITY_TILT_DEG`."""
+    found = quiet_samples(rec.t_s, rec.gyr_rad_s, rec.acc_m_s2)
+    if found is None:
+        return None
+    quiet, acc_lp, step = found
+    quiet = quiet & _still(rec, step) & np.isfinite(q_nb).all(axis=1)
+    if quiet.sum() * step < cfg.min_quiet_s:
+        return None
+    d = gravity_body(q_nb[quiet] / np.linalg.norm(q_nb[quiet], axis=1, keepdims=True))
+    d_acc = -acc_lp[quiet] / np.linalg.norm(acc_lp[quiet], axis=1, keepdims=True)
+    cross = np.zeros((len(d), 3, 3))  # [d]×
+    cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 2] = -d[:, 2], d[:, 1], -d[:, 0]
+    cross[:, 1, 0], cross[:, 2, 0], cross[:, 2, 1] = d[:, 2], -d[:, 1], d[:, 0]
+    phi = np.linalg.lstsq(cross.reshape(-1, 3), (d_acc - d).ravel(), rcond=1e-2)[0]
+    if np.degrees(np.linalg.norm(phi)) > MAX_GRAVITY_TILT_DEG:
+        return None
+    return phi
 
 
 def aligned_if_refused(rec: FlightRecord, cfg: ReferenceTrustConfig | None = None) -> tuple[FlightRecord, str | None]:
