@@ -86,39 +86,24 @@ def run(args) -> int:
     return 0
 
 
-class _Held:
-    """What the process wrote to its stdout and stderr file descriptors inside :func:`_native_output_held`."""
-
-    def __init__(self):
-        self.out, self.err = b"", b""
-
-    def replay(self) -> None:
-        import sys
-
-        for data, stream in ((self.out, sys.stdout), (self.err, sys.stderr)):
-            if data:
-                stream.flush()
-                stream.buffer.write(data) if hasattr(stream, "buffer") else stream.write(data.decode(errors="replace"))
-                stream.flush()
-
-
 class _native_output_held:
-    """Hold what native code writes to file descriptors 1 and 2 (Python's own ``print`` too) until the caller decides:
-    torch's ONNX exporter dumps its whole graph there, 176 lines, before it fails at an opset it cannot write."""
+    """Hold what native code writes to file descriptors 1 and 2 (Python's own ``print`` too) until the caller decides
+    (:meth:`replay` shows it): torch's ONNX exporter dumps its whole graph there, 176 lines, before it fails at an
+    opset it cannot write."""
 
-    def __enter__(self) -> _Held:
+    def __enter__(self) -> "_native_output_held":
         import os
         import sys
         import tempfile
 
-        self.held = _Held()
+        self.out = self.err = b""
         sys.stdout.flush()
         sys.stderr.flush()
         self.files = [tempfile.TemporaryFile() for _ in range(2)]
         self.saved = [os.dup(1), os.dup(2)]
         for fd, f in zip((1, 2), self.files):
             os.dup2(f.fileno(), fd)
-        return self.held
+        return self
 
     def __exit__(self, *exc) -> bool:
         import os
@@ -129,10 +114,18 @@ class _native_output_held:
         for fd, saved in zip((1, 2), self.saved):
             os.dup2(saved, fd)
             os.close(saved)
-        data = []
         for f in self.files:
             f.seek(0)
-            data.append(f.read())
+        self.out, self.err = (f.read() for f in self.files)
+        for f in self.files:
             f.close()
-        self.held.out, self.held.err = data
         return False
+
+    def replay(self) -> None:
+        import sys
+
+        for data, stream in ((self.out, sys.stdout), (self.err, sys.stderr)):
+            if data:
+                stream.flush()
+                stream.buffer.write(data) if hasattr(stream, "buffer") else stream.write(data.decode(errors="replace"))
+                stream.flush()
