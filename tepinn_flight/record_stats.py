@@ -89,7 +89,8 @@ def summarize(rec: FlightRecord) -> dict:
         chk = check_reference(rec)
         out["reference_check"] = {"trusted": chk.trusted, "turn_share": chk.turn_share, "intervals": chk.intervals,
                                   "gravity_deg": chk.gravity_deg, "quiet_s": chk.quiet_s, "lag_s": chk.lag_s,
-                                  "frame_deg": chk.frame_deg, "line": chk.describe()}  # fmt: skip
+                                  "lag_bracketed": chk.lag_bracketed, "frame_deg": chk.frame_deg,
+                                  "rate_note": chk.rate_note, "line": chk.describe()}  # fmt: skip
     return out
 
 

@@ -8,7 +8,7 @@ import pytest
 
 from tepinn_flight.model.reference_trust import (ReferenceTrustConfig, check_reference, gravity_disagreement_deg,
                                                  turn_disagreement_deg_s)  # fmt: skip
-from tepinn_flight.quat import quat_from_rotvec, quat_mul
+from tepinn_flight.quat import quat_angle_between, quat_from_rotvec, quat_mul
 from tepinn_flight.record import GYR_COLS, QREF_COLS, FlightRecord
 from tests.conftest import real_log
 from tests.test_gyro_selfcal import turns_with_rests
@@ -292,3 +292,141 @@ def test_gravity_tilt_reads_a_small_lean_of_the_reference_from_the_rests():
     assert np.degrees(np.nanmax(quat_angle_between(back, q))) < 0.05
     spinning = _with(rec, gyr=rec.gyr_rad_s + np.radians([0.0, 0.0, 5.0]))  # 5 °/s on z throughout: never at rest
     assert gravity_tilt(spinning, leaning, ReferenceTrustConfig()) is None
+
+
+def test_a_reference_stored_on_its_own_rows_of_a_faster_imu_is_still_checked():
+    """A reference on every 4th row only (a 25-Hz motion capture in a 100-Hz record, NaN between), those rows off the
+    1-s interval edges and the 20-ms grid's sample pairs: it is read between its own rows, so a reference 0.4 s late
+    and turned 90° is still refused — it had been 'trusted' with every check unjudged — and a true one still passes.
+    A hole of its own (2 s without a row) stays one."""
+    from tepinn_flight.model.reference_trust import reference_at
+
+    rec, q = turns_with_rests(seed=2)
+    sparse = np.full_like(q, np.nan)
+    sparse[1::4] = q[1::4]
+    chk = check_reference(_with(rec, ref=sparse))
+    assert chk.trusted and abs(chk.lag_s) < 0.006 and chk.frame_deg < 1.0 and chk.turn_share == 0.0
+    bad = _shifted(quat_mul(q, quat_from_rotvec(np.radians([0.0, 0.0, 90.0]))), 40)
+    sparse_bad = np.full_like(q, np.nan)
+    sparse_bad[1::4] = bad[1::4]
+    chk = check_reference(_with(rec, ref=sparse_bad))
+    assert not chk.trusted and chk.lag_s == pytest.approx(0.4, abs=0.006) and chk.frame_deg == pytest.approx(90.0, abs=1.0)
+    t = rec.t_s
+    holed = sparse.copy()
+    holed[(t > 10.0) & (t < 12.0)] = np.nan
+    q_at, known = reference_at(t, holed, np.array([9.0, 11.0, 13.0]))
+    assert known.tolist() == [True, False, True]
+    assert np.degrees(quat_angle_between(q_at[[0, 2]], q[[900, 1300]])).max() < 0.5
+
+
+def test_a_20_hz_imu_is_timed_whatever_its_stamps_round_to():
+    """At 20 Hz the grid's step is the IMU's period, 0.05 s, exactly the limit under which timing is judged; stamps
+    from 250 s make the median period 0.05000000000001 s, which had switched the timing and frame checks off (a
+    reference turned 90° then passed on a gentle flight). The same record from 0 s and from 250 s reads the same."""
+    from tepinn_flight.model.reference_trust import rate_alignment
+
+    rec, q = turns_with_rests(seed=3, rate_hz=20.0)
+    data = rec.data.copy()
+    data["t_s"] = 250.0 + np.arange(len(data)) * 0.05
+    late = FlightRecord(data, dict(rec.meta))
+    assert np.median(np.diff(late.t_s)) > 0.05  # (the rounding this is about)
+    a, b = rate_alignment(rec), rate_alignment(late)
+    assert a.lag_s is not None and b.lag_s == pytest.approx(a.lag_s, abs=1e-6)
+    assert b.frame_deg == pytest.approx(a.frame_deg, abs=1e-6)
+
+
+def test_an_accelerometer_reading_zeros_at_rest_is_not_read_as_gravity():
+    """A dropout written as zeros on a rest: no direction to read gravity from. Those samples are left out (a
+    division by zero had printed a RuntimeWarning and made the angle NaN: refused while the line said 'trusted');
+    the verdict and its line come from one rule."""
+    import warnings
+
+    rec, q = turns_with_rests(seed=4)
+    data = rec.data.copy()
+    data.loc[rec.t_s < 3.0, ["acc_x_m_s2", "acc_y_m_s2", "acc_z_m_s2"]] = 0.0
+    zeros = FlightRecord(data, dict(rec.meta))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        chk = check_reference(zeros)
+    assert chk.trusted and np.isfinite(chk.gravity_deg) and chk.gravity_deg < 0.5
+    assert chk.describe().endswith("; trusted")
+
+
+def test_a_lag_past_the_search_is_said_to_be_at_least_its_edge_and_not_moved_by():
+    """A reference 1.3 s late: the best shift within ±1 s lies at the edge, so the lag is at least 1 s (said so), and
+    ``align_reference`` does not move it by that edge (the true lag is not known)."""
+    from tepinn_flight.model.reference_trust import align_reference
+
+    rec, q = turns_with_rests(seed=1)
+    chk = check_reference(_with(rec, ref=_shifted(q, 130)))
+    assert not chk.trusted and not chk.lag_bracketed and chk.lag_s == pytest.approx(1.0)
+    assert "at least 1.000 s behind" in chk.describe()
+    assert align_reference(_with(rec, ref=_shifted(q, 130)), chk)[1] == 0.0
+    assert check_reference(_with(rec, ref=_shifted(q, 30))).lag_bracketed
+
+
+def test_the_line_says_why_timing_was_not_judged():
+    rec, q = turns_with_rests(seed=1)
+    t = rec.t_s
+    still = _with(rec, ref=np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1)), gyr=np.zeros((len(t), 3)))
+    assert "timing: not judged (too little motion)" in check_reference(still).describe()
+    from tepinn_flight.ingest import ingest_log
+
+    slow = check_reference(ingest_log(real_log("ardusub_2023-04-18_11-03-34.tlog")))  # its IMU at 2 Hz
+    assert "an IMU at 2 Hz, under 20 Hz" in slow.describe()
+    unlike = _with(rec, ref=np.flip(q, axis=0))  # a reference that turns another way
+    assert "correlate at best" in check_reference(unlike).describe() or check_reference(unlike).lag_s is not None
+
+
+def test_align_reference_moves_a_lag_the_turn_check_refused_under_the_timing_limit():
+    """A reference 60 ms late on fast turns: under the timing check's 0.1 s but the turns over 1-s intervals disagree
+    on more than a fifth of them, so it is refused; ``--align-reference`` moves it by the measured lag (past 40 ms:
+    beyond the measurement's noise) and then it passes. 20 ms is left alone."""
+    from tepinn_flight.model.reference_trust import aligned_if_refused
+
+    from tepinn_flight.model.gyro_selfcal import attitude_at
+    from tepinn_flight.quat import gravity_body
+    from tepinn_flight.record import ACC_COLS
+
+    rec, q = turns_with_rests(seed=2)
+    # the same turns three times as far (up to ~700 °/s): the attitude integrated from the tripled rate, the
+    # accelerometer reading its gravity
+    t = rec.t_s
+    gyr3 = rec.gyr_rad_s * 3.0
+    q3 = np.zeros((len(t), 4))
+    attitude_at(np.ascontiguousarray(gyr3), np.r_[np.diff(t), 0.0], 1.0, 1.0, 1.0, 0.0, 0.0, 0.0,
+                np.arange(len(t), dtype=np.int64), q3, np.zeros((len(t), 3, 3)))  # fmt: skip
+    q3 = quat_mul(np.tile(q[0], (len(t), 1)), q3)
+    data = rec.data.copy()
+    data[GYR_COLS] = gyr3
+    data[ACC_COLS] = -9.81 * gravity_body(q3)
+    fast = FlightRecord(data, dict(rec.meta))
+    assert check_reference(_with(fast, ref=q3)).trusted
+    late = _with(fast, ref=_shifted(q3, 6))
+    chk = check_reference(late)
+    assert chk.lag_s == pytest.approx(0.06, abs=0.006) and not chk.trusted and "intervals" in chk.describe()
+    moved, what = aligned_if_refused(late)
+    assert moved is not late and "s earlier" in what and check_reference(moved).trusted
+    assert aligned_if_refused(_with(fast, ref=_shifted(q3, 2)))[1] is None
+
+
+def test_the_rate_grid_masks_a_cell_whose_integral_reads_a_bad_sample():
+    """A cell's gyro integral reads the samples from the one at or before its start to the one after its end: a NaN
+    there (or a clipped sample) masks the cell. At 60 Hz a NaN right after a cell's last sample had been integrated
+    as zero in an unmasked cell (0.375 rad/s read for 0.5)."""
+    from tepinn_flight.model.reference_trust import rates_on_grid
+    from tepinn_flight.record import make_frame
+
+    n, w = 600, np.array([0.5, -0.3, 0.2])
+    t = np.arange(n) / 60.0
+    q = quat_from_rotvec(np.outer(t, w))
+    for row in range(8, 20):
+        gyr = np.tile(w, (n, 1))
+        gyr[row] = np.nan
+        acc = np.tile([0.0, 0.0, -9.81], (n, 1))
+        rec = FlightRecord(make_frame(t, np.zeros(n, np.int32), gyr, acc, q_ref_wxyz=q),
+                           {"source_kind": "synthetic", "source_file": "x", "vehicle_type": "synthetic",
+                            "reference_source": "synthetic-truth"})  # fmt: skip
+        (g, r), = rates_on_grid(rec, 0.02)[0]
+        ok = np.isfinite(g).all(axis=1)
+        assert ok.sum() > 0.9 * len(g) and np.abs(g[ok] - w).max() < 1e-9, row
