@@ -90,15 +90,26 @@ MIN_ESTIMATION_RATE_HZ = 20.0
 
 
 def no_imu_reason(rec: "FlightRecord") -> str | None:
-    """Why a record gives nothing to estimate — no sample, or no finite gyro or accelerometer sample (nothing to
-    bridge a hole with: a constant attitude, not an estimate) — or None where it does. ``estimate`` refuses such a
+    """Why a record gives nothing to estimate — no sample, no finite gyro or accelerometer sample (nothing to
+    bridge a hole with: a constant attitude, not an estimate), or an accelerometer that never reads gravity — or None
+    where it does. ``estimate`` refuses such a
     record and ``evaluate`` too (it had scored every estimator on a record without an accelerometer sample)."""
     if len(rec) == 0:
         return "the record holds no IMU sample"
     for what, v in (("gyro", rec.gyr_rad_s), ("accelerometer", rec.acc_m_s2)):
         if not np.all(np.isfinite(v), 1).any():
             return f"no finite {what} sample in the record"
+    acc = rec.acc_m_s2
+    if np.linalg.norm(acc[np.all(np.isfinite(acc), 1)], axis=1).max() < MIN_ACC_SIGNAL_M_S2:
+        return (f"the accelerometer reads under {MIN_ACC_SIGNAL_M_S2:g} m/s² on every sample (a sensor not logged, "
+                "written as zeros?): no gravity to estimate a tilt from")
     return None
+
+
+#: an accelerometer that never reads more than this (m/s²) shows no gravity: :func:`no_imu_reason` (a dead sensor's
+#: zeros; a real one at rest reads 9.8 — 1.0 if written in g, which the scale
+#: self-calibration divides out —, in free fall its noise, never a whole record of it)
+MIN_ACC_SIGNAL_M_S2 = 0.5
 
 
 def estimation_ok(meta: dict) -> bool:

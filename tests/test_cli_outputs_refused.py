@@ -68,6 +68,25 @@ def test_estimate_refuses_a_record_with_no_finite_imu_sample(tmp_path, capsys, c
     assert not (tmp_path / "e.parquet").exists()
 
 
+def test_estimate_refuses_an_accelerometer_written_as_zeros_and_reads_a_g_unit_one(tmp_path, capsys):
+    """An accelerometer of zeros (a sensor not logged) shows no gravity: `estimate` had given a full attitude with a σ
+    as confident as on real data, and the scale reading called 0 g "within the tolerance". One written in g (1.0 at
+    rest) is still estimated: the scale self-calibration divides it out."""
+    p = _record(tmp_path, **dict.fromkeys(ACC_COLS, 0.0))
+    assert main(["estimate", str(p), "-o", str(tmp_path / "e.parquet"), "-q"]) == 2
+    _one_error_line(capsys, "the accelerometer reads under 0.5 m/s² on every sample")
+    assert not (tmp_path / "e.parquet").exists()
+    from tepinn_flight.model.accel_scale import AccelScale
+
+    assert "no gravity to read a scale from" in AccelScale(1.0, False, 0.0, 6.0).describe()
+    rec = synthetic_record(seed=2, duration_s=20.0, rate_hz=100.0)
+    data = rec.data.copy()
+    data[ACC_COLS] = data[ACC_COLS] / 9.80665
+    g = tmp_path / "g.parquet"
+    write_record(FlightRecord(data, dict(rec.meta)), g)
+    assert main(["estimate", str(g), "-o", str(tmp_path / "eg.parquet"), "-q"]) == 0
+
+
 def test_estimate_refuses_a_record_without_samples(tmp_path, capsys):
     rec = synthetic_record(seed=1, duration_s=2.0, rate_hz=100.0)
     p = tmp_path / "zero.parquet"

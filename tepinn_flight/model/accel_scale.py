@@ -81,7 +81,12 @@ class AccelScale:
         """One line for a user."""
         if self.read is None:
             return f"accelerometer scale: {self.quiet_s:.1f} s quiet, too little to read; not applied"
-        what = "divided out; applied" if self.applied else "within the tolerance; not applied"
+        if self.applied:
+            what = "divided out; applied"
+        elif self.read <= 0.0:
+            what = "no gravity to read a scale from (a sensor written as zeros?); not applied"
+        else:
+            what = "within the tolerance; not applied"
         return f"accelerometer scale: {self.read:.3f} g at {self.quiet_s:.0f} s of quiet, steady samples; {what}"
 
 
