@@ -150,6 +150,7 @@ def test_a_source_log_of_another_flight_is_refused(flight, tmp_path, capsys, mon
     err = capsys.readouterr().err
     assert code == 2 and "not the record's gyro readings" in err and err.count("\n") == 1, err
     assert not (tmp_path / "e.tlog").exists()
+    assert not (tmp_path / "e.parquet").exists()  # an input error leaves no output (the Parquet was written first)
     # the times alone matched it (the check the samples' values now add)
     monkeypatch.setattr(estimate_tlog, "_same_samples", lambda a, b: True)
     assert main([*args, "--source-log", str(other)]) == 0 and (tmp_path / "e.tlog").exists()
@@ -157,6 +158,21 @@ def test_a_source_log_of_another_flight_is_refused(flight, tmp_path, capsys, mon
     (tmp_path / "e.tlog").unlink()
     monkeypatch.undo()
     assert main([*args, "--source-log", str(flight / "flight.tlog")]) == 0 and (tmp_path / "e.tlog").exists()
+
+
+def test_resume_rewrites_a_tlog_whose_options_changed(flight, tmp_path, capsys):
+    """`estimate --resume` with other `--tlog-messages` or `--tlog-rate`: the tlog's options are part of the output's
+    key, so it is written again (it had been "up to date" and left as it was); the same options skip it."""
+    args = ["estimate", str(flight / "flight.parquet"), "-o", str(tmp_path / "e.parquet"), "--tlog", str(tmp_path / "e.tlog")]
+    assert main([*args, "-q", "--tlog-messages", "attitude_quaternion"]) == 0
+    kinds = {m.get_type() for m in _read(tmp_path / "e.tlog") if m.get_srcComponent() == 191} - {"HEARTBEAT"}
+    assert kinds == {"ATTITUDE_QUATERNION"}
+    assert main([*args, "--resume", "--tlog-messages", "attitude_quaternion"]) == 0
+    assert "up to date" in capsys.readouterr().out
+    assert main([*args, "--resume", "--tlog-messages", "named_value", "--tlog-rate", "5"]) == 0
+    assert "up to date" not in capsys.readouterr().out
+    kinds = {m.get_type() for m in _read(tmp_path / "e.tlog") if m.get_srcComponent() == 191} - {"HEARTBEAT"}
+    assert kinds == {"NAMED_VALUE_FLOAT"}
 
 
 def test_mavexplorer_graphs_evaluate_on_the_written_tlog(flight):

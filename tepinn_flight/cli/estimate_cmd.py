@@ -209,14 +209,19 @@ def _settings_key(ckpt_path, fusion) -> str:
     return hashlib.sha256(f"{__version__}|{file_sha256(ckpt_path)}|{fusion!r}|{steps}".encode()).hexdigest()
 
 
-def _output_key(opts: _Options, src) -> str:
+def _output_key(opts: _Options, src, tlog: bool = False) -> str:
     """The key an output of ``src`` carries (``estimate_key`` in its metadata): the settings' and the source
-    file's name, size and modification time."""
+    file's name, size and modification time, and with ``tlog`` the tlog's own options (a changed ``--tlog-messages``,
+    ``--tlog-rate`` or ``--source-log`` had left a resumed tlog as it was, "up to date")."""
     import hashlib
     from pathlib import Path
 
     st = Path(src).stat()
     key = f"{OUTPUT_VERSION}|{opts.settings_key}|{Path(src).name}|{st.st_size}|{st.st_mtime_ns}"
+    if tlog:
+        source = Path(opts.source_log).resolve() if opts.source_log else None
+        source_st = f"{source}|{source.stat().st_size}|{source.stat().st_mtime_ns}" if source and source.exists() else source
+        key += f"|tlog|{opts.tlog_messages}|{opts.tlog_rate!r}|{source_st}"
     return hashlib.sha256(key.encode()).hexdigest()[:32]
 
 
@@ -253,7 +258,7 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
     from .paths import output_format
 
     out, err = [], []
-    key = _output_key(opts, src)
+    key = _output_key(opts, src, tlog=tlog_dst is not None)
     if opts.resume and _up_to_date(dst, key) and (tlog_dst is None or tlog_dst.exists()):
         if not opts.quiet:
             out.append(f"{src} -> {dst}: up to date (the same source, model and settings), skipped (--resume)")
@@ -295,6 +300,14 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
     table = table.replace_schema_metadata({b"source_record": str(src.name).encode(), b"model": str(opts.model_name).encode(),
                                            b"estimate_key": key.encode(), b"conventions": _conventions_json().encode(),
                                            **{k.encode(): v.encode() for k, v in found.items()}})  # fmt: skip
+    tlog_out = []
+    if tlog_dst is not None:  # first: a source log that is not this record's is an input error, and leaves no output
+        try:
+            tlog_out, e = _write_tlog(opts, src, rec, df, tlog_dst)
+            err += e
+        except TepinnError as exc:
+            err.append(f"tepinn-flight estimate: error: {src}: {exc}")
+            return out, err, 1
     if output_format(dst, "estimate", csv=True) == "csv":  # the columns alone (the notes are printed below)
         atomic_write(dst, lambda tmp: write_csv(table, tmp))
     else:
@@ -302,15 +315,7 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
     if not opts.quiet:
         ok = df["q_est_w"].notna().mean()
         out.append(f"{src} -> {dst}: {len(df)} rows, {100 * ok:.1f}% estimated" + "".join(f"; {v}" for v in found.values()))
-    if tlog_dst is not None:
-        try:
-            o, e = _write_tlog(opts, src, rec, df, tlog_dst)
-            out += o
-            err += e
-        except TepinnError as exc:
-            err.append(f"tepinn-flight estimate: error: {src}: {exc}")
-            return out, err, 1
-    return out, err, 0
+    return out + tlog_out, err, 0
 
 
 def _conventions_json() -> str:
