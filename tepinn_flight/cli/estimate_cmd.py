@@ -142,7 +142,10 @@ def _run(args) -> int:
         fusion = dataclasses.replace(fusion, yaw=args.yaw)
     # the anchored estimator's heading is VQF's: --yaw zero takes it out of the output (it was ignored)
     yaw_zero = args.yaw == "zero" and not hasattr(fusion, "yaw")
-    paths = collect_records(args.records, args.recursive)
+    left_out: list[str] = []
+    paths = collect_records(args.records, args.recursive, left_out)
+    for line in left_out:
+        sys.stderr.write(f"tepinn-flight estimate: note: {line}\n")
     # a folder's outputs go to a folder, and so do those of several inputs (one file named twice is read once)
     from_folder = len(args.records) > 1 or any(Path(i).is_dir() for i in args.records)
     outs = output_paths(paths, args.output, from_folder)
@@ -169,12 +172,12 @@ def _run(args) -> int:
     else:
         results = (_estimate_one(model, fusion, opts, *job) for job in jobs)
     failures = 0
-    for out_lines, err_lines, failed in tqdm(results, total=len(jobs), unit="record", file=sys.stderr,
-                                             disable=args.quiet or len(jobs) < 2):  # fmt: skip
-        for line in err_lines:
-            sys.stderr.write(line + "\n")
+    bar = tqdm(results, total=len(jobs), unit="record", file=sys.stderr, disable=args.quiet or len(jobs) < 2)
+    for out_lines, err_lines, failed in bar:
+        for line in err_lines:  # each on a line of its own, not after the bar's (stderr to a file: one line each)
+            bar.write(line, file=sys.stderr)
         for line in out_lines:
-            print(line)
+            bar.write(line, file=sys.stdout)
         failures += failed
     return 2 if failures else 0
 

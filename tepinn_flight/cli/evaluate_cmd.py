@@ -90,10 +90,10 @@ def _run(args) -> int:
     if not levels or any(not (lv >= 0) for lv in levels):
         raise ConfigError(f"--noise-levels must be numbers >= 0, got {args.noise_levels!r}")
     hcfg = HarnessConfig(warmup_s=args.warmup_s, noise_levels=levels)
-    paths = collect_records(args.records, args.recursive)
+    notes: list[str] = []
+    paths = collect_records(args.records, args.recursive, notes)  # (a file named as a log that is none: a note)
     # the report's files replace those of an earlier report in -o: never one of the records read
     refuse_overwriting_inputs([("-o", Path(args.output) / n) for n in report_files()], paths)
-    notes: list[str] = []
     if args.tune_ekf_on:
         from ..evaluation.filters.ekf import tune
 

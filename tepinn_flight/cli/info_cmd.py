@@ -40,7 +40,10 @@ def run(args) -> int:
     for item in args.files:
         p = Path(item)
         if p.is_dir():
-            found = files_in(p, RECORD_OR_LOG_FORMATS, recursive=args.recursive)
+            left_out: list[str] = []
+            found = files_in(p, RECORD_OR_LOG_FORMATS, recursive=args.recursive, notes=left_out)
+            for line in left_out:
+                sys.stderr.write(f"tepinn-flight info: note: {line}\n")
             if not found:
                 failures += 1
                 sys.stderr.write(f"tepinn-flight info: error: {TepinnError('folder holds no flight records or logs', p)}\n")

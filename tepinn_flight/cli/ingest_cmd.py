@@ -44,7 +44,10 @@ def run(args) -> int:
 
     from ..ingest.inputs import LOG_FORMATS, expand
 
-    logs = expand(args.logs, LOG_FORMATS, recursive=args.recursive)
+    left_out: list[str] = []
+    logs = expand(args.logs, LOG_FORMATS, recursive=args.recursive, notes=left_out)
+    for line in left_out:
+        sys.stderr.write(f"tepinn-flight ingest: note: {line}\n")
     outs = output_paths(logs, args.output, from_folder=len(args.logs) > 1 or any(Path(i).is_dir() for i in args.logs))
     for out in outs:  # before any work: a record is Parquet, whatever the name says
         output_format(out, "ingest")
@@ -62,7 +65,8 @@ def run(args) -> int:
         except TepinnError as exc:
             failures += 1
             msg = str(exc) if exc.path else f"{log}: {exc}"
-            sys.stderr.write(f"tepinn-flight ingest: error: {msg}\n")
+            line = f"tepinn-flight ingest: error: {msg}"  # (on a line of its own, not after the bar's)
+            (progress.write(line, file=sys.stderr) if progress else sys.stderr.write(line + "\n"))
         else:
             if not args.quiet:
                 line = f"{log} -> {out}: {record_summary_line(rec)}"

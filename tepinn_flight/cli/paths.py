@@ -114,12 +114,13 @@ def add_recursive(p) -> None:
                    help="a folder stands for the logs and records in its subfolders too (e.g. a PX4 SD card's log/)")
 
 
-def collect_records(items: list[str], recursive: bool = False) -> list[Path]:
+def collect_records(items: list[str], recursive: bool = False, notes: list[str] | None = None) -> list[Path]:
     """Record paths from the command line: files as given, a folder stands for the flight records and the logs
-    in it (told by content: :mod:`tepinn_flight.ingest.inputs`; in its subfolders too where ``recursive``)."""
+    in it (told by content: :mod:`tepinn_flight.ingest.inputs`; in its subfolders too where ``recursive``);
+    ``notes`` gets a line for each file there named as a log that is none (an empty ``.BIN``)."""
     from ..ingest.inputs import expand
 
-    return expand(items, recursive=recursive)
+    return expand(items, recursive=recursive, notes=notes)
 
 
 def read_records(items: list[str], paths: list[Path], notes: list[str]) -> list:

@@ -6,6 +6,8 @@ Files named on the command line are taken as given (the verb reports what it can
 the files a folder holds are chosen here. Hidden files and files none of our readers know are left
 out silently: a log folder also holds ``LASTLOG.TXT``, parameter files and the ground station's
 notes — and Parquet files that are not flight records, such as the estimates ``estimate`` wrote there.
+A file named as a log is (:data:`LOG_SUFFIXES`) but not one — an empty ``00000042.BIN``, the commonest broken log on
+an ArduPilot SD card — is left out with a note, where the caller asks for them (session 58: it had gone unsaid).
 """
 
 from __future__ import annotations
@@ -23,9 +25,14 @@ LOG_FORMATS = frozenset(FORMATS) - {"parquet"}
 RECORD_OR_LOG_FORMATS = frozenset(FORMATS)
 
 
-def files_in(folder: str | os.PathLike, formats: frozenset[str], recursive: bool = False) -> list[Path]:
+#: the file names a log or record goes by: one of them that holds none is said to be left out
+LOG_SUFFIXES = frozenset({".bin", ".log", ".tlog", ".ulg", ".hdf5", ".h5", ".parquet"})
+
+
+def files_in(folder: str | os.PathLike, formats: frozenset[str], recursive: bool = False,
+             notes: list[str] | None = None) -> list[Path]:
     """The files in ``folder`` (and its subfolders where ``recursive``) whose content is one of
-    ``formats``, sorted by path."""
+    ``formats``, sorted by path; ``notes`` gets a line for each file named as a log that is none (empty, unknown)."""
     root = Path(folder)
     candidates = root.rglob("*") if recursive else root.iterdir()
     out = []
@@ -36,7 +43,9 @@ def files_in(folder: str | os.PathLike, formats: frozenset[str], recursive: bool
             continue
         try:
             fmt = sniff(f)
-        except TepinnError:
+        except TepinnError as exc:
+            if notes is not None and f.suffix.lower() in LOG_SUFFIXES:
+                notes.append(f"{f}: left out ({exc.reason})")
             continue
         if fmt == "parquet" and not is_flight_record(f):  # an estimate written beside the records, another table
             continue
@@ -45,8 +54,10 @@ def files_in(folder: str | os.PathLike, formats: frozenset[str], recursive: bool
     return sorted(out)
 
 
-def expand(items: list[str], formats: frozenset[str] = RECORD_OR_LOG_FORMATS, recursive: bool = False) -> list[Path]:
-    """Paths from the command line: a file as given, a folder for the files in it of ``formats``.
+def expand(items: list[str], formats: frozenset[str] = RECORD_OR_LOG_FORMATS, recursive: bool = False,
+           notes: list[str] | None = None) -> list[Path]:
+    """Paths from the command line: a file as given, a folder for the files in it of ``formats`` (``notes``: as
+    :func:`files_in` gives them).
 
     One-line errors: an item that does not exist, a folder holding none of them."""
     what = "logs" if "parquet" not in formats else "flight records or logs"
@@ -54,7 +65,7 @@ def expand(items: list[str], formats: frozenset[str] = RECORD_OR_LOG_FORMATS, re
     for it in items:
         p = Path(it)
         if p.is_dir():
-            found = files_in(p, formats, recursive)
+            found = files_in(p, formats, recursive, notes)
             if not found:
                 below = " or its subfolders" if recursive else ""
                 raise TepinnError(f"folder{below} holds no {what} (told by content: ULog, DataFlash, tlog, BROAD HDF5"
