@@ -185,3 +185,24 @@ def test_a_sensor_step_past_its_range_is_refused():
     with pytest.raises(ConfigError, match="'lsb_mg' must be below 'range_g'"):
         AccelConfig(range_g=2.0, lsb_mg=2500.0)
     AccelConfig(range_g=16.0, lsb_mg=20.0)  # (mg against g: a coarse step well inside the range is fine)
+
+
+def test_an_empty_output_name_and_two_report_folders_are_refused(tmp_path, capsys):
+    """`-o ""` (a shell variable never set) had been read as the current folder and refused as "the input"; `evaluate
+    -o A --report B` silently wrote B only. One line each, exit 2."""
+    p = _record(tmp_path)
+    assert main(["estimate", str(p), "-o", ""]) == 2
+    _one_error_line(capsys, "-o is empty")
+    with pytest.raises(SystemExit) as exc:  # (a usage error: argparse's exit)
+        main(["evaluate", str(p), "-o", str(tmp_path / "a"), "--report", str(tmp_path / "b"), "-q"])
+    assert exc.value.code == 2
+    _one_error_line(capsys, "not allowed with")
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_an_onnx_export_where_a_checkpoint_is_needed_says_so(tmp_path, capsys):
+    from tepinn_flight.model.runtime import default_onnx_path
+
+    p = _record(tmp_path)
+    assert main(["evaluate", str(p), "-o", str(tmp_path / "ev"), "--model", str(default_onnx_path()), "-q"]) == 2
+    _one_error_line(capsys, "an ONNX export, not a checkpoint")

@@ -24,8 +24,10 @@ def add_arguments(p) -> None:
                  'tepinn-flight evaluate flight.tlog 00000042.BIN -o report/ --with-mag',
                  'tepinn-flight evaluate sims/ -o report/ --noise-sweep')
     p.add_argument("records", nargs="+", metavar="RECORD", help="flight records, logs, or folders of them")
-    p.add_argument("-o", "--output", "--report", dest="output", required=True, metavar="DIR",
-                   help="output folder for report.md, report.html, figures, metrics.json (--report DIR: the same)")
+    out = p.add_mutually_exclusive_group(required=True)  # (both: refused, not the last one taken)
+    out.add_argument("-o", "--output", dest="output", metavar="DIR",
+                     help="output folder for report.md, report.html, figures, metrics.json")
+    out.add_argument("--report", dest="report", metavar="DIR", help="the same as -o")
     p.add_argument("--model", action="append", default=[], metavar="CKPT",
                    help="TE-PINN checkpoint (repeatable); default: the shipped model if there is one")
     p.add_argument("--no-model", action="store_true", help="evaluate the baselines only")
@@ -60,6 +62,9 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from .notes import run_noting_compiles
+
+    if args.output is None:  # --report DIR
+        args.output = args.report
 
     return run_noting_compiles("evaluate", args, _run)  # the first run after installing compiles the loops: say so, once
 

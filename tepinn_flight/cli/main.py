@@ -116,6 +116,11 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
+    for flag in ("output", "tlog", "summary_json", "json"):  # an empty -o (a shell variable never set) is no output
+        if getattr(args, flag, None) == "":
+            name = {"output": "-o", "summary_json": "--summary-json"}.get(flag, f"--{flag}")
+            sys.stderr.write(f"tepinn-flight {args.command}: error: {name} is empty: name an output\n")
+            return 2
     debug = os.environ.get("TEPINN_DEBUG") not in (None, "", "0")
     try:
         with terminate_on_sigterm():  # SIGTERM (timeout, systemd, a scheduler) cleans up as Ctrl-C does

@@ -137,7 +137,7 @@ def _campaign(args) -> int:
     res = run_campaign(args.campaign, args.output, workers=args.workers, progress=not args.quiet)
     if not args.quiet or res.failed:
         print(f"campaign {args.campaign}: {res.total} flights, {res.computed} computed, {res.skipped} already done, "
-              f"{len(res.failed)} failed in {res.wall_s:.1f} s (flight time sum {res.flight_s:.1f} s) -> {args.output}")
+              f"{len(res.failed)} failed in {res.wall_s:.1f} s (the workers' time {res.flight_s:.1f} s) -> {args.output}")
     if res.failed:
         sys.stderr.write(f"tepinn-flight simulate: error: {len(res.failed)} flight(s) failed: {res.failure_causes()}; "
                          "re-run the same command to retry them\n")

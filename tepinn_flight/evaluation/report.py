@@ -254,6 +254,8 @@ def fig_per_record(result, colours, path=None):
             ax.scatter((i + jitter)[~ok], vals[~ok], facecolors="none", edgecolors=colours[name], s=14,
                        label="IMU too slow or reference not trusted (not in the mean)" if i == 0 else None)  # fmt: skip
         fin = np.flatnonzero(np.isfinite(vals))
+        if len(vals) > LABEL_ALL_RECORDS and (np.isfinite(vals) & ok).any():  # best and worst of the summary's records
+            fin = np.flatnonzero(np.isfinite(vals) & ok)
         if np.isfinite(vals[ok]).any():
             ax.hlines(np.nanmean(vals[ok]), i - 0.3, i + 0.3, color=colours[name], lw=2)
         if fin.size:
