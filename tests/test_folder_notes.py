@@ -46,3 +46,11 @@ def test_info_and_estimate_say_it_too(tmp_path, capsys):
                for ln in lines), lines  # fmt: skip
     assert sum(ln.startswith("tepinn-flight estimate: error:") for ln in lines) == 2, lines
     assert (tmp_path / "est" / "r.parquet").exists()
+
+
+def test_ingest_says_a_reference_covers_everything_only_where_it_does():
+    """`ingest` had printed "(100% covered)" for a reference on 99.7 % of the samples, where `info` said 99.7 %."""
+    from tepinn_flight.cli.summary import _percent
+
+    assert [_percent(x) for x in (1.0, 0.997, 0.9996, 0.5, 0.0, 0.0004)] == ["100%", "99.7%", "99.9%", "50.0%", "0%",
+                                                                           "0.0%"]  # fmt: skip

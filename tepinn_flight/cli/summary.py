@@ -12,7 +12,7 @@ def _hz(v) -> str:
 def record_summary_line(rec) -> str:
     m = rec.meta
     s = f"{len(rec)} samples, IMU {_hz(m.get('imu_rate_hz'))}, reference {m.get('reference_source')}"
-    s += f" ({100 * m.get('reference_coverage', 0):.0f}% covered), {m.get('segments')} segment(s)"
+    s += f" ({_percent(m.get('reference_coverage', 0))} covered), {m.get('segments')} segment(s)"
     if not m.get("estimation_ok", True):
         s += " [IMU rate too low for estimation]"
     return s
@@ -107,3 +107,12 @@ def render_info(path, s: dict) -> str:
     for n in s.get("notes", []):
         add("note", n)
     return "\n".join(lines)
+
+
+def _percent(share: float) -> str:
+    """A share as a percentage, "100%" only where it is all and "0%" only where it is none (99.7 % had read "100%", as
+    `info` does not), else to a tenth, rounded down."""
+    import math
+
+    p = 100.0 * float(share)
+    return "100%" if p >= 100.0 else "0%" if p <= 0.0 else f"{math.floor(p * 10.0) / 10.0:.1f}%"
