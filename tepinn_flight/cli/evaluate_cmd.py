@@ -27,7 +27,7 @@ def add_arguments(p) -> None:
     out = p.add_mutually_exclusive_group(required=True)  # (both: refused, not the last one taken)
     out.add_argument("-o", "--output", dest="output", metavar="DIR",
                      help="output folder for report.md, report.html, figures, metrics.json")
-    out.add_argument("--report", dest="report", metavar="DIR", help="the same as -o")
+    out.add_argument("--report", dest="output", metavar="DIR", help="the same as -o")
     p.add_argument("--model", action="append", default=[], metavar="CKPT",
                    help="TE-PINN checkpoint (repeatable); default: the shipped model if there is one")
     p.add_argument("--no-model", action="store_true", help="evaluate the baselines only")
@@ -62,9 +62,6 @@ def add_arguments(p) -> None:
 
 def run(args) -> int:
     from .notes import run_noting_compiles
-
-    if args.output is None:  # --report DIR
-        args.output = args.report
 
     return run_noting_compiles("evaluate", args, _run)  # the first run after installing compiles the loops: say so, once
 
