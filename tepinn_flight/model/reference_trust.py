@@ -331,7 +331,7 @@ class RateAlignment(NamedTuple):
 
 
 #: a sample period this close to the timing check's limit (half of ``max_lag_s``) is at it: a 20-Hz IMU's stamps
-#: from 100 s give a median period of 0.05000000000001 s
+#: from 250 s give a median period of 0.05000000000001 s
 _PERIOD_TOL = 1e-6
 
 
