@@ -86,6 +86,35 @@ def signals_held():
         raise failed
 
 
+@contextmanager
+def signals_ignored():
+    """Ctrl-C and SIGTERM dropped while the block runs — a pool being terminated and joined after the first one: a
+    second (a terminal's user pressing Ctrl-C again; ``timeout``, which signals the command and then its whole
+    process group, so the main process gets two) had stopped ``Pool.terminate`` before it killed the workers, and the
+    ``join`` that followed waited for them for ever (session 58: 3 of 5 interrupted campaigns hung). In the main thread;
+    elsewhere nothing changes. The exception already on its way is what the caller raises."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def stop_pool(pool, stopping: bool) -> None:
+    """A pool's end: ``terminate`` where ``stopping`` (an exception on its way: Ctrl-C, SIGTERM, an error), then
+    ``join`` — both out of reach of another signal (:func:`signals_ignored`). ``pool`` None: nothing."""
+    if pool is None:
+        return
+    with signals_ignored():
+        if stopping:
+            pool.terminate()
+        pool.join()
+
+
 def worker_init(main_pid: int | None = None) -> None:
     """A pool worker's start: ignore Ctrl-C and SIGTERM's conversion (the main process terminates its workers), and
     exit when ``main_pid`` is gone (a watchdog thread polls it every 0.5 s), writing nothing to stderr from then

@@ -574,6 +574,42 @@ if __name__ == "__main__":
 """
 
 
+#: a pool of workers busy for a minute; a second Ctrl-C arrives as its terminate begins (as `timeout`'s does: it signals
+#: the command, then its whole process group); `stop_pool` must still stop the workers and return
+_SECOND_CTRL_C = """
+import multiprocessing, os, signal, time
+from tepinn_flight.worker_processes import stop_pool, worker_init
+if __name__ == "__main__":
+    pool = multiprocessing.get_context("fork").Pool(2, initializer=worker_init, initargs=(os.getpid(),))
+    pool.map_async(time.sleep, [60, 60])
+    time.sleep(0.5)
+    real = pool.terminate
+    def terminate():
+        os.kill(os.getpid(), signal.SIGINT)  # the second Ctrl-C, as the stopping begins
+        time.sleep(0.05)
+        real()
+    pool.terminate = terminate
+    t0 = time.monotonic()
+    try:
+        raise KeyboardInterrupt  # the first
+    except KeyboardInterrupt:
+        stop_pool(pool, stopping=True)
+    print("stopped", round(time.monotonic() - t0) < 10)
+"""
+
+
+def test_a_second_ctrl_c_does_not_stop_a_pools_stopping():
+    """Interrupted campaigns hung 3 times in 5 under `timeout -s INT` (session 58): the second SIGINT stopped
+    `Pool.terminate` before it killed the workers, and the `join` after it waited for them for ever. `stop_pool`
+    terminates and joins out of a signal's reach."""
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _SECOND_CTRL_C], capture_output=True, text=True, timeout=120)
+    assert out.stdout.split() == ["stopped", "True"], out
+    assert "Traceback" not in out.stderr, out.stderr
+
+
 def test_a_pools_forkserver_starts_with_ctrl_c_blocked():
     """A terminal's Ctrl-C goes to the whole process group: the campaign's forkserver, which ignores it only once it
     has imported its preload (seconds), had died of one there with a traceback and the pool's start with an

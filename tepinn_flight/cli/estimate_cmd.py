@@ -366,23 +366,20 @@ def _in_workers(jobs, opts, ckpt_path, runtime, fusion, workers):
 
     methods = multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
-    from ..worker_processes import quiet_tracker_after_kill, signals_held
+    from ..worker_processes import quiet_tracker_after_kill, signals_held, stop_pool
 
     quiet_tracker_after_kill()
 
     pool = None
+    stopping = True
     try:
         with signals_held():  # (a signal while the pool starts: raised once it has, and it is stopped)
             pool = ctx.Pool(workers, initializer=_init_worker, initargs=(os.getpid(), ckpt_path, runtime, fusion))
         yield from pool.imap(_worker_one, [(opts, *job) for job in jobs])
         pool.close()
-    except BaseException:
-        if pool is not None:
-            pool.terminate()
-        raise
-    finally:
-        if pool is not None:
-            pool.join()
+        stopping = False
+    finally:  # terminated on the way out of an exception (Ctrl-C, SIGTERM), joined either way, out of a second one's reach
+        stop_pool(pool, stopping)
 
 
 def _tlog_paths(args, paths, from_folder: bool = False) -> list:

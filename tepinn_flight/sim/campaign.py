@@ -34,7 +34,7 @@ import numpy as np
 from ..config import check, from_dict, load_toml, to_dict
 from ..errors import ConfigError, TepinnError
 from ..record import atomic_write
-from ..worker_processes import quiet_tracker_after_kill, signals_held, terminate_on_sigterm, worker_init
+from ..worker_processes import quiet_tracker_after_kill, signals_held, stop_pool, terminate_on_sigterm, worker_init
 
 MANIFEST = "campaign.json"
 #: A worker process is replaced after this many flights (bounds any memory growth in JSBSim).
@@ -362,6 +362,7 @@ def run_campaign(
         elif specs:
             with terminate_on_sigterm():
                 pool = None
+                stopping = True
                 try:
                     quiet_tracker_after_kill()
                     with signals_held():  # (a signal while the pool starts: raised once it has, and it is stopped)
@@ -370,13 +371,9 @@ def run_campaign(
                     for result in pool.imap_unordered(_fly_one_packed, specs):
                         done(*result)
                     pool.close()
-                except BaseException:
-                    if pool is not None:
-                        pool.terminate()  # Ctrl-C / SIGTERM: stop the workers now; finished records stay
-                    raise
-                finally:
-                    if pool is not None:
-                        pool.join()
+                    stopping = False
+                finally:  # Ctrl-C / SIGTERM: the workers stopped now (finished records stay), out of a second one's reach
+                    stop_pool(pool, stopping)
     finally:
         if bar:
             bar.close()
