@@ -50,40 +50,43 @@ def signals_held():
     """Ctrl-C and SIGTERM held while the block runs — a pool being started, whose ``__init__`` cleans up after an
     ``Exception`` but not after a ``KeyboardInterrupt``: workers half started were left behind, and a campaign
     resumed and terminated at that moment hung. One that came is raised when the block has ended (in the main
-    thread; elsewhere nothing changes).
-
-    Ctrl-C is blocked, not only caught: a terminal sends it to the whole process group, and the processes the block
-    starts inherit the blocked signal — the forkserver, which ignores Ctrl-C only once it has imported its preload
-    (the simulation's, seconds), had died of one there with a traceback, and the pool's start with an ``EOFError``
-    (session 58). The pending Ctrl-C reaches the main process when the block ends. Where the block fails while a
-    SIGTERM came (a process it started, killed by the same signal), the SIGTERM is what is raised."""
+    thread; elsewhere nothing changes). Where the block fails while a signal came (a process it started, killed by the
+    same signal: the forkserver of a pool, an ``EOFError`` here), the signal is what is raised."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    from multiprocessing import resource_tracker
-
-    # multiprocessing's resource tracker, started by the pool's first lock, blocks and then *unblocks* Ctrl-C around
-    # its own start: started here first, it leaves the block's mask alone
-    resource_tracker.ensure_running()
     came: list[int] = []
     old = {s: signal.signal(s, lambda signum, frame: came.append(signum)) for s in (signal.SIGINT, signal.SIGTERM)}
-    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     failed = None
     try:
         yield
     except Exception as exc:  # (raised below, unless a signal came: then that is what stopped the block)
         failed = exc
     finally:
-        if signal.SIGINT not in mask and signal.SIGINT in signal.sigpending():
-            signal.sigwait({signal.SIGINT})  # the Ctrl-C that came meanwhile, taken here (a thread started before
-            came.append(signal.SIGINT)  # the block, not blocking it, may have taken one: recorded by the handler)
-        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         for s, h in old.items():
             signal.signal(s, h)
     if came:
         raise (Terminated if came[0] == signal.SIGTERM else KeyboardInterrupt) from None
     if failed is not None:
         raise failed
+
+
+def start_forkserver(ctx) -> None:
+    """Start ``ctx``'s forkserver (where it is one, and not yet running) with Ctrl-C blocked, which it inherits. A
+    terminal sends Ctrl-C to the whole process group, and the forkserver ignores it only once it has imported its
+    preload (the simulation's: seconds): it had died of one there with a traceback, and the pool's start with an
+    ``EOFError`` (exit 1; session 58). The block lasts the spawn alone (a Ctrl-C then is delivered to this process
+    right after). multiprocessing's resource tracker is started first: its own start unblocks Ctrl-C."""
+    if ctx.get_start_method() != "forkserver" or threading.current_thread() is not threading.main_thread():
+        return
+    from multiprocessing import forkserver, resource_tracker
+
+    resource_tracker.ensure_running()
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        forkserver.ensure_running()
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
 
 @contextmanager

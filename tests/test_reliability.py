@@ -557,16 +557,17 @@ def test_a_signal_while_a_pool_starts_is_raised_once_it_has():
 #: forkserver's signal mask, then a Ctrl-C sent to the process while the block runs
 _POOL_START = """
 import multiprocessing, multiprocessing.forkserver as fs, os, signal, sys
-from tepinn_flight.worker_processes import signals_held
+from tepinn_flight.worker_processes import signals_held, start_forkserver
 if __name__ == "__main__":
     ctx = multiprocessing.get_context("forkserver")
     try:
         with signals_held():
-            pool = ctx.Pool(1)  # its first lock starts the resource tracker, which had unblocked Ctrl-C
-            held = signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, set())
+            start_forkserver(ctx)
+            pool = ctx.Pool(1)
             os.kill(os.getpid(), signal.SIGINT)
             fields = dict(l.split(":", 1) for l in open(f"/proc/{fs._forkserver._forkserver_pid}/status"))
-            print("held", held, "forkserver_blocks", bool(int(fields["SigBlk"], 16) & (1 << (signal.SIGINT - 1))))
+            unblocked = signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, set())
+            print("unblocked", unblocked, "forkserver_blocks", bool(int(fields["SigBlk"], 16) & (1 << (signal.SIGINT - 1))))
     except KeyboardInterrupt:
         print("raised after the block")
     pool.terminate()
@@ -613,14 +614,14 @@ def test_a_second_ctrl_c_does_not_stop_a_pools_stopping():
 def test_a_pools_forkserver_starts_with_ctrl_c_blocked():
     """A terminal's Ctrl-C goes to the whole process group: the campaign's forkserver, which ignores it only once it
     has imported its preload (seconds), had died of one there with a traceback and the pool's start with an
-    ``EOFError`` (exit 1; session 58's review). ``signals_held`` blocks Ctrl-C while a pool starts, so the processes
-    it starts inherit the block, and keeps it blocked through the resource tracker's start (which unblocks it
-    around its own); the Ctrl-C is raised in the main process once the block ends."""
+    ``EOFError`` (exit 1; session 58's review). ``start_forkserver`` spawns it with Ctrl-C blocked, which it
+    inherits (after the resource tracker's start, which unblocks it around its own), and unblocks it in the main
+    process at once; the Ctrl-C that came is raised once ``signals_held``'s block ends."""
     import subprocess
     import sys
 
     if not hasattr(__import__("signal"), "pthread_sigmask") or not Path("/proc/self/status").exists():
         pytest.skip("needs pthread_sigmask and /proc (Linux)")
     out = subprocess.run([sys.executable, "-c", _POOL_START], capture_output=True, text=True, timeout=120)
-    assert out.stdout.split() == ["held", "True", "forkserver_blocks", "True", "raised", "after", "the", "block"], out
+    assert out.stdout.split() == ["unblocked", "True", "forkserver_blocks", "True", "raised", "after", "the", "block"], out
     assert "Traceback" not in out.stderr, out.stderr

@@ -366,7 +366,7 @@ def _in_workers(jobs, opts, ckpt_path, runtime, fusion, workers):
 
     methods = multiprocessing.get_all_start_methods()
     ctx = multiprocessing.get_context("forkserver" if "forkserver" in methods else "spawn")
-    from ..worker_processes import quiet_tracker_after_kill, signals_held, stop_pool
+    from ..worker_processes import quiet_tracker_after_kill, signals_held, start_forkserver, stop_pool
 
     quiet_tracker_after_kill()
 
@@ -374,6 +374,7 @@ def _in_workers(jobs, opts, ckpt_path, runtime, fusion, workers):
     stopping = True
     try:
         with signals_held():  # (a signal while the pool starts: raised once it has, and it is stopped)
+            start_forkserver(ctx)
             pool = ctx.Pool(workers, initializer=_init_worker, initargs=(os.getpid(), ckpt_path, runtime, fusion))
         yield from pool.imap(_worker_one, [(opts, *job) for job in jobs])
         pool.close()

@@ -34,7 +34,8 @@ import numpy as np
 from ..config import check, from_dict, load_toml, to_dict
 from ..errors import ConfigError, TepinnError
 from ..record import atomic_write
-from ..worker_processes import quiet_tracker_after_kill, signals_held, stop_pool, terminate_on_sigterm, worker_init
+from ..worker_processes import (quiet_tracker_after_kill, signals_held, start_forkserver, stop_pool, terminate_on_sigterm,
+                                worker_init)  # fmt: skip
 
 MANIFEST = "campaign.json"
 #: A worker process is replaced after this many flights (bounds any memory growth in JSBSim).
@@ -366,8 +367,10 @@ def run_campaign(
                 try:
                     quiet_tracker_after_kill()
                     with signals_held():  # (a signal while the pool starts: raised once it has, and it is stopped)
-                        pool = _mp_context().Pool(n_workers, initializer=worker_init, initargs=(os.getpid(),),
-                                                  maxtasksperchild=MAX_TASKS_PER_WORKER)  # fmt: skip
+                        ctx = _mp_context()
+                        start_forkserver(ctx)
+                        pool = ctx.Pool(n_workers, initializer=worker_init, initargs=(os.getpid(),),
+                                        maxtasksperchild=MAX_TASKS_PER_WORKER)  # fmt: skip
                     for result in pool.imap_unordered(_fly_one_packed, specs):
                         done(*result)
                     pool.close()
