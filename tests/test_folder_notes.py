@@ -48,6 +48,16 @@ def test_info_and_estimate_say_it_too(tmp_path, capsys):
     assert (tmp_path / "est" / "r.parquet").exists()
 
 
+def test_info_says_it_ignores_a_raw_logs_stream_choice_on_a_record(tmp_path, capsys):
+    """`info --imu N` / `--reference SRC` choose among a raw log's streams; on a record they had been ignored unsaid."""
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    write_record(synthetic_record(seed=1, duration_s=6.0, rate_hz=100.0), tmp_path / "r.parquet")
+    assert main(["info", str(tmp_path / "r.parquet"), "--reference", "XKQ"]) == 0
+    assert any("--imu and --reference choose among a raw log's streams" in ln for ln in _lines(capsys.readouterr().err))
+
+
 def test_ingest_says_a_reference_covers_everything_only_where_it_does():
     """`ingest` had printed "(100% covered)" for a reference on 99.7 % of the samples, where `info` said 99.7 %."""
     from tepinn_flight.cli.summary import _percent

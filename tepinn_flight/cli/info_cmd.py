@@ -53,6 +53,9 @@ def run(args) -> int:
     for path in files:
         try:
             fmt = sniff(path)
+            if fmt == "parquet" and (args.imu is not None or args.reference is not None):  # (a record is ingested)
+                sys.stderr.write(f"tepinn-flight info: note: {path}: a flight record: --imu and --reference choose among "
+                                 "a raw log's streams, not a record's; ignored\n")  # fmt: skip
             rec = load_record(path, imu=args.imu, reference=args.reference)
             s = summarize(rec)
             if fmt != "parquet":

@@ -617,8 +617,10 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
         elif np.isfinite(period) and period > 0:
             i = int(np.searchsorted(t_imu, tb, side="right")) - 1
             lost = max(0, int(round((t_imu[i + 1] - t_imu[i]) / period)) - 1)
-            notes.append(f"logging dropout of {d.duration} ms at {at}: "
-                         + (f"{lost} IMU sample(s) lost there" if lost else "no IMU sample lost there"))  # fmt: skip
+            gap_ms = (t_imu[i + 1] - t_imu[i]) * 1e3  # (the logger's figure is its own: the IMU's stamps say the gap)
+            notes.append(f"logging dropout of {d.duration} ms (the logger's figure) at {at}: "
+                         + (f"{lost} IMU sample(s) lost there, the IMU's stamps skipping {gap_ms:.0f} ms" if lost
+                            else "no IMU sample lost there"))  # fmt: skip
         drop_info.append({"t_s": float(tb), "inside_span": inside, "duration_s": float(d.duration) * 1e-3,
                           "imu_samples_lost": lost})  # fmt: skip
     if getattr(ulog, "_tepinn_truncated", False):
