@@ -58,9 +58,19 @@ def test_info_says_it_ignores_a_raw_logs_stream_choice_on_a_record(tmp_path, cap
     assert any("--imu and --reference choose among a raw log's streams" in ln for ln in _lines(capsys.readouterr().err))
 
 
-def test_ingest_says_a_reference_covers_everything_only_where_it_does():
-    """`ingest` had printed "(100% covered)" for a reference on 99.7 % of the samples, where `info` said 99.7 %."""
-    from tepinn_flight.cli.summary import _percent
+def test_ingest_and_info_say_the_same_reference_coverage():
+    """`ingest`'s line had rounded a reference on 99.7 % of the samples to "100% covered", where `info` said 99.7 %."""
+    import numpy as np
 
-    assert [_percent(x) for x in (1.0, 0.997, 0.9996, 0.5, 0.0, 0.0004)] == ["100%", "99.7%", "99.9%", "50.0%", "0%",
-                                                                           "0.0%"]  # fmt: skip
+    from tepinn_flight.cli.summary import record_summary_line, render_info
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import QREF_COLS, FlightRecord
+    from tepinn_flight.record_stats import summarize
+
+    rec = synthetic_record(seed=1, duration_s=10.0, rate_hz=100.0)
+    data = rec.data.copy()
+    data.loc[data.index[:3], QREF_COLS] = np.nan  # 3 of 1000 rows without a reference
+    rec = FlightRecord(data, dict(rec.meta))
+    s = summarize(rec)
+    rec.meta["reference_coverage"] = s["reference_coverage"]
+    assert "(99.7% covered)" in record_summary_line(rec) and "covers 99.7% of IMU samples" in render_info("r", s)

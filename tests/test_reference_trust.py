@@ -311,6 +311,12 @@ def test_a_reference_stored_on_its_own_rows_of_a_faster_imu_is_still_checked():
     sparse_bad[1::4] = bad[1::4]
     chk = check_reference(_with(rec, ref=sparse_bad))
     assert not chk.trusted and chk.lag_s == pytest.approx(0.4, abs=0.006) and chk.frame_deg == pytest.approx(90.0, abs=1.0)
+    # ... and `--align-reference` reads it the same way: its moved copy is the truth again (it had been NaN throughout)
+    from tepinn_flight.model.reference_trust import aligned_if_refused
+
+    moved, what = aligned_if_refused(_with(rec, ref=sparse_bad))
+    e = np.degrees(quat_angle_between(moved.q_ref_wxyz, q))
+    assert "moved 0.4" in what and np.nanmedian(e) < 0.3 and np.isfinite(e).mean() > 0.85
     t = rec.t_s
     holed = sparse.copy()
     holed[(t > 10.0) & (t < 12.0)] = np.nan
@@ -374,8 +380,10 @@ def test_the_line_says_why_timing_was_not_judged():
 
     slow = check_reference(ingest_log(real_log("ardusub_2023-04-18_11-03-34.tlog")))  # its IMU at 2 Hz
     assert "an IMU at 2 Hz, under 20 Hz" in slow.describe()
-    unlike = _with(rec, ref=np.flip(q, axis=0))  # a reference that turns another way
-    assert "correlate at best" in check_reference(unlike).describe() or check_reference(unlike).lag_s is not None
+    _, other = turns_with_rests(seed=10)  # the reference of other turns (about other axes, by other angles)
+    n = min(len(q), len(other))
+    unlike = _with(FlightRecord(rec.data.iloc[:n].reset_index(drop=True), dict(rec.meta)), ref=other[:n])
+    assert "timing: not judged (the rates correlate at best 0." in check_reference(unlike).describe()
 
 
 def test_align_reference_moves_a_lag_the_turn_check_refused_under_the_timing_limit():

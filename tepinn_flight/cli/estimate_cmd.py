@@ -222,9 +222,9 @@ def _output_key(opts: _Options, src, tlog: bool = False) -> str:
     st = Path(src).stat()
     key = f"{OUTPUT_VERSION}|{opts.settings_key}|{Path(src).name}|{st.st_size}|{st.st_mtime_ns}"
     if tlog:
-        source = Path(opts.source_log).resolve() if opts.source_log else None
-        source_st = f"{source}|{source.stat().st_size}|{source.stat().st_mtime_ns}" if source and source.exists() else source
-        key += f"|tlog|{opts.tlog_messages}|{opts.tlog_rate!r}|{source_st}"
+        source = Path(opts.source_log).resolve() if opts.source_log and Path(opts.source_log).exists() else None
+        sst = source.stat() if source else None
+        key += f"|tlog|{opts.tlog_messages}|{opts.tlog_rate!r}|{source}|{sst and sst.st_size}|{sst and sst.st_mtime_ns}"
     return hashlib.sha256(key.encode()).hexdigest()[:32]
 
 

@@ -9,10 +9,15 @@ def _hz(v) -> str:
     return "n/a" if v is None else f"{v:.1f} Hz"
 
 
+def _share(v) -> str:
+    """A share of the IMU samples as `info` and `ingest` both print it (`ingest` had rounded 99.7 % to "100%")."""
+    return f"{100 * v:.1f}%"
+
+
 def record_summary_line(rec) -> str:
     m = rec.meta
     s = f"{len(rec)} samples, IMU {_hz(m.get('imu_rate_hz'))}, reference {m.get('reference_source')}"
-    s += f" ({_percent(m.get('reference_coverage', 0))} covered), {m.get('segments')} segment(s)"
+    s += f" ({_share(m.get('reference_coverage', 0))} covered), {m.get('segments')} segment(s)"
     if not m.get("estimation_ok", True):
         s += " [IMU rate too low for estimation]"
     return s
@@ -57,7 +62,7 @@ def render_info(path, s: dict) -> str:
     add("IMU used", f"instance {s.get('imu_instance')} at {_hz(s.get('imu_rate_hz'))}"
         + ("" if s.get("estimation_ok", True) else "  ** too slow for windowed estimation **"))
     add("reference", f"{s.get('reference_source')} at {_hz(s.get('reference_rate_hz'))}, "
-        f"covers {100 * s.get('reference_coverage', 0):.1f}% of IMU samples")
+        f"covers {_share(s.get('reference_coverage', 0))} of IMU samples")
     chk = s.get("reference_check")
     if chk:
         add("reference check", chk["line"].removeprefix("reference attitude: "))
@@ -98,7 +103,7 @@ def render_info(path, s: dict) -> str:
     add("magnetometer", "yes" if s.get("has_mag") else "no")
     g = s.get("gnss")
     add("GNSS velocity", "no (the GNSS-aided tilt does not apply)" if not g else
-        f"{g['source']} at {_hz(g['rate_hz'])}, covers {100 * g['coverage']:.1f}% of IMU samples, "
+        f"{g['source']} at {_hz(g['rate_hz'])}, covers {_share(g['coverage'])} of IMU samples, "
         f"ground speed up to {g['max_speed_m_s']:.1f} m/s")  # fmt: skip
     if "valid_fraction" in s:
         add("valid (scored)", f"{100 * s['valid_fraction']:.1f}% of samples")
@@ -108,11 +113,3 @@ def render_info(path, s: dict) -> str:
         add("note", n)
     return "\n".join(lines)
 
-
-def _percent(share: float) -> str:
-    """A share as a percentage, "100%" only where it is all and "0%" only where it is none (99.7 % had read "100%", as
-    `info` does not), else to a tenth, rounded down."""
-    import math
-
-    p = 100.0 * float(share)
-    return "100%" if p >= 100.0 else "0%" if p <= 0.0 else f"{math.floor(p * 10.0) / 10.0:.1f}%"

@@ -425,20 +425,12 @@ def align_reference(rec: FlightRecord, chk: ReferenceCheck,
     if not shift and not turn:
         return rec, 0.0, 0.0
     q = rec.q_ref_wxyz
-    if shift:
+    if shift:  # read at t + lag as the checks read it (between its own rows, its holes kept: NaN there)
         out = np.full_like(q, np.nan)
         t = rec.t_s
         for sl in segment_slices(rec.segment):
-            ts, qs = t[sl], q[sl]
-            has = np.isfinite(qs).all(axis=1)
-            if has.sum() < 2:
-                continue
-            moved = slerp(ts + shift, ts[has], qs[has])
-            # a row takes the reference only where the reference had rows on both sides of t + lag (no bridging of
-            # its own holes)
-            i = np.clip(np.searchsorted(ts, ts + shift, side="right") - 1, 0, len(ts) - 2)
-            ok = has[i] & has[i + 1]
-            out[sl] = np.where(ok[:, None], moved, np.nan)
+            moved, known = reference_at(t[sl], q[sl], t[sl] + shift)
+            out[sl] = np.where(known[:, None], moved, np.nan)
         q = out
     tilt = 0.0
     if turn:
@@ -525,5 +517,4 @@ def aligned_if_refused(rec: FlightRecord, cfg: ReferenceTrustConfig | None = Non
     else:
         fit = ("; the turn is fitted from the rates alone (no rest to read its lean from): its lean is as good as the "
                "IMU's axes, 0.4–0.7° on BROAD")
-
     return moved, f"reference {what} (it was {chk.describe()}){fit}"
