@@ -57,7 +57,8 @@ def add_arguments(p) -> None:
     p.add_argument("--tune-ekf-on", nargs="+", default=[], metavar="RECORD",
                    help="tune the EKF's noise parameters on these TRAINING records first (must not overlap the evaluated ones)")
     add_recursive(p)
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress bar and no notes on the estimates (report.md keeps them); inputs left out are still said")
 
 
 def run(args) -> int:
@@ -78,7 +79,7 @@ def _run(args) -> int:
     from ..evaluation.suite import baseline_estimators, load_suite_config, peer_estimators
     from ..ingest import load_record
     from ..record import check_output
-    from ..evaluation.left_out import left_out
+    from ..evaluation.left_out import kept_out
     from ..evaluation.report import report_files
     from .paths import check_folder_name, collect_records, read_records, refuse_overwriting_inputs
 
@@ -155,6 +156,7 @@ def _run(args) -> int:
     warm_up(filters=True)  # a cold numba cache: the estimators' loops compiled in two processes at once
     import warnings
 
+    read_notes = list(notes)  # what reading the inputs and choosing the estimators said (files left out...)
     with warnings.catch_warnings():  # (numpy's "All-NaN" where nothing is scored: said below in one line)
         warnings.simplefilter("ignore", RuntimeWarning)
         result = evaluate(records, estimators, hcfg, progress=not args.quiet, notes=notes)
@@ -164,13 +166,12 @@ def _run(args) -> int:
     if args.noise_sweep:
         result.noise_sweep = noise_sweep(records, estimators, hcfg, progress=not args.quiet, notes=result.notes)
     files = write_report(result, args.output)
-    if not args.quiet:
-        for n in result.notes:
-            sys.stderr.write(f"note: {n}\n")
+    for n in (result.notes if not args.quiet else read_notes):  # (-q: a file left out is still said)
+        sys.stderr.write(f"note: {n}\n")
     best = sorted((d["inclination_rmse_deg"], k) for k, d in result.dataset.items() if d["inclination_rmse_deg"] is not None)
-    slow = sum(bool(left_out(r)) for r in result.records)
-    over = ("records" if not slow or slow == len(records) else
-            f"the {len(records) - slow} records in the summary; {slow} listed apart: IMU too slow or reference not trusted")
+    why = [w for r in result.records if (w := kept_out(r))]
+    over = ("records" if not why else f"the {len(records) - len(why)} records in the summary; {len(why)} listed apart: "
+            + ", ".join(f"{w} ({why.count(w)})" for w in dict.fromkeys(why)))
     print(f"{len(records)} record(s), {len(estimators)} estimator(s); inclination RMSE (mean over {over}): "
           + ", ".join(f"{display_name(k)} {v:.2f}°" for v, k in best))
     print(f"report: {files[-1]} (interactive: {files[-1].with_name('report.html')})")

@@ -127,6 +127,7 @@ def run_estimators(records, estimators, progress: bool = True, desc: str = "eval
         bar = tqdm(total=len(records) * len(estimators), desc=desc, unit="run", file=sys.stderr, leave=False)
     out = []
     try:
+        _warm(records[0] if records else None, estimators)
         for rec in records:
             runs = {}
             for est in estimators:
@@ -148,6 +149,24 @@ def run_estimators(records, estimators, progress: bool = True, desc: str = "eval
     return out
 
 
+#: rows of the first record each estimator runs on, untimed, before the timed runs
+WARM_ROWS = 4000
+
+
+def _warm(rec: FlightRecord | None, estimators) -> None:
+    """Each estimator run once on the first ``WARM_ROWS`` rows of ``rec``, untimed: its one-time start-up (a runtime's
+    session, torch's first call, a lazily built filter) is not any record's cost (review59: the same network had read
+    65.9 µs a sample as TE-PINN, its start-up on the first record, and 18.2 as TE-PINN 9-D)."""
+    if rec is None or not len(rec):
+        return
+    head = FlightRecord(rec.data.iloc[:WARM_ROWS].reset_index(drop=True), dict(rec.meta))
+    for est in estimators:
+        try:
+            est.estimate(head)
+        except Exception:  # noqa: BLE001 - a warm-up only: what fails here fails in the timed run, and is said there
+            pass
+
+
 def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfig | None = None,
              progress: bool = True, keep_series: bool = True, notes: list[str] | None = None,
              names: list[str] | None = None) -> EvalResult:  # fmt: skip
@@ -163,19 +182,21 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
             raise TepinnError(f"two estimators are named {e.name!r}")
         seen.add(e.name)
     names = names or _unique_names(records)
-    if any(e.uses_mag for e in estimators):
-        from .estimators import record_mag
+    from .estimators import record_mag
 
+    if any(e.uses_mag for e in estimators):
         nomag = [names[i] for i, r in enumerate(records) if record_mag(r) is None]
-        if nomag:
+        if nomag:  # (their heading is left out of the 9-D estimators' summary: aggregate)
             notes.append(f"{len(nomag)} record(s) have no magnetometer ({', '.join(nomag[:5])}{', ...' if len(nomag) > 5 else ''}); "
-                         "the 9-D estimators ran without one there and their heading is not meaningful")  # fmt: skip
+                         "the 9-D estimators ran without one there and their heading is not meaningful (left out of "
+                         "their summary heading)")  # fmt: skip
     bridged = [bridge_gaps(r) for r in records]
     runs = run_estimators([b.record for b in bridged], estimators, progress)
     rec_results, series = [], []
     for i, (br, rr) in enumerate(zip(bridged, runs)):
         res, ser = score_record(br.record, rr, estimators, config, names[i])
         res["n_samples"] = len(records[i])
+        res["has_mag"] = record_mag(records[i]) is not None
         res["bridged_gaps"], res["bridged_samples"] = br.gaps, br.filled
         res["lost_samples"] = lost = lost_steps(inner_steps(br.record))
         if lost:  # what sets the estimators apart there (session 29)
@@ -204,6 +225,7 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
         lines = {r["name"]: r.get("network_gates", {}).get(name, "") for r in rec_results}
         if any(v.endswith("; applied") for v in lines.values()):
             notes.append(f"{display_name(name)}: {gates_acted(lines)}")
+    kept_out = {id(r): left_out(r) for r in rec_results}  # why each record is not in the summary ("": it is)
     headline = [r for r in rec_results if not left_out(r)]
     slow = [r["name"] for r in rec_results if not r["estimation_ok"]]
     untrusted = [r["name"] for r in rec_results if r["estimation_ok"] and not r["reference_trusted"]]
@@ -215,14 +237,25 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
                              "are scored but kept out of the summary means and the paired comparison (listed apart)")
     else:
         headline = rec_results
+        kept_out = {}
         notes.append("every record has an IMU too slow for windowed estimation or a reference that fails the trust "
                      "check: the summary is over them all and is not meaningful")  # fmt: skip
     common, missing = common_records(headline, estimators)
     if missing and common:  # the same records for every estimator's mean (as the same samples within a record)
-        shown = "; ".join(f"{k} ({', '.join(display_name(n) for n in v)})" for k, v in list(missing.items())[:5])
-        notes.append(f"{len(missing)} record(s) where not every estimator has an estimate are kept out of the summary "
-                     f"means and the paired comparison, so that each mean is over the same records: {shown}"
-                     f"{'; ...' if len(missing) > 5 else ''}")  # fmt: skip
+        unscored = {k: v for k, v in missing.items() if not _any_scored(headline, k, estimators)}
+        partial = {k: v for k, v in missing.items() if k not in unscored}
+        if unscored:  # no estimator has a figure there: nothing is scored (not a missing estimate)
+            none = list(unscored)
+            notes.append(f"{len(none)} record(s) with no scored sample (shorter than the warm-up, or no reference after "
+                         f"it) are kept out of the summary means: {', '.join(none[:5])}{', ...' if len(none) > 5 else ''}")  # fmt: skip
+        if partial:
+            shown = "; ".join(f"{k} ({', '.join(display_name(n) for n in v)})" for k, v in list(partial.items())[:5])
+            notes.append(f"{len(partial)} record(s) where not every estimator has an estimate are kept out of the summary "
+                         f"means and the paired comparison, so that each mean is over the same records: {shown}"
+                         f"{'; ...' if len(partial) > 5 else ''}")  # fmt: skip
+        by_name = {r["name"]: r for r in headline}
+        kept_out |= {id(by_name[k]): "no scored sample" for k in unscored}
+        kept_out |= {id(by_name[k]): "not every estimator has an estimate" for k in partial}
         headline = common
     elif missing:
         notes.append("no record has an estimate of every estimator: each summary mean is over that estimator's own "
@@ -230,6 +263,7 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
     summary = {id(r) for r in headline}
     for r in rec_results:
         r["in_summary"] = id(r) in summary  # (the figures that pool samples take these records only)
+        r["kept_out"] = "" if r["in_summary"] else kept_out.get(id(r), "")
     dataset = aggregate(headline, estimators, len(config.rate_bins_deg_s) - 1)
     comparisons = compare_learned(headline, estimators, dataset)
     info = [{"name": e.name, "kind": e.kind, "causal": bool(e.causal), "uses_mag": bool(e.uses_mag),
@@ -284,7 +318,7 @@ def score_record(rec: FlightRecord, runs: dict, estimators, config: HarnessConfi
         s["seconds"] = el
         s["us_per_sample"] = 1e6 * el / max(1, len(rec))
         out["results"][est.name] = _to_report_units(s)
-        ser["est"][est.name] = {"q": q_al, "incl": incl, "sigma": sigma,
+        ser["est"][est.name] = {"q": q_al, "incl": incl, "sigma": sigma, "tracks_heading": getattr(est, "tracks_heading", True),
                                 "tilt_err": M.tilt_error_vector_rad(M.error_quat_earth(q_al, q_ref)) if sigma is not None else None}  # fmt: skip
     return out, ser
 
@@ -331,6 +365,12 @@ def common_records(rec_results: list[dict], estimators) -> tuple[list[dict], dic
     return keep, missing
 
 
+def _any_scored(rec_results: list[dict], name: str, estimators) -> bool:
+    """Whether any estimator has an inclination figure on the record called ``name``."""
+    r = next(r for r in rec_results if r["name"] == name)
+    return any(_scored(r["results"][e.name]) for e in estimators)
+
+
 def aggregate(rec_results: list[dict], estimators, n_bins: int) -> dict:
     keys = ["inclination_rmse_deg", "roll_rmse_deg", "pitch_rmse_deg", "heading_rmse_deg", "total_rmse_deg",
             "yaw_rmse_deg", "inclination_mean_deg", "inclination_p95_deg", "mean_quat_distance",
@@ -352,6 +392,15 @@ def aggregate(rec_results: list[dict], estimators, n_bins: int) -> dict:
         if not getattr(est, "tracks_heading", True):  # (RIANN: a heading it does not track is no figure to compare)
             for k in _HEADING_KEYS:
                 d[k] = None
+        elif getattr(est, "uses_mag", False) and not all(rr.get("has_mag", True) for rr in rec_results):
+            # a 9-D heading where the record has no magnetometer measures nothing (the notes say so): its heading
+            # figures are the means over the records with one
+            with_mag = [r["results"][est.name] for r in rec_results if r.get("has_mag", True)]
+            for k in _HEADING_KEYS:
+                key = "heading_drift_deg_per_min" if k == "heading_drift_abs_deg_per_min" else k
+                vals = np.array([np.nan if r.get(key) is None else r[key] for r in with_mag], np.float64)
+                d[k] = _mean_finite(np.abs(vals) if k != key else vals)
+            d["n_records_heading"] = len(with_mag)
         sq = np.zeros(n_bins)
         cnt = np.zeros(n_bins)
         for r in rs:

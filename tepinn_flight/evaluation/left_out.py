@@ -1,7 +1,9 @@
 """Which scored records the summary leaves out, and why: a record whose IMU is too slow for windowed estimation
 (below 20 Hz, :func:`~tepinn_flight.record.estimation_ok`) or whose reference attitude fails the trust check
 (:mod:`~tepinn_flight.model.reference_trust`) is scored like the others and listed apart, but kept out of the
-summary means, the rate bins and the paired comparison (``evaluation/harness.py``; the reports say so)."""
+summary means, the rate bins and the paired comparison (``evaluation/harness.py``; the reports say so). So is a
+record with no scored sample, or one where not every estimator has an estimate (each mean over the same records):
+:func:`kept_out` gives the reason the harness recorded."""
 
 from __future__ import annotations
 
@@ -10,7 +12,9 @@ LEFT_OUT_NOTE = ("Scored for reference only and kept out of the summary means, t
                  "an IMU too slow for windowed estimation (ingest flags it below 20 Hz, typical of telemetry links), or "
                  "a reference attitude that fails the trust check (it turns unlike the gyro or points away from the "
                  "accelerometer's gravity: an autopilot estimator that diverged), where every estimator's error "
-                 "measures the reference's failure.")  # fmt: skip
+                 "measures the reference's failure; also a record with no scored sample (shorter than the warm-up, or "
+                 "no reference after it) or one where not every estimator has an estimate (so that each mean is over "
+                 "the same records).")  # fmt: skip
 
 
 def left_out(r: dict) -> str:
@@ -21,3 +25,12 @@ def left_out(r: dict) -> str:
     if not r.get("reference_trusted", True):
         return "reference not trusted"
     return ""
+
+
+def kept_out(r: dict) -> str:
+    """Why a scored record is not in the summary means — :func:`left_out`'s reasons, "no scored sample" or "not every
+    estimator has an estimate" — or "" where it is in them (``in_summary``; where every record is left out the
+    summary is over them all). Results written before the harness recorded it: :func:`left_out`."""
+    if "in_summary" not in r:
+        return left_out(r)
+    return "" if r["in_summary"] else (r.get("kept_out") or left_out(r) or "not in the summary")

@@ -26,8 +26,8 @@ from ..record import atomic_write
 from .harness import WIN_MARGIN_DEG, EvalResult
 from .names import display_name
 from .plotdata import PAPER_COLOURS, break_wraps, colour_map, is_9d, minmax_indices, showcase_records
-from .left_out import LEFT_OUT_NOTE, left_out
-from .report_html import RECORD_COLUMNS, left_out_records, rate_counts, rate_labels, record_rows, write_html
+from .left_out import LEFT_OUT_NOTE, kept_out
+from .report_html import RECORD_COLUMNS, kept_out_records, rate_counts, rate_labels, record_rows, write_html
 
 FIGURES = {
     "quaternion": "fig_quaternion.png",
@@ -124,6 +124,8 @@ def fig_quaternion(result, colours, path=None):
         ref = s["q_ref"][::k]
         side = _hemisphere_ref(ref)
         for name, e in _drawn(s["est"]):
+            if not e.get("tracks_heading", True):  # (RIANN: every component mixes in a heading it does not track)
+                continue
             q = e["q"][::k]
             q = np.where(np.sum(q * side, axis=1, keepdims=True) < 0, -q, q)
             for i in range(4):
@@ -134,7 +136,7 @@ def fig_quaternion(result, colours, path=None):
         axes[0][c].set_title(_caption(s, cap), fontsize=9)
         axes[-1][c].set_xlabel("t [s]")
     _legend_below(fig, axes)
-    fig.suptitle("Quaternion components (6-D estimates heading-aligned)")
+    fig.suptitle("Quaternion components (6-D estimates heading-aligned; not those that track no heading: RIANN)")
     return _finish(fig, path)
 
 
@@ -150,7 +152,7 @@ def fig_euler(result, colours, path=None):
         for name, e in _drawn(s["est"]) + [("reference", {"q": s["q_ref"]})]:
             ref = name == "reference"
             eul = quat_to_euler_zyx(e["q"])
-            for i in range(3):
+            for i in range(3 if e.get("tracks_heading", True) else 2):  # (RIANN: no yaw to draw)
                 y = np.degrees(eul[i])
                 idx = minmax_indices(y, 6000)
                 tt, yy = t[idx], y[idx]
@@ -237,9 +239,9 @@ def fig_per_record(result, colours, path=None):
     plt = _plt()
     names = list(result.dataset)
     rec_names = [r["name"] for r in result.records]
-    ok = np.array([not left_out(r) for r in result.records], bool)
+    ok = np.array([not kept_out(r) for r in result.records], bool)  # the summary's records (its mean is theirs)
     if not ok.any():
-        ok[:] = True  # every record left out: the summary is over them all (harness)
+        ok[:] = True  # (results without the harness's record of it, every record left out: over them all)
     fig, ax = plt.subplots(figsize=(max(6, 1.3 * len(names) + 2), 5))
     allv = np.array([r["results"][n].get("inclination_rmse_deg") or np.nan for r in result.records for n in names], np.float64)
     allv = allv[np.isfinite(allv) & (allv > 0)]
@@ -250,9 +252,9 @@ def fig_per_record(result, colours, path=None):
         vals = np.array([np.nan if v is None else v for v in vals], np.float64)
         jitter = np.linspace(-0.15, 0.15, len(vals)) if len(vals) > 1 else np.zeros(1)
         ax.scatter((i + jitter)[ok], vals[ok], color=colours[name], s=14)
-        if (~ok).any():  # left out of the summary (IMU too slow, reference not trusted): hollow, not in the mean
+        if (~ok).any():  # kept out of the summary (IMU too slow, reference not trusted...): hollow, not in the mean
             ax.scatter((i + jitter)[~ok], vals[~ok], facecolors="none", edgecolors=colours[name], s=14,
-                       label="IMU too slow or reference not trusted (not in the mean)" if i == 0 else None)  # fmt: skip
+                       label="not in the summary (IMU too slow, reference not trusted...): not in the mean" if i == 0 else None)  # fmt: skip
         fin = np.flatnonzero(np.isfinite(vals))
         if len(vals) > LABEL_ALL_RECORDS and (np.isfinite(vals) & ok).any():  # best and worst of the summary's records
             fin = np.flatnonzero(np.isfinite(vals) & ok)
@@ -346,6 +348,12 @@ def _f(v, nd=2):
     return str(v)
 
 
+def md_cell(text: str) -> str:
+    """``text`` as a Markdown table cell shows it: ``|`` escaped (a record named ``a|b`` had split its row, every value
+    under the wrong estimator), ``&``, ``<`` and ``>`` as entities (``tag<i>`` had been read as markup)."""
+    return str(text).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;").replace("|", "\\|")
+
+
 def _pct(v):
     return "–" if v is None or not math.isfinite(v) else f"{100 * v:.1f} %"
 
@@ -383,11 +391,11 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     L.append("| " + " | ".join(RECORD_COLUMNS) + " |")
     L.append("|---|---|---:|---|---|---:|---:|---:|---:|")
     for row in record_rows(result):
-        L.append("| " + " | ".join(row) + " |")
+        L.append("| " + " | ".join(map(md_cell, row)) + " |")
     L.append("")
-    slow = left_out_records(result)
+    slow = kept_out_records(result)
     fast = len(result.records) - len(slow)
-    if slow and fast:
+    if slow:
         L.append("## Records not in the summary")
         L.append("")
         L.append(LEFT_OUT_NOTE)
@@ -395,15 +403,15 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
         L.append("| record | why | IMU rate [Hz] | " + " | ".join(display_name(n) for n in result.dataset) + " |")
         L.append("|---|---|---:|" + "---:|" * len(result.dataset))
         for r in slow:
-            L.append(f"| {r['name']} | {left_out(r)} | {_f(r.get('imu_rate_hz'), 1)} | "
+            L.append(f"| {md_cell(r['name'])} | {kept_out(r)} | {_f(r.get('imu_rate_hz'), 1)} | "
                      + " | ".join(_f(r["results"][n].get("inclination_rmse_deg")) for n in result.dataset) + " |")
         L.append("")
-    L.append("## Summary (mean over records)" if not (slow and fast) else
-             f"## Summary (mean over the {fast} records in it)")  # fmt: skip
+    L.append("## Summary (mean over records)" if not slow else f"## Summary (mean over the {fast} records in it)")
     L.append("")
-    L.append("Median and p95: of the records' inclination RMSEs (with one record, the RMSE itself); every other column "
-             "is a mean over records. Heading: after one constant offset per record in 6-D; '–' for an estimator that tracks "
-             "none (RIANN).")
+    L.append("Median and p95: of the records' inclination RMSEs (with one record, the RMSE itself); the gyro bias RMS: "
+             "the mean over the records that hold the true bias (simulations); every other column is a mean over records "
+             "(a 9-D estimator's heading, total and drift over those with a magnetometer). Heading: after one constant "
+             "offset per segment in 6-D; '–' for an estimator that tracks none (RIANN).")
     L.append("")
     L.append("| estimator | kind | causal | mode | incl. RMSE [°] | median of records | p95 of records | roll [°] | pitch [°] | heading [°] | "
              "total [°] | \\|drift\\| [°/min] | mean q dist | mean angle [°] | gyro bias RMS [°/s] | µs/sample |")  # fmt: skip
@@ -436,9 +444,9 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     L.append("| record | " + " | ".join(display_name(n) for n in names) + " |")
     L.append("|---|" + "---:|" * len(names))
     for r in result.records:
-        why = left_out(r)
+        why = kept_out(r)
         tag = f" ({why}, not in the summary)" if why else ""
-        L.append(f"| {r['name']}{tag} | " + " | ".join(_f(r["results"][n].get("inclination_rmse_deg")) for n in names) + " |")
+        L.append(f"| {md_cell(r['name'])}{tag} | " + " | ".join(_f(r["results"][n].get("inclination_rmse_deg")) for n in names) + " |")
     L.append("")
     L.append(f"![per-record inclination RMSE]({figures['per_record']})")
     L.append("")

@@ -21,7 +21,7 @@ import numpy as np
 
 from .. import __version__
 from ..record import atomic_write
-from .left_out import LEFT_OUT_NOTE, left_out
+from .left_out import LEFT_OUT_NOTE, kept_out, left_out
 from .names import display_name
 from .plotdata import PAPER_COLOURS, break_wraps, colour_map, is_9d, minmax_indices
 
@@ -47,10 +47,11 @@ def _num(values, nd: int) -> list:
 
 
 def _trace_xy(t: np.ndarray, y: np.ndarray, wraps: bool, max_points: int) -> tuple[list, list]:
+    i = minmax_indices(y, max_points)  # decimated first, then broken at the wraps the kept points show (as the PNG
+    t, y = t[i], y[i]  # figures do): a bucket holding two wraps had kept one break and joined its extremes across ±180°
     if wraps:
         t, y = break_wraps(t, y)
-    i = minmax_indices(y, max_points)
-    return _num(t[i], 3), _num(y[i], 3)
+    return _num(t, 3), _num(y, 3)
 
 
 def record_figure(series: dict, colours: dict[str, str], max_points: int = MAX_POINTS):
@@ -62,15 +63,16 @@ def record_figure(series: dict, colours: dict[str, str], max_points: int = MAX_P
     fig = make_subplots(rows=4, cols=1, shared_xaxes=True, vertical_spacing=0.03)
     t = np.asarray(series["t_s"], np.float64)
     mask = np.asarray(series["mask"], bool)
-    curves = [("reference", np.asarray(series["q_ref"]), None)] + [(n, e["q"], e["incl"]) for n, e in series["est"].items()]
-    for name, q, incl in curves:
+    curves = [("reference", np.asarray(series["q_ref"]), None, True)] + [
+        (n, e["q"], e["incl"], e.get("tracks_heading", True)) for n, e in series["est"].items()]
+    for name, q, incl, heading in curves:
         ref = name == "reference"
         label = "reference" if ref else display_name(name)
         line = {"color": PAPER_COLOURS["truth"] if ref else colours[name], "width": 1.6 if ref else 1.0}
         if not ref and is_9d(name):
             line["dash"] = "dash"
         roll, pitch, yaw = (np.degrees(a) for a in quat_to_euler_zyx(np.asarray(q, np.float64)))
-        rows = [(roll, True), (pitch, False), (yaw, True)]
+        rows = [(roll, True), (pitch, False), (yaw if heading else np.full_like(yaw, np.nan), True)]  # (RIANN: no yaw)
         if incl is not None:
             err = np.degrees(np.asarray(incl, np.float64)).copy()
             err[~mask] = np.nan
@@ -123,26 +125,26 @@ RECORD_COLUMNS = ["record", "kind", "IMU rate [Hz]", "reference", "estimation OK
 
 def record_rows(result) -> list[list[str]]:
     """One row per record for the Records table (:data:`RECORD_COLUMNS`): records whose IMU is too
-    slow for estimation, or whose reference fails the trust check, say so and are not in the summary means."""
+    slow for estimation, or whose reference fails the trust check, say so; those not in the summary means say that."""
     rows = []
     for r in result.records:
         rate = r.get("imu_rate_hz")
         ok = r.get("estimation_ok", True)
-        why = left_out(r)
+        out = kept_out(r)
+        why = out or left_out(r)
         gaps, lost = r.get("bridged_gaps", 0), r.get("lost_samples", 0)
         extra = ", ".join([f"{gaps} dropout(s) bridged"] * bool(gaps) + [f"{lost} lost one at a time"] * bool(lost))
         rows.append([r["name"], str(r["source_kind"]), "–" if rate is None else f"{rate:.1f}", str(r.get("reference_source", "–")),
-                     ("yes" if ok else "no") + (f": {why}, not in the summary" if why else ""),
+                     ("yes" if ok else "no") + (f": {why}" if why else "") + (", not in the summary" if out else ""),
                      f"{r['duration_s']:.1f}", "–" if r.get("log_clock_at_t0_s") is None else f"{r['log_clock_at_t0_s']:.3f}",
                      f"{r['n_samples']}" + (f" ({extra})" if extra else ""),
                      str(r["n_scored_common"])])  # fmt: skip
     return rows
 
 
-def left_out_records(result) -> list[dict]:
-    """The records kept out of the summary (IMU too slow for windowed estimation, or a reference that fails the trust
-    check: :func:`.left_out.left_out`)."""
-    return [r for r in result.records if left_out(r)]
+def kept_out_records(result) -> list[dict]:
+    """The records kept out of the summary means (:func:`.left_out.kept_out`)."""
+    return [r for r in result.records if kept_out(r)]
 
 
 def render_html(result, title: str = "Attitude estimation report", max_points: int = MAX_POINTS) -> str:
@@ -171,19 +173,19 @@ def render_html(result, title: str = "Attitude estimation report", max_points: i
     # tables
     info = {e["name"]: e for e in result.estimators}
     order = sorted(names, key=lambda n: (result.dataset[n]["inclination_rmse_deg"] is None, result.dataset[n]["inclination_rmse_deg"] or 0))
-    slow = left_out_records(result)
-    P.append("<h2>Summary (mean over records)</h2>" if not slow or len(slow) == len(result.records) else
+    slow = kept_out_records(result)
+    P.append("<h2>Summary (mean over records)</h2>" if not slow else
              f"<h2>Summary (mean over the {len(result.records) - len(slow)} records in it)</h2>")  # fmt: skip
     P.append(_table(["estimator", "mode", "incl. RMSE [°]", "roll [°]", "pitch [°]", "heading [°]", "total [°]", "|drift| [°/min]"],
                     [[display_name(n), "9-D" if info.get(n, {}).get("uses_mag") else "6-D"] +
                      [_f(result.dataset[n][k]) for k in ("inclination_rmse_deg", "roll_rmse_deg", "pitch_rmse_deg",
                                                          "heading_rmse_deg", "total_rmse_deg", "heading_drift_abs_deg_per_min")]
                      for n in order], numeric_from=2))  # fmt: skip
-    if slow and len(slow) < len(result.records):
+    if slow:
         P.append("<h2>Records not in the summary</h2>")
         P.append(f"<p class=note>{html.escape(LEFT_OUT_NOTE)}</p>")
         P.append(_table(["record", "why", "IMU rate [Hz]"] + [display_name(n) for n in names],
-                        [[r["name"], left_out(r), _f(r.get("imu_rate_hz"), 1)]
+                        [[r["name"], kept_out(r), _f(r.get("imu_rate_hz"), 1)]
                          + [_f(r["results"][n].get("inclination_rmse_deg")) for n in names] for r in slow]))  # fmt: skip
     P.append("<h2>Per record: inclination RMSE [°]</h2>")
     P.append(_table(["record", "scored samples"] + [display_name(n) for n in names],
@@ -207,4 +209,4 @@ def write_html(result, path: str | os.PathLike, title: str = "Attitude estimatio
 
 
 __all__ = ["render_html", "write_html", "record_figure", "MAX_POINTS", "rate_labels", "rate_counts", "record_rows",
-           "left_out_records", "RECORD_COLUMNS"]
+           "kept_out_records", "RECORD_COLUMNS"]

@@ -376,7 +376,6 @@ class Player:
                     self.tap.received(m)
 
     def _wait(self, until: float, stop) -> bool:
-        fd = self.link.fileno()
         while True:
             if stop is not None and stop.is_set():
                 return False
@@ -384,6 +383,7 @@ class Player:
             if d <= 0:
                 return True
             step = min(d, 0.1)
+            fd = self.link.fileno()  # (each time: a read below may find the peer gone and close the link)
             if fd is not None:
                 r, _, _ = select.select([fd], [], [], step)
                 if r:

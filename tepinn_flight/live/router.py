@@ -103,6 +103,18 @@ def _first_line(exc: BaseException) -> str:
     return (str(text).strip().splitlines() or [type(exc).__name__])[0]
 
 
+def _stream_closed(sock) -> bool:
+    """Whether a stream socket's peer has closed it (a peek reads its end of file) rather than having sent nothing yet."""
+    if sock is None:
+        return False
+    try:
+        return sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
+    except (BlockingIOError, InterruptedError):
+        return False
+    except OSError:
+        return True
+
+
 class Link:
     """One endpoint: raw reads, per-link parsing, raw writes, counters, reconnection."""
 
@@ -198,8 +210,11 @@ class Link:
             self._lost()
             return b""
         if not data:
-            if self.kind in ("tcp", "tcpin", "serial"):
-                self._lost()  # readable but empty: the peer closed the stream
+            if self.kind in ("tcp", "tcpin") and _stream_closed(c.port):
+                self._lost()  # the peer closed the stream
+            # (else nothing is waiting: pymavlink's tcp recv turns EAGAIN into b"", pyserial's read with no data
+            # returns b"" and raises where the device is gone; review59: a replay that read its link until empty
+            # took a quiet moment for a closed peer and stopped with EBADF on the socket it had closed)
             return b""
         data = bytes(data) if not isinstance(data, bytes) else data
         self.rx_bytes += len(data)
