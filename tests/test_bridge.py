@@ -550,12 +550,19 @@ def test_cli_errors_are_one_line(tmp_path, model_path):
     model, _ = model_path
     junk = tmp_path / "junk.pt"
     junk.write_bytes(b"not a checkpoint")
+    import torch
+
+    from tepinn_flight.model.checkpoint import FORMAT, VERSION
+
+    hollow = tmp_path / "hollow.pt"  # a checkpoint's header without a model: passes the check before routing, and
+    torch.save({"format": FORMAT, "version": VERSION}, hollow)  # the worker meets what is missing
     port = free_udp_port()
     cases = [
         (("--master", f"udpin:127.0.0.1:{port}", "--out", "bogus:1"), "unknown endpoint"),
         (("--master", "/dev/no-such-tty,57600", "--model", model), "no such serial device"),
         (("--master", f"udpin:127.0.0.1:{port}", "--model", tmp_path / "missing.pt"), "no such checkpoint"),
-        (("--master", f"udpin:127.0.0.1:{port}", "--model", junk, "--duration", "30"), "could not start"),
+        (("--master", f"udpin:127.0.0.1:{port}", "--model", junk, "--duration", "30"), "not a readable checkpoint"),  # (before routing: session 59)
+        (("--master", f"udpin:127.0.0.1:{port}", "--model", hollow, "--runtime", "torch", "--duration", "30"), "could not start"),
     ]
     for args, words in cases:
         r = _cli("bridge", *args)

@@ -725,7 +725,7 @@ def test_bridge_estimates_a_replayed_flight(tmp_path):
     finally:
         bridge.send_signal(signal.SIGTERM)
         _, err = bridge.communicate(timeout=30)
-    assert bridge.returncode == 0, err
+    assert bridge.returncode == 143, err  # stopped by SIGTERM: the summary written, and every verb's 143 (session 59)
     s = json.loads(summary.read_text())
     assert s["imu"]["samples"] == n_imu and s["estimates"]["count"] > 0, s
 

@@ -116,9 +116,9 @@ def run(args) -> int:
             model = default_onnx_path()  # the shipped model, exported
         if not model.is_file():
             raise TepinnError("the shipped default model is missing from this installation; pass --model CKPT")
-    from ..model.runtime import resolve_runtime
+    from ..model.runtime import check_model
 
-    resolve_runtime(model, args.runtime)  # a runtime that cannot run this model: one line now, not in the worker
+    check_model(model, args.runtime)  # a model or runtime the worker would refuse: one line now, not after routing
     refuse_overwriting_inputs(outputs, [model])
     cfg = BridgeConfig(
         master=args.master, outs=tuple(args.out), model_path=str(model), runtime=args.runtime, mode=args.mode, busy_stride=args.busy_stride, tlog_path=args.tlog, rate_hz=args.rate,
@@ -130,8 +130,10 @@ def run(args) -> int:
     status = StatusPrinter(sys.stderr, quiet=args.quiet, interval_s=args.status_interval)
     bridge = Bridge(cfg, status=status)
     stop = threading.Event()
+    stopped_by = []  # the signal that ended the session, if one did
 
     def on_signal(signum, frame):  # noqa: ARG001
+        stopped_by.append(signum)
         stop.set()
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -146,4 +148,6 @@ def run(args) -> int:
         atomic_write(args.summary_json, lambda tmp: Path(tmp).write_text(text))
     if not args.quiet:
         print(bridge.format_summary(summary))
-    return 0
+    # stopped by Ctrl-C or SIGTERM: the summary as after --duration, and the exit status every verb gives a signal
+    # (130 / 143; review59: 0 once routing had begun, 130 a second earlier)
+    return {signal.SIGINT: 130, signal.SIGTERM: 143}.get(stopped_by[0], 0) if stopped_by else 0

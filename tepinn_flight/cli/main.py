@@ -100,6 +100,20 @@ def command_names(parser: argparse.ArgumentParser) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The console script. A Ctrl-C or SIGTERM while the commands' modules are still importing (the first half second:
+    numpy) ends in one line and 130 / 143 too (review59: a traceback, and SIGTERM killed it without a word)."""
+    try:
+        with terminate_on_sigterm():
+            return _main(argv)
+    except Terminated:
+        sys.stderr.write("tepinn-flight: terminated\n")
+        return 143
+    except KeyboardInterrupt:
+        sys.stderr.write("tepinn-flight: interrupted\n")
+        return 130
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] in UNAVAILABLE:  # whatever its arguments, --help too: loud, not a usage text

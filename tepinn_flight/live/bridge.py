@@ -52,6 +52,9 @@ from .sample_order import DUPLICATE, STALE
 from .status import StatusPrinter, format_summary
 from .view import ViewConfig, open_view
 
+#: the fastest IMU rate the bridge asks for or waits for (an interval of 100 µs; no autopilot streams faster)
+MAX_IMU_RATE_HZ = 10000.0
+
 
 @dataclass(frozen=True)
 class BridgeConfig:
@@ -106,8 +109,10 @@ class BridgeConfig:
             raise ConfigError("--duration must be > 0")
         if not self.max_sample_age_s > 0 or self.queue_samples < 1:
             raise ConfigError("--max-age must be > 0 and the queue at least 1 sample")
-        if not self.min_imu_rate_hz >= 0 or not self.request_imu_rate_hz > 0:
-            raise ConfigError("IMU rates must be positive")
+        if not 0 <= self.min_imu_rate_hz <= MAX_IMU_RATE_HZ or not 1 <= self.request_imu_rate_hz <= MAX_IMU_RATE_HZ:
+            # (an infinite rate had asked for an interval of 0 µs, MAVLink's "default rate"; 1e-9 Hz for 1e15 µs)
+            raise ConfigError(f"--min-imu-rate must be 0 to {MAX_IMU_RATE_HZ:g} Hz and --request-imu-rate 1 to "
+                              f"{MAX_IMU_RATE_HZ:g} Hz")  # fmt: skip
 
 
 class Bridge:

@@ -284,6 +284,22 @@ def resolve_runtime(path, runtime: str = "auto") -> str:
     return runtime
 
 
+def check_model(path, runtime: str = "auto") -> None:
+    """Refuse, in one line and before any work, a model file :func:`load_runner` would refuse: an ``.onnx`` that is no
+    tepinn-flight export, a checkpoint that is none (the bridge had routed for 8 s before its worker met it). Reads
+    the metadata only."""
+    path = Path(path)
+    rt = resolve_runtime(path, runtime)
+    if is_onnx_path(path):
+        read_onnx_metadata(path)
+    elif rt == "onnx" and (synced := export_in_sync(path)) is not None:
+        read_onnx_metadata(synced)
+    elif torch_available():
+        from .checkpoint import read_checkpoint
+
+        read_checkpoint(path)
+
+
 def file_sha256(path) -> str:
     import hashlib
 
