@@ -60,7 +60,8 @@ from .dataflash_source import DECODE_BLOCK_ROWS, DataflashSource, instance_col
 from .dataflash_text import TextSource
 from .saturation import accel_saturated, gyro_saturated
 from .sniff import sniff
-from .streams import GnssVelStream, ImuStream, MagStream, RawLog, RefStream, detect_epochs, nominal_period_s
+from .streams import (GnssVelStream, ImuStream, MagStream, RawLog, RefStream, covering_instance, detect_epochs,
+                      nominal_period_s)
 
 
 TIME_FIELDS = {"TimeUS": 1e6, "TimeMS": 1e3}  # ticks per second (divide: exact for whole ms)
@@ -78,6 +79,9 @@ REBOOT_BACKSTEP_S = 1.0  # time jumping back more than this (s) is a reboot (str
 QUAT_REFS = ("XKQ", "NKQ1", "NKQ", "NKQ2", "XKQ1", "XKQ2")
 EULER_REFS = ("ATT", "AHR2", "XKF1", "NKF1", "EKF1")
 DEFAULT_ORDER = ("XKQ", "NKQ1", "NKQ", "XKQ1", "ATT")
+#: ... where the log's AHRS_EKF_TYPE names the EKF the autopilot flies on, that EKF's quaternions first (review59: a
+#: 4.0 log flying EKF3 took the shadow EKF2's NKQ1, 4° off the attitude the autopilot used)
+EKF_FAMILIES = {2: ("NKQ1", "NKQ"), 3: ("XKQ", "XKQ1")}
 
 _FIRMWARE_RE = re.compile(r"^\s*((Ardu\w+|APM:\w+|APMrover2|AntennaTracker|Blimp)\s+V?\d[^\s]*)")
 #: a firmware string's family → the record's ``vehicle_type`` (a helicopter build first: its name holds "copter" too)
@@ -172,9 +176,16 @@ def _requested_family(requested: str | None) -> str | None:
     return m.group(1).upper() if m else None
 
 
-def _pick_reference(cands: dict[str, _Instance], requested: str | None) -> tuple[str, _Instance] | None:
+def _default_order(ekf_type: float | None) -> tuple[str, ...]:
+    """The reference families in the order taken by default (:data:`DEFAULT_ORDER`, the flying EKF's first)."""
+    first = EKF_FAMILIES.get(int(ekf_type)) if ekf_type is not None and np.isfinite(ekf_type) else None
+    return tuple(dict.fromkeys((*first, *DEFAULT_ORDER))) if first else DEFAULT_ORDER
+
+
+def _pick_reference(cands: dict[str, _Instance], requested: str | None,
+                    order: tuple[str, ...] = DEFAULT_ORDER) -> tuple[str, _Instance] | None:  # fmt: skip
     if requested is None:
-        for fam in DEFAULT_ORDER:
+        for fam in order:
             hits = sorted((i.instance, lab) for lab, i in cands.items() if i.name == fam)
             if hits:
                 return hits[0][1], cands[hits[0][1]]
@@ -440,7 +451,11 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
         raise NoImuData(f"the log defines IMU but holds no IMU rows (IMU logging disabled, or the log ends before its "
                         f"first IMU row{extra})", path)  # fmt: skip
     if imu is None:
-        sel = insts[0]
+        cover = covering_instance({i.instance: i.samples for i in insts})
+        first, sel = insts[0], next(i for i in insts if i.instance == cover)
+        if sel is not first:
+            notes.append(f"IMU {sel.instance} read ({sel.samples} samples): IMU {first.instance}, the first, holds "
+                         f"{first.samples} (it stops or is slower; --imu {first.instance} reads it)")  # fmt: skip
     else:
         hits = [i for i in insts if i.instance == imu]
         if not hits:
@@ -483,7 +498,10 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     cands = _reference_candidates(src)
     meta["reference_candidates"] = list(cands)
     try:
-        pick = _pick_reference(cands, reference)
+        ekf_type = _param(src, "AHRS_EKF_TYPE")
+        pick = _pick_reference(cands, reference, _default_order(ekf_type))
+        if reference is None and pick is not None and pick != _pick_reference(cands, None):
+            notes.append(f"reference {pick[0]}: the EKF the autopilot flies on (AHRS_EKF_TYPE {ekf_type:g})")
     except ConfigError as exc:
         raise ConfigError(exc.reason, path) from None
     ref = None

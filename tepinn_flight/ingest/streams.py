@@ -17,6 +17,20 @@ from typing import Any
 import numpy as np
 
 
+#: a reader takes another IMU source than its default one where that holds this many times its samples or comes at
+#: this many times its rate (the bridge's rule for a less preferred IMU message, ``live/imu_stream.py``)
+PREFER_FACTOR = 1.5
+
+
+def covering_instance(samples: dict[int, int]) -> int:
+    """The IMU instance a reader takes by default, of {instance: its samples}: the first (lowest) unless another holds
+    over :data:`PREFER_FACTOR` times its samples — the first IMU failing or stopping in flight while the others go on
+    (review59: a record of 15 s of a 40-s flight, unsaid), or logged far slower. The most samples, then the lowest."""
+    first = min(samples)
+    best = max(samples, key=lambda k: (samples[k], -k))
+    return best if samples[best] > PREFER_FACTOR * samples[first] else first
+
+
 @dataclass
 class ImuStream:
     t_s: np.ndarray  # (N,) float64, source clock

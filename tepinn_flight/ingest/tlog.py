@@ -76,7 +76,7 @@ from .ahrs_trim import TRIM_PARAMS, trim_note, usable_trim, vehicle_to_board
 from .clock_wrap import US32_WRAP_S, WRAP_MIN_BACKSTEP_S, top_to_bottom, wrap_count
 from .mavlink_scan import scan_tlog
 from .saturation import accel_saturated, gyro_full_scale_rad_s, gyro_saturated
-from .streams import GnssVelStream, ImuStream, MagStream, RawLog, RefStream
+from .streams import PREFER_FACTOR, GnssVelStream, ImuStream, MagStream, RawLog, RefStream, covering_instance
 
 MAV_COMP_ID_AUTOPILOT1 = 1
 MAV_AUTOPILOT_INVALID = 8
@@ -131,7 +131,10 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
 
     if scan.good_frames == 0:
         raise CorruptLog("no valid MAVLink frame (start byte, length and CRC) in the file")
-    sysid, hb = _autopilot(scan)
+    sysid, hb, others = _autopilot(scan)
+    if others:
+        notes.append(f"the tlog holds {len(others) + 1} autopilots (systems {', '.join(map(str, sorted([sysid, *others])))}): "
+                     f"read system {sysid}, the one with the most IMU messages")  # fmt: skip
     if sysid is None:
         seen = ", ".join(f"{s}/{c}" for s, c in sorted(scan.sources)) or "none"
         raise NoImuData(
@@ -171,7 +174,9 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
     ]  # fmt: skip
     by_inst: dict[int, dict] = {}
     for s in sorted(live, key=lambda s: IMU_PREFERENCE.index(s["name"])):
-        by_inst.setdefault(s["instance"], s)
+        kept = by_inst.setdefault(s["instance"], s)
+        if kept is not s and _faster(s, kept):  # a less preferred message of the IMU, much faster (review59: a ground
+            by_inst[s["instance"]] = s  # station's 2-Hz HIGHRES_IMU had hidden the 50-Hz RAW_IMU; the bridge's rule)
 
     # ---- reference candidates
     refs = _ref_streams(frames)
@@ -189,7 +194,11 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
                 "no IMU messages (RAW_IMU, SCALED_IMU*, HIGHRES_IMU) with data from the autopilot "
                 f"(sysid {sysid}, compid {MAV_COMP_ID_AUTOPILOT1})"
             )
-        sel = usable[min(usable)]
+        sel = usable[covering_instance({k: len(s["t_s"]) for k, s in usable.items()})]
+        if sel is not usable[min(usable)]:
+            first = usable[min(usable)]
+            notes.append(f"IMU {sel['instance']} read ({len(sel['t_s'])} samples): IMU {first['instance']}, the first, "
+                         f"holds {len(first['t_s'])} (it stops or is slower; --imu {first['instance']} reads it)")  # fmt: skip
     else:
         if imu not in by_inst:
             avail = ", ".join(f"{k} ({s['name']})" for k, s in sorted(by_inst.items())) or "none"
@@ -329,6 +338,14 @@ def _enum_name(enum: str, value: int | None) -> str:
     return entry.name.removeprefix(f"{enum}_").lower()
 
 
+def _faster(s: dict, than: dict) -> bool:
+    """Whether stream ``s`` is much faster than ``than`` (:data:`.streams.PREFER_FACTOR`; the bridge's own rule for a
+    less preferred message, ``live/imu_stream.py``)."""
+    a, b = s.get("rate_hz") or 0.0, than.get("rate_hz") or 0.0
+    return bool(s.get("scale_known", True)) and a >= PREFER_FACTOR * b and a > 0
+
+
+
 def _autopilot_name(value: int | None) -> str:
     if value is None:
         return "unknown"
@@ -338,19 +355,29 @@ def _autopilot_name(value: int | None) -> str:
 
 
 def _autopilot(scan):
-    """(sysid of the autopilot, its component-1 HEARTBEAT fields) or (None, ...)."""
+    """(sysid of the autopilot, its component-1 HEARTBEAT fields, the other autopilots' sysids) or (None, ...).
+    Where several systems send an autopilot's heartbeat (two vehicles, a tracker), the one with the most IMU messages
+    is read: heartbeats come at 1 Hz from each, and their count had chosen by which came first in the file (review59:
+    a 2-Hz vehicle's IMU read, the 50-Hz one's unreachable)."""
     hb = scan.frames["HEARTBEAT"]
     comp1 = hb.compid == MAV_COMP_ID_AUTOPILOT1
     real = comp1 & (hb.fields["autopilot"] != MAV_AUTOPILOT_INVALID)
+    others: list[int] = []
     if np.any(real):
+        systems = np.unique(hb.sysid[real]).tolist()
         sysid = _mode(hb.sysid[real])
+        if len(systems) > 1:
+            imu = {s: sum(int(np.sum((scan.frames[n].sysid == s) & (scan.frames[n].compid == MAV_COMP_ID_AUTOPILOT1)))
+                          for n in IMU_MESSAGES) for s in systems}  # fmt: skip
+            sysid = max(systems, key=lambda s: (imu[s], s == sysid))
+            others = [s for s in systems if s != sysid]
     else:
         c1 = {s: n for (s, c), n in scan.sources.items() if c == MAV_COMP_ID_AUTOPILOT1}
         if not c1:
-            return None, hb.fields[:0]
+            return None, hb.fields[:0], []
         sysid = max(c1, key=lambda s: (c1[s], -s))
     mine = real & (hb.sysid == sysid)
-    return sysid, hb.fields[mine]
+    return int(sysid), hb.fields[mine], others
 
 
 def imu_scale_known(name: str, autopilot_id: int | None) -> bool:

@@ -14,7 +14,8 @@ Instance numbering (``imu=N``)
     N is the physical IMU: the multi-instance index of ``vehicle_imu`` (or of ``sensor_gyro`` /
     ``sensor_accel`` when no ``vehicle_imu`` is logged). The instance PX4 selected (matched by
     ``sensor_selection.gyro_device_id``, else assumed 0) is read from ``sensor_combined``, the
-    highest-rate copy; other instances from ``vehicle_imu[N]`` (``delta_angle`` /
+    highest-rate copy (from its ``vehicle_imu[N]`` where a custom topic list logs that at over 1.5× the rate of a
+    decimated ``sensor_combined``, session 59); other instances from ``vehicle_imu[N]`` (``delta_angle`` /
     ``delta_angle_dt``, ``delta_velocity`` / ``delta_velocity_dt``: calibrated, body frame) or,
     failing that, from ``sensor_gyro[N]`` + ``sensor_accel[N]`` (driver output, not calibrated).
     Logs with only ``sensor_combined`` (PX4 ≤ 1.9) have one instance, 0. Default logging profiles
@@ -69,7 +70,7 @@ from ..conventions import GAUSS_TO_UT, UNIX_TIME_THRESHOLD_US
 from ..errors import ConfigError, CorruptLog, NoImuData, TepinnError
 from .assemble import GAP_PERIODS
 from .saturation import accel_saturated, gyro_saturated
-from .streams import GnssVelStream, ImuStream, MagStream, RawLog, RefStream, nominal_period_s
+from .streams import PREFER_FACTOR, GnssVelStream, ImuStream, MagStream, RawLog, RefStream, nominal_period_s
 
 #: Attitude topics with ``q[0..3]`` = w, x, y, z body FRD → NED, in default-preference order.
 REFERENCE_TOPICS = ("vehicle_attitude_groundtruth", "vehicle_attitude", "estimator_attitude", "control_state")
@@ -407,6 +408,18 @@ def _imu_instances(ds) -> tuple[list[int], str | None]:
     return ([0] if ("sensor_combined", 0) in ds else []), None
 
 
+def _vehicle_imu_faster(ds, k: int) -> bool:
+    """Whether ``vehicle_imu[k]`` is logged at over 1.5× the rate of ``sensor_combined`` (the same IMU, decimated by the
+    logging profile while a custom topic list logs the other at full rate; review59: the 200-Hz copy was neither
+    listed nor read, and the log was called too slow to estimate)."""
+    vi = ds.get(("vehicle_imu", k))
+    if vi is None or not len(vi.get("timestamp", ())):
+        return False
+    sc = rate_hz(us_to_s(ds[("sensor_combined", 0)]["timestamp"])) or 0.0
+    own = rate_hz(us_to_s(sample_times_us(vi)[0])) or 0.0
+    return own > PREFER_FACTOR * sc
+
+
 def _select_imu(ds, imu: int | None, notes: list[str]) -> tuple[ImuStream, dict]:
     instances, family = _imu_instances(ds)
     if not instances:
@@ -419,7 +432,7 @@ def _select_imu(ds, imu: int | None, notes: list[str]) -> tuple[ImuStream, dict]
     selected, matched = _selected_instance(ds, max(instances) + 1, notes) if family else (0, True)
 
     def source_of(k: int) -> str:
-        if has_sc and k == selected:
+        if has_sc and k == selected and not _vehicle_imu_faster(ds, k):
             return "sensor_combined"
         if ("vehicle_imu", k) in ds:
             return topic_label("vehicle_imu", k)

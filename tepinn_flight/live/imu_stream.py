@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 
 from ..ingest.clock_wrap import top_to_bottom, wrap_count
+from ..ingest.streams import PREFER_FACTOR
 from ..ingest.tlog import MAV_AUTOPILOT_ARDUPILOTMEGA
 from ..record import MIN_ESTIMATION_RATE_HZ
 from . import MAV_COMP_ID_AUTOPILOT1
@@ -43,8 +44,8 @@ IMU_NAMES = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3
 SWITCH_AFTER_S = 1.0
 #: ... a preferred one taken at this share of the current one's rate or more ...
 PREFERRED_RATE_SHARE = 0.8
-#: ... a less preferred one at this many times it
-FASTER_RATE_FACTOR = 1.5
+#: ... a less preferred one at this many times it (the readers' rule offline: ingest/streams.py)
+FASTER_RATE_FACTOR = PREFER_FACTOR
 
 
 class ImuStream:
