@@ -143,6 +143,11 @@ def _refuse_init_in_run(init: str, out) -> None:
 
     if init == "default":
         return
+    from ..errors import ConfigError
     from .paths import refuse_overwriting_inputs
 
-    refuse_overwriting_inputs([("-o", Path(out) / n) for n in ("model.pt", "last.pt", "model.onnx")], [init])
+    for name in ("model.pt", "last.pt", "model.onnx"):
+        try:
+            refuse_overwriting_inputs([("-o", Path(out) / name)], [init])
+        except ConfigError:  # (said of -o as given: "-o RUN/model.pt is the input" had named a path the user never gave)
+            raise ConfigError(f"-o {out}: the run writes its {name} there, which is --init {init}: name another folder") from None

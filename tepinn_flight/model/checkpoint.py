@@ -173,6 +173,8 @@ def _load_failure(exc: Exception) -> str:
         first = next((ln.strip() for ln in detail.splitlines() if ln.strip()), "")[:200]
         return f"not a readable checkpoint (not a torch checkpoint file{': ' + first if first else ''})"
     first = (text.strip().splitlines() or [type(exc).__name__])[0][:200]
+    if isinstance(exc, KeyError) or first.strip("'\" ").isdigit():  # (a text file: torch's unpickler reads a
+        return "not a readable checkpoint (not a torch checkpoint file)"  # byte as a record key: "101")
     return f"not a readable checkpoint ({first})"
 
 

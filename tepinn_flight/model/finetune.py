@@ -64,22 +64,63 @@ def finetune_config(model_config, records: list[str], minutes: float = 6.0, seed
     )  # fmt: skip
 
 
-def collect_logs(items) -> list[Path]:
-    """Files as given; folders: every file below them that is a record or a log ``ingest`` reads."""
+UNTUNED_NAME = "model.untuned.pt"
+#: files that make a folder a fine-tuning's or a training's run folder (its checkpoints, its moved references)
+RUN_MARKERS = ("last.pt", "finetune.json", UNTUNED_NAME)
+
+
+def collect_logs(items, exclude=None, notes: list[str] | None = None) -> list[Path]:
+    """Files as given; folders: every file below them that is a record or a log ``ingest`` reads — but none inside
+    ``exclude`` (this run's folder) or inside a run folder (:data:`RUN_MARKERS`: review59, a run's moved copies of
+    the logs, ``RUN/aligned/``, were taken as more logs by the next run, each flight then trained on under one name and
+    validated on under the other). ``notes`` gets a line for each folder so left out and each file named as a log that
+    holds none."""
     from ..ingest.inputs import RECORD_OR_LOG_FORMATS, files_in
 
+    skip = Path(exclude).resolve() if exclude is not None else None
     out: list[Path] = []
+    runs: set[Path] = set()
     for it in items:
         p = Path(it)
         if p.is_dir():
-            out += files_in(p, RECORD_OR_LOG_FORMATS, recursive=True)
+            for f in files_in(p, RECORD_OR_LOG_FORMATS, recursive=True, notes=notes):
+                run = _run_folder(f, p, skip)
+                if run is None:
+                    out.append(f)
+                else:
+                    runs.add(run)
         elif p.exists():
             out.append(p)
         else:
             raise ConfigError(f"no such log or folder: {it}")
+    if notes is not None:
+        notes += [f"{r}: a fine-tuning's run folder (its checkpoints and moved logs): left out" for r in sorted(runs)]
     if not out:
         raise ConfigError("no logs found in --data")
     return sorted(set(out))
+
+
+def _run_folder(f: Path, root: Path, skip: Path | None) -> Path | None:
+    """The run folder ``f`` lies in below ``root`` (this run's ``skip``, or one holding :data:`RUN_MARKERS`), or None."""
+    for d in f.parents:
+        if skip is not None and d.resolve() == skip:
+            return d
+        if any((d / m).is_file() for m in RUN_MARKERS):
+            return d
+        if d == root or len(d.parts) <= len(root.parts):
+            return None
+    return None
+
+
+def flight_fingerprint(rec: FlightRecord) -> str:
+    """A digest of a record's IMU samples (times, gyro, accelerometer): the same flight read from two files — a log and
+    the record ``ingest`` made of it beside it, a copy under another name, a run's moved copy — gives the same one."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for a in (rec.t_s, rec.gyr_rad_s, rec.acc_m_s2):
+        h.update(np.ascontiguousarray(a, np.float64).tobytes())
+    return h.hexdigest()
 
 
 def training_order(paths: list[str], recs: list) -> tuple[list[str], list]:
@@ -116,7 +157,6 @@ def vehicle_of(rec: FlightRecord) -> str | None:
 
 
 #: the trained network's checkpoint while its filter's settings and σ are being tuned (then: model.pt)
-UNTUNED_NAME = "model.untuned.pt"
 
 #: a log scored for less than this (s, after each segment's 5-s warm-up) is too short to tune or validate on: its
 #: figures were NaN, and the settings then chosen by NaN comparisons (session 53)
@@ -125,13 +165,26 @@ MIN_SCORED_S = 10.0
 
 def usable(rec: FlightRecord) -> bool:
     """A log the fine-tuning can learn from: fast enough IMU, a reference on most samples, and at least
-    :data:`MIN_SCORED_S` of samples scored after the warm-up."""
-    if not (estimation_ok(rec.meta) and float(np.mean(np.all(np.isfinite(rec.q_ref_wxyz), axis=1))) > 0.5):
-        return False
+    :data:`MIN_SCORED_S` of samples scored after the warm-up (:func:`unusable_reason` says which fails)."""
+    return not unusable_reason(rec)
+
+
+def unusable_reason(rec: FlightRecord) -> str:
+    """Why the fine-tuning cannot learn from ``rec`` ("" where it can): the IMU's rate, the reference's share, the
+    seconds scored (review59: one sentence naming all three had been every skipped log's note)."""
+    if not estimation_ok(rec.meta):
+        rate = rec.meta.get("imu_rate_hz")
+        return f"IMU at {rate:.1f} Hz, below 20 Hz" if rate else "IMU below 20 Hz"
+    share = float(np.mean(np.all(np.isfinite(rec.q_ref_wxyz), axis=1))) if len(rec) else 0.0
+    if not share > 0.5:
+        return f"a reference attitude on {100 * share:.0f} % of the samples (it needs most)"
     from ..evaluation.harness import scoring_mask
 
     rate = rec.meta.get("imu_rate_hz") or (1.0 / float(np.median(np.diff(rec.t_s))) if len(rec) > 1 else 0.0)
-    return bool(rate > 0 and scoring_mask(rec, 5.0).sum() / rate >= MIN_SCORED_S)
+    scored = scoring_mask(rec, 5.0).sum() / rate if rate > 0 else 0.0
+    if not scored >= MIN_SCORED_S:
+        return f"{scored:.1f} s scored after the 5-s warm-up, under {MIN_SCORED_S:.0f} s"
+    return ""
 
 
 def record_windows(model, anchor, records: list[FlightRecord]) -> list:
@@ -277,24 +330,36 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     init_path = default_model_path() if init == "default" else Path(init)
     model0, est0, ck0 = load_model(init_path)
     if not isinstance(est0, AnchorConfig):
-        raise ConfigError(f"--init {init}: fine-tuning needs a filter-anchored checkpoint (anchor_config)")
-    paths, recs, ref_checks = [], [], {}
-    for p in collect_logs(items):
+        raise ConfigError(f"--init {init}: fine-tuning starts from a model that runs the filter-anchored estimator (the "
+                          "shipped one, 'default', or a fine-tuned RUN/model.pt); this checkpoint runs the older "
+                          "network-centred fusion (a training run's best.pt or last.pt, or a recipe without an "
+                          "anchor_config)")  # fmt: skip
+    paths, recs, ref_checks, seen = [], [], {}, {}
+    found_notes: list[str] = []
+    found = collect_logs(items, exclude=out, notes=found_notes)
+    for n in found_notes:
+        print(f"note: {n}", file=sys.stderr)
+    for p in found:
         try:
             r = load_record(p)
         except TepinnError as exc:
             print(f"note: {p}: skipped ({exc.reason})", file=sys.stderr)
             continue
-        if not usable(r):
-            print(f"note: {p}: skipped (IMU below 20 Hz, no reference attitude on most samples, or under "
-                  f"{MIN_SCORED_S:.0f} s scored after the warm-up: nothing to learn from)", file=sys.stderr)  # fmt: skip
+        same = seen.setdefault(flight_fingerprint(r), p)
+        if same != p:  # one flight under two names would be trained on under one and validated on under the other
+            print(f"note: {p}: skipped (the same flight as {same}: the same IMU samples)", file=sys.stderr)
             continue
-        src = p
+        why = unusable_reason(r)
+        if why:
+            print(f"note: {p}: skipped ({why}: nothing to learn from)", file=sys.stderr)
+            continue
+        src, as_logged = p, ""
         if align_reference:
             moved, what = aligned_if_refused(r)
             if what:
                 print(f"note: {p}: {what}", file=sys.stderr)
             if moved is not r:  # learned from the moved copy (training reads its files by path)
+                as_logged = f"as logged: {check_reference(r).describe()}; {what}; the moved copy: "
                 stem, k = Path(p).stem, 1
                 p = out / "aligned" / f"{stem}.parquet"
                 while p.exists():  # (two logs of one name in different folders)
@@ -303,7 +368,7 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
                 write_record(moved, p)
                 r = moved
         chk = check_reference(r)  # a reference that is not the IMU's attitude would teach everything wrong
-        ref_checks[str(Path(src).resolve())] = chk.describe()
+        ref_checks[str(Path(src).resolve())] = as_logged + chk.describe()  # (a moved one: what it was, what was done)
         if not chk.trusted:
             print(f"note: {src}: skipped ({chk.describe()})", file=sys.stderr)
             continue
@@ -312,7 +377,7 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     if not recs:
         raise ConfigError("none of the --data logs can be learned from (each needs an IMU of >= 20 Hz and a reference "
                           "attitude that turns as its gyro does, agrees with its accelerometer's gravity and is on the IMU's time "
-                          "and in its frame: the notes above say which failed where)")  # fmt: skip
+                          "and in its frame: the notes above say what each lacks)")  # fmt: skip
     paths, recs = training_order(paths, recs)
     vehicles = sorted({v for v in map(vehicle_of, recs) if v})
     if len(vehicles) > 1:  # a vehicle's gyro scale, time constant and σ, fitted on several: right for none of them
@@ -338,9 +403,6 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
     anchor, sigma_choice, sigma_val = choose_sigma(model1, fitted, est0, val)
     nees_causal = sigma_scores(model0, causal0, val), sigma_val[sigma_choice]
     anchor, smooth_table = tune_smoothing(model1, anchor, train_recs, windows=wins)
-    save_checkpoint(out / "model.pt", model1, fusion_config_from(ck.get("fusion_config")), anchor,
-                    **{k: v for k, v in ck.items() if k not in ("format", "version", "model_config", "fusion_config",
-                                                                 "anchor_config", "state_dict", "conventions")})  # fmt: skip
     before = [inclination_rmse_deg(r, _est(model0, est0, r)) for r in val]
     ests = [_est(model1, anchor, r) for r in val]
     after = [inclination_rmse_deg(r, e) for r, e in zip(val, ests)]
@@ -359,7 +421,7 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
         "vehicles": vehicles,
         "sigma_floor_deg": anchor.sigma_floor_deg, "sigma_acc_gain": anchor.sigma_acc_gain,
         "sigma_sampling_gain": anchor.sigma_sampling_gain,
-        "train_sigma_nees": sfit.nees, "train_sigma_within_3sigma": sfit.coverage_3sigma,
+        "fitted_sigma_train_nees": sfit.nees, "fitted_sigma_train_within_3sigma": sfit.coverage_3sigma,
         "val_sigma_nees_before": nees0, "val_sigma_nees_after": nees1,
         "val_sigma_within_3sigma_before": in3_0, "val_sigma_within_3sigma_after": in3_1,
         "sigma_note": "sigma fitted and scored on the causal estimate (estimate --no-smooth); the fit or the starting "
@@ -375,6 +437,11 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
 
     text = json.dumps(_jsonable(summary), indent=2, allow_nan=False)  # (NaN: null; JSON has none)
     atomic_write(out / "finetune.json", lambda tmp: Path(tmp).write_text(text))
+    # the tuned model last, once its validation is written (review59: a stop while validating had left a model.pt
+    # that no figure or warning had judged, and `estimate --model` took it)
+    save_checkpoint(out / "model.pt", model1, fusion_config_from(ck.get("fusion_config")), anchor,
+                    **{k: v for k, v in ck.items() if k not in ("format", "version", "model_config", "fusion_config",
+                                                                 "anchor_config", "state_dict", "conventions")})  # fmt: skip
     untuned.unlink(missing_ok=True)  # model.pt is the tuned one now
     return summary
 
