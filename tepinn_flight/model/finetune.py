@@ -64,6 +64,7 @@ def finetune_config(model_config, records: list[str], minutes: float = 6.0, seed
     )  # fmt: skip
 
 
+#: the trained network's checkpoint while its filter's settings and σ are being tuned (then: model.pt)
 UNTUNED_NAME = "model.untuned.pt"
 #: files that make a folder a fine-tuning's or a training's run folder (its checkpoints, its moved references)
 RUN_MARKERS = ("last.pt", "finetune.json", UNTUNED_NAME)
@@ -94,7 +95,7 @@ def collect_logs(items, exclude=None, notes: list[str] | None = None) -> list[Pa
         else:
             raise ConfigError(f"no such log or folder: {it}")
     if notes is not None:
-        notes += [f"{r}: a fine-tuning's run folder (its checkpoints and moved logs): left out" for r in sorted(runs)]
+        notes += [f"{r}: a training's or fine-tuning's run folder (its checkpoints and moved logs): left out" for r in sorted(runs)]
     if not out:
         raise ConfigError("no logs found in --data")
     return sorted(set(out))
@@ -155,8 +156,6 @@ def vehicle_of(rec: FlightRecord) -> str | None:
     kind = _kind(kind) if kind else None
     return " ".join(str(x) for x in (ap, kind, hw) if x)
 
-
-#: the trained network's checkpoint while its filter's settings and σ are being tuned (then: model.pt)
 
 #: a log scored for less than this (s, after each segment's 5-s warm-up) is too short to tune or validate on: its
 #: figures were NaN, and the settings then chosen by NaN comparisons (session 53)
