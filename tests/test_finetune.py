@@ -379,15 +379,18 @@ def test_a_log_too_short_to_score_is_not_tuned_on():
 
 
 @pytest.mark.slow
-def test_a_fine_tuning_stopped_while_tuning_leaves_no_untuned_model(tmp_path, monkeypatch):
-    """Stopped after the network trained but before its filter's settings and σ are tuned, RUN_DIR holds no
-    model.pt for `estimate --model` to take (session 53: the untuned one was left there under that name)."""
+@pytest.mark.parametrize("stop_in", ["tune_anchor", "_est"])
+def test_a_fine_tuning_stopped_while_tuning_or_validating_leaves_no_model(tmp_path, monkeypatch, stop_in):
+    """Stopped after the network trained but before its filter's settings and σ are tuned (``tune_anchor``), or while
+    the validation figures are made (``_est``), RUN_DIR holds no model.pt for `estimate --model` to take (session 53:
+    the untuned one was left there under that name; review59: the tuned one was written before any figure or warning
+    had judged it)."""
     import tepinn_flight.model.finetune as F
 
     def stopped(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(F, "tune_anchor", stopped)
+    monkeypatch.setattr(F, stop_in, stopped)
     data, _ = _quarters(tmp_path)
     run = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
@@ -434,23 +437,6 @@ def test_a_late_reference_is_skipped_or_with_align_reference_moved_and_learned_f
     assert check.endswith("; trusted") and "the moved copy: " in check  # only the moved copy's check, under its name)
     assert main(["train", "--config", "train/tiny.toml", "--align-reference", "-o", str(tmp_path / "r2")]) == 2
     assert "--align-reference is the fine-tuning's" in capsys.readouterr().err
-
-
-@pytest.mark.slow
-def test_a_fine_tuning_stopped_while_validating_leaves_no_model(tmp_path, monkeypatch):
-    """Stopped after the tuning, while the validation figures are made, RUN_DIR holds no model.pt (review59: the
-    tuned one was written first, and `estimate --model` took a model no figure or warning had judged)."""
-    import tepinn_flight.model.finetune as F
-
-    def stopped(*a, **k):
-        raise KeyboardInterrupt
-
-    monkeypatch.setattr(F, "_est", stopped)
-    data, _ = _quarters(tmp_path)
-    run = tmp_path / "run"
-    with pytest.raises(KeyboardInterrupt):
-        F.finetune("default", [str(data)], run, minutes=0.2, progress=False)
-    assert not (run / "model.pt").exists() and not (run / "finetune.json").exists()
 
 
 def test_the_logs_of_a_data_folder_leave_out_run_folders_and_say_so(tmp_path):
