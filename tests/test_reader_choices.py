@@ -8,6 +8,7 @@ from __future__ import annotations
 import struct
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from tepinn_flight.ingest import ingest_log
@@ -21,7 +22,7 @@ def _parm(tid, t_us, name, value):
     return bytes([0xA3, 0x95, tid]) + struct.pack("<Q16sf", t_us, name.encode(), value)
 
 
-def _dataflash(path, n=2000, imu0_until=None, ekf_type=None):
+def _dataflash(path, n=2000, imu0_until=None, ekf_type=None, gps_fix=None):
     """A 4.x log: IMU[I=0,1] at 100 Hz (IMU 0 stopping at row ``imu0_until``), NKQ1 4° off the truth, XKQ1 the truth
     (a rotation about z growing with time), PARM AHRS_EKF_TYPE where given."""
     out = [
@@ -31,6 +32,8 @@ def _dataflash(path, n=2000, imu0_until=None, ekf_type=None):
         struct.pack("<BBBBB4s16s64s", 0xA3, 0x95, 0x80, 16, 3 + struct.calcsize("<Qffff"), b"NKQ1", b"Qffff", b"TimeUS,Q1,Q2,Q3,Q4"),
         struct.pack("<BBBBB4s16s64s", 0xA3, 0x95, 0x80, 17, 3 + struct.calcsize("<Qffff"), b"XKQ1", b"Qffff", b"TimeUS,Q1,Q2,Q3,Q4"),
         struct.pack("<BBBBB4s16s64s", 0xA3, 0x95, 0x80, 18, 3 + struct.calcsize("<Q16sf"), b"PARM", b"QNf", b"TimeUS,Name,Value"),
+        struct.pack("<BBBBB4s16s64s", 0xA3, 0x95, 0x80, 19, 3 + struct.calcsize("<QBBff"), b"GPS", b"QBBff",
+                    b"TimeUS,I,Status,Spd,GCrs"),
     ]
     out.append(_msg(15, "QZ", 1, b"ArduCopter V4.0.7 (abcdef01)"))
     if ekf_type is not None:
@@ -42,6 +45,9 @@ def _dataflash(path, n=2000, imu0_until=None, ekf_type=None):
             if inst == 0 and imu0_until is not None and k >= imu0_until:
                 continue
             out.append(_msg(10, IMU_F, t_us, inst, 0.0, 0.0, rate, 0.0, 0.0, -9.81, 0, 0, 25.0, 1, 1, 1000, 1000))
+        if gps_fix is not None and k % 20 == 0:  # 5 Hz: receiver i with its fix status and a velocity of its own
+            for i, status in enumerate(gps_fix):
+                out.append(bytes([0xA3, 0x95, 19]) + struct.pack("<QBBff", t_us + 20, i, status, 5.0 + i, 90.0))
         if k % 2 == 0:
             yaw = rate * k * 0.01
             truth = Rotation.from_euler("z", yaw)
@@ -146,3 +152,14 @@ def test_a_ulog_reads_the_full_rate_vehicle_imu_where_sensor_combined_is_decimat
     assert rec.meta["imu_instance"] == 0 and rec.meta["imu_topic"].startswith("vehicle_imu")
     assert rec.meta["imu_rate_hz"] > 150 and np.allclose(rec.gyr_rad_s, rate, atol=1e-5)
     assert np.allclose(rec.acc_m_s2, (0.0, 0.0, -9.81), atol=1e-4)
+
+
+def test_dataflash_reads_the_gps_receiver_with_a_fix(tmp_path):
+    """4.x GPS[I]: the first receiver without a 3-D fix, the second with one — its velocity is read (review59: the
+    first receiver only, so no GNSS velocity at all); both fixed: the first, as before."""
+    rec = ingest_log(_dataflash(tmp_path / "gps.bin", n=1000, gps_fix=(1, 3)))
+    v = rec.gnss_vel_ne_m_s
+    assert v is not None and np.nanmedian(v[:, 1]) == pytest.approx(6.0, abs=1e-4)  # receiver 1: 6 m/s east
+    assert any("GPS: receiver 1 read" in n for n in rec.meta.get("notes", []))
+    both = ingest_log(_dataflash(tmp_path / "gps2.bin", n=1000, gps_fix=(3, 3)))
+    assert np.nanmedian(both.gnss_vel_ne_m_s[:, 1]) == pytest.approx(5.0, abs=1e-4)

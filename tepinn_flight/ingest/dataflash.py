@@ -18,7 +18,8 @@ Streams
           :class:`ConfigError` listing the candidates. XKQ/NKQ (the EKF cores' quaternions) are in
           the IMU board's frame; the others are the vehicle's attitude, turned into the board's by
           the level trim ``AHRS_TRIM_X/Y`` (:mod:`.ahrs_trim`; meta ``ahrs_trim_rad``).
-    GNSS  ``GPS`` (4.x: its lowest instance ``I``, the first receiver; never ``GPS2``), rows with
+    GNSS  ``GPS`` (4.x: its lowest instance ``I``, the first receiver, unless another has over 1.5× its rows with a
+          3-D fix; never ``GPS2``), rows with
           ``Status`` ≥ 3 (3-D fix): north, east = ``Spd`` · (cos, sin) ``GCrs`` (m/s, degrees).
     time  ``TimeUS`` (µs) or ``TimeMS`` (ms) since boot. Messages without either (Copter 3.0.x)
           cannot be timed. The ``GPS`` of old logs (ArduCopter ≤ 3.3) has ``TimeMS`` = GPS time
@@ -374,10 +375,20 @@ def _gnss(src: DataflashSource, t_imu: np.ndarray, o_imu: np.ndarray, ep_imu: np
         return None, None
     col = instance_col(mf)
     rows = None
-    if col is not None:  # 4.x: GPS[I]; the first receiver
-        inst = src.instance_column("GPS", col)
+    if col is not None:  # 4.x: GPS[I]; the first receiver, unless another has over 1.5× its 3-D fixes (review59:
+        inst = src.instance_column("GPS", col)  # a first receiver without a fix left a log with a second no velocity)
         fin = np.isfinite(inst)
-        rows = np.flatnonzero(inst == inst[fin].min()) if fin.any() else np.zeros(0, np.int64)
+        if fin.any():
+            with np.errstate(invalid="ignore"):
+                fixed = src.table("GPS", ("Status",), None)[:, 0] >= MIN_3D_FIX
+            fixes = {int(k): int(np.sum(fixed & (inst == k))) for k in np.unique(inst[fin])}
+            pick = covering_instance(fixes)
+            if pick != min(fixes):
+                notes.append(f"GPS: receiver {pick} read ({fixes[pick]} rows with a 3-D fix; receiver {min(fixes)}: "
+                             f"{fixes[min(fixes)]})")  # fmt: skip
+            rows = np.flatnonzero(inst == pick)
+        else:
+            rows = np.zeros(0, np.int64)
     g = src.table("GPS", (tf, *GPS_VEL), rows)
     order = src.order("GPS") if rows is None else src.order("GPS")[rows]
     t = g[:, 0] / GPS_TIME_FIELDS[tf]
