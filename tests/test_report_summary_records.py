@@ -73,6 +73,11 @@ def test_the_per_record_bar_is_the_summary_mean_where_one_estimator_has_no_estim
     assert not c["in_summary"] and c["kept_out"] == "not every estimator has an estimate"
     for name, y in _bars(res).items():  # (the bar had averaged record c in for the others)
         assert y == pytest.approx(res.dataset[name]["inclination_rmse_deg"], rel=1e-9), name
+    from tepinn_flight.evaluation.plotdata import showcase_records
+
+    captions = {s["name"]: cap for s, cap in showcase_records(res)}  # the time series' captions say it too
+    assert "not every estimator has an estimate, not in the summary" in captions["c"]
+    assert "not in the summary" not in captions["a"]
 
 
 def test_where_every_record_is_left_out_the_tables_do_not_say_not_in_the_summary():

@@ -8,7 +8,7 @@ import re
 
 import numpy as np
 
-from .left_out import left_out
+from .left_out import kept_out
 
 #: TE-PINN paper colours (truth black, complementary red, LSTM blue, TE-PINN green) and one fixed,
 #: well separated colour for every other method, so a method has the same colour in every report
@@ -90,7 +90,7 @@ def showcase_records(result, max_all: int = 3) -> list[tuple[dict, str]]:
         r = by_name.get(s["name"], {}).get("results", {})
         a = (r.get(primary) or {}).get("inclination_rmse_deg") if primary else None
         b = (r.get(ref) or {}).get("inclination_rmse_deg") if ref else None
-        why = left_out(by_name.get(s["name"], {}))
+        why = kept_out(by_name.get(s["name"], {}))
         slow = f" ({why}, not in the summary)" if why else ""
         if a is None or not math.isfinite(a):
             return None, slow.strip(" ()")
@@ -101,7 +101,7 @@ def showcase_records(result, max_all: int = 3) -> list[tuple[dict, str]]:
     scored = [(score(s), s) for s in series]
     if len(series) <= max_all:
         return [(s, txt) for (_, txt), s in scored]
-    fast = [x for x in scored if not left_out(by_name.get(x[1]["name"], {}))]
+    fast = [x for x in scored if not kept_out(by_name.get(x[1]["name"], {}))]
     if fast:  # best and worst among the records in the summary (not those left out of it)
         scored, series = fast, [s for _, s in fast]
     if len(series) <= max_all:

@@ -61,8 +61,8 @@ from .dataflash_source import DECODE_BLOCK_ROWS, DataflashSource, instance_col
 from .dataflash_text import TextSource
 from .saturation import accel_saturated, gyro_saturated
 from .sniff import sniff
-from .streams import (GnssVelStream, ImuStream, MagStream, RawLog, RefStream, covering_instance, detect_epochs,
-                      nominal_period_s)
+from .streams import (GnssVelStream, ImuStream, MagStream, RawLog, RefStream, covering_instance, covering_note,
+                      detect_epochs, nominal_period_s)
 
 
 TIME_FIELDS = {"TimeUS": 1e6, "TimeMS": 1e3}  # ticks per second (divide: exact for whole ms)
@@ -465,8 +465,7 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
         cover = covering_instance({i.instance: i.samples for i in insts})
         first, sel = insts[0], next(i for i in insts if i.instance == cover)
         if sel is not first:
-            notes.append(f"IMU {sel.instance} read ({sel.samples} samples): IMU {first.instance}, the first, holds "
-                         f"{first.samples} (it stops or is slower; --imu {first.instance} reads it)")  # fmt: skip
+            notes.append(covering_note(sel.instance, sel.samples, first.instance, first.samples))
     else:
         hits = [i for i in insts if i.instance == imu]
         if not hits:

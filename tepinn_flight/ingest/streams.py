@@ -31,6 +31,12 @@ def covering_instance(samples: dict[int, int]) -> int:
     return best if samples[best] > PREFER_FACTOR * samples[first] else first
 
 
+def covering_note(read: int, read_n: int, first: int, first_n: int) -> str:
+    """The note where :func:`covering_instance` read IMU ``read`` (``read_n`` samples) instead of the first."""
+    return (f"IMU {read} read ({read_n} samples): IMU {first}, the first, holds {first_n} (it stops or is slower; "
+            f"--imu {first} reads it)")
+
+
 @dataclass
 class ImuStream:
     t_s: np.ndarray  # (N,) float64, source clock

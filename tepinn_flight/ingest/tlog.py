@@ -76,7 +76,8 @@ from .ahrs_trim import TRIM_PARAMS, trim_note, usable_trim, vehicle_to_board
 from .clock_wrap import US32_WRAP_S, WRAP_MIN_BACKSTEP_S, top_to_bottom, wrap_count
 from .mavlink_scan import scan_tlog
 from .saturation import accel_saturated, gyro_full_scale_rad_s, gyro_saturated
-from .streams import PREFER_FACTOR, GnssVelStream, ImuStream, MagStream, RawLog, RefStream, covering_instance
+from .streams import (PREFER_FACTOR, GnssVelStream, ImuStream, MagStream, RawLog, RefStream, covering_instance,
+                      covering_note)
 
 MAV_COMP_ID_AUTOPILOT1 = 1
 MAV_AUTOPILOT_INVALID = 8
@@ -195,10 +196,9 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
                 f"(sysid {sysid}, compid {MAV_COMP_ID_AUTOPILOT1})"
             )
         sel = usable[covering_instance({k: len(s["t_s"]) for k, s in usable.items()})]
-        if sel is not usable[min(usable)]:
-            first = usable[min(usable)]
-            notes.append(f"IMU {sel['instance']} read ({len(sel['t_s'])} samples): IMU {first['instance']}, the first, "
-                         f"holds {len(first['t_s'])} (it stops or is slower; --imu {first['instance']} reads it)")  # fmt: skip
+        first = usable[min(usable)]
+        if sel is not first:
+            notes.append(covering_note(sel["instance"], len(sel["t_s"]), first["instance"], len(first["t_s"])))
     else:
         if imu not in by_inst:
             avail = ", ".join(f"{k} ({s['name']})" for k, s in sorted(by_inst.items())) or "none"
@@ -343,7 +343,6 @@ def _faster(s: dict, than: dict) -> bool:
     less preferred message, ``live/imu_stream.py``)."""
     a, b = s.get("rate_hz") or 0.0, than.get("rate_hz") or 0.0
     return bool(s.get("scale_known", True)) and a >= PREFER_FACTOR * b and a > 0
-
 
 
 def _autopilot_name(value: int | None) -> str:

@@ -287,17 +287,24 @@ def resolve_runtime(path, runtime: str = "auto") -> str:
 def check_model(path, runtime: str = "auto") -> None:
     """Refuse, in one line and before any work, a model file :func:`load_runner` would refuse: an ``.onnx`` that is no
     tepinn-flight export, a checkpoint that is none (the bridge had routed for 8 s before its worker met it). Reads
-    the metadata only."""
+    an export's metadata, or a checkpoint's archive listing: not torch, whose ~300 MB the bridge's main process on a
+    companion computer does not otherwise load (its worker does, where it runs the checkpoint)."""
+    import zipfile
+
     path = Path(path)
     rt = resolve_runtime(path, runtime)
     if is_onnx_path(path):
         read_onnx_metadata(path)
     elif rt == "onnx" and (synced := export_in_sync(path)) is not None:
         read_onnx_metadata(synced)
-    elif torch_available():
-        from .checkpoint import read_checkpoint
-
-        read_checkpoint(path)
+    else:  # torch.save's archive holds <name>/data.pkl; a text file, an image, a truncated download do not
+        try:
+            with zipfile.ZipFile(path) as z:
+                ok = any(n.endswith("/data.pkl") for n in z.namelist())
+        except (OSError, zipfile.BadZipFile):
+            ok = False
+        if not ok:
+            raise ConfigError(f"{path}: not a readable checkpoint (not a torch checkpoint file)")
 
 
 def file_sha256(path) -> str:
