@@ -380,11 +380,12 @@ def test_a_log_too_short_to_score_is_not_tuned_on():
 
 @pytest.mark.slow
 @pytest.mark.parametrize("stop_in", ["tune_anchor", "_est"])
-def test_a_fine_tuning_stopped_while_tuning_or_validating_leaves_no_model(tmp_path, monkeypatch, stop_in):
+def test_a_fine_tuning_stopped_while_tuning_or_validating_leaves_no_model(tmp_path, monkeypatch, capsys, stop_in):
     """Stopped after the network trained but before its filter's settings and σ are tuned (``tune_anchor``), or while
     the validation figures are made (``_est``), RUN_DIR holds no model.pt for `estimate --model` to take (session 53:
     the untuned one was left there under that name; review59: the tuned one was written before any figure or warning
-    had judged it)."""
+    had judged it). The training's last line names no model.pt, and each tuning stage is said as it starts (session
+    60: the tuning had shown nothing, and the training had named RUN/model.pt before it was there)."""
     import tepinn_flight.model.finetune as F
 
     def stopped(*a, **k):
@@ -394,9 +395,15 @@ def test_a_fine_tuning_stopped_while_tuning_or_validating_leaves_no_model(tmp_pa
     data, _ = _quarters(tmp_path)
     run = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
-        F.finetune("default", [str(data)], run, minutes=0.2, progress=False)
+        F.finetune("default", [str(data)], run, minutes=0.2, progress=True)
     assert not (run / "model.pt").exists() and (run / F.UNTUNED_NAME).exists()
     assert not (run / "finetune.json").exists()
+    said = capsys.readouterr()
+    assert "model.pt" not in said.out and "its filter's settings and σ tuned next" in said.out
+    stages = [ln for ln in said.err.splitlines() if ln.startswith("tuning ")]
+    reached = 1 if stop_in == "tune_anchor" else 4
+    assert [s.split(" (")[0] for s in stages] == [f"tuning {k}/4" for k in range(1, reached + 1)], stages
+    assert "on the 2 training files" in stages[0]
 
 
 @pytest.mark.slow

@@ -705,3 +705,35 @@ def test_training_says_where_the_network_gates_act_on_its_real_validation_files(
     model, anchor, _ = load_model(tmp_path / "run" / "model.pt")
     assert lines["sample_f450_flips.tlog"] == estimate_anchored(model, ingest_log(tlog), anchor).attrs["network_gates"]
     assert said[-1] == f"on the real validation files: {gates_acted(lines)}"
+
+
+@pytest.mark.parametrize("existed", [False, True])
+def test_a_run_stopped_in_its_first_epoch_leaves_no_run_folder_it_made(tmp_path, monkeypatch, existed):
+    """Ctrl-C (or SIGTERM, which the CLI turns into the same) before the first checkpoint: nothing of the run is
+    left — a folder this run made is removed, one the user made stays, emptied of the run's config and metrics
+    (session 60: they had stayed behind)."""
+    cfg = T.load_train_config(TINY)
+    out = tmp_path / "run"
+    if existed:
+        out.mkdir()
+
+    def stopped(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(T, "validate", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        T.train(cfg, out, progress=False, log=lambda m: None)
+    assert out.exists() == existed and (not existed or not any(out.iterdir()))
+
+
+@pytest.mark.parametrize("epoch_s,left_s,done", [(10.0, 95.0, 3), (10.0, 5.0, 3), (7.5, 30.0, 1), (1.0, 1e6, 2),
+                                                 (10.0, -4.0, 5), (0.0, 10.0, 2)])
+def test_the_progress_bars_end_is_where_the_time_limit_stops_the_run(epoch_s, left_s, done):
+    """`epochs_within` against the training loop's rule run forward one epoch at a time: after each epoch the run
+    stops where the next one (as long as the last) would end past the limit, and never after the recipe's epochs."""
+    optim = T.OptimConfig(epochs=40, max_minutes=1.0)
+    n, t = done, 0.0
+    while n < optim.epochs and not (t + epoch_s > left_s) and epoch_s > 0:
+        n, t = n + 1, t + epoch_s
+    expected = optim.epochs if epoch_s == 0 else n
+    assert T.epochs_within(optim, done, epoch_s, left_s) == expected

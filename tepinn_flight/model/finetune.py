@@ -26,8 +26,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -384,24 +384,28 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
               "fine-tuning fits one vehicle's gyro calibration, accelerometer time constant and σ — give it one "
               "vehicle's logs", file=sys.stderr)  # fmt: skip
     cfg = dataclasses.replace(finetune_config(model0.config, paths, minutes, seed), init=str(init_path))
-    result = train(cfg, out, progress=progress, report_gates=False)  # reported below, after the tuning
     # the network before its filter's settings and σ are tuned: not RUN_DIR/model.pt until they are (a run stopped
     # while tuning had left an untuned model.pt that `estimate --model` took without a word; session 53)
     untuned = out / UNTUNED_NAME
-    os.replace(out / "model.pt", untuned)
+    result = train(cfg, out, progress=progress, report_gates=False, model_name=UNTUNED_NAME)  # reported below
     tr, va = split_by_flight(len(recs), cfg.data.val_fraction, seed)
+    say = _stage_notes(progress, len(tr), len(va))
     val = [recs[i] for i in va] or [recs[i] for i in tr]
     model1, _, ck = load_model(untuned)
     # the filter's settings and σ₀, c, g are tuned on the causal estimate (the live bridge's; the offline
     # smoothing scales σ by its own factor where it applies), as the shipped ones were
     causal0 = dataclasses.replace(est0, smoother=False)
     train_recs = [recs[i] for i in tr]
+    say("the filter's accelerometer time constant and the gyro's scale, on the {train}")
     wins = record_windows(model1, causal0, train_recs)  # once: no setting tuned below changes them
     anchor, table, scales = tune_anchor(model1, causal0, train_recs, windows=wins)
+    say("σ fitted on the {train}, scored against the starting model's on the {val}")
     fitted, sfit = fit_anchor_sigma(model1, anchor, train_recs)
     anchor, sigma_choice, sigma_val = choose_sigma(model1, fitted, est0, val)
     nees_causal = sigma_scores(model0, causal0, val), sigma_val[sigma_choice]
+    say("the offline smoothing on or off, on the {train}")
     anchor, smooth_table = tune_smoothing(model1, anchor, train_recs, windows=wins)
+    say("the starting model and the fine-tuned one on the {val}")
     before = [inclination_rmse_deg(r, _est(model0, est0, r)) for r in val]
     ests = [_est(model1, anchor, r) for r in val]
     after = [inclination_rmse_deg(r, e) for r, e in zip(val, ests)]
@@ -443,6 +447,21 @@ def finetune(init: str, items, out_dir, minutes: float = 6.0, progress: bool = T
                                                                  "anchor_config", "state_dict", "conventions")})  # fmt: skip
     untuned.unlink(missing_ok=True)  # model.pt is the tuned one now
     return summary
+
+
+def _stage_notes(progress: bool, n_train: int, n_val: int):
+    """The tuning's progress after the training's bar: one numbered line per stage with the time since the first
+    (the stages take from seconds to minutes; session 60: they had shown nothing)."""
+    t0, k = time.monotonic(), [0]
+    files = {"train": f"{n_train} training file{'s' * (n_train != 1)}",
+             "val": f"{n_val} validation file{'s' * (n_val != 1)}" if n_val else "file it was tuned on (none held out)"}
+
+    def say(what: str) -> None:
+        k[0] += 1
+        if progress:
+            print(f"tuning {k[0]}/4 (+{time.monotonic() - t0:.0f} s): {what.format(**files)}", file=sys.stderr, flush=True)
+
+    return say
 
 
 def _est(model, anchor, rec):

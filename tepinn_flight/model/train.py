@@ -202,8 +202,9 @@ def resolve_device(name: str = "cpu") -> torch.device:
 
 def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bool = False,
           config_base: Path = Path("."), progress: bool = True, log=print, device: str = "cpu",
-          report_gates: bool = True) -> dict:  # fmt: skip
-    """Train and write ``out_dir/{last.pt,best.pt,model.pt,metrics.jsonl,config.json}``.
+          report_gates: bool = True, model_name: str = "model.pt") -> dict:  # fmt: skip
+    """Train and write ``out_dir/{last.pt,best.pt,model.pt,metrics.jsonl,config.json}`` (the final model under
+    ``model_name``: the fine-tuning writes its untuned network under another name).
 
     ``device``: ``cpu`` (bitwise deterministic for a seed), ``cuda`` or ``auto``. Under DDP on
     GPUs, gradients go through NCCL and the few CPU-side reductions through gloo.
@@ -228,20 +229,22 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
         torch.distributed.init_process_group("cpu:gloo,cuda:nccl" if dev.type == "cuda" else "gloo")
     created = not out.exists()
     try:
-        return _train(cfg, out, data_dirs, resume, config_base, progress, log, rank, world, dev, report_gates)
-    except TepinnError:
-        # bad input found before the first checkpoint: leave no half-made run folder behind (one
-        # this invocation created and that holds nothing but its config and empty metrics)
-        if created and rank == 0 and not (out / "last.pt").exists():
-            _remove_unstarted_run(out)
+        return _train(cfg, out, data_dirs, resume, config_base, progress, log, rank, world, dev, report_gates,
+                      model_name)
+    except (TepinnError, KeyboardInterrupt):
+        # bad input found, or a stop (Ctrl-C, SIGTERM) before the first checkpoint: leave no half-made run folder
+        # behind (one this invocation created and that holds nothing but its config and empty metrics; session 60)
+        if rank == 0 and not (out / "last.pt").exists():
+            _remove_unstarted_run(out, remove_folder=created)
         raise
     finally:
         if own_group and torch.distributed.is_initialized():
             torch.distributed.destroy_process_group()
 
 
-def _remove_unstarted_run(out: Path) -> None:
-    """Remove a run folder that holds only what :func:`_train` writes before training starts."""
+def _remove_unstarted_run(out: Path, remove_folder: bool) -> None:
+    """Remove what :func:`_train` writes before training starts from a run folder that holds nothing else, and the
+    folder itself where ``remove_folder`` (this run made it)."""
     try:
         names = {p.name for p in out.iterdir()}
     except OSError:
@@ -249,10 +252,18 @@ def _remove_unstarted_run(out: Path) -> None:
     if names <= {"config.json", "metrics.jsonl"}:
         for n in names:
             (out / n).unlink(missing_ok=True)
-        try:
-            out.rmdir()
-        except OSError:
-            pass
+        if remove_folder:
+            try:
+                out.rmdir()
+            except OSError:
+                pass
+
+
+def epochs_within(optim, done: int, epoch_s: float, left_s: float) -> int:
+    """How many epochs a run with ``optim``'s time limit ends after, ``done`` done, each ``epoch_s`` long, ``left_s``
+    left of the limit: the loop's rule — it stops when the next epoch would end past the limit — run forward."""
+    more = int(max(0.0, left_s) // epoch_s) if epoch_s > 0 else optim.epochs
+    return min(optim.epochs, done + more)
 
 
 def gyro_bias_augmentation(rng: np.random.Generator, n: int, sigma_deg_s: float, prob: float) -> np.ndarray:
@@ -292,7 +303,8 @@ def _on(batch: dict, dev: torch.device) -> dict:
 
 
 def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Path, progress: bool, log,
-           rank: int, world: int, dev: torch.device = torch.device("cpu"), report_gates: bool = True) -> dict:  # fmt: skip
+           rank: int, world: int, dev: torch.device = torch.device("cpu"), report_gates: bool = True,
+           model_name: str = "model.pt") -> dict:  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
@@ -475,6 +487,10 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
                     "optim.max_minutes=N for a recipe, --minutes N when fine-tuning)")
             stop_reason = "time_limit"
             break
+        if bar and cfg.optim.max_minutes:  # the bar's end where the time limit will stop the run (session 60)
+            bar.total = cfg.optim.steps_per_epoch * epochs_within(cfg.optim, epoch + 1, next_end - elapsed,
+                                                                   60 * cfg.optim.max_minutes - elapsed)
+            bar.refresh()
     if bar:
         bar.close()
     result = {"best_val_tilt_rmse_deg": best_val, "epochs": len(history), "stop_reason": stop_reason}
@@ -492,19 +508,20 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
             fusion, fus_metrics = calibrate_with(cfg, best_model, val_recs, train_recs)
             anchor = cfg.anchor if cfg.anchor.enabled else None
         final_metrics = {**(ck.get("metrics") or {}), **fus_metrics}
-        save_checkpoint(out / "model.pt", best_model, fusion, anchor, training=summary, metrics=final_metrics,
+        save_checkpoint(out / model_name, best_model, fusion, anchor, training=summary, metrics=final_metrics,
                         loss_config=dataclasses.asdict(cfg.loss),
                         tepinn_flight_version=__version__)  # fmt: skip
         result.update(fus_metrics)
         fused = f", fused {fus_metrics['fusion_val_tilt_rmse_mean_deg']:.3f}° (mean over validation flights)" if fus_metrics else ""
-        log(f"best validation tilt RMSE {best_val:.3f}° (window){fused}; model: {out / 'model.pt'}")
+        log(f"best validation tilt RMSE {best_val:.3f}° (window){fused}; "
+            + (f"model: {out / model_name}" if init_ck is None else "its filter's settings and σ tuned next"))
         from ..record import SIMULATED_KINDS
 
         real_val = [r for r in val_recs if r.meta.get("source_kind") not in SIMULATED_KINDS]
         if report_gates and real_val and anchor is not None:
             from .estimate import estimate_anchored, gates_acted
 
-            m1, a1, _ = load_model(out / "model.pt")
+            m1, a1, _ = load_model(out / model_name)
             lines = {}
             for i, r in enumerate(real_val):
                 try:
