@@ -22,7 +22,7 @@ def _parm(tid, t_us, name, value):
     return bytes([0xA3, 0x95, tid]) + struct.pack("<Q16sf", t_us, name.encode(), value)
 
 
-def _dataflash(path, n=2000, imu0_until=None, ekf_type=None, gps_fix=None):
+def _dataflash(path, n=2000, imu0_until=None, ekf_type=None, gps_fix=None, mag_until=None):
     """A 4.x log: IMU[I=0,1] at 100 Hz (IMU 0 stopping at row ``imu0_until``), NKQ1 4° off the truth, XKQ1 the truth
     (a rotation about z growing with time), PARM AHRS_EKF_TYPE where given."""
     out = [
@@ -34,6 +34,8 @@ def _dataflash(path, n=2000, imu0_until=None, ekf_type=None, gps_fix=None):
         struct.pack("<BBBBB4s16s64s", 0xA3, 0x95, 0x80, 18, 3 + struct.calcsize("<Q16sf"), b"PARM", b"QNf", b"TimeUS,Name,Value"),
         struct.pack("<BBBBB4s16s64s", 0xA3, 0x95, 0x80, 19, 3 + struct.calcsize("<QBBff"), b"GPS", b"QBBff",
                     b"TimeUS,I,Status,Spd,GCrs"),
+        struct.pack("<BBBBB4s16s64s", 0xA3, 0x95, 0x80, 20, 3 + struct.calcsize("<QBhhh"), b"MAG", b"QBhhh",
+                    b"TimeUS,I,MagX,MagY,MagZ"),
     ]
     out.append(_msg(15, "QZ", 1, b"ArduCopter V4.0.7 (abcdef01)"))
     if ekf_type is not None:
@@ -45,6 +47,10 @@ def _dataflash(path, n=2000, imu0_until=None, ekf_type=None, gps_fix=None):
             if inst == 0 and imu0_until is not None and k >= imu0_until:
                 continue
             out.append(_msg(10, IMU_F, t_us, inst, 0.0, 0.0, rate, 0.0, 0.0, -9.81, 0, 0, 25.0, 1, 1, 1000, 1000))
+        if mag_until is not None and k % 10 == 0:  # 10 Hz: compass i reads (200 + 100 i, 0, 400) mGauss
+            for i, until in enumerate(mag_until):
+                if until is None or k < until:
+                    out.append(bytes([0xA3, 0x95, 20]) + struct.pack("<QBhhh", t_us + 30, i, 200 + 100 * i, 0, 400))
         if gps_fix is not None and k % 20 == 0:  # 5 Hz: receiver i with its fix status and a velocity of its own
             for i, status in enumerate(gps_fix):
                 out.append(bytes([0xA3, 0x95, 19]) + struct.pack("<QBBff", t_us + 20, i, status, 5.0 + i, 90.0))
@@ -163,3 +169,15 @@ def test_dataflash_reads_the_gps_receiver_with_a_fix(tmp_path):
     assert any("GPS: receiver 1 read" in n for n in rec.meta.get("notes", []))
     both = ingest_log(_dataflash(tmp_path / "gps2.bin", n=1000, gps_fix=(3, 3)))
     assert np.nanmedian(both.gnss_vel_ne_m_s[:, 1]) == pytest.approx(5.0, abs=1e-4)
+
+
+@pytest.mark.parametrize("mag_until,want", [((None, None), 0), ((500, None), 1)])
+def test_dataflash_chooses_the_compass_on_its_own_not_by_the_imus_number(tmp_path, mag_until, want):
+    """IMU 0 stops and IMU 1 is read: the compass read is still the first (the autopilot's primary) where it covers
+    the log, and the second only where the first stops too — compasses and IMUs are numbered apart (session 60: the
+    compass had followed the IMU's instance number). Compass i reads (20 + 10 i, 0, 40) µT."""
+    rec = ingest_log(_dataflash(tmp_path / "mags.bin", imu0_until=500, mag_until=mag_until))
+    assert rec.meta["imu_instance"] == 1 and rec.meta["mag_instance"] == want
+    m = rec.mag_ut
+    m = m[np.all(np.isfinite(m), axis=1)]
+    assert len(m) > 100 and np.allclose(m, [20.0 + 10.0 * want, 0.0, 40.0])

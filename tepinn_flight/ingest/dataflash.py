@@ -7,9 +7,10 @@ written once.
 
 Streams
     IMU   ``IMU``/``IMU2``/``IMU3`` (old logs: instances 0/1/2) or 4.x ``IMU`` with instance
-          column ``I``. Gyro rad/s, accel m/s² FRD, already SI. Default: the lowest instance with rows.
-    MAG   ``MAG``/``MAG2``/``MAG3`` or ``MAG[I]``, milliGauss × 0.1 → µT; the IMU's instance if
-          logged, else the lowest one.
+          column ``I``. Gyro rad/s, accel m/s² FRD, already SI. Default: the lowest instance with rows,
+          unless another holds over 1.5× its samples (``streams.covering_instance``).
+    MAG   ``MAG``/``MAG2``/``MAG3`` or ``MAG[I]``, milliGauss × 0.1 → µT; chosen as the IMU is, on its
+          own (compasses and IMUs are numbered apart).
     ref   quaternions ``XKQ[C]`` (EKF3), ``NKQ1``/``NKQ2``/``NKQ[C]`` (EKF2) or ``AHR2`` with
           Q1..Q4 (w, x, y, z body→NED); Euler ``ATT``/``AHR2``/``EKF1``/``NKF1``/``XKF1``
           (degrees, Z-Y-X, yaw 0–360). Default: XKQ core 0, else NKQ1, else NKQ core 0, else
@@ -492,12 +493,15 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
         for i in insts
     ]  # fmt: skip
 
-    # ---- magnetometer (same instance as the IMU if logged)
+    # ---- magnetometer: the first (the autopilot's primary compass) unless another covers the log, as the IMU —
+    # not the IMU's instance number: compasses and IMUs are numbered apart (session 60: the IMU 1 read where IMU 0
+    # stopped had taken compass 1 with it)
     parts = [(t_imu, o_imu)]
     mag = None
     mags = [i for i in _instances(src, "MAG", ("MAG2", "MAG3")) if _has(src, i.name, MAGC)]
     if mags:
-        msel = next((i for i in mags if i.instance == sel.instance), mags[0])
+        mcover = covering_instance({i.instance: i.samples for i in mags})
+        msel = next(i for i in mags if i.instance == mcover)
         t_mag, m = _timed(src, msel, MAGC)
         (t_mag, m), o_mag = _unspiked("MAG", t_mag, (m,), _order(src, msel), notes)
         mag = MagStream(t_mag, m * MILLIGAUSS_TO_UT)
