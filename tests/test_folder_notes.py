@@ -74,3 +74,53 @@ def test_ingest_and_info_say_the_same_reference_coverage():
     s = summarize(rec)
     rec.meta["reference_coverage"] = s["reference_coverage"]
     assert "(99.7% covered)" in record_summary_line(rec) and "covers 99.7% of IMU samples" in render_info("r", s)
+
+
+def test_a_damaged_or_unreadable_log_in_a_folder_is_an_error_and_exit_2(tmp_path, capsys):
+    """A folder's log that cannot be read — random bytes under an ArduPilot `.BIN` name, a tlog without a frame, a file
+    the user may not read — is one error line and exit 2 at the end, as where it is named on the command line
+    (review60: a note and exit 0, so a nightly batch never learned of them); an empty `.BIN` stays a note, and a
+    `.log` that is no DataFlash text — every program's log file, such as this run's own — stays a note too."""
+    import os
+
+    import numpy as np
+
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    d = tmp_path / "LOGS"
+    d.mkdir()
+    write_record(synthetic_record(seed=1, duration_s=6.0, rate_hz=100.0), d / "good.parquet")
+    (d / "00000042.BIN").write_bytes(b"")
+    (d / "00000043.BIN").write_bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8).tobytes())
+    (d / "flight.tlog").write_bytes(bytes(2000))
+    (d / "run.log").write_text("estimating 3 records\n")
+    locked = d / "00000044.BIN"
+    locked.write_bytes(b"\xa3\x95" + bytes(100))
+    locked.chmod(0)
+    can_lock = not os.access(locked, os.R_OK)  # (root reads any file: the permission case is then not made)
+    assert main(["estimate", str(d), "-o", str(tmp_path / "est")]) == 2
+    lines = _lines(capsys.readouterr().err)
+    errors = [ln for ln in lines if ln.startswith("tepinn-flight estimate: error:")]
+    assert any("00000043.BIN" in ln for ln in errors) and any("flight.tlog" in ln for ln in errors), lines
+    assert can_lock == any("00000044.BIN" in ln and "Permission denied" in ln for ln in errors), lines
+    notes = [ln for ln in lines if ln.startswith("tepinn-flight estimate: note:")]
+    assert any(ln.endswith("00000042.BIN: left out (empty file)") for ln in notes), lines
+    assert any("run.log: left out" in ln for ln in notes) and not any("run.log" in ln for ln in errors), lines
+    assert (tmp_path / "est" / "good.parquet").exists()
+    # every verb the same way: ingest and info exit 2; evaluate leaves them out with a note (its documented rule)
+    assert main(["info", str(d)]) == 2
+    assert any("00000043.BIN" in ln for ln in _lines(capsys.readouterr().err) if ": error:" in ln)
+    assert main(["ingest", str(d), "-o", str(tmp_path / "ing")]) == 2
+    assert any("00000043.BIN" in ln for ln in _lines(capsys.readouterr().err) if ": error:" in ln)
+
+
+def test_a_folders_notes_come_in_path_order(tmp_path):
+    """The left-out notes in the order of the files' names, not the folder's listing order (review60)."""
+    from tepinn_flight.ingest.inputs import RECORD_OR_LOG_FORMATS, files_in
+
+    for n in (11, 9, 10, 12):
+        (tmp_path / f"{n:08d}.BIN").write_bytes(b"")
+    notes: list[str] = []
+    assert files_in(tmp_path, RECORD_OR_LOG_FORMATS, notes=notes) == []
+    assert notes == sorted(notes) and len(notes) == 4

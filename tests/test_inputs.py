@@ -37,18 +37,22 @@ def folder(tmp_path):
 
 def test_a_folder_stands_for_its_logs_and_records_told_by_content(folder):
     logs = files_in(folder, LOG_FORMATS)
-    assert [p.name for p in logs] == ["00000042.BIN", "flight.txt"]  # sorted; the names never decide
-    assert [sniff(p) for p in logs] == ["dataflash-bin", "dataflash-text"]
+    # sorted; the content decides what a log is; a file under a name only logs go by that holds none (notes.ulg) is
+    # handed on as a log that cannot be read — the verb says so, exit 2 (review60: a note and exit 0 before)
+    assert [p.name for p in logs] == ["00000042.BIN", "flight.txt", "notes.ulg"]
+    assert [sniff(p) for p in logs[:2]] == ["dataflash-bin", "dataflash-text"]
+    with pytest.raises(TepinnError, match="not a ULog"):
+        sniff(logs[2])
     both = files_in(folder, RECORD_OR_LOG_FORMATS)
-    assert [p.name for p in both] == ["00000042.BIN", "flight.txt", "rec.parquet"]
+    assert [p.name for p in both] == ["00000042.BIN", "flight.txt", "notes.ulg", "rec.parquet"]
     deep = files_in(folder, RECORD_OR_LOG_FORMATS, recursive=True)
     assert [p.relative_to(folder).as_posix() for p in deep] == ["00000042.BIN", "2024-05-01/12_34_56.ulg",
-                                                               "flight.txt", "rec.parquet"]  # fmt: skip
+                                                               "flight.txt", "notes.ulg", "rec.parquet"]  # fmt: skip
 
 
 def test_expand_keeps_named_files_and_fails_in_one_line(folder, tmp_path):
     named = folder / "notes.ulg"  # named on the command line: taken as given (the verb says what it is)
-    assert expand([str(named), str(folder)]) == [named, *files_in(folder, RECORD_OR_LOG_FORMATS)]
+    assert expand([str(named), str(folder)]) == [named, *(f for f in files_in(folder, RECORD_OR_LOG_FORMATS) if f != named)]
     with pytest.raises(TepinnError, match="no such file or folder") as e:
         expand([str(tmp_path / "nope")])
     assert e.value.path == str(tmp_path / "nope")

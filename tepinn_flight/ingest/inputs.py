@@ -7,7 +7,11 @@ the files a folder holds are chosen here. Hidden files and files none of our rea
 out silently: a log folder also holds ``LASTLOG.TXT``, parameter files and the ground station's
 notes — and Parquet files that are not flight records, such as the estimates ``estimate`` wrote there.
 A file named as a log is (:data:`LOG_SUFFIXES`) but not one — an empty ``00000042.BIN``, the commonest broken log on
-an ArduPilot SD card — is left out with a note, where the caller asks for them (session 58: it had gone unsaid).
+an ArduPilot SD card — is left out with a note, where the caller asks for them (session 58: it had gone unsaid). One
+that cannot be read (its permissions), or that holds no log under a name only logs go by (:data:`LOG_ONLY_SUFFIXES`:
+a damaged ``.BIN``), is a log that cannot be read: it is handed to the verb, which says its error and exits 2 as for a
+file named on the command line (session 60: a folder run had exited 0 with such logs in it). A ``.log`` holding no
+DataFlash text is left out with a note: the name is every program's (``estimate LOGS/ > LOGS/run.log``).
 """
 
 from __future__ import annotations
@@ -27,15 +31,32 @@ RECORD_OR_LOG_FORMATS = frozenset(FORMATS)
 
 #: the file names a log or record goes by: one of them that holds none is said to be left out
 LOG_SUFFIXES = frozenset({".bin", ".log", ".tlog", ".ulg", ".hdf5", ".h5", ".parquet"})
+#: the names only our formats go by, each with the formats it is: a non-empty file under one that holds none of them
+#: is a damaged log or record, not some other program's file
+LOG_ONLY_SUFFIXES = {".bin": ("dataflash-bin", "dataflash-text"), ".tlog": ("tlog",), ".ulg": ("ulog",),
+                     ".hdf5": ("hdf5",), ".h5": ("hdf5",), ".parquet": ("parquet",)}
+
+
+def _unreadable_log(f: Path, reason: str, formats: frozenset[str]) -> bool:
+    """Whether ``f``, which :func:`~.sniff.sniff` refused for ``reason``, is a log of ``formats`` that cannot be read
+    (handed to the verb, an error) rather than a file that is no log (left out with a note)."""
+    suffix = f.suffix.lower()
+    if suffix not in LOG_SUFFIXES or reason == "empty file":
+        return False
+    if reason.startswith("cannot read"):
+        return True
+    return any(fmt in formats for fmt in LOG_ONLY_SUFFIXES.get(suffix, ()))
 
 
 def files_in(folder: str | os.PathLike, formats: frozenset[str], recursive: bool = False,
              notes: list[str] | None = None) -> list[Path]:
     """The files in ``folder`` (and its subfolders where ``recursive``) whose content is one of
-    ``formats``, sorted by path; ``notes`` gets a line for each file named as a log that is none (empty, unknown)."""
+    ``formats``, and those named as such a log that cannot be read (:func:`_unreadable_log`: the verb says its
+    error), sorted by path; ``notes`` gets a line, in path order, for each other file named as a log that is none
+    (empty, unknown)."""
     root = Path(folder)
     candidates = root.rglob("*") if recursive else root.iterdir()
-    out = []
+    out, left = [], []
     for f in candidates:
         if f.name.startswith(".") or any(part.startswith(".") for part in f.relative_to(root).parts[:-1]):
             continue
@@ -44,13 +65,17 @@ def files_in(folder: str | os.PathLike, formats: frozenset[str], recursive: bool
         try:
             fmt = sniff(f)
         except TepinnError as exc:
-            if notes is not None and f.suffix.lower() in LOG_SUFFIXES:
-                notes.append(f"{f}: left out ({exc.reason})")
+            if _unreadable_log(f, exc.reason, formats):
+                out.append(f)
+            elif f.suffix.lower() in LOG_SUFFIXES:
+                left.append(f"{f}: left out ({exc.reason})")
             continue
         if fmt == "parquet" and not is_flight_record(f):  # an estimate written beside the records, another table
             continue
         if fmt in formats:
             out.append(f)
+    if notes is not None:
+        notes += sorted(left)
     return sorted(out)
 
 
