@@ -169,3 +169,26 @@ def test_quiet_evaluate_still_says_which_inputs_were_left_out(tmp_path, capsys):
     code = main(["evaluate", str(d), "-o", str(tmp_path / "rep"), "--no-model", "--no-peers", "--warmup-s", "2", "-q"])
     err = capsys.readouterr().err
     assert code == 0 and "bad.BIN: left out" in err
+
+
+def test_where_the_summarys_records_have_no_scored_sample_they_are_listed_apart_too(tmp_path, capsys):
+    """A record too short for the warm-up beside one with an IMU too slow (scored, listed apart): the short record is
+    listed apart as one with no scored sample — it had been the whole summary, a table of dashes, and the command's
+    line had ended at its colon (review60)."""
+    from tepinn_flight.cli.main import main
+    from tepinn_flight.record import write_record
+
+    slow = synthetic_record(seed=1, duration_s=12.0, rate_hz=10.0)  # under 20 Hz: scored by the filters, listed apart
+    short = _rec(2, 1.5, "short")
+    res = evaluate([slow, short], baseline_estimators(), HarnessConfig(warmup_s=2.0), progress=False)
+    by = {r["name"]: r for r in res.records}
+    assert by["short"]["kept_out"] == "no scored sample" and not any(r["in_summary"] for r in res.records)
+    assert all(d["inclination_rmse_deg"] is None for d in res.dataset.values())
+    d = tmp_path / "recs"
+    d.mkdir()
+    write_record(slow, d / "slow.parquet")
+    write_record(short, d / "short.parquet")
+    assert main(["evaluate", str(d), "-o", str(tmp_path / "rep"), "--no-model", "--no-peers", "--warmup-s", "2", "-q"]) == 0
+    line = capsys.readouterr().out.splitlines()[0]
+    assert "mean over the 0 records in the summary; 2 listed apart: " in line and "no scored sample (1)" in line, line
+    assert line.endswith("none: no record in the summary (each record's figures are in the report)"), line

@@ -172,8 +172,9 @@ def _run(args) -> int:
     why = [w for r in result.records if (w := kept_out(r))]
     over = ("records" if not why else f"the {len(records) - len(why)} records in the summary; {len(why)} listed apart: "
             + ", ".join(f"{w} ({why.count(w)})" for w in dict.fromkeys(why)))
-    print(f"{len(records)} record(s), {len(estimators)} estimator(s); inclination RMSE (mean over {over}): "
-          + ", ".join(f"{display_name(k)} {v:.2f}°" for v, k in best))
+    figures = (", ".join(f"{display_name(k)} {v:.2f}°" for v, k in best) if best else
+               "none: no record in the summary (each record's figures are in the report)")  # (review60: the line ended at ':')
+    print(f"{len(records)} record(s), {len(estimators)} estimator(s); inclination RMSE (mean over {over}): {figures}")
     print(f"report: {files[-1]} (interactive: {files[-1].with_name('report.html')})")
     return 0
 

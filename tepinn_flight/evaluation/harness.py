@@ -240,22 +240,23 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
         kept_out = {}
         notes.append("every record has an IMU too slow for windowed estimation or a reference that fails the trust "
                      "check: the summary is over them all and is not meaningful")  # fmt: skip
+    # no estimator has a figure there: nothing is scored (not a missing estimate) — kept out even where no record of
+    # the summary has a figure (review60: two such records had been the whole summary, a line of dashes)
+    unscored = [r for r in headline if not any(_scored(r["results"][e.name]) for e in estimators)]
+    if unscored:
+        none = [r["name"] for r in unscored]
+        notes.append(f"{len(none)} record(s) with no scored sample (shorter than the warm-up, or no reference after "
+                     f"it) are kept out of the summary means: {', '.join(none[:5])}{', ...' if len(none) > 5 else ''}")  # fmt: skip
+        kept_out |= {id(r): "no scored sample" for r in unscored}
+        headline = [r for r in headline if not any(r is u for u in unscored)]
     common, missing = common_records(headline, estimators)
     if missing and common:  # the same records for every estimator's mean (as the same samples within a record)
-        unscored = {k: v for k, v in missing.items() if not _any_scored(headline, k, estimators)}
-        partial = {k: v for k, v in missing.items() if k not in unscored}
-        if unscored:  # no estimator has a figure there: nothing is scored (not a missing estimate)
-            none = list(unscored)
-            notes.append(f"{len(none)} record(s) with no scored sample (shorter than the warm-up, or no reference after "
-                         f"it) are kept out of the summary means: {', '.join(none[:5])}{', ...' if len(none) > 5 else ''}")  # fmt: skip
-        if partial:
-            shown = "; ".join(f"{k} ({', '.join(display_name(n) for n in v)})" for k, v in list(partial.items())[:5])
-            notes.append(f"{len(partial)} record(s) where not every estimator has an estimate are kept out of the summary "
-                         f"means and the paired comparison, so that each mean is over the same records: {shown}"
-                         f"{'; ...' if len(partial) > 5 else ''}")  # fmt: skip
+        shown = "; ".join(f"{k} ({', '.join(display_name(n) for n in v)})" for k, v in list(missing.items())[:5])
+        notes.append(f"{len(missing)} record(s) where not every estimator has an estimate are kept out of the summary "
+                     f"means and the paired comparison, so that each mean is over the same records: {shown}"
+                     f"{'; ...' if len(missing) > 5 else ''}")  # fmt: skip
         by_name = {r["name"]: r for r in headline}
-        kept_out |= {id(by_name[k]): "no scored sample" for k in unscored}
-        kept_out |= {id(by_name[k]): "not every estimator has an estimate" for k in partial}
+        kept_out |= {id(by_name[k]): "not every estimator has an estimate" for k in missing}
         headline = common
     elif missing:
         notes.append("no record has an estimate of every estimator: each summary mean is over that estimator's own "
@@ -363,12 +364,6 @@ def common_records(rec_results: list[dict], estimators) -> tuple[list[dict], dic
         else:
             keep.append(r)
     return keep, missing
-
-
-def _any_scored(rec_results: list[dict], name: str, estimators) -> bool:
-    """Whether any estimator has an inclination figure on the record called ``name``."""
-    r = next(r for r in rec_results if r["name"] == name)
-    return any(_scored(r["results"][e.name]) for e in estimators)
 
 
 def aggregate(rec_results: list[dict], estimators, n_bins: int) -> dict:
