@@ -165,3 +165,25 @@ def test_a_real_px4_log_with_dropouts_is_estimated_further_and_no_worse():
         a, b = r["results"][name]["inclination_rmse_deg"], old["results"][name]["inclination_rmse_deg"]
         print(name, f"inclination RMSE restart {b:.3f} deg, bridged {a:.3f} deg")
         assert a <= b * 1.1 + 0.05
+
+
+@pytest.mark.parametrize("f", [0.02, 0.2, 0.45])
+def test_logged_timing_loses_the_share_asked_one_at_a_time(f):
+    """`lost_fraction` f loses f of the samples (review60: f(1 − f) — 0.45 asked, 0.25 lost), never two in a row nor
+    the first or last 5 — against a slow sequential reference on the same draws: each sample drawn to be lost is lost
+    unless the one before was — and the first stamp is on time (its jitter had shifted the whole record's clock)."""
+    from tepinn_flight.record_gaps import logged_timing
+
+    n, period = 200_000, 0.0025
+    t = np.arange(n) * period
+    keep, stamps = logged_timing(np.random.default_rng(7), t, period, f, 0.2 * period)
+    lost = ~keep
+    draws = np.random.default_rng(7).random(n) < f / (1 - f)
+    ref = np.zeros(n, bool)
+    for i in range(n):
+        ref[i] = draws[i] and not (i > 0 and ref[i - 1])
+    ref[:5] = ref[n - 5 :] = False
+    assert np.array_equal(lost, ref)
+    assert not np.any(lost[1:] & lost[:-1]) and not lost[:5].any() and not lost[-5:].any()
+    assert abs(lost.mean() - f) < 4 * np.sqrt(f * (1 - f) / n) + 1e-4, lost.mean()
+    assert stamps[0] == t[0] and np.all(np.abs(stamps - t[keep]) <= 0.45 * period + 1e-12)
