@@ -171,6 +171,18 @@ def test_campaign_parallel_resumable_deterministic(tmp_path, capsys):
             assert (out2 / f).stat().st_mtime_ns == before[f]
     assert not list(out2.glob(".*.tmp"))
 
+    # resume: a record cut short and one emptied (a copy cut off, a crash before the disk had the data) are flown
+    # again, with a note, and come back bit for bit (review60: both had been counted done for good)
+    (out2 / files[0]).write_bytes((out1 / files[0]).read_bytes()[:1000])
+    (out2 / files[2]).write_bytes(b"")
+    capsys.readouterr()
+    assert sim("--campaign", cfile, "-o", out2, "--workers", 1) == 0
+    said = capsys.readouterr()
+    assert "4 flights, 2 computed, 2 already done, 0 failed" in said.out
+    assert "2 record(s) in" in said.err and "cannot be read (cut or damaged): flown again" in said.err
+    for f in files:
+        assert (out2 / f).read_bytes() == (out1 / f).read_bytes()
+
     # a folder flown before the sensors' lost samples and stamp jitter existed (session 29; its manifest's digest
     # made without those keys) holds the very flights where they stay 0: resumed, not refused
     import hashlib

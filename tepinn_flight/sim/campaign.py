@@ -315,6 +315,15 @@ def _prepare_dir(out_dir: Path, manifest: dict) -> None:
     atomic_write(mpath, lambda p: Path(p).write_text(text))
 
 
+def _readable_record(path: Path) -> bool:
+    """Whether a campaign's output file is a whole flight record: its Parquet footer and our metadata read (a file
+    cut short or emptied has neither)."""
+    from ..record import parquet_meta
+
+    meta = parquet_meta(path)
+    return meta is not None and "format_version" in meta
+
+
 def run_campaign(
     path: str | os.PathLike,
     out_dir: str | os.PathLike,
@@ -331,10 +340,15 @@ def run_campaign(
     sensors = validate(cfg, flights)
     out = Path(out_dir)
     _prepare_dir(out, _manifest(cfg, flights, sensors, base=path.parent))
+    log = log or (lambda s: sys.stderr.write(s + "\n"))
     pending = [f for f in flights if not (out / f.file).exists()]
+    damaged = [f for f in flights if f not in pending and not _readable_record(out / f.file)]
+    if damaged:  # (review60: a record cut by a copy or a crash had been counted done for good)
+        names = ", ".join(f.file for f in damaged[:3]) + (", ..." if len(damaged) > 3 else "")
+        log(f"note: {len(damaged)} record(s) in {out} cannot be read (cut or damaged): flown again ({names})")
+        pending = [f for f in flights if f in damaged or f in pending]
     res = CampaignResult(total=len(flights), skipped=len(flights) - len(pending))
     n_workers = min(workers or os.cpu_count() or 1, max(len(pending), 1))
-    log = log or (lambda s: sys.stderr.write(s + "\n"))
     t0 = time.perf_counter()
     bar = None
     if progress:
