@@ -38,6 +38,7 @@ def sim(*args):
         (["--aircraft", "F450", "--sensor-set", "gyro.arw=1"], "unknown key 'gyro.arw'"),
         (["--aircraft", "F450", "--sensor-set", "gyro.arw_deg_sqrt_h=-1"], ">= 0"),
         (["--aircraft", "F450", "--turbulence", "storm"], "unknown turbulence 'storm'"),
+
         (["--campaign", "c.toml", "--tlog", "x.tlog"], "--tlog cannot be combined with --campaign"),
         (["--campaign", "c.toml", "--workers", "0"], "--workers must be >= 1"),
         (["--aircraft", "F450", "--workers", "2"], "--workers applies to --campaign only"),
@@ -229,3 +230,16 @@ def test_flights_failing_for_one_cause_say_it_once(tmp_path, capsys, monkeypatch
     assert err.count("Can't find the default root directory") == 2, err  # the first flight's line, the summary
     assert "4 flight(s) failed: OSError: Can't find the default root directory (4 flights)" in err
     assert not list((tmp_path / "out").glob("*.parquet"))
+
+
+def test_a_sensor_rate_that_cannot_be_reached_is_refused_before_the_flight(tmp_path, capsys, monkeypatch):
+    """The single flight checks the sensor's rate against the simulation's before flying (review60: after the whole
+    flight had flown); the campaign already did."""
+    import tepinn_flight.sim.simulate as S
+
+    def flown(*a, **k):
+        raise AssertionError("the flight was flown before the sensor rate was checked")
+
+    monkeypatch.setattr(S, "simulate_record", flown)
+    assert sim("--aircraft", "F450", "--rate", 500, "--sensor-set", "rate_hz=200", "-o", tmp_path / "x.parquet") == 2
+    assert "sensor rate_hz 200 must divide the simulation rate 500 Hz" in capsys.readouterr().err

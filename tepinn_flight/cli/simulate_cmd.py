@@ -40,7 +40,8 @@ def add_arguments(p) -> None:
     p.add_argument("--maneuvers", default=None, metavar="A,B,C",
                    help="maneuvers flown in order and repeated (default: a random chain from the seed)")
     p.add_argument("--turbulence", default=None, metavar="LEVEL",
-                   help="none, light, moderate or severe (default: drawn from the seed)")
+                   help="none, light, moderate or severe (default: drawn from the seed among none, light and "
+                        "moderate; severe only when asked)")
     p.add_argument("--tlog", default=None, metavar="FILE",
                    help="also write the flight as a MAVLink 2 tlog (ArduPilot-style, attitude = truth)")
     p.add_argument("--workers", type=int, default=None, metavar="N",
@@ -80,7 +81,7 @@ def _run(args) -> int:
 def _single(args) -> int:
     from ..errors import ConfigError
     from ..record import check_output, write_record
-    from ..sim.sensors import DEFAULT_PRESET, load_sensor_config
+    from ..sim.sensors import DEFAULT_PRESET, decimation_factor, load_sensor_config
     from ..sim.simulate import check_flight_args, simulate_record
     from .paths import check_suffix, output_format
 
@@ -94,6 +95,8 @@ def _single(args) -> int:
         if not maneuvers:
             raise ConfigError("--maneuvers is empty")
     sensor = load_sensor_config(args.sensor or DEFAULT_PRESET, args.sensor_set or [])
+    if sensor.rate_hz is not None:  # before the flight (review60: refused after it had flown, minutes on a long one)
+        decimation_factor(rate, float(sensor.rate_hz))
     out = Path(args.output) if args.output else Path(f"{args.aircraft}_seed{seed}.parquet")
     if out.is_dir():
         raise ConfigError("is a folder; give a record file name for one flight", out)
@@ -157,7 +160,7 @@ def _list() -> int:
         except Exception as exc:  # an aircraft whose maneuver library cannot be loaded
             names = f"(unavailable: {type(exc).__name__}: {exc})"
         print(f"  {'':<12} maneuvers: {names}")
-    print(f"turbulence: {', '.join(getattr(fl, 'TURBULENCE', {}))} (default: drawn from the seed)")
+    print(f"turbulence: {', '.join(getattr(fl, 'TURBULENCE', {}))} (default: drawn from the seed among none, light and moderate)")
     print("sensor presets:")
     for p in list_presets():
         print(f"  {p:<14} {load_sensor_config(p).description}")

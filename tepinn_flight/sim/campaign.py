@@ -160,7 +160,7 @@ def validate(cfg: CampaignConfig, flights: list[FlightSpec]) -> dict[str, dict]:
     from .sensors import decimation_factor, load_sensor_config
     from .simulate import check_flight_args
 
-    known_turb = set(getattr(fl, "TURBULENCE", {}))
+    known_turb = list(getattr(fl, "TURBULENCE", {}))  # (in the table's order: a set's differed from run to run)
     resolved: dict[str, dict] = {}
     checked: set = set()
     for f in flights:
@@ -177,13 +177,13 @@ def validate(cfg: CampaignConfig, flights: list[FlightSpec]) -> dict[str, dict]:
                     raise ConfigError(f"unknown maneuver {bad[0]!r} for {f.aircraft} (known: {', '.join(names)})")
             if f.turbulence is not None and known_turb and f.turbulence not in known_turb:
                 raise ConfigError(f"unknown turbulence {f.turbulence!r} (known: {RANDOM}, {', '.join(known_turb)})")
+            lo, hi = getattr(fl, "MIN_RATE_HZ", 0.0), getattr(fl, "MAX_RATE_HZ", math.inf)
+            if not lo <= f.rate_hz <= hi:  # (first: a rate out of range had been told to fly shorter flights)
+                raise ConfigError(f"rate must be within {lo:g}..{hi:g} Hz, got {f.rate_hz:g}")
             try:
                 check_flight_args(f.duration_s, f.rate_hz, f.seed)
             except ConfigError as exc:
                 raise ConfigError(f"{where}: {exc.reason}") from None
-            lo, hi = getattr(fl, "MIN_RATE_HZ", 0.0), getattr(fl, "MAX_RATE_HZ", math.inf)
-            if not lo <= f.rate_hz <= hi:
-                raise ConfigError(f"rate must be within {lo:g}..{hi:g} Hz, got {f.rate_hz:g}")
         skey = json.dumps([f.sensor, list(f.sensor_set)])
         if skey not in resolved:
             resolved[skey] = load_sensor_config(f.sensor, list(f.sensor_set)).to_dict()
