@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .record import FlightRecord
+from .record import SIMULATED_KINDS, FlightRecord
 from .record_gaps import LOST_STEP_PERIODS, MAX_BRIDGED_GAP_S, inner_steps, is_bridgeable, lost_steps, record_period_s
 
 
@@ -37,8 +37,13 @@ def summarize(rec: FlightRecord) -> dict:
         "reference_coverage": float(np.mean(np.all(np.isfinite(rec.q_ref_wxyz), axis=1))) if len(rec) else 0.0,
         "corrupt_frames": m.get("corrupt_frames", 0),
         "skipped_frames": m.get("skipped_frames", 0),
+        "duplicate_samples_dropped": m.get("duplicate_samples_dropped", 0),
         "notes": m.get("notes", []),
     }
+    if m.get("source_kind") in SIMULATED_KINDS:  # what was flown (review60: only in the Parquet metadata)
+        flown = [str(x[2]) for x in (m.get("maneuvers") or []) if isinstance(x, (list, tuple)) and len(x) == 3]
+        out["simulated"] = {k: m.get(k) for k in ("aircraft", "seed", "sensor_preset", "turbulence", "termination")}
+        out["simulated"]["maneuvers"] = flown
     if len(rec) == 0:
         out.update(duration_s=0.0, segments=0, gaps=[], max_rate_deg_s=0.0, clipped_samples=0)
         return out

@@ -44,6 +44,12 @@ def render_info(path, s: dict) -> str:
     add("format", s.get("format"))
     add("vehicle", _vehicle(s.get("vehicle_type")))
     add("autopilot/firmware", f"{s.get('autopilot')} / {s.get('firmware')}")
+    sim = s.get("simulated")
+    if sim:
+        flown = sim.get("maneuvers") or []
+        shown = ", ".join(flown[:8]) + (f", ... ({len(flown)} in all)" if len(flown) > 8 else "")
+        add("simulated", f"{sim.get('aircraft')}, seed {sim.get('seed')}, sensor {sim.get('sensor_preset')}, turbulence "
+            f"{sim.get('turbulence')}, {sim.get('termination')}" + (f"; maneuvers {shown}" if flown else ""))
     bridged_s = sum(g["gap_s"] for g in s.get("gaps", []) if g.get("bridged"))
     add("duration", f"{s.get('duration_s', 0):.1f} s in segments"
         + (f", {bridged_s:.1f} s more across the dropouts the estimators bridge" if bridged_s >= 0.05 else "")
@@ -109,6 +115,8 @@ def render_info(path, s: dict) -> str:
         add("valid (scored)", f"{100 * s['valid_fraction']:.1f}% of samples")
     add("corrupt frames", s.get("corrupt_frames"))
     add("skipped frames", s.get("skipped_frames"))
+    if s.get("duplicate_samples_dropped"):  # (review60: dropped unsaid)
+        add("duplicate samples", f"{s['duplicate_samples_dropped']} dropped (a time stamp logged twice: the first kept)")
     for n in s.get("notes", []):
         add("note", n)
     return "\n".join(lines)
