@@ -39,3 +39,41 @@ def test_info_says_how_many_samples_were_dropped_as_logged_twice(tmp_path, capsy
     said = capsys.readouterr().out
     assert "duplicate samples" not in plain
     assert "duplicate samples    20 dropped (a time stamp logged twice: the first kept)" in said, said
+
+
+def test_one_row_stamped_out_of_order_is_dropped_not_taken_for_a_reboot(tmp_path):
+    """A real text DataFlash log with one IMU row stamped 60 ms early (a damaged low byte; under the 1-s spike rule):
+    that row is dropped with a note, the record's time only goes forward, and no segment starts there (review60: it
+    was kept, time went back and forth and the estimators restarted at that row)."""
+    import numpy as np
+
+    from tepinn_flight.ingest import ingest_log
+
+    src = real_log("aplogan_nan.log")
+    base = ingest_log(src)
+    lines = src.read_text().splitlines(keepends=True)
+    imu = [i for i, ln in enumerate(lines) if ln.startswith("IMU,")]
+    k = imu[300]
+    parts = lines[k].split(",")
+    parts[1] = f" {int(parts[1]) - 60}"
+    lines[k] = ",".join(parts)
+    log = tmp_path / "early.log"
+    log.write_text("".join(lines))
+    rec = ingest_log(log)
+    assert len(rec) == len(base) - 1 and rec.meta["segments"] == base.meta["segments"]
+    assert np.all(np.diff(rec.t_s) > 0)
+    assert any("out of order with their neighbours" in n for n in rec.meta["notes"]), rec.meta["notes"]
+
+
+def test_a_reboot_is_not_out_of_order_but_a_lone_row_is():
+    import numpy as np
+
+    from tepinn_flight.ingest.assemble import out_of_order
+
+    reboot = np.array([10.0, 10.1, 10.2, 10.3, 0.5, 0.6, 0.7])  # time goes back and stays back
+    assert not out_of_order(reboot).any()
+    early = np.array([10.0, 10.1, 10.2, 10.14, 10.4, 10.5])  # one row stamped 160 ms early
+    assert np.flatnonzero(out_of_order(early)).tolist() == [3]
+    late = np.array([10.0, 10.1, 10.45, 10.3, 10.4, 10.5])  # one row stamped 250 ms late
+    assert np.flatnonzero(out_of_order(late)).tolist() == [2]
+    assert not out_of_order(np.arange(10.0)).any() and not out_of_order(np.array([1.0, 0.0])).any()

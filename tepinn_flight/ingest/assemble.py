@@ -41,8 +41,22 @@ SPIKE_MIN_S = 1.0
 SPIKE_PERIODS = 50.0
 
 
+def out_of_order(t: np.ndarray) -> np.ndarray:
+    """Samples, in file order, whose time stamp lies outside the interval of their two neighbours' while those are
+    in order: one row stamped early or late by less than a spike (a flipped low byte of ``TimeMS``, ±255 ms), which
+    made time go back and forth — a restart of the estimators and an output whose time is not increasing (review60).
+    A reboot is not one: time goes back and stays back, so the neighbours are out of order there. Where a row is
+    off by under two periods, it and its neighbour may both be out of order: both are flagged (one good sample lost)."""
+    out = np.zeros(len(t), bool)
+    if len(t) >= 3:
+        a, b, c = t[:-2], t[1:-1], t[2:]
+        out[1:-1] = (a < c) & ((b < a) | (b > c))
+    return out
+
+
 def time_spikes(t: np.ndarray) -> np.ndarray:
-    """Samples whose time stamp is a corrupt spike (see ``SPIKE_*``), in file order."""
+    """Samples whose time stamp is corrupt, in file order: a spike (see ``SPIKE_*``) or out of order with both its
+    neighbours (:func:`out_of_order`)."""
     n = len(t)
     if n < 3:
         return np.zeros(n, bool)
@@ -52,7 +66,7 @@ def time_spikes(t: np.ndarray) -> np.ndarray:
     nxt = np.abs(np.diff(t, append=t[-2]))
     lonely = (prev > jump) & (nxt > jump)
     if not lonely.any():
-        return lonely
+        return out_of_order(t)
     half = 4  # the median of 9 samples is undisturbed by up to 4 corrupt ones among them
     idx = np.flatnonzero(lonely)
     lo = np.clip(idx - half, 0, n)
@@ -60,7 +74,7 @@ def time_spikes(t: np.ndarray) -> np.ndarray:
     med = np.array([np.median(t[a:b]) for a, b in zip(lo, hi)])
     out = np.zeros(n, bool)
     out[idx] = np.abs(t[idx] - med) > jump
-    return out
+    return out | out_of_order(t)
 
 
 def _renumber_epochs(t: np.ndarray, ep: np.ndarray, keep: np.ndarray, period: float):
@@ -114,7 +128,8 @@ def drop_implausible(raw: RawLog, source_path: str | os.PathLike) -> tuple[RawLo
         notes.append(f"{n_val} IMU row(s) with impossible values (non-finite, |gyro| > {MAX_GYRO_RAD_S:g} rad/s, "
                      f"|acc| > {MAX_ACC_M_S2:g} m/s² or |t| > {MAX_ABS_TIME_S:g} s) dropped as corrupt")  # fmt: skip
     if n_spk:
-        notes.append(f"{n_spk} IMU row(s) with corrupt time stamps (far from their neighbours') dropped")
+        notes.append(f"{n_spk} IMU row(s) with corrupt time stamps (far from or out of order with their neighbours') "
+                     "dropped")
     if keep.all():
         new_ep, remap = ep, None
     else:
