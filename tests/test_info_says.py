@@ -76,4 +76,6 @@ def test_a_reboot_is_not_out_of_order_but_a_lone_row_is():
     assert np.flatnonzero(out_of_order(early)).tolist() == [3]
     late = np.array([10.0, 10.1, 10.45, 10.3, 10.4, 10.5])  # one row stamped 250 ms late
     assert np.flatnonzero(out_of_order(late)).tolist() == [2]
+    slightly = np.array([10.0, 10.1, 10.35, 10.3, 10.4, 10.5])  # 150 ms late: its neighbour looks out of order too
+    assert np.flatnonzero(out_of_order(slightly)).tolist() == [2]
     assert not out_of_order(np.arange(10.0)).any() and not out_of_order(np.array([1.0, 0.0])).any()
