@@ -79,3 +79,27 @@ def test_a_reboot_is_not_out_of_order_but_a_lone_row_is():
     slightly = np.array([10.0, 10.1, 10.35, 10.3, 10.4, 10.5])  # 150 ms late: its neighbour looks out of order too
     assert np.flatnonzero(out_of_order(slightly)).tolist() == [2]
     assert not out_of_order(np.arange(10.0)).any() and not out_of_order(np.array([1.0, 0.0])).any()
+
+
+def test_a_text_log_cut_inside_its_last_line_does_not_read_it(tmp_path):
+    """A real text DataFlash log cut in the middle of a number on its last IMU line ("-9.504646" → "-9"): that line is
+    not read, with a note (review60: read as −9.0 m/s², and a cut ATT yaw "186.16" as 1°, unsaid); the same log cut
+    after a line end reads every whole line."""
+    import numpy as np
+
+    from tepinn_flight.ingest import ingest_log
+
+    src = real_log("aplogan_nan.log")
+    text = src.read_bytes()
+    k = text.rfind(b"\nIMU,")
+    end = text.index(b"\n", k + 1)
+    whole = tmp_path / "whole.log"
+    whole.write_bytes(text[: end + 1])
+    line = text[k + 1 : end]
+    cut_at = line.rfind(b".")  # inside the last field's number
+    cut = tmp_path / "cut.log"
+    cut.write_bytes(text[: k + 1 + cut_at])
+    a, b = ingest_log(whole), ingest_log(cut)
+    assert len(b) == len(a) - 1 and np.array_equal(b.acc_m_s2, a.acc_m_s2[:-1])
+    assert any("ends inside a line" in n for n in b.meta["notes"]) and not any("ends inside" in n for n in a.meta["notes"])
+    assert not any("no FMT definition" in n for n in b.meta["notes"])

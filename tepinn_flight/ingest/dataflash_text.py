@@ -41,6 +41,11 @@ class TextSource:
         keys = np.full(len(starts), -1, np.int64)
         nlen = np.where(has, first - starts, 0)
         okn = has & (nlen >= 1) & (nlen <= 4)
+        # a last line without its line end is a log cut in it: its last field may be cut mid-number ("186.16" read
+        # as "1", with the right number of fields), so it is not read (review60: a reference yaw swung 140°)
+        cut = bool(len(data)) and data[-1] != NEWLINE and len(data) - starts[-1] > 1  # (1 byte: a blank line)
+        if cut:
+            okn[-1] = False
         if okn.any():
             k = np.zeros(int(okn.sum()), np.int64)
             s0, ln = starts[okn], nlen[okn]
@@ -70,7 +75,7 @@ class TextSource:
         self.counts = {name: by_key[k] for name, k in self._name_keys.items() if k in by_key}
         known = sum(self.counts.values()) + by_key.get(fmt_key, 0)
         blank = int(np.sum((ends[body_from:] - starts[body_from:]) <= 1))  # empty or a lone '\r'
-        unknown = len(kb) - known - blank
+        unknown = len(kb) - known - blank - int(cut and len(starts) - 1 >= body_from)  # (the cut line: said apart)
         self._rows = {
             name: np.flatnonzero(keys == k)
             for name, k in self._name_keys.items()
@@ -82,6 +87,9 @@ class TextSource:
         self.corrupt_frames = bad_fmt
         self.skipped_frames = unknown
         self.notes = []
+        if cut:
+            self.notes.append("the log ends inside a line (cut while written, or copied in part): its last line is "
+                              "not read")  # fmt: skip
         if unknown:
             self.notes.append(f"{unknown} line(s) with no FMT definition skipped")
         if bad_fmt:
