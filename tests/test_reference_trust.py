@@ -438,3 +438,16 @@ def test_the_rate_grid_masks_a_cell_whose_integral_reads_a_bad_sample():
         (g, r), = rates_on_grid(rec, 0.02)[0]
         ok = np.isfinite(g).all(axis=1)
         assert ok.sum() > 0.9 * len(g) and np.abs(g[ok] - w).max() < 1e-9, row
+
+
+def test_a_reference_no_part_of_which_could_be_checked_is_said_to_be_unjudged():
+    """A record of 1.5 s: too short for the gyro's intervals, the quiet gravity and the timing — its check says so
+    instead of "trusted" (review60: `info` called it trusted), and it still refuses nothing; a longer one is judged."""
+    from tepinn_flight.model.reference_trust import check_reference
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    short = check_reference(synthetic_record(seed=4, duration_s=1.5, rate_hz=100.0))
+    assert short.trusted and not short.judged
+    assert short.describe().endswith("; not judged: nothing to check it by (kept, as trusted)"), short.describe()
+    long = check_reference(synthetic_record(seed=4, duration_s=60.0, rate_hz=100.0))
+    assert long.judged and long.describe().endswith("; trusted"), long.describe()

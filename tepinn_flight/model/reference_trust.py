@@ -147,8 +147,15 @@ class ReferenceCheck:
         else:
             frame = f", frame: not judged ({self.rate_note})" if self.lag_s is not None and self.rate_note else ""
         why = self.refusals()
-        verdict = "trusted" if not why else f"not trusted ({'; '.join(why)})"
+        verdict = ("trusted" if self.judged else "not judged: nothing to check it by (kept, as trusted)") if not why \
+            else f"not trusted ({'; '.join(why)})"  # (review60: "trusted" where no part had been checked)
         return f"reference attitude: {gyro}; {grav}; {timing}{frame}; {verdict}"
+
+    @property
+    def judged(self) -> bool:
+        """Whether any part was checked (a log of a second or two, or one that never turns nor rests, has none)."""
+        return any(x is not None and bool(np.isfinite(x)) for x in (self.turn_share, self.gravity_deg, self.lag_s,
+                                                                    self.frame_deg))
 
 
 #: a reference row's neighbours may be this many times the reference rows' median spacing apart and still be bridged
