@@ -5,6 +5,7 @@ while the bar was live began in the middle of the bar's line, so ``grep '^tepinn
 from __future__ import annotations
 
 from tepinn_flight.cli.main import main
+from tests.conftest import real_log
 
 
 def _lines(text: str) -> list[str]:
@@ -124,3 +125,32 @@ def test_a_folders_notes_come_in_path_order(tmp_path):
     notes: list[str] = []
     assert files_in(tmp_path, RECORD_OR_LOG_FORMATS, notes=notes) == []
     assert notes == sorted(notes) and len(notes) == 4
+
+
+def test_a_folder_run_ends_with_its_count_and_ingest_says_each_logs_notes(tmp_path, capsys):
+    """After a folder's run with failures, one closing line counts them (review60: the errors had to be counted);
+    `ingest` says each record's notes under its line — what the reader dropped or chose (review60: said by `info`
+    alone); a read-only output folder is refused once, before any log is read (shown where the user is not root)."""
+    import os
+
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    d = _folder(tmp_path)
+    write_record(synthetic_record(seed=1, duration_s=6.0, rate_hz=100.0), d / "r.parquet")
+    assert main(["estimate", str(d), "-o", str(tmp_path / "est")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[-1] == "tepinn-flight estimate: 2 of 3 input(s) failed (the lines above); 1 estimated or up to date"
+    src = real_log("aplogan_nan.log")
+    assert main(["ingest", str(src), "-o", str(tmp_path / "a.parquet")]) == 0
+    out = capsys.readouterr().out.splitlines()
+    from tepinn_flight.record import read_record
+
+    notes = read_record(tmp_path / "a.parquet").meta["notes"]
+    assert notes and out[1:] == [f"  note: {n}" for n in notes]
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    if not os.access(ro, os.W_OK):  # (root writes anywhere)
+        assert main(["ingest", str(d), "-o", str(ro / "x")]) == 2
+        assert capsys.readouterr().err.count("cannot write") == 1

@@ -172,13 +172,18 @@ def _run(args) -> int:
     else:
         results = (_estimate_one(model, fusion, opts, *job) for job in jobs)
     failures = 0
-    bar = tqdm(results, total=len(jobs), unit="record", file=sys.stderr, disable=args.quiet or len(jobs) < 2)
+    # (no bar where stderr is no terminal: a batch job's log had held its redraws between the error lines; review60)
+    bar = tqdm(results, total=len(jobs), unit="record", file=sys.stderr,
+               disable=args.quiet or len(jobs) < 2 or not sys.stderr.isatty())  # fmt: skip
     for out_lines, err_lines, failed in bar:
         for line in err_lines:  # each on a line of its own, not after the bar's (stderr to a file: one line each)
             bar.write(line, file=sys.stderr)
         for line in out_lines:
             bar.write(line, file=sys.stdout)
         failures += failed
+    if failures and len(jobs) > 1:  # the count at the end of a folder's run (review60: the errors had to be counted)
+        sys.stderr.write(f"tepinn-flight estimate: {failures} of {len(jobs)} input(s) failed (the lines above); "
+                         f"{len(jobs) - failures} estimated or up to date\n")  # fmt: skip
     return 2 if failures else 0
 
 

@@ -39,7 +39,7 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     from ..errors import TepinnError
     from ..ingest import ingest_log
-    from ..record import write_record
+    from ..record import check_output, write_record
     from .summary import record_summary_line
 
     from ..ingest.inputs import LOG_FORMATS, expand
@@ -52,9 +52,11 @@ def run(args) -> int:
     for out in outs:  # before any work: a record is Parquet, whatever the name says
         output_format(out, "ingest")
     refuse_overwriting_inputs([("-o", o) for o in outs], logs)
+    for folder in dict.fromkeys(Path(o).parent for o in outs):  # before any work (review60: each log read, then
+        check_output(next(o for o in outs if Path(o).parent == folder))  # refused once per log for a read-only -o)
     failures = 0
     progress = None
-    if len(logs) > 1 and not args.quiet:
+    if len(logs) > 1 and not args.quiet and sys.stderr.isatty():  # (no bar's redraws in a batch job's log)
         from tqdm import tqdm
 
         progress = tqdm(total=len(logs), unit="log", file=sys.stderr, leave=False)
@@ -68,11 +70,15 @@ def run(args) -> int:
             line = f"tepinn-flight ingest: error: {msg}"  # (on a line of its own, not after the bar's)
             (progress.write(line, file=sys.stderr) if progress else sys.stderr.write(line + "\n"))
         else:
-            if not args.quiet:
-                line = f"{log} -> {out}: {record_summary_line(rec)}"
+            if not args.quiet:  # with what the reader dropped or chose, as `info` says it (review60: said by info only)
+                line = "\n".join([f"{log} -> {out}: {record_summary_line(rec)}",
+                                  *(f"  note: {n}" for n in rec.meta.get("notes") or [])])
                 (progress.write(line) if progress else print(line))
         if progress:
             progress.update(1)
     if progress:
         progress.close()
+    if failures and len(logs) > 1:  # the count at the end of a folder's run (review60: the errors had to be counted)
+        sys.stderr.write(f"tepinn-flight ingest: {failures} of {len(logs)} log(s) failed (the lines above); "
+                         f"{len(logs) - failures} written\n")  # fmt: skip
     return 2 if failures else 0
