@@ -232,6 +232,11 @@ class FlightRecord:
             if cols[0] not in self.data:
                 continue
             v = self.data[cols].to_numpy(np.float64)
+            inf = np.isinf(v)
+            if inf.any():  # (review60: said to be "beyond ±100 rad/s ... degrees per second written as rad/s?")
+                j = int(np.argmax(inf.any(axis=0)))
+                raise RecordFormatError(f"{cols[j]} holds {int(inf[:, j].sum())} infinite value(s): a damaged file "
+                                        "(a sample with no value is NaN in a record, a hole the estimators bridge)")  # fmt: skip
             with np.errstate(invalid="ignore"):
                 over = np.abs(v) > limit  # (NaN: a hole, allowed)
             if over.any():

@@ -331,6 +331,11 @@ def test_a_record_holding_values_past_any_sensor_is_refused_in_one_line(tmp_path
     damaged.loc[100, "acc_y_m_s2"] = 9.8e307
     with pytest.raises(RecordFormatError, match=r"acc_y_m_s2 holds 1 value\(s\) beyond ±2000 m/s², past any sensor"):
         FlightRecord(damaged, dict(rec.meta)).validate()
+    infinite = rec.data.copy()
+    infinite.loc[100, "gyr_y_rad_s"] = -np.inf  # one infinity: said to be one, not a unit written wrong (review60)
+    with pytest.raises(RecordFormatError, match=r"gyr_y_rad_s holds 1 infinite value\(s\): a damaged file") as e:
+        FlightRecord(infinite, dict(rec.meta)).validate()
+    assert "degrees per second" not in str(e.value)
     degrees = rec.data.copy()
     degrees[["gyr_x_rad_s", "gyr_y_rad_s", "gyr_z_rad_s"]] *= 3000.0  # a hand-written record in the wrong unit
     with pytest.raises(RecordFormatError, match=r"degrees per second written as rad/s"):
