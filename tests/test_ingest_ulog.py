@@ -385,8 +385,18 @@ def test_truncated_or_damaged_data_still_ingests_with_notes(tmp_path):
     p.write_bytes(src[: len(src) // 2])
     rec = ingest_log(p)
     assert 1000 < len(rec) < 7783
+    assert any(n.startswith("the log ends inside a message (the logger stopped mid-write or the file was cut)")
+               for n in rec.meta["notes"]), rec.meta["notes"]  # fmt: skip
     p.write_bytes(src[:400_000] + np.random.default_rng(3).bytes(20_000) + src[420_000:])
     rec = ingest_log(p)
+    # a garbled length reads short too: not said to be a cut file alone where pyulog found corruption (review60: a
+    # whole ULog with a byte flipped every 16 kB was "truncated")
+    flipped = bytearray(real_log("pxrs_esc_status_log.ulg").read_bytes())
+    flipped[3000::16384] = bytes(b ^ 0xFF for b in flipped[3000::16384])
+    p.write_bytes(bytes(flipped))
+    notes = ingest_log(p).meta["notes"]
+    assert "the log ends inside a message (cut, or a damaged message's length read past its end); the samples before " \
+           "are kept" in notes and any("corruption" in n for n in notes), notes
     # one corrupt region, plus the IMU rows in it that passed the parser with impossible values
     assert rec.meta["corrupt_frames"] == 1 + rec.meta["implausible_samples_dropped"]
     assert any("corruption" in n for n in rec.meta["notes"])

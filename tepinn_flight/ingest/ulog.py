@@ -636,10 +636,12 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
                             else "no IMU sample lost there"))  # fmt: skip
         drop_info.append({"t_s": float(tb), "inside_span": inside, "duration_s": float(d.duration) * 1e-3,
                           "imu_samples_lost": lost})  # fmt: skip
-    if getattr(ulog, "_tepinn_truncated", False):
-        notes.append("the log is truncated (it ends inside a message: the logger stopped mid-write or the "
-                     "file was cut); the samples up to the cut are kept")  # fmt: skip
     corrupt = bool(getattr(ulog, "file_corruption", False)) or "corruption" in printed.lower()
+    if getattr(ulog, "_tepinn_truncated", False):
+        # (a garbled length in a damaged file reads short too: said so where pyulog found corruption; review60)
+        notes.append("the log ends inside a message (" + ("cut, or a damaged message's length read past its end"
+                     if corrupt else "the logger stopped mid-write or the file was cut") + "); the samples before "
+                     "are kept")  # fmt: skip
     if corrupt:
         notes.append("pyulog detected file corruption and resynchronised: some messages were lost")
 
