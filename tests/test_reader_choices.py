@@ -181,3 +181,33 @@ def test_dataflash_chooses_the_compass_on_its_own_not_by_the_imus_number(tmp_pat
     m = rec.mag_ut
     m = m[np.all(np.isfinite(m), axis=1)]
     assert len(m) > 100 and np.allclose(m, [20.0 + 10.0 * want, 0.0, 40.0])
+
+
+def _imu_imu2_log(path, imu_fmt: str | None):
+    """A 3.x-style log: IMU and IMU2 (no instance column) at 100 Hz, IMU 0 reading gyro z 0.2, IMU2 0.3 rad/s;
+    ``imu_fmt`` the columns IMU's FMT names (None: no FMT for IMU, its rows still there)."""
+    cols = "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ"
+    out = [struct.pack("<BBBBB4s16s64s", 0xA3, 0x95, 0x80, 0x80, 89, b"FMT", b"BBnNZ", b"Type,Length,Name,Format,Columns"),
+           _fmt(11, "IMU2", "Qffffff", cols), _fmt(15, "MSG", "QZ", "TimeUS,Message")]  # fmt: skip
+    if imu_fmt is not None:
+        out.append(_fmt(10, "IMU", "Qffffff", imu_fmt))
+    out.append(_msg(15, "QZ", 1, b"ArduCopter V3.6.9 (abcdef01)"))
+    for k in range(1000):
+        t_us = 10_000_000 + k * 10_000
+        out.append(_msg(10, "Qffffff", t_us, 0.0, 0.0, 0.2, 0.0, 0.0, -9.81))
+        out.append(_msg(11, "Qffffff", t_us, 0.0, 0.0, 0.3, 0.0, 0.0, -9.81))
+    path.write_bytes(b"".join(out))
+    return path
+
+
+@pytest.mark.parametrize("imu_fmt,note", [(None, "no usable definition (FMT) of IMU: IMU2 read"),
+                                          ("TimeUS,GyrX", "IMU 0 left out: its definition (FMT) lacks")])
+def test_dataflash_reads_imu2_where_imus_own_definition_is_damaged_and_says_so(tmp_path, imu_fmt, note):
+    """IMU's FMT lost (review60: the whole log refused, "no IMU message defined", though IMU2 was whole) or naming too
+    few columns (IMU2 read unsaid): IMU2 is read, and a note says why."""
+    cols = "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ"
+    whole = ingest_log(_imu_imu2_log(tmp_path / "whole.bin", cols))
+    assert whole.meta["imu_instance"] == 0 and np.allclose(whole.gyr_rad_s[:, 2], 0.2)
+    rec = ingest_log(_imu_imu2_log(tmp_path / "damaged.bin", imu_fmt))
+    assert rec.meta["imu_instance"] == 1 and np.allclose(rec.gyr_rad_s[:, 2], 0.3) and len(rec) == 1000
+    assert any(note in n for n in rec.meta["notes"]), rec.meta["notes"]

@@ -445,16 +445,24 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
 
     # ---- IMU
     imu_fmt = src.formats.get("IMU")
-    if imu_fmt is None:
+    numbered = [n for n in ("IMU2", "IMU3") if n in src.formats and src.count(n)]
+    if imu_fmt is None and not numbered:
         present = ", ".join(sorted(n for n in src.counts if n != "FMT")) or "none"
         raise NoImuData(f"no IMU message defined in the log (messages with rows: {present})", path)
-    if _time_field(imu_fmt) is None:
+    if imu_fmt is None:  # its FMT lost or damaged, the others' whole: they are read (review60: the log was refused)
+        notes.append(f"no usable definition (FMT) of IMU: {', '.join(numbered)} read (a damaged log?)")
+    elif _time_field(imu_fmt) is None:
         if not any(src.count(n) for n in ("IMU", "IMU2", "IMU3")):
             raise NoImuData(
                 "IMU is defined without a time field (TimeUS/TimeMS) and the log holds no IMU rows "
                 "(ArduCopter 3.0.x-style log)", path)  # fmt: skip
         raise CorruptLog("IMU rows carry no time field (TimeUS/TimeMS): samples cannot be placed in time", path)
-    insts = [i for i in _instances(src, "IMU", ("IMU2", "IMU3")) if _has(src, i.name, GYR + ACC)]
+    every = _instances(src, "IMU", ("IMU2", "IMU3"))
+    insts = [i for i in every if _has(src, i.name, GYR + ACC)]
+    lacking = [i for i in every if i not in insts]
+    if insts and lacking:  # (review60: left out unsaid)
+        notes.append(f"IMU {', '.join(str(i.instance) for i in lacking)} left out: its definition (FMT) lacks "
+                     f"{'/'.join(GYR + ACC)} (a damaged log?)")
     if not insts and any(src.count(n) for n in ("IMU", "IMU2", "IMU3")):
         raise CorruptLog(f"IMU messages lack the columns {', '.join(GYR + ACC)} (malformed FMT)", path)
     if not insts:
