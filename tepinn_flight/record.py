@@ -217,7 +217,7 @@ class FlightRecord:
         if len(t) > 1:
             same = seg[1:] == seg[:-1]
             if np.any(np.diff(seg) < 0):
-                raise RecordFormatError("segment numbers decrease")
+                raise RecordFormatError("segment numbers decrease (rows out of time order?)")
             if np.any(np.diff(t)[same] <= 0):
                 raise RecordFormatError("t_s does not strictly increase inside a segment")
         if "gyr_clipped" in self.data and np.any(self.gyr_clipped & ~self.clipped):

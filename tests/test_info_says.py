@@ -103,3 +103,14 @@ def test_a_text_log_cut_inside_its_last_line_does_not_read_it(tmp_path):
     assert len(b) == len(a) - 1 and np.array_equal(b.acc_m_s2, a.acc_m_s2[:-1])
     assert any("ends inside a line" in n for n in b.meta["notes"]) and not any("ends inside" in n for n in a.meta["notes"])
     assert not any("no FMT definition" in n for n in b.meta["notes"])
+
+
+def test_a_log_of_one_imu_sample_is_said_to_be_one(tmp_path):
+    """One IMU sample has no rate: said so, not "0.0 Hz ... typical of a telemetry link" (review60)."""
+    from tepinn_flight.ingest import ingest_log
+    from tests.test_reader_choices import _dataflash
+
+    rec = ingest_log(_dataflash(tmp_path / "one.bin", n=1))
+    assert len(rec) == 1 and not rec.meta["estimation_ok"]
+    assert "1 IMU sample(s): no rate to read, nothing to estimate (a log cut short?)" in rec.meta["notes"]
+    assert not any("0.0 Hz" in n for n in rec.meta["notes"])

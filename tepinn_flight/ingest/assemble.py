@@ -368,8 +368,10 @@ def build_record(raw: RawLog, source_path: str | os.PathLike) -> FlightRecord:
     notes = list(raw.meta.get("notes", [])) + plaus_notes
     usable = rate is not None and rate >= MIN_ESTIMATION_RATE_HZ
     meta["estimation_ok"] = bool(usable)
-    if not usable:
-        notes.append(f"IMU rate {0 if rate is None else rate:.1f} Hz is below {MIN_ESTIMATION_RATE_HZ:.0f} Hz: "
+    if not usable and rate is None:  # (review60: one sample had been "0.0 Hz ... typical of a telemetry link")
+        notes.append(f"{len(df)} IMU sample(s): no rate to read, nothing to estimate (a log cut short?)")
+    elif not usable:
+        notes.append(f"IMU rate {rate:.1f} Hz is below {MIN_ESTIMATION_RATE_HZ:.0f} Hz: "
                      f"too slow for windowed attitude estimation; {SLOW_IMU_ADVICE.get(meta['source_kind'], 'log the IMU faster')}")
     if raw.ref is None:
         notes.append("no reference attitude in the log: q_ref_* columns are NaN")

@@ -55,7 +55,8 @@ class BinarySource:
         if res.unknown_id_headers:
             self.notes.append(f"{res.unknown_id_headers} message header(s) with an id that has no FMT skipped")
         if res.truncated_tail_bytes:
-            self.notes.append(f"truncated tail: the last {res.truncated_tail_bytes} bytes are not a complete message")
+            self.notes.append(f"truncated tail: the last {res.truncated_tail_bytes} bytes hold no complete message (a "
+                              "log cut while written, or bytes that are no log after it)")  # (review60: 3 MB "a message")
         self.banner = ""
 
     def count(self, name: str) -> int:
