@@ -336,3 +336,33 @@ def test_auto_runs_a_checkpoint_with_its_export_in_sync_in_onnxruntime(tmp_path)
     ck["metrics"] = {"note": "retrained"}  # another checkpoint now, the export beside it is stale
     torch.save(ck, mine)
     assert export_in_sync(mine) is None and resolve_runtime(mine, "auto") == "torch"
+
+
+def test_verbs_that_need_torch_say_so_in_a_torch_less_install(tmp_path):
+    """With torch absent as it is from the [runtime] install (No module named 'torch'): `train` says in one line that it
+    needs PyTorch, exit 2 (review60: "internal error", exit 1), and `evaluate` scores the filters with TE-PINN left out
+    and said to be (it had failed as a whole)."""
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    write_record(synthetic_record(seed=1, duration_s=12.0, rate_hz=100.0), tmp_path / "r.parquet")
+    code = textwrap.dedent(f"""
+        import importlib.abc, sys
+        class _Absent(importlib.abc.MetaPathFinder):
+            def find_spec(self, name, path=None, target=None):
+                if name == "torch" or name.startswith("torch."):
+                    raise ModuleNotFoundError(f"No module named {{name!r}}", name=name)
+        sys.meta_path.insert(0, _Absent())
+        from tepinn_flight.cli.main import main
+        rc1 = main(["train", "--config", {str(REPO / 'train' / 'tiny.toml')!r}, "-o", {str(tmp_path / 'run')!r}, "-q"])
+        rc2 = main(["evaluate", {str(tmp_path / 'r.parquet')!r}, "-o", {str(tmp_path / 'rep')!r}, "--no-peers", "-q",
+                    "--warmup-s", "2"])
+        print("RC", rc1, rc2)
+    """)
+    env = {k: v for k, v in os.environ.items() if k != "TEPINN_DEBUG"}
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
+    assert "RC 2 0" in p.stdout, p.stdout + p.stderr
+    lines = [ln for ln in p.stderr.splitlines() if ln.startswith("tepinn-flight train:")]
+    assert len(lines) == 1 and "error: this needs PyTorch, which this install does not have" in lines[0], p.stderr
+    assert "internal error" not in p.stderr and not (tmp_path / "run").exists()
+    assert "TE-PINN skipped: evaluate scores the checkpoint with PyTorch" in (tmp_path / "rep" / "report.md").read_text()

@@ -150,6 +150,14 @@ def _main(argv: list[str] | None) -> int:
     except KeyboardInterrupt:
         sys.stderr.write(f"tepinn-flight {args.command}: interrupted\n")
         return 130
+    except ModuleNotFoundError as exc:
+        if exc.name in TORCH_MODULES and not debug:  # a torch-less install (the [runtime] extra): a verb that needs
+            # torch says so in one line (review60: "internal error", exit 1)
+            sys.stderr.write(f"tepinn-flight {args.command}: error: this needs PyTorch, which this install does not have "
+                             f"(No module named {exc.name!r}): pip install 'tepinn-flight[torch]' — estimate, bridge, "
+                             "replay and info run without it on an ONNX export\n")  # fmt: skip
+            return 2
+        return _internal_error(args.command, exc, debug)
     except BrokenPipeError:  # output piped into `head` and closed: not an error of ours
         try:
             sys.stdout = open(os.devnull, "w")
@@ -157,14 +165,21 @@ def _main(argv: list[str] | None) -> int:
             pass
         return 141
     except Exception as exc:  # a bug, not bad input: still one line unless debugging
-        if debug:
-            raise
-        first = (str(exc).strip().splitlines() or [""])[0]
-        sys.stderr.write(
-            f"tepinn-flight {args.command}: internal error: {type(exc).__name__}: {first} "
-            "(set TEPINN_DEBUG=1 for the traceback)\n"
-        )
-        return 1
+        return _internal_error(args.command, exc, debug)
+
+
+#: the modules only the [torch] extra installs
+TORCH_MODULES = ("torch", "onnx")
+
+
+def _internal_error(command: str, exc: BaseException, debug: bool) -> int:
+    """A bug, not bad input: one line and exit 1 (raised again where debugging)."""
+    if debug:
+        raise exc
+    first = (str(exc).strip().splitlines() or [""])[0]
+    sys.stderr.write(f"tepinn-flight {command}: internal error: {type(exc).__name__}: {first} "
+                     "(set TEPINN_DEBUG=1 for the traceback)\n")  # fmt: skip
+    return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -179,6 +179,13 @@ def default_tepinn(note_sink: list | None = None):
         if note_sink is not None:
             note_sink.append(f"TE-PINN skipped: the shipped default model cannot be used ({exc})")
         return None
+    except ModuleNotFoundError as exc:  # a torch-less install: the filters are still scored (review60: it had failed)
+        if exc.name not in ("torch", "onnx"):
+            raise
+        if note_sink is not None:
+            note_sink.append("TE-PINN skipped: evaluate scores the checkpoint with PyTorch, which this install does not "
+                             "have (pip install 'tepinn-flight[torch]')")  # fmt: skip
+        return None
 
 
 def default_learned(note_sink: list | None = None) -> list:
