@@ -24,3 +24,34 @@ def test_a_stale_export_beside_a_checkpoint_is_refused_without_torch(tmp_path, m
     for rt in ("auto", "onnx"):
         with pytest.raises(ConfigError, match="was not exported from this checkpoint"):
             load_runner(ck, rt)
+
+
+def test_the_bridges_first_check_refuses_what_the_loader_would_without_torch(tmp_path, monkeypatch):
+    """`check_model` — the bridge's check before it routes — refuses without torch every checkpoint `load_runner`
+    refuses there, with the same line (review60: it passed any torch archive, and the worker refused it 7 s into the
+    session); an export renamed .pt is said to be no checkpoint, and a folder a folder (not "needs PyTorch")."""
+    from tepinn_flight.model.runtime import check_model
+
+    monkeypatch.setattr(runtime, "torch_available", lambda: False)
+    stale = tmp_path / "stale.pt"
+    shutil.copy(default_model_path(), stale)
+    shutil.copy(default_onnx_path(), tmp_path / "stale.onnx")
+    with open(stale, "ab") as f:
+        f.write(b"\0")
+    alone = tmp_path / "alone" / "mine.pt"
+    alone.parent.mkdir()
+    shutil.copy(default_model_path(), alone)
+    renamed = tmp_path / "renamed" / "model.pt"
+    renamed.parent.mkdir()
+    shutil.copy(default_onnx_path(), renamed)
+    for path, said in ((stale, "was not exported from this checkpoint"), (alone, "a checkpoint needs PyTorch to be read"),
+                       (renamed, "not a torch checkpoint file (an ONNX export is read under its .onnx name)"),
+                       (tmp_path / "alone", "a folder, not a model file")):  # fmt: skip
+        with pytest.raises(ConfigError, match=said.replace("(", r"\(").replace(")", r"\)")) as by_check:
+            check_model(path)
+        with pytest.raises(ConfigError) as by_loader:
+            load_runner(path)
+        assert str(by_check.value) == str(by_loader.value)
+    shutil.copy(default_model_path(), tmp_path / "ok.pt")
+    shutil.copy(default_onnx_path(), tmp_path / "ok.onnx")
+    check_model(tmp_path / "ok.pt")  # in sync: taken

@@ -289,22 +289,46 @@ def check_model(path, runtime: str = "auto") -> None:
     tepinn-flight export, a checkpoint that is none (the bridge had routed for 8 s before its worker met it). Reads
     an export's metadata, or a checkpoint's archive listing: not torch, whose ~300 MB the bridge's main process on a
     companion computer does not otherwise load (its worker does, where it runs the checkpoint)."""
-    import zipfile
-
     path = Path(path)
     rt = resolve_runtime(path, runtime)
     if is_onnx_path(path):
         read_onnx_metadata(path)
     elif rt == "onnx" and (synced := export_in_sync(path)) is not None:
         read_onnx_metadata(synced)
-    else:  # torch.save's archive holds <name>/data.pkl; a text file, an image, a truncated download do not
-        try:
-            with zipfile.ZipFile(path) as z:
-                ok = any(n.endswith("/data.pkl") for n in z.namelist())
-        except (OSError, zipfile.BadZipFile):
-            ok = False
-        if not ok:
-            raise ConfigError(f"{path}: not a readable checkpoint (not a torch checkpoint file)")
+    elif rt == "onnx" and not torch_available():  # what load_runner refuses here (review60: found 7 s into routing)
+        raise _checkpoint_without_torch(path)
+    elif not _is_torch_archive(path):
+        raise ConfigError(f"{path}: not a readable checkpoint (not a torch checkpoint file)")
+
+
+def _is_torch_archive(path: Path) -> bool:
+    """Whether ``path`` is torch.save's archive (it holds <name>/data.pkl; a text file, an image, a truncated download,
+    an export renamed do not), read from its zip listing alone."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            return any(n.endswith("/data.pkl") for n in z.namelist())
+    except (OSError, zipfile.BadZipFile):
+        return False
+
+
+def _checkpoint_without_torch(path: Path) -> ConfigError:
+    """Why the checkpoint ``path``, with no export in sync beside it, cannot run where torch is absent."""
+    beside = path.with_suffix(".onnx")
+    if path.is_dir():
+        return ConfigError(f"{path}: a folder, not a model file")
+    if not path.is_file():
+        return ConfigError(f"{path}: no such model")
+    if beside.is_file():  # without torch, an export beside it made from another file is not this model
+        return ConfigError(f"{path}: {beside.name} beside it was not exported from this checkpoint (it changed since, "
+                           "or it is another's), and without PyTorch the checkpoint cannot be read: export it again "
+                           f"where torch is installed (tepinn-flight export {path.name} -o {beside.name}) or pass "
+                           "the .onnx itself")  # fmt: skip
+    if not _is_torch_archive(path):  # (review60: an export renamed .pt was told it needs PyTorch)
+        return ConfigError(f"{path}: not a torch checkpoint file (an ONNX export is read under its .onnx name)")
+    return ConfigError(f"{path}: a checkpoint needs PyTorch to be read; without it, export it once where torch is "
+                       f"installed (tepinn-flight export {path.name} -o model.onnx) and pass the .onnx")  # fmt: skip
 
 
 def file_sha256(path) -> str:
@@ -359,21 +383,15 @@ def load_runner(path, runtime: str = "auto", threads: int | None = None):
             raise ConfigError(f"{path}: no such model")
         runner = OnnxRunner(path, threads)
     else:
-        synced, beside = export_in_sync(path), path.with_suffix(".onnx")
+        synced = export_in_sync(path)
         if synced is not None:
             runner = OnnxRunner(synced, threads)
         elif torch_available():
             from .export import export_bytes
 
             runner = OnnxRunner(export_bytes(path), threads)
-        elif beside.is_file():  # without torch, an export beside it made from another file is not this model
-            raise ConfigError(f"{path}: {beside.name} beside it was not exported from this checkpoint (it changed since, "
-                              "or it is another's), and without PyTorch the checkpoint cannot be read: export it again "
-                              f"where torch is installed (tepinn-flight export {path.name} -o {beside.name}) or pass "
-                              "the .onnx itself")  # fmt: skip
         else:
-            raise ConfigError(f"{path}: a checkpoint needs PyTorch to be read; without it, export it once where torch is "
-                              f"installed (tepinn-flight export {path.name} -o model.onnx) and pass the .onnx")  # fmt: skip
+            raise _checkpoint_without_torch(path)
     return runner, estimator_settings(runner.meta), runner.meta
 
 
