@@ -597,6 +597,28 @@ def test_bridge_config_and_tlog_folder_errors(tmp_path):
     with pytest.raises(ConfigError, match="does not exist"):
         Bridge(BridgeConfig(master="udpin:127.0.0.1:0", worker="thread", tlog_path=str(tmp_path / "no" / "x.tlog")),
                make_estimator=object)  # fmt: skip
+    (tmp_path / "folder").mkdir()  # review60: recorded into folder.part beside it, never put in place, exit 0
+    with pytest.raises(ConfigError, match="a folder; name the session's tlog file"):
+        Bridge(BridgeConfig(master="udpin:127.0.0.1:0", worker="thread", tlog_path=str(tmp_path / "folder")),
+               make_estimator=object)  # fmt: skip
+    assert not (tmp_path / "folder.part").exists()
+
+
+def test_a_session_tlog_that_cannot_be_put_in_place_is_said_where_it_is(tmp_path, capsys):
+    """The session's tlog is written as FILE.part and renamed on close; where the rename fails (the name taken by a
+    folder since the start), the bridge says where the session is instead of losing it silently (review60)."""
+    from tepinn_flight.live.forwarding import Forwarder
+    from tepinn_flight.live.session_tlog import SessionTlog
+
+    fw = Forwarder.__new__(Forwarder)
+    fw.tlog, fw.links = SessionTlog(str(tmp_path / "s.tlog")), []
+    fw.tlog.write([b"\xfd" + bytes(20)], 1.7e9)
+    (tmp_path / "s.tlog").mkdir()
+    (tmp_path / "s.tlog" / "x").write_text("")  # (a non-empty folder: the rename cannot replace it)
+    fw.close()
+    err = capsys.readouterr().err
+    assert "warning: the session tlog could not be put in place as" in err and str(tmp_path / "s.tlog.part") in err
+    assert (tmp_path / "s.tlog.part").stat().st_size == 8 + 21
 
 
 def test_histogram_percentiles_against_numpy():

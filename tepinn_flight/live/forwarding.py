@@ -17,6 +17,7 @@ The endpoints themselves (opening, parsing, reconnecting) are :mod:`~tepinn_flig
 
 from __future__ import annotations
 
+import sys
 import time
 
 from .router import Link
@@ -147,8 +148,9 @@ class Forwarder:
         if self.tlog is not None:
             try:
                 self.tlog.close()
-            except OSError:
-                pass
+            except OSError as exc:  # the session is in FILE.part: said where (review60: lost without a word)
+                sys.stderr.write(f"tepinn-flight bridge: warning: the session tlog could not be put in place as "
+                                 f"{self.tlog.path} ({exc.strerror or exc}): it is in {self.tlog.tmp}\n")  # fmt: skip
         self.close_links()
 
     def close_links(self) -> None:

@@ -21,6 +21,8 @@ class SessionTlog:
         self.tmp = self.path.with_name(self.path.name + ".part")
         if not self.path.parent.exists():
             raise ConfigError(f"--tlog {path}: folder {self.path.parent} does not exist")
+        if self.path.is_dir():  # (review60: recorded beside it, then not put in place, unsaid)
+            raise ConfigError(f"--tlog {path}: a folder; name the session's tlog file")
         try:
             self.f = open(self.tmp, "wb", buffering=1 << 16)
         except OSError as exc:
