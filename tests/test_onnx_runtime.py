@@ -267,6 +267,8 @@ def test_fresh_venv_runtime_extra_without_torch(tmp_path, exported, monkeypatch)
     assert p.returncode == 0, p.stderr[-3000:]
     p = subprocess.run([str(py), "-c", "import torch"], capture_output=True, text=True)
     assert p.returncode != 0 and "No module named 'torch'" in p.stderr
+    # a companion computer's autopilot is on a serial port: the extra brings pyserial (review60: it did not)
+    assert subprocess.run([str(py), "-c", "import serial"], capture_output=True).returncode == 0
     from tepinn_flight.record import write_record
     from tepinn_flight.sim.simulate import simulate_record
 
