@@ -243,3 +243,12 @@ def test_a_sensor_rate_that_cannot_be_reached_is_refused_before_the_flight(tmp_p
     monkeypatch.setattr(S, "simulate_record", flown)
     assert sim("--aircraft", "F450", "--rate", 500, "--sensor-set", "rate_hz=200", "-o", tmp_path / "x.parquet") == 2
     assert "sensor rate_hz 200 must divide the simulation rate 500 Hz" in capsys.readouterr().err
+
+
+def test_an_install_without_the_simulation_data_says_what_it_lacks(tmp_path, capsys, monkeypatch):
+    """A non-editable install has no flight_sims folder beside the package: `simulate` says so and what to do (review60:
+    "unknown sensor preset 'consumer-raw' (known: none found in .../site-packages/flight_sims/sensors)")."""
+    monkeypatch.setenv("TEPINN_FLIGHT_SIMS", str(tmp_path / "site-packages" / "flight_sims"))
+    assert sim("--aircraft", "F450", "--duration", 1, "-o", tmp_path / "x.parquet") == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no flight_sims folder at" in err and "pip install -e ." in err, err

@@ -212,6 +212,10 @@ def load_sensor_config(preset: str = DEFAULT_PRESET, overrides: list[str] | tupl
         path = Path(preset)
     else:
         path = presets_dir() / f"{preset}.toml"
+        if not presets_dir().parent.is_dir():  # (review60: "known: none found in .../site-packages/flight_sims")
+            raise ConfigError(f"no flight_sims folder at {presets_dir().parent}: the simulation's aircraft, sensor "
+                              "presets and campaigns come with the project's checkout — install it editable (pip "
+                              "install -e ., the README's setup) or set TEPINN_FLIGHT_SIMS to a flight_sims folder")  # fmt: skip
         if not path.exists():
             known = ", ".join(list_presets()) or f"none found in {presets_dir()}"
             raise ConfigError(f"unknown sensor preset '{preset}' (known: {known}; or give a TOML path)")
