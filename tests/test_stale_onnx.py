@@ -55,3 +55,41 @@ def test_the_bridges_first_check_refuses_what_the_loader_would_without_torch(tmp
     shutil.copy(default_model_path(), tmp_path / "ok.pt")
     shutil.copy(default_onnx_path(), tmp_path / "ok.onnx")
     check_model(tmp_path / "ok.pt")  # in sync: taken
+
+
+def _edited_export(tmp_path, name, edit):
+    """The shipped export with its metadata edited by ``edit(dict)`` (values as JSON text)."""
+    import onnx
+
+    proto = onnx.load(str(default_onnx_path()))
+    meta = {p.key: p.value for p in proto.metadata_props}
+    edit(meta)
+    del proto.metadata_props[:]
+    for k, v in meta.items():
+        proto.metadata_props.add(key=k, value=v)
+    path = tmp_path / f"{name}.onnx"
+    onnx.save(proto, str(path))
+    return path
+
+
+@pytest.mark.parametrize("name,edit,said", [
+    ("nocfg", lambda m: m.pop("model_config"), "export without a sound 'model_config'"),
+    ("tokens", lambda m: m.update(model_config=m["model_config"].replace('"window_tokens": 80', '"window_tokens": 40')),
+     "its graph takes windows of 80 tokens"),
+    ("v1", lambda m: m.update(version="1"), "which an export of version 1 is not given"),
+])  # fmt: skip
+def test_an_export_whose_metadata_does_not_match_its_graph_is_refused_when_opened(tmp_path, name, edit, said):
+    """A hand-edited or damaged export: one line naming the file, when the model is opened — by `estimate` and by the
+    bridge's first check alike (review60: "internal error: KeyError", or found at the first window, mid-flight)."""
+    import json
+
+    from tepinn_flight.model.runtime import check_model
+
+    assert json.loads(dict((p.key, p.value) for p in __import__("onnx").load(str(default_onnx_path())).metadata_props)
+                      ["model_config"])["window_tokens"] == 80  # (the edit above is one)
+    path = _edited_export(tmp_path, name, edit)
+    with pytest.raises(ConfigError, match=said) as e:
+        load_runner(path)
+    assert str(path) in str(e.value)
+    with pytest.raises(ConfigError, match=said):
+        check_model(path)

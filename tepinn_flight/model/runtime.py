@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..errors import ConfigError, TepinnError
 from .checkpoint import estimator_settings, model_config_from
 from .config import ModelConfig
 
@@ -162,10 +162,17 @@ class OnnxRunner(NetworkRunner):
         self.threads = None
         self._open(threads)
         self.meta = _decode_meta(self.session.get_modelmeta().custom_metadata_map, self._label)
-        self.config = model_config_from(self.meta)
+        try:
+            self.config = model_config_from(self.meta)
+        except ConfigError as exc:  # (review60: unnamed, or "internal error: KeyError")
+            raise ConfigError(f"{self._label}: its model_config: {exc.reason}") from None
+        except (KeyError, TypeError, ValueError, AttributeError):
+            raise ConfigError(f"{self._label}: export without a sound 'model_config' (a damaged or hand-edited "
+                              "file)") from None  # fmt: skip
         self.present = set(self.meta.get("outputs_present", OUTPUTS))
         self.input_names = [i.name for i in self.session.get_inputs()]
         self.output_names = [o.name for o in self.session.get_outputs()]
+        self._check_graph()
         self.sensor = None  # version 2 on: the features are computed here, with the trained sensor model
         self.physics_head = self.meta["version"] >= 3  # version 3: and the attitude from the heads' outputs
         if self.meta["version"] >= 2:
@@ -176,6 +183,24 @@ class OnnxRunner(NetworkRunner):
             except (KeyError, TypeError, ValueError, IndexError) as exc:
                 why = str(exc) if isinstance(exc, ValueError) else "missing or malformed"
                 raise ConfigError(f"{self._label}: export version 2 without a sound 'sensor_model' ({why})") from None
+
+    def _check_graph(self) -> None:
+        """Refuse an export whose graph does not take what its metadata describes — inputs the runtime does not make
+        for its version, windows of another length (review60: a hand-edited file failed at its first window, in the
+        bridge mid-flight)."""
+        from .window_features import feature_names
+
+        made = set(feature_names(self.config)) if self.meta["version"] >= 2 else set(INPUTS)
+        unknown = [n for n in self.input_names if n not in made]
+        if unknown:
+            raise ConfigError(f"{self._label}: its graph takes {', '.join(unknown)}, which an export of version "
+                              f"{self.meta['version']} is not given: a damaged or hand-edited file")  # fmt: skip
+        k = self.config.window_tokens
+        for i in self.session.get_inputs():
+            dims = list(i.shape)
+            if len(dims) >= 2 and isinstance(dims[1], int) and dims[1] != k:
+                raise ConfigError(f"{self._label}: its graph takes windows of {dims[1]} tokens ({i.name}), its "
+                                  f"model_config {k}: a damaged or hand-edited file")  # fmt: skip
 
     def _open(self, threads: int | None) -> None:
         # one thread per run; with n threads a batch is cut into n parts run side by side (the
@@ -286,15 +311,20 @@ def resolve_runtime(path, runtime: str = "auto") -> str:
 
 def check_model(path, runtime: str = "auto") -> None:
     """Refuse, in one line and before any work, a model file :func:`load_runner` would refuse: an ``.onnx`` that is no
-    tepinn-flight export, a checkpoint that is none (the bridge had routed for 8 s before its worker met it). Reads
-    an export's metadata, or a checkpoint's archive listing: not torch, whose ~300 MB the bridge's main process on a
-    companion computer does not otherwise load (its worker does, where it runs the checkpoint)."""
+    tepinn-flight export, a checkpoint that is none (the bridge had routed for 8 s before its worker met it), an
+    export whose graph does not take what its metadata says, a checkpoint without torch and an export in sync
+    (review60). Opens an export in onnxruntime as the worker does, or reads a checkpoint's archive listing: not torch,
+    whose ~300 MB the bridge's main process on a companion computer does not otherwise load (its worker does, where
+    it runs the checkpoint)."""
     path = Path(path)
     rt = resolve_runtime(path, runtime)
-    if is_onnx_path(path):
-        read_onnx_metadata(path)
-    elif rt == "onnx" and (synced := export_in_sync(path)) is not None:
-        read_onnx_metadata(synced)
+    if is_onnx_path(path) or (rt == "onnx" and (synced := export_in_sync(path)) is not None):
+        # opened as the worker opens it: its graph checked against its metadata, its settings read
+        runner = OnnxRunner(path if is_onnx_path(path) else synced, threads=1)
+        try:
+            estimator_settings(runner.meta)
+        except TepinnError as exc:
+            raise ConfigError(exc.reason, path) from None
     elif rt == "onnx" and not torch_available():  # what load_runner refuses here (review60: found 7 s into routing)
         raise _checkpoint_without_torch(path)
     elif not _is_torch_archive(path):
@@ -392,7 +422,13 @@ def load_runner(path, runtime: str = "auto", threads: int | None = None):
             runner = OnnxRunner(export_bytes(path), threads)
         else:
             raise _checkpoint_without_torch(path)
-    return runner, estimator_settings(runner.meta), runner.meta
+    try:
+        settings = estimator_settings(runner.meta)
+    except TepinnError as exc:  # (named: a hand-edited export's anchor_config had said nothing of the file)
+        if exc.path:
+            raise
+        raise ConfigError(exc.reason, path) from None
+    return runner, settings, runner.meta
 
 
 def as_runner(model) -> NetworkRunner:
