@@ -59,6 +59,10 @@ def test_export_metadata_and_settings_match_the_checkpoint(exported):
     as_json = lambda d: json.loads(json.dumps(d))  # noqa: E731  (JSON metadata: tuples come back as lists)
     assert meta["anchor_config"] == as_json(ckpt["anchor_config"]) and meta["fusion_config"] == as_json(ckpt["fusion_config"])
     assert meta["conventions"] == ckpt["conventions"]
+    from tepinn_flight import __version__
+
+    assert meta["exported_by"] == f"tepinn-flight {__version__}"  # (review60: the deployed file did not say)
+    assert meta.get("tepinn_flight_version") == ckpt.get("tepinn_flight_version")
     runner, settings_onnx, _ = load_runner(exported, "auto")
     assert isinstance(runner, OnnxRunner) and settings_onnx == settings
     assert runner.config == model.config

@@ -36,6 +36,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from .. import __version__
 from ..record import atomic_write
 from .checkpoint import load_model
 from .runtime import GRAPH_OUTPUTS, INPUTS, ONNX_FORMAT, ONNX_VERSION, OUTPUTS
@@ -130,7 +131,10 @@ def _metadata(ckpt: dict, model: nn.Module, source: str, opset: int, source_sha2
         "graph_outputs": list(GRAPH_OUTPUTS),
         "sensor_model": sensor_values(model).to_json(),
         "outputs": list(OUTPUTS),
+        "exported_by": f"tepinn-flight {__version__}",  # (review60: which version wrote a deployed model, unsaid)
     }
+    if ckpt.get("tepinn_flight_version"):  # the version that made the checkpoint
+        meta["tepinn_flight_version"] = ckpt["tepinn_flight_version"]
     if ckpt.get("anchor_config") is not None:
         meta["anchor_config"] = ckpt["anchor_config"]
     for k in ("training", "metrics"):
