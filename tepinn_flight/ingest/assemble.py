@@ -43,25 +43,21 @@ SPIKE_PERIODS = 50.0
 
 def out_of_order(t: np.ndarray) -> np.ndarray:
     """Samples, in file order, whose time stamp lies outside the interval of their two neighbours' while those are
-    in order: one row stamped early or late by less than a spike (a flipped low byte of ``TimeMS``, ±255 ms), which
-    made time go back and forth — a restart of the estimators and an output whose time is not increasing (review60).
-    A reboot is not one: time goes back and stays back, so the neighbours are out of order there. Where a row is
-    off by under two periods, its neighbour is out of order with its own neighbours too: of such a pair the one
-    farther from a period after the row before it (the first) or before the row after it (the second) is flagged."""
+    in order, and that no swap with a neighbour puts in order: one row stamped early or late by less than a spike (a
+    flipped low byte of ``TimeMS``, ±255 ms), which made time go back and forth — a restart of the estimators and an
+    output whose time is not increasing (review60). A reboot is not one (time goes back and stays back: the
+    neighbours are out of order there), nor two rows logged in each other's place — a boot's first two samples
+    swapped, or a row off by under two periods, which reads the same: the segment rule takes those as before."""
     n = len(t)
     out = np.zeros(n, bool)
     if n < 3:
         return out
     a, b, c = t[:-2], t[1:-1], t[2:]
-    out[1:-1] = (a < c) & ((b < a) | (b > c))
-    pair = np.flatnonzero(out[1:-2] & out[2:-1]) + 1  # rows i, i + 1 both flagged, each with both neighbours
-    pair = pair[(pair + 2 < n) & ~out[pair - 1] & ~out[np.minimum(pair + 2, n - 1)]]
-    if pair.size:
-        d = np.diff(t)
-        period = float(np.median(d[d > 0])) if np.any(d > 0) else 0.0
-        first_off = np.abs(t[pair] - (t[pair - 1] + period))
-        second_off = np.abs(t[pair + 1] - (t[pair + 2] - period))
-        out[np.where(first_off > second_off, pair + 1, pair)] = False  # the nearer one is kept
+    before = np.r_[-np.inf, t[:-3]]  # the row two before (none for the second row)
+    after = np.r_[t[3:], np.inf]  # the row two after
+    early = (b < a) & ~((before < b) | (before > a))  # (before > a: a begins after a reversal, a boot's start)
+    late = (b > c) & ~((b < after) | (after < c))
+    out[1:-1] = (a < c) & (early | late)
     return out
 
 
