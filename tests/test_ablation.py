@@ -56,3 +56,40 @@ def test_an_ablation_whose_variants_all_score_the_same_says_why():
                               "b": {"inclination_rmse_deg": 5.0}}}]  # fmt: skip
     assert not identical_variants(nothing, ["full", "no-physics"]) and not identical_variants(nan_first, ["full", "a", "b"])
     assert "corrected nothing" in IDENTICAL_NOTE
+
+
+def test_a_finished_variant_is_taken_only_where_this_recipe_made_it(tmp_path):
+    """A variant finished under another recipe (another seed here) is refused in one line naming the keys (review60:
+    taken, "already trained", under a header claiming this recipe); under the same recipe it is taken as it is."""
+    from tepinn_flight.evaluation.ablation import train_variants
+    from tests.test_train import TINY, small_cfg
+
+    base = small_cfg("optim.epochs=1")
+    said: list[str] = []
+    train_variants(base, ["full"], tmp_path, config_base=TINY.parent, progress=False, say=said.append)
+    first = (tmp_path / "full" / "model.pt").read_bytes()
+    train_variants(base, ["full"], tmp_path, config_base=TINY.parent, progress=False, say=said.append)
+    assert said[-1].startswith("full: already trained") and (tmp_path / "full" / "model.pt").read_bytes() == first
+    with pytest.raises(ConfigError, match=r"holds the variant full trained from another recipe \(seed 0 -> 7\)"):
+        train_variants(small_cfg("optim.epochs=1", "seed=7"), ["full"], tmp_path, config_base=TINY.parent,
+                       progress=False)  # fmt: skip
+
+
+def test_ablate_refuses_no_variant_and_a_missing_eval_path_before_training(tmp_path, capsys, monkeypatch):
+    """`--variants ,` had written a table of VQF alone; a mistyped `--eval` was said after every variant trained
+    (about 28 minutes with the default recipe) (review60). The table names the recipe's overrides."""
+    import tepinn_flight.evaluation.ablation as A
+    from tepinn_flight.cli.main import main
+    from tests.test_train import TINY
+
+    def trained(*a, **k):
+        raise AssertionError("trained before the arguments were checked")
+
+    monkeypatch.setattr(A, "train_variants", trained)
+    assert main(["ablate", "--config", str(TINY), "-o", str(tmp_path / "a"), "--variants", ",", "-q"]) == 2
+    assert "--variants names no variant" in capsys.readouterr().err
+    assert main(["ablate", "--config", str(TINY), "-o", str(tmp_path / "b"), "--variants", "full",
+                 "--eval", str(tmp_path / "nope.parquet"), "-q"]) == 2  # fmt: skip
+    assert "no such file or folder" in capsys.readouterr().err
+    md = ablation_markdown([], "train/tiny.toml", 3, overrides=["seed=7"])
+    assert "Recipe `train/tiny.toml` with `seed=7`, same data" in md

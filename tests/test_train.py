@@ -737,3 +737,35 @@ def test_the_progress_bars_end_is_where_the_time_limit_stops_the_run(epoch_s, le
         n, t = n + 1, t + epoch_s
     expected = optim.epochs if epoch_s == 0 else n
     assert T.epochs_within(optim, done, epoch_s, left_s) == expected
+
+
+@pytest.mark.slow
+def test_a_resume_takes_only_the_recipe_that_started_the_run_and_ends_as_a_finished_run_did(tmp_path):
+    """`--resume` with another recipe — another seed, learning rate — is refused in one line naming the keys (review60:
+    the last epochs trained on other flights, and config.json claimed the new recipe made it all); how long it trains
+    may change. A run that had stopped early is resumed as it ended: no epoch more (review60: one more, its line
+    added)."""
+    import torch as _torch
+
+    run = tmp_path / "run"
+    quiet_train(small_cfg("optim.epochs=2", "optim.early_stop_patience=100"), run)
+    before = (run / "config.json").read_text()
+    with pytest.raises(ConfigError, match=r"cannot resume .* with another recipe \(optim\.lr 0\.001 -> 0\.01; seed 0 -> 7\)"):
+        quiet_train(small_cfg("optim.epochs=3", "optim.early_stop_patience=100", "seed=7", "optim.lr=0.01"), run,
+                    resume=True)  # fmt: skip
+    assert (run / "config.json").read_text() == before and metric_epochs(run) == [1, 2]
+    # stopped early: the checkpoint's count of epochs without improvement at the patience
+    ck = _torch.load(run / "last.pt", weights_only=False)
+    ck["stale"] = 100
+    _torch.save(ck, run / "last.pt")
+    res = quiet_train(small_cfg("optim.epochs=4", "optim.early_stop_patience=100"), run, resume=True)
+    assert res["stop_reason"] == "early_stop" and metric_epochs(run) == [1, 2]
+
+
+def test_a_recipe_cannot_ask_for_a_batch_past_memory():
+    """A batch of 10^6 windows had been accepted and taken 24 GB before the OOM killer (review60)."""
+    with pytest.raises(ConfigError, match="batch_size"):
+        small_cfg("optim.batch_size=1000000")
+    from tepinn_flight.model.train_config import MAX_BATCH
+
+    assert small_cfg(f"optim.batch_size={MAX_BATCH}").optim.batch_size == MAX_BATCH

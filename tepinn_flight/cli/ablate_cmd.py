@@ -38,8 +38,13 @@ def run(args) -> int:
     from ..record import check_output, read_record
     from .paths import collect_records, read_records
 
+    from ..errors import ConfigError
+
     names = [v.strip() for v in args.variants.split(",") if v.strip()]
+    if not names:  # (review60: a table of VQF alone)
+        raise ConfigError("--variants names no variant")
     check_variants(names)
+    eval_paths = collect_records(args.eval) if args.eval else None  # before the training (review60: a typo after it)
     base = load_train_config(args.config, args.set)
     out = Path(args.output)
     check_output(out, folder=True)  # a file, or a folder that cannot be made: one line, before the training
@@ -49,13 +54,13 @@ def run(args) -> int:
                            progress=not args.quiet, say=say)  # fmt: skip
     if args.eval:
         read_notes: list[str] = []
-        records = read_records(args.eval, collect_records(args.eval), read_notes)
+        records = read_records(args.eval, eval_paths, read_notes)
         for n in read_notes:
             say(f"note: {n}")
     else:
         records = [read_record(p) for p in heldout_records(out, progress=not args.quiet)]
     rows, notes = evaluate_variants(ckpts, records, progress=not args.quiet)
-    md = ablation_markdown(rows, args.config, len(records), notes)
+    md = ablation_markdown(rows, args.config, len(records), notes, overrides=args.set or ())
     write_ablation(out, rows, md)
     print(md)
     return 0

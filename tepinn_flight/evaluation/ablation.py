@@ -50,12 +50,25 @@ def train_variants(base, names: list[str], out: Path, data_dirs=(), config_base:
                    progress: bool = True, say=lambda s: None) -> dict[str, Path]:  # fmt: skip
     """Train each variant into ``out/<variant>`` (resumable: a finished variant is skipped);
     returns variant → its ``model.pt``."""
-    from ..model.train import train
+    import json
+
+    from ..config import to_dict
+    from ..errors import ConfigError
+    from ..model.train import recipe_differences, train
 
     ckpts = {}
     for v in names:
         run_dir = out / v
         if (run_dir / "model.pt").exists():
+            try:  # taken only where this variant's recipe made it (review60: any finished variant was, silently)
+                before = json.loads((run_dir / "config.json").read_text())
+            except (OSError, ValueError):
+                before = None
+            diff = [] if before is None else recipe_differences(before, to_dict(variant_config(base, v)))
+            if diff:
+                shown = "; ".join(diff[:4]) + ("; ..." if len(diff) > 4 else "")
+                raise ConfigError(f"{run_dir} holds the variant {v} trained from another recipe ({shown}): ablate "
+                                  "into a new folder (-o), or remove that one to train it again")  # fmt: skip
             say(f"{v}: already trained ({run_dir / 'model.pt'})")
         else:
             say(f"{v}: training ...")
@@ -123,7 +136,7 @@ def identical_variants(records: list[dict], names: list[str], tol_deg: float = 1
     return compared
 
 
-def ablation_markdown(rows: list[dict], recipe: str, n_records: int, notes=()) -> str:
+def ablation_markdown(rows: list[dict], recipe: str, n_records: int, notes=(), overrides=()) -> str:
     """The ablation table (``ablation.md``)."""
     from .names import display_name
 
@@ -133,7 +146,8 @@ def ablation_markdown(rows: list[dict], recipe: str, n_records: int, notes=()) -
     for r in rows:
         table.append(f"| {display_name(r['variant'])} | {f(r['inclination_rmse_deg'])} | {f(r['inclination_rmse_median_deg'])} | "
                      f"{f(r['gyr_bias_rms_deg_s'], 3)} | {f(r['nees'])} | {f(r['vs_full'])} |")  # fmt: skip
-    md = (f"# TE-PINN ablation\n\nRecipe `{recipe}`, same data, budget and seed for every variant; "
+    sets = f" with {', '.join(f'`{o}`' for o in overrides)}" if overrides else ""  # (review60: the --set unsaid)
+    md = (f"# TE-PINN ablation\n\nRecipe `{recipe}`{sets}, same data, budget and seed for every variant; "
           f"evaluated on {n_records} held-out flights (5 s warm-up).\n\n" + "\n".join(table) + "\n")
     if notes:
         md += "\n" + "\n".join(f"- {n}" for n in notes) + "\n"

@@ -259,6 +259,41 @@ def _remove_unstarted_run(out: Path, remove_folder: bool) -> None:
                 pass
 
 
+#: what a resumed run may change of its recipe: how long it trains (session 60's review: a resume with another seed and
+#: learning rate had trained its last epochs on other flights, and config.json then claimed the new recipe made it all)
+RESUMABLE_CHANGES = ("optim.epochs", "optim.max_minutes")
+
+
+def _flat(d, prefix: str = "") -> dict:
+    out = {}
+    for k, v in (d or {}).items():
+        key = f"{prefix}{k}"
+        out |= _flat(v, key + ".") if isinstance(v, dict) else {key: v}
+    return out
+
+
+def recipe_differences(before: dict, now: dict, allowed=()) -> list[str]:
+    """The keys two recipes (``to_dict`` form, as config.json holds them) differ in, each "key A -> B", leaving out
+    ``allowed``."""
+    a, b = _flat(json.loads(json.dumps(before))), _flat(json.loads(json.dumps(now)))
+    return [f"{k} {a.get(k, '(unset)')!r} -> {b.get(k, '(unset)')!r}" for k in sorted(set(a) | set(b))
+            if k not in allowed and a.get(k) != b.get(k)]  # fmt: skip
+
+
+def check_resume_recipe(out: Path, cfg: TrainConfig) -> None:
+    """Refuse, in one line naming the keys, to resume the run in ``out`` with a recipe other than the one its
+    ``config.json`` says started it, but for :data:`RESUMABLE_CHANGES`."""
+    try:
+        before = json.loads((out / "config.json").read_text())
+    except (OSError, ValueError):
+        return  # (a run without its config.json: nothing to hold the recipe against)
+    diff = recipe_differences(before, to_dict(cfg), RESUMABLE_CHANGES)
+    if diff:
+        shown = "; ".join(diff[:4]) + ("; ..." if len(diff) > 4 else "")
+        raise ConfigError(f"cannot resume {out} with another recipe ({shown}): a resume may change only "
+                          f"{', '.join(RESUMABLE_CHANGES)}; train the new recipe into a new folder")  # fmt: skip
+
+
 def epochs_within(optim, done: int, epoch_s: float, left_s: float) -> int:
     """How many epochs a run with ``optim``'s time limit ends after, ``done`` done, each ``epoch_s`` long, ``left_s``
     left of the limit: the loop's rule — it stops when the next epoch would end past the limit — run forward."""
@@ -337,8 +372,10 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
         model, _, init_ck = load_model(default_model_path() if cfg.init == "default" else cfg.init)
         model.train()
         if model.config != cfg.model:
-            raise ConfigError("init: the checkpoint's model config differs from the recipe's [model] (fine-tuning "
-                              "keeps the architecture; leave [model] out or copy the checkpoint's)")  # fmt: skip
+            diff = recipe_differences(dataclasses.asdict(model.config), dataclasses.asdict(cfg.model))
+            raise ConfigError(f"init: the checkpoint's model config differs from the recipe's [model] ("
+                              f"{'; '.join(f'model.{d}' for d in diff[:4])}: checkpoint -> recipe; fine-tuning keeps "
+                              "the architecture; leave [model] out or copy the checkpoint's)")  # fmt: skip
     else:
         model = TEPINN(cfg.model)
         mean, std = input_statistics(model.features, bank, cfg.model, seed=cfg.seed)
@@ -355,6 +392,7 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
     start_epoch, best_val, stale = 0, float("inf"), 0
     history: list[dict] = []
     if resume and (out / "last.pt").exists():
+        check_resume_recipe(out, cfg)
         ck = read_checkpoint(out / "last.pt")
         try:
             model.load_state_dict(ck["state_dict"])
@@ -403,6 +441,9 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
                    unit="step", file=sys.stderr, dynamic_ncols=True)  # fmt: skip
     B = cfg.optim.batch_size
     stop_reason = "epochs"
+    if start_epoch and stale >= cfg.optim.early_stop_patience:  # a resumed run that had stopped early: as it ended
+        # (review60: it trained one epoch more and added its line)
+        stop_reason, start_epoch = "early_stop", cfg.optim.epochs
     for epoch in range(start_epoch, cfg.optim.epochs):
         t_epoch = time.monotonic()
         logs_acc: dict[str, float] = {}
@@ -464,7 +505,11 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
             with open(out / "metrics.jsonl", "a") as f:  # after last.pt: never an epoch that is not saved
                 f.write(json.dumps(rec) + "\n")
             msg = f"epoch {epoch + 1}: train tilt {logs_acc.get('tilt_rmse_deg', float('nan')):.2f}°, val tilt {val['val_tilt_rmse_deg']:.2f}°"
-            (bar.write(msg) if bar else log(msg))
+            if bar:  # through the caller's log, where it writes (ablate: stderr, beside its table on stdout; review60)
+                with bar.external_write_mode():
+                    log(msg)
+            else:
+                log(msg)
         if stale >= cfg.optim.early_stop_patience:  # the same on every rank (same weights, same data)
             if rank == 0:
                 log(f"early stop: no validation improvement for {stale} epochs")
@@ -492,6 +537,9 @@ def _train(cfg: TrainConfig, out: Path, data_dirs, resume: bool, config_base: Pa
                                                                    60 * cfg.optim.max_minutes - elapsed)
             bar.refresh()
     if bar:
+        if stop_reason == "early_stop":  # the bar ends where the run did (review60: at 39 %)
+            bar.total = bar.n
+            bar.refresh()
         bar.close()
     result = {"best_val_tilt_rmse_deg": best_val, "epochs": len(history), "stop_reason": stop_reason}
     if rank == 0:

@@ -63,6 +63,10 @@ class DataConfig:
         check_range("scale_aug_prob", self.scale_aug_prob, 0, 1)
 
 
+#: the largest batch a recipe may ask for (windows): ~0.4 GB of tensors on top of the model's
+MAX_BATCH = 16384
+
+
 @dataclass(frozen=True)
 class OptimConfig:
     batch_size: int = 64  # global batch (windows)
@@ -78,7 +82,8 @@ class OptimConfig:
     cosine_decay: bool = True  # cosine decay to 10 % of the learning rate at the last epoch
 
     def __post_init__(self):
-        check_range("batch_size", self.batch_size, 1, 10**6)
+        # (a window's tensors take ~24 kB: 10^6 had taken 24 GB and the OOM killer; review60)
+        check_range("batch_size", self.batch_size, 1, MAX_BATCH)
         check_range("epochs", self.epochs, 1, 10**6)
         check_range("steps_per_epoch", self.steps_per_epoch, 1, 10**7)
         check_range("lr", self.lr, 0, 10)  # 0: frozen (tests use it)
