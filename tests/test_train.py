@@ -769,3 +769,16 @@ def test_a_recipe_cannot_ask_for_a_batch_past_memory():
     from tepinn_flight.model.train_config import MAX_BATCH
 
     assert small_cfg(f"optim.batch_size={MAX_BATCH}").optim.batch_size == MAX_BATCH
+
+
+def test_estimate_says_a_training_checkpoint_runs_uncalibrated(ref_run, tmp_path, capsys):
+    """`estimate --model RUN/best.pt` (or last.pt) runs the network-centred fusion uncalibrated: said in a note, and
+    not of RUN/model.pt (review60: the two compared as if one estimator)."""
+    from tepinn_flight.record import write_record
+
+    write_record(synthetic_record(seed=9, duration_s=5.0), tmp_path / "r.parquet")
+    for name, noted in (("best.pt", True), ("last.pt", True), ("model.pt", False)):
+        assert main(["estimate", str(tmp_path / "r.parquet"), "--model", str(ref_run / name), "--runtime", "torch",
+                     "-o", str(tmp_path / f"e_{name}.parquet")]) == 0  # fmt: skip
+        err = capsys.readouterr().err
+        assert ("is a checkpoint a training run writes as it goes" in err) == noted, (name, err)

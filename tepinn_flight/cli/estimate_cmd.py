@@ -110,7 +110,7 @@ def _run(args) -> int:
 
     from ..errors import ConfigError, TepinnError
     from ..model.anchor import with_busy_stride
-    from ..model.checkpoint import default_model_path
+    from ..model.checkpoint import default_model_path, is_training_checkpoint
     from ..model.runtime import default_onnx_path, load_runner, resolve_runtime
     from ..record import check_output
     from .paths import collect_records, output_format, output_paths, refuse_overwriting_inputs
@@ -120,7 +120,11 @@ def _run(args) -> int:
         ckpt_path = default_onnx_path()  # the shipped model, exported
     if not args.model and not ckpt_path.exists():
         raise TepinnError("the shipped default model is missing from this installation; pass --model CKPT")
-    model, fusion, _ = load_runner(ckpt_path, args.runtime, args.threads or None)
+    model, fusion, ck = load_runner(ckpt_path, args.runtime, args.threads or None)
+    if is_training_checkpoint(ck) and not args.quiet:
+        sys.stderr.write(f"tepinn-flight estimate: note: {ckpt_path} is a checkpoint a training run writes as it goes "
+                         "(best.pt, last.pt): it runs the network-centred fusion uncalibrated; the run's estimator is "
+                         "its model.pt\n")  # fmt: skip
     if args.mode:
         if not hasattr(fusion, "mode"):
             raise TepinnError(f"--mode {args.mode}: {ckpt_path.name} runs the older network-centred fusion, 6-D only")

@@ -208,3 +208,10 @@ def default_model_path() -> Path:
 def default_lstm_path() -> Path:
     """The shipped LSTM baseline (the paper's DL model, trained by the same recipe)."""
     return Path(__file__).resolve().parents[1] / "assets" / "lstm_default.pt"
+
+
+def is_training_checkpoint(ck: dict) -> bool:
+    """Whether a checkpoint (or an export's metadata) is one a training run writes as it goes — ``best.pt``,
+    ``last.pt``: no anchored estimator and no fitted fusion, so it runs the network-centred fusion uncalibrated; the
+    run's estimator is its ``model.pt`` (review60: such a file had run without a word)."""
+    return ck.get("anchor_config") is None and "fusion_val_tilt_rmse_mean_deg" not in (ck.get("metrics") or {})
