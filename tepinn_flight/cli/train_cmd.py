@@ -11,7 +11,7 @@ HELP = "train TE-PINN from a TOML recipe, or fine-tune a model on your own logs 
 DESCRIPTION = (
     "Train from a strict TOML recipe (unknown keys are refused). Writes RUN_DIR/metrics.jsonl every "
     "epoch, atomic checkpoints (last.pt, best.pt) and the final RUN_DIR/model.pt. Resumable with "
-    "--resume; deterministic for a seed. Runs under `torchrun --nproc_per_node=N` with "
+    "--resume; deterministic for a seed (bit for bit on the CPU with the same --threads and torch build). Runs under `torchrun --nproc_per_node=N` with "
     "DistributedDataParallel (gloo on CPU, NCCL on GPUs: --device). "
     "Fine-tuning on your own logs, no recipe needed: tepinn-flight train --init default --data logs/ -o runs/mine "
     "(any format ingest reads; the autopilot's estimate is the label; a few minutes on 2 CPU cores), then "

@@ -266,11 +266,12 @@ def format_broad(result: dict) -> str:
         L.append("  -> the harness is NOT validated: learned-estimator numbers below are marked UNTRUSTED.")
     L.append("")
     rows = sorted(result["summary"].items(), key=lambda kv: (kv[1]["mode"].startswith("6"), kv[1]["inclination_rmse_deg"]))
-    L.append(f"{'estimator':30s} {'mode':8s} {'causal':6s} {'total':>7s} {'heading':>8s} {'incl.':>7s} {'us/sample':>10s}")
+    w = max([30, *(len(display_name(n)) for n, _ in rows)])  # (review60: a 33-character name shifted its row)
+    L.append(f"{'estimator':{w}s} {'mode':8s} {'causal':6s} {'total':>7s} {'heading':>8s} {'incl.':>7s} {'us/sample':>10s}")
     for name, d in rows:
         untrusted = d["kind"] == "learned" and not result["trusted"]
         mode = "9-D" if d["mode"].startswith("9") else "6-D"
-        L.append(f"{display_name(name):30s} {mode:8s} {'yes' if d['causal'] else 'no':6s} "
+        L.append(f"{display_name(name):{w}s} {mode:8s} {'yes' if d['causal'] else 'no':6s} "
                  f"{_cell(d['total_rmse_deg'], 7)} {_cell(d['heading_rmse_deg'], 8)} {d['inclination_rmse_deg']:7.2f} "
                  f"{d['us_per_sample']:10.2f}" + ("   UNTRUSTED" if untrusted else ""))  # fmt: skip
     L.append("")

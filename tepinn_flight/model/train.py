@@ -206,7 +206,8 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
     """Train and write ``out_dir/{last.pt,best.pt,model.pt,metrics.jsonl,config.json}`` (the final model under
     ``model_name``: the fine-tuning writes its untuned network under another name).
 
-    ``device``: ``cpu`` (bitwise deterministic for a seed), ``cuda`` or ``auto``. Under DDP on
+    ``device``: ``cpu`` (bitwise deterministic for a seed, with the same thread count and torch build: 1 and 2 threads differ
+    by ~1e-5 in the weights), ``cuda`` or ``auto``. Under DDP on
     GPUs, gradients go through NCCL and the few CPU-side reductions through gloo.
 
     Refuses a folder that already holds a run (``last.pt``) unless ``resume``. Returns the best
