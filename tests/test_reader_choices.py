@@ -211,3 +211,17 @@ def test_dataflash_reads_imu2_where_imus_own_definition_is_damaged_and_says_so(t
     rec = ingest_log(_imu_imu2_log(tmp_path / "damaged.bin", imu_fmt))
     assert rec.meta["imu_instance"] == 1 and np.allclose(rec.gyr_rad_s[:, 2], 0.3) and len(rec) == 1000
     assert any(note in n for n in rec.meta["notes"]), rec.meta["notes"]
+
+
+def test_an_int16_log_bitmask_is_said_as_the_bits_it_sets(tmp_path):
+    """ArduCopter 3.1's LOG_BITMASK is an int16: -22530 is the bits of 43006, said so where no IMU row was logged
+    (review60: shown negative)."""
+    from tepinn_flight.errors import NoImuData
+
+    out = [struct.pack("<BBBBB4s16s64s", 0xA3, 0x95, 0x80, 0x80, 89, b"FMT", b"BBnNZ", b"Type,Length,Name,Format,Columns"),
+           _fmt(10, "IMU", "Qffffff", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ"),
+           struct.pack("<BBBBB4s16s64s", 0xA3, 0x95, 0x80, 18, 3 + struct.calcsize("<Q16sf"), b"PARM", b"QNf",
+                       b"TimeUS,Name,Value"), _parm(18, 2, "LOG_BITMASK", -22530.0)]  # fmt: skip
+    (tmp_path / "l.bin").write_bytes(b"".join(out))
+    with pytest.raises(NoImuData, match=r"LOG_BITMASK=43006\)"):
+        ingest_log(tmp_path / "l.bin")

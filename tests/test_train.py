@@ -713,7 +713,7 @@ def test_a_run_stopped_in_its_first_epoch_leaves_no_run_folder_it_made(tmp_path,
     left — a folder this run made is removed, one the user made stays, emptied of the run's config and metrics
     (session 60: they had stayed behind)."""
     cfg = T.load_train_config(TINY)
-    out = tmp_path / "run"
+    out = tmp_path / "run" if existed else tmp_path / "deep" / "er" / "run"  # (review60: deep/er was left behind)
     if existed:
         out.mkdir()
 
@@ -724,6 +724,7 @@ def test_a_run_stopped_in_its_first_epoch_leaves_no_run_folder_it_made(tmp_path,
     with pytest.raises(KeyboardInterrupt):
         T.train(cfg, out, progress=False, log=lambda m: None)
     assert out.exists() == existed and (not existed or not any(out.iterdir()))
+    assert existed or not (tmp_path / "deep").exists()
 
 
 @pytest.mark.parametrize("epoch_s,left_s,done", [(10.0, 95.0, 3), (10.0, 5.0, 3), (7.5, 30.0, 1), (1.0, 1e6, 2),

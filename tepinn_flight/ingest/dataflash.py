@@ -467,6 +467,8 @@ def read(path: str | os.PathLike, imu: int | None = None, reference: str | None 
         raise CorruptLog(f"IMU messages lack the columns {', '.join(GYR + ACC)} (malformed FMT)", path)
     if not insts:
         bitmask = _param(src, "LOG_BITMASK")
+        if bitmask is not None and np.isfinite(bitmask) and -(1 << 15) <= bitmask < 0:
+            bitmask += 1 << 16  # ArduCopter 3.1's int16 parameter, read as the bits it sets (review60: shown negative)
         extra = f"; LOG_BITMASK={bitmask:g}" if bitmask is not None and np.isfinite(bitmask) else ""
         raise NoImuData(f"the log defines IMU but holds no IMU rows (IMU logging disabled, or the log ends before its "
                         f"first IMU row{extra})", path)  # fmt: skip

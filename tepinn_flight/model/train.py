@@ -228,7 +228,7 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
         if dev.type == "cuda":
             torch.cuda.set_device(dev)
         torch.distributed.init_process_group("cpu:gloo,cuda:nccl" if dev.type == "cuda" else "gloo")
-    created = not out.exists()
+    made = [d for d in (out, *out.parents) if not d.exists()]  # the folders this run makes (removed if it stops first)
     try:
         return _train(cfg, out, data_dirs, resume, config_base, progress, log, rank, world, dev, report_gates,
                       model_name)
@@ -236,16 +236,16 @@ def train(cfg: TrainConfig, out_dir: str | os.PathLike, data_dirs=(), resume: bo
         # bad input found, or a stop (Ctrl-C, SIGTERM) before the first checkpoint: leave no half-made run folder
         # behind (one this invocation created and that holds nothing but its config and empty metrics; session 60)
         if rank == 0 and not (out / "last.pt").exists():
-            _remove_unstarted_run(out, remove_folder=created)
+            _remove_unstarted_run(out, made)
         raise
     finally:
         if own_group and torch.distributed.is_initialized():
             torch.distributed.destroy_process_group()
 
 
-def _remove_unstarted_run(out: Path, remove_folder: bool) -> None:
+def _remove_unstarted_run(out: Path, made: list[Path]) -> None:
     """Remove what :func:`_train` writes before training starts from a run folder that holds nothing else, and the
-    folder itself where ``remove_folder`` (this run made it)."""
+    folders in ``made`` (this run made them: the run folder and any above it, review60), innermost first, while empty."""
     try:
         names = {p.name for p in out.iterdir()}
     except OSError:
@@ -253,11 +253,11 @@ def _remove_unstarted_run(out: Path, remove_folder: bool) -> None:
     if names <= {"config.json", "metrics.jsonl"}:
         for n in names:
             (out / n).unlink(missing_ok=True)
-        if remove_folder:
+        for d in made:
             try:
-                out.rmdir()
+                d.rmdir()
             except OSError:
-                pass
+                break
 
 
 #: what a resumed run may change of its recipe: how long it trains (session 60's review: a resume with another seed and
