@@ -120,11 +120,11 @@ def test_a_folders_notes_come_in_path_order(tmp_path):
     """The left-out notes in the order of the files' names, not the folder's listing order (review60)."""
     from tepinn_flight.ingest.inputs import RECORD_OR_LOG_FORMATS, files_in
 
-    for n in (11, 9, 10, 12):
+    for n in (11, 9, 10, 12, 3, 17, 1, 14, 6, 20, 8, 2):  # (twelve: a listing in name order by chance is ~1 in 5e8)
         (tmp_path / f"{n:08d}.BIN").write_bytes(b"")
     notes: list[str] = []
     assert files_in(tmp_path, RECORD_OR_LOG_FORMATS, notes=notes) == []
-    assert notes == sorted(notes) and len(notes) == 4
+    assert notes == sorted(notes) and len(notes) == 12
 
 
 def test_a_folder_run_ends_with_its_count_and_ingest_says_each_logs_notes(tmp_path, capsys):

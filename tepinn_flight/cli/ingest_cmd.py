@@ -52,8 +52,8 @@ def run(args) -> int:
     for out in outs:  # before any work: a record is Parquet, whatever the name says
         output_format(out, "ingest")
     refuse_overwriting_inputs([("-o", o) for o in outs], logs)
-    for folder in dict.fromkeys(Path(o).parent for o in outs):  # before any work (review60: each log read, then
-        check_output(next(o for o in outs if Path(o).parent == folder))  # refused once per log for a read-only -o)
+    for out in {Path(o).parent: o for o in outs}.values():  # one per folder, before any work (review60: each log
+        check_output(out)  # read, then refused once per log for a read-only -o)
     failures = 0
     progress = None
     if len(logs) > 1 and not args.quiet and sys.stderr.isatty():  # (no bar's redraws in a batch job's log)

@@ -151,6 +151,8 @@ def _main(argv: list[str] | None) -> int:
         sys.stderr.write(f"tepinn-flight {args.command}: interrupted\n")
         return 130
     except ModuleNotFoundError as exc:
+        from ..model.runtime import TORCH_MODULES
+
         if exc.name in TORCH_MODULES and not debug:  # a torch-less install (the [runtime] extra): a verb that needs
             # torch says so in one line (review60: "internal error", exit 1)
             sys.stderr.write(f"tepinn-flight {args.command}: error: this needs PyTorch, which this install does not have "
@@ -166,10 +168,6 @@ def _main(argv: list[str] | None) -> int:
         return 141
     except Exception as exc:  # a bug, not bad input: still one line unless debugging
         return _internal_error(args.command, exc, debug)
-
-
-#: the modules only the [torch] extra installs
-TORCH_MODULES = ("torch", "onnx")
 
 
 def _internal_error(command: str, exc: BaseException, debug: bool) -> int:

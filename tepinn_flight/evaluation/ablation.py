@@ -50,22 +50,15 @@ def train_variants(base, names: list[str], out: Path, data_dirs=(), config_base:
                    progress: bool = True, say=lambda s: None) -> dict[str, Path]:  # fmt: skip
     """Train each variant into ``out/<variant>`` (resumable: a finished variant is skipped);
     returns variant → its ``model.pt``."""
-    import json
-
-    from ..config import to_dict
     from ..errors import ConfigError
-    from ..model.train import recipe_differences, train
+    from ..model.train import run_recipe_differences, train
 
     ckpts = {}
     for v in names:
         run_dir = out / v
         if (run_dir / "model.pt").exists():
-            try:  # taken only where this variant's recipe made it (review60: any finished variant was, silently)
-                before = json.loads((run_dir / "config.json").read_text())
-            except (OSError, ValueError):
-                before = None
-            diff = [] if before is None else recipe_differences(before, to_dict(variant_config(base, v)))
-            if diff:
+            diff = run_recipe_differences(run_dir, variant_config(base, v))  # taken only where this variant's recipe
+            if diff:  # made it (review60: any finished variant was, silently)
                 shown = "; ".join(diff[:4]) + ("; ..." if len(diff) > 4 else "")
                 raise ConfigError(f"{run_dir} holds the variant {v} trained from another recipe ({shown}): ablate "
                                   "into a new folder (-o), or remove that one to train it again")  # fmt: skip

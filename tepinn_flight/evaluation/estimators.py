@@ -180,7 +180,9 @@ def default_tepinn(note_sink: list | None = None):
             note_sink.append(f"TE-PINN skipped: the shipped default model cannot be used ({exc})")
         return None
     except ModuleNotFoundError as exc:  # a torch-less install: the filters are still scored (review60: it had failed)
-        if exc.name not in ("torch", "onnx"):
+        from ..model.runtime import TORCH_MODULES
+
+        if exc.name not in TORCH_MODULES:
             raise
         if note_sink is not None:
             note_sink.append("TE-PINN skipped: evaluate scores the checkpoint with PyTorch, which this install does not "

@@ -248,7 +248,8 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
         notes.append(f"{len(none)} record(s) with no scored sample (shorter than the warm-up, or no reference after "
                      f"it) are kept out of the summary means: {', '.join(none[:5])}{', ...' if len(none) > 5 else ''}")  # fmt: skip
         kept_out |= {id(r): "no scored sample" for r in unscored}
-        headline = [r for r in headline if not any(r is u for u in unscored)]
+        gone = {id(u) for u in unscored}
+        headline = [r for r in headline if id(r) not in gone]
     common, missing = common_records(headline, estimators)
     if missing and common:  # the same records for every estimator's mean (as the same samples within a record)
         shown = "; ".join(f"{k} ({', '.join(display_name(n) for n in v)})" for k, v in list(missing.items())[:5])

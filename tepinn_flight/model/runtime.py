@@ -295,6 +295,10 @@ class OnnxRunner(NetworkRunner):
         return [np.concatenate([o[j] for o in outs]) for j in range(len(self.output_names))]
 
 
+#: the modules only the [torch] extra installs: a verb that imports one where it is absent needs PyTorch
+TORCH_MODULES = ("torch", "onnx")
+
+
 def resolve_runtime(path, runtime: str = "auto") -> str:
     """``torch`` or ``onnx`` for ``path`` under ``runtime`` (see :func:`load_runner`)."""
     if runtime not in RUNTIMES:

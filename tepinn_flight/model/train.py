@@ -281,14 +281,20 @@ def recipe_differences(before: dict, now: dict, allowed=()) -> list[str]:
             if k not in allowed and a.get(k) != b.get(k)]  # fmt: skip
 
 
-def check_resume_recipe(out: Path, cfg: TrainConfig) -> None:
-    """Refuse, in one line naming the keys, to resume the run in ``out`` with a recipe other than the one its
-    ``config.json`` says started it, but for :data:`RESUMABLE_CHANGES`."""
+def run_recipe_differences(out: Path, cfg: TrainConfig, allowed=()) -> list[str]:
+    """:func:`recipe_differences` between the recipe the run in ``out`` was started with (its ``config.json``) and
+    ``cfg``; none for a folder without one (nothing to hold the recipe against)."""
     try:
         before = json.loads((out / "config.json").read_text())
     except (OSError, ValueError):
-        return  # (a run without its config.json: nothing to hold the recipe against)
-    diff = recipe_differences(before, to_dict(cfg), RESUMABLE_CHANGES)
+        return []
+    return recipe_differences(before, to_dict(cfg), allowed)
+
+
+def check_resume_recipe(out: Path, cfg: TrainConfig) -> None:
+    """Refuse, in one line naming the keys, to resume the run in ``out`` with a recipe other than the one its
+    ``config.json`` says started it, but for :data:`RESUMABLE_CHANGES`."""
+    diff = run_recipe_differences(out, cfg, RESUMABLE_CHANGES)
     if diff:
         shown = "; ".join(diff[:4]) + ("; ..." if len(diff) > 4 else "")
         raise ConfigError(f"cannot resume {out} with another recipe ({shown}): a resume may change only "
