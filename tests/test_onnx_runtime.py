@@ -132,10 +132,17 @@ def test_runs_through_the_kept_binding_equal_fresh_sessions_and_leave_earlier_ou
     assert np.abs(kept.run(*xs[1])["q"] - q_first).max() > 1e-4  # other windows, other outputs
 
 
-def test_shipped_onnx_is_the_shipped_checkpoint():
-    """assets/tepinn_default.onnx (used where torch is absent) is kept in sync with the .pt."""
-    model, settings, ckpt = load_model(default_model_path())
-    runner, settings_onnx, meta = load_runner(default_onnx_path(), "onnx")
+@pytest.mark.parametrize("which", ["tepinn", "lstm"])
+def test_shipped_onnx_is_the_shipped_checkpoint(which):
+    """assets/tepinn_default.onnx and lstm_default.onnx (run by default, and where torch is absent) are kept in sync
+    with their .pt."""
+    from tepinn_flight.model.checkpoint import default_lstm_path
+    from tepinn_flight.model.runtime import export_in_sync
+
+    pt = default_model_path() if which == "tepinn" else default_lstm_path()
+    model, settings, ckpt = load_model(pt)
+    assert export_in_sync(pt) == pt.with_suffix(".onnx")
+    runner, settings_onnx, meta = load_runner(pt.with_suffix(".onnx"), "onnx")
     assert settings_onnx == settings and meta["model_config"] == ckpt["model_config"]
     x = _random_windows(model.config, 16, 5)
     _assert_close(runner.run(*x), TorchRunner(model).run(*x))
@@ -251,7 +258,7 @@ def _index_reachable(tmp: Path) -> str | None:
 @pytest.mark.slow
 def test_fresh_venv_runtime_extra_without_torch(tmp_path, exported, monkeypatch):
     """`pip install ".[runtime]"` into a plain venv: no torch; `estimate --runtime onnx` works there and gives the torch
-    path's estimates, the installed live modules import, and the bridge run by that venv's Python works end to end (replay → the venv's bridge on the .onnx → listener: every
+    path's estimates, `evaluate` scores the shipped models' exports, the installed live modules import, and the bridge run by that venv's Python works end to end (replay → the venv's bridge on the .onnx → listener: every
     autopilot frame forwarded, estimates on the 50 Hz grid, equal to the torch StreamingEstimator's on the same
     samples). Where pip cannot reach the package index it is skipped; the live estimator without torch is still tested
     in-process (test_estimate_and_live_worker_run_without_torch)."""
@@ -288,6 +295,12 @@ def test_fresh_venv_runtime_extra_without_torch(tmp_path, exported, monkeypatch)
     p2 = subprocess.run([str(exe), "estimate", "--runtime", "torch", str(tmp_path / "r.parquet"), "-o", str(tmp_path / "x.parquet")],
                         capture_output=True, text=True, timeout=300, cwd=tmp_path)  # fmt: skip
     assert p2.returncode == 2 and "needs PyTorch" in p2.stderr
+    # evaluate there: the shipped TE-PINN and LSTM from their exports beside the filters (issue 17: evaluate too)
+    p3 = subprocess.run([str(exe), "evaluate", str(tmp_path / "r.parquet"), "-o", str(tmp_path / "rep"), "--no-peers", "-q",
+                         "--warmup-s", "1"], capture_output=True, text=True, timeout=300, cwd=tmp_path)  # fmt: skip
+    assert p3.returncode == 0, p3.stderr
+    ran = {e["name"]: e.get("runtime") for e in json.loads((tmp_path / "rep" / "metrics.json").read_text())["estimators"]}
+    assert ran["tepinn"] == ran["lstm"] == "onnx" and "ekf" in ran, ran
     import pandas as pd
 
     from tepinn_flight.model.estimate import estimate_record
@@ -346,8 +359,9 @@ def test_auto_runs_a_checkpoint_with_its_export_in_sync_in_onnxruntime(tmp_path)
 
 def test_verbs_that_need_torch_say_so_in_a_torch_less_install(tmp_path):
     """With torch absent as it is from the [runtime] install (No module named 'torch'): `train` says in one line that it
-    needs PyTorch, exit 2 (review60: "internal error", exit 1), and `evaluate` scores the filters with TE-PINN left out
-    and said to be (it had failed as a whole)."""
+    needs PyTorch, exit 2 (review60: "internal error", exit 1); `evaluate` scores the shipped TE-PINN and LSTM from
+    their exports in onnxruntime beside the filters (session 60 had left TE-PINN out; it had failed as a whole before),
+    and `evaluate --runtime torch` is refused in one line, exit 2."""
     from tepinn_flight.model.synthetic import synthetic_record
     from tepinn_flight.record import write_record
 
@@ -359,16 +373,23 @@ def test_verbs_that_need_torch_say_so_in_a_torch_less_install(tmp_path):
                 if name == "torch" or name.startswith("torch."):
                     raise ModuleNotFoundError(f"No module named {{name!r}}", name=name)
         sys.meta_path.insert(0, _Absent())
+        import importlib.util  # (and not found, as find_spec says of a module that is not installed)
+        importlib.util.find_spec = (lambda f: (lambda name, *a: None if name.split(".")[0] == "torch" else f(name, *a)))(importlib.util.find_spec)
         from tepinn_flight.cli.main import main
         rc1 = main(["train", "--config", {str(REPO / 'train' / 'tiny.toml')!r}, "-o", {str(tmp_path / 'run')!r}, "-q"])
         rc2 = main(["evaluate", {str(tmp_path / 'r.parquet')!r}, "-o", {str(tmp_path / 'rep')!r}, "--no-peers", "-q",
                     "--warmup-s", "2"])
-        print("RC", rc1, rc2)
+        rc3 = main(["evaluate", {str(tmp_path / 'r.parquet')!r}, "-o", {str(tmp_path / 'rep2')!r}, "--no-peers", "-q",
+                    "--runtime", "torch"])
+        print("RC", rc1, rc2, rc3, "TORCH", "torch" in sys.modules)
     """)
     env = {k: v for k, v in os.environ.items() if k != "TEPINN_DEBUG"}
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
-    assert "RC 2 0" in p.stdout, p.stdout + p.stderr
+    assert "RC 2 0 2 TORCH False" in p.stdout, p.stdout + p.stderr
     lines = [ln for ln in p.stderr.splitlines() if ln.startswith("tepinn-flight train:")]
     assert len(lines) == 1 and "error: this needs PyTorch, which this install does not have" in lines[0], p.stderr
     assert "internal error" not in p.stderr and not (tmp_path / "run").exists()
-    assert "TE-PINN skipped: evaluate scores the checkpoint with PyTorch" in (tmp_path / "rep" / "report.md").read_text()
+    ran = {e["name"]: e.get("runtime") for e in json.loads((tmp_path / "rep" / "metrics.json").read_text())["estimators"]}
+    assert ran["tepinn"] == "onnx" and ran["lstm"] == "onnx" and "ekf" in ran
+    lines = [ln for ln in p.stderr.splitlines() if ln.startswith("tepinn-flight evaluate:")]
+    assert len(lines) == 1 and "--runtime torch needs PyTorch" in lines[0] and not (tmp_path / "rep2").exists(), p.stderr

@@ -29,3 +29,24 @@ busy_stride = int_at_least(1)
 
 #: ``--workers``: processes estimating records side by side (>= 1)
 workers = int_at_least(1)
+
+
+def add_runtime(p) -> None:
+    """``--runtime auto|torch|onnx``, as ``estimate``, ``evaluate``, ``benchmark broad``, ``demo`` and ``bridge`` take it
+    (:func:`~tepinn_flight.model.runtime.resolve_runtime`)."""
+    p.add_argument("--runtime", choices=["auto", "torch", "onnx"], default="auto",
+                   help="run the network in PyTorch or onnxruntime (auto: onnx for an .onnx model, for a checkpoint "
+                        "whose export made from it lies beside it — the shipped model — or where torch is not "
+                        "installed, else torch)")
+
+
+def check_runtime(models, runtime: str) -> None:
+    """Refuse now, in one line, a ``--runtime`` the models given (the shipped one where none is) cannot run in: ``torch``
+    without PyTorch, an ``.onnx`` export under ``torch``."""
+    from pathlib import Path
+
+    from ..model.checkpoint import default_model_path
+    from ..model.runtime import resolve_runtime
+
+    for m in models or [default_model_path()]:
+        resolve_runtime(Path(m), runtime)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 
+from .argtypes import add_runtime
 from .helptext import add_examples
 
 HELP = "run a published benchmark protocol (BROAD) after checking the harness against published numbers"
@@ -28,7 +29,8 @@ def add_arguments(p) -> None:
     b.add_argument("folder", metavar="DIR", help="folder with BROAD trial files (and published_madgwick_average_rmse.json)")
     b.add_argument("--published", metavar="JSON", help="BROAD's results_madgwick_average_rmse.json (default: DIR/published_madgwick_average_rmse.json)")
     b.add_argument("--pattern", default="*.hdf5", metavar="GLOB", help="trial files to use (default *.hdf5)")
-    b.add_argument("--model", action="append", default=[], metavar="CKPT", help="TE-PINN checkpoint (repeatable); default: the shipped model")
+    b.add_argument("--model", action="append", default=[], metavar="CKPT", help="TE-PINN checkpoint or .onnx export (repeatable); default: the shipped model")
+    add_runtime(b)
     b.add_argument("--no-model", action="store_true", help="baselines and peers only")
     b.add_argument("--no-peers", action="store_true", help="skip VQF, RIANN, Fusion")
     b.add_argument("--check-only", action="store_true", help="only the published-Madgwick reproduction")
@@ -56,11 +58,15 @@ def run(args) -> int:
         inputs = [p for p in Path(args.folder).glob("*") if p.is_file()] if Path(args.folder).is_dir() else []
         refuse_overwriting_inputs([("--json", args.json)], [*inputs, *([args.published] if args.published else [])])
     cfg = load_suite_config(args.config, args.set)
+    if not args.check_only and not args.no_model:
+        from .argtypes import check_runtime
+
+        check_runtime(args.model, args.runtime)
     notes: list[str] = []
     estimators = []
     if not args.check_only:
         if not args.no_model:
-            estimators += learned_estimators(args.model, notes)
+            estimators += learned_estimators(args.model, notes, args.runtime)
         estimators += baseline_estimators(cfg, with_mag=True)
         if not args.no_peers:
             estimators += peer_estimators(cfg, with_mag=True, notes=notes)

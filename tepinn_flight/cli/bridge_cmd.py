@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ..live.messages import DEFAULT_ESTIMATE_AS, ESTIMATE_AS
-from .argtypes import busy_stride
+from .argtypes import add_runtime, busy_stride
 from .helptext import add_examples
 
 HELP = "live MAVLink bridge: route autopilot <-> ground stations and add TE-PINN attitude estimates"
@@ -36,10 +36,7 @@ def add_arguments(p) -> None:
                    help="where the network stays busy (fixed wing), run every N-th window after the first 10 s "
                         "(windows holding a saturated sample always run): less CPU, some accuracy (estimate "
                         "--busy-stride; docs/results.md, Speed); default: the model's (1: every window)")
-    p.add_argument("--runtime", choices=["auto", "torch", "onnx"], default="auto",
-                   help="run the network in PyTorch or onnxruntime (auto: onnx for an .onnx model, for a checkpoint "
-                        "whose export made from it lies beside it — the shipped model — or where torch is not "
-                        "installed, else torch)")
+    add_runtime(p)
     p.add_argument("--tlog", default=None, metavar="FILE", help="write the whole session (autopilot, ground stations, estimates) as a tlog")
     p.add_argument("--rate", type=float, default=50.0, metavar="HZ", help="estimates per second of autopilot time (default 50)")
     p.add_argument("--diag-rate", type=float, default=10.0, metavar="HZ", help="diagnostics per second (default 10; 0 = none)")

@@ -7,6 +7,7 @@ every baseline filter and published peer, and writes the report to ``./tepinn-de
 
 from __future__ import annotations
 
+from .argtypes import add_runtime
 from .helptext import add_examples
 
 HELP = "simulate a few high-dynamic flights, run TE-PINN and every baseline, write a report (the main job)"
@@ -28,7 +29,8 @@ def add_arguments(p) -> None:
     p.add_argument("--duration", type=float, default=45.0, metavar="S", help="seconds per flight (default 45)")
     p.add_argument("--rate", type=float, default=200.0, metavar="HZ", help="IMU rate (default 200)")
     p.add_argument("--sensor", default="consumer", metavar="PRESET", help="sensor preset (default consumer)")
-    p.add_argument("--model", default=None, metavar="CKPT", help="TE-PINN checkpoint (default: the shipped model)")
+    p.add_argument("--model", default=None, metavar="CKPT", help="TE-PINN checkpoint or .onnx export (default: the shipped model)")
+    add_runtime(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar and no progress lines")
 
 
@@ -44,6 +46,7 @@ def _run(args) -> int:
 
     from ..errors import ConfigError
     from ..evaluation.estimators import TepinnEstimator, default_learned
+    from .argtypes import check_runtime
     from ..evaluation.harness import HarnessConfig, evaluate
     from ..evaluation.names import display_name
     from ..evaluation.report import write_report
@@ -55,7 +58,8 @@ def _run(args) -> int:
         raise ConfigError(f"--duration must be > 10 s, got {args.duration}")
     out = Path(args.output)
     check_output(out, folder=True)  # before the flights: refused now, not after them
-    learned = [TepinnEstimator.from_checkpoint(args.model, "tepinn")] if args.model else None  # (a bad --model too)
+    check_runtime([args.model] if args.model else [], args.runtime)
+    learned = [TepinnEstimator.from_checkpoint(args.model, "tepinn", args.runtime)] if args.model else None  # (a bad --model too)
     say = (lambda s: None) if args.quiet else (lambda s: sys.stderr.write(s + "\n"))
     from ..jit_warmup import start
 
@@ -73,7 +77,7 @@ def _run(args) -> int:
     finally:
         warm.stop()  # (an error or Ctrl-C while simulating: the helper ends with the demo)
     notes: list[str] = []
-    estimators = learned if learned is not None else default_learned(notes)
+    estimators = learned if learned is not None else default_learned(notes, args.runtime)
     estimators += baseline_estimators()
     estimators += peer_estimators(notes=notes)
     result = evaluate(records, estimators, HarnessConfig(), progress=not args.quiet, notes=notes)

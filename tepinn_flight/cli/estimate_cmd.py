@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from .argtypes import busy_stride, threads, workers
+from .argtypes import add_runtime, busy_stride, threads, workers
 from .helptext import add_examples
 from .paths import add_recursive
 
@@ -42,10 +42,7 @@ def add_arguments(p) -> None:
                         "and MATLAB); or a folder (a .parquet per record)")
     p.add_argument("--model", default=None, metavar="CKPT",
                    help="checkpoint or .onnx export (`tepinn-flight export`; default: the shipped model)")
-    p.add_argument("--runtime", choices=["auto", "torch", "onnx"], default="auto",
-                   help="run the network in PyTorch or onnxruntime (auto: onnx for an .onnx model, for a checkpoint "
-                        "whose export made from it lies beside it — the shipped model — or where torch is not "
-                        "installed, else torch)")
+    add_runtime(p)
     p.add_argument("--yaw", choices=["gyro", "zero"], default=None,
                    help="heading of the output: integrated gyro (default) or 0 (the paper's 6-D correction)")
     p.add_argument("--mode", choices=["6d", "9d", "auto"], default=None,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from .argtypes import busy_stride
+from .argtypes import add_runtime, busy_stride
 from .helptext import add_examples
 from .paths import add_recursive
 
@@ -29,7 +29,8 @@ def add_arguments(p) -> None:
                      help="output folder for report.md, report.html, figures, metrics.json")
     out.add_argument("--report", dest="output", metavar="DIR", help="the same as -o")
     p.add_argument("--model", action="append", default=[], metavar="CKPT",
-                   help="TE-PINN checkpoint (repeatable); default: the shipped model if there is one")
+                   help="TE-PINN checkpoint or .onnx export (repeatable); default: the shipped model (and the shipped LSTM) if there is one")
+    add_runtime(p)
     p.add_argument("--no-model", action="store_true", help="evaluate the baselines only")
     p.add_argument("--noise-sweep", action="store_true",
                    help="also re-run on the simulated records with added gyro/acc white noise at several levels")
@@ -81,11 +82,14 @@ def _run(args) -> int:
     from ..record import check_output
     from ..evaluation.left_out import kept_out
     from ..evaluation.report import report_files
+    from .argtypes import check_runtime
     from .paths import check_folder_name, collect_records, read_records, refuse_overwriting_inputs
 
     check_folder_name(args.output, "evaluate writes a report folder (report.md, report.html, metrics.json, figures)")
     check_output(args.output, folder=True)  # before the (long) evaluation
     cfg = load_suite_config(args.config, args.set)
+    if not args.no_model:
+        check_runtime(args.model, args.runtime)  # (--runtime torch without torch, a torch run of an .onnx: one line now)
     try:
         levels = tuple(float(v) for v in args.noise_levels.split(",") if v.strip())
     except ValueError:
@@ -122,7 +126,7 @@ def _run(args) -> int:
         notes.append("some records share a name; they are numbered #2, #3, ... in the tables")
     estimators = []
     if not args.no_model:
-        base = learned_estimators(args.model, notes)  # each variant below is made from these
+        base = learned_estimators(args.model, notes, args.runtime)  # each variant below is made from these
         estimators += base
         if args.with_mag:  # TE-PINN 9-D beside VQF 9-D (anchored checkpoints)
             estimators += [e9 for e in base if hasattr(e, "nine_d") and (e9 := e.nine_d()) is not None]

@@ -85,6 +85,13 @@ class TepinnEstimator:
         self.model, self.fusion, self.name, self.checkpoint = model, fusion, name, checkpoint
 
     @property
+    def runtime(self) -> str:
+        """Where the network runs: ``onnx`` (onnxruntime) or ``torch``."""
+        from ..model.runtime import OnnxRunner
+
+        return "onnx" if isinstance(self.model, OnnxRunner) else "torch"
+
+    @property
     def causal(self) -> bool:
         """Each estimate from past samples only: not where an offline step reads the whole record
         (the anchored estimator's gyro self-calibration, GNSS aid or smoothing: ``OFFLINE_STEPS``)."""
@@ -142,13 +149,25 @@ class TepinnEstimator:
         return TepinnEstimator(self.model, dataclasses.replace(self.fusion, smoother=False), self.name + "-nosmooth", self.checkpoint)
 
     @classmethod
-    def from_checkpoint(cls, path: str | os.PathLike, name: str | None = None) -> TepinnEstimator:
-        from ..model.checkpoint import load_model
+    def from_checkpoint(cls, path: str | os.PathLike, name: str | None = None, runtime: str | None = None,
+                        threads: int | None = None) -> TepinnEstimator:  # fmt: skip
+        """A checkpoint (``.pt``) or an export (``.onnx``) run in ``runtime``: ``torch`` (the module itself, as the
+        benchmarks have always scored a checkpoint: the default for one), ``onnx`` (the default for an export) or ``auto`` (:func:`~tepinn_flight.model.runtime.load_runner`:
+        what ``estimate`` runs — onnxruntime for an export, for a checkpoint with its export in sync beside it such as
+        the shipped ones, or where torch is absent; equal to PyTorch to 1e-5)."""
+        from ..model.runtime import is_onnx_path, load_runner, resolve_runtime
 
-        model, fusion, ckpt = load_model(path)
+        if runtime is None:
+            runtime = "onnx" if is_onnx_path(path) else "torch"
+        if resolve_runtime(path, runtime) == "torch":
+            from ..model.checkpoint import load_model
+
+            model, fusion, ckpt = load_model(path)
+        else:
+            model, fusion, ckpt = load_runner(path, runtime, threads)  # (an OnnxRunner: estimate_record takes it)
         if name is None:
             name = model.config.variant
-            if ckpt.get("loss_config", {}).get("adaptive") is False:
+            if (ckpt.get("loss_config") or {}).get("adaptive") is False:
                 name += "-noadaptive"
         return cls(model, fusion, name, os.fspath(path))
 
@@ -158,14 +177,20 @@ class TepinnEstimator:
         return estimate_record(self.model, record, self.fusion)
 
 
-def default_tepinn(note_sink: list | None = None):
-    """The shipped TE-PINN model, or None (with a note) when there is none."""
-    try:
-        from ..model.checkpoint import default_model_path
-    except Exception as exc:  # torch missing or the model package broken
-        if note_sink is not None:
-            note_sink.append(f"TE-PINN skipped: the model package cannot be imported ({type(exc).__name__}: {exc})")
-        return None
+def _shipped(path: Path, runtime: str) -> Path:
+    """A shipped checkpoint, or its export beside it where ``runtime`` runs it in onnxruntime (as ``estimate`` takes
+    the shipped model): the export is what a torch-less install can read."""
+    from ..model.runtime import resolve_runtime
+
+    onnx = path.with_suffix(".onnx")
+    return onnx if onnx.is_file() and resolve_runtime(path, runtime) == "onnx" else path
+
+
+def default_tepinn(note_sink: list | None = None, runtime: str = "auto"):
+    """The shipped TE-PINN model in ``runtime`` (:meth:`TepinnEstimator.from_checkpoint`), or None (with a note)
+    where there is none or it cannot run here."""
+    from ..model.checkpoint import default_model_path
+
     path = Path(default_model_path())
     if not path.exists():
         if note_sink is not None:
@@ -174,26 +199,17 @@ def default_tepinn(note_sink: list | None = None):
     from ..errors import TepinnError
 
     try:
-        return TepinnEstimator.from_checkpoint(path, "tepinn")
-    except TepinnError as exc:
+        return TepinnEstimator.from_checkpoint(_shipped(path, runtime), "tepinn", runtime)
+    except TepinnError as exc:  # (--runtime torch without torch: said in one line as a note, the filters still scored)
         if note_sink is not None:
             note_sink.append(f"TE-PINN skipped: the shipped default model cannot be used ({exc})")
         return None
-    except ModuleNotFoundError as exc:  # a torch-less install: the filters are still scored (review60: it had failed)
-        from ..model.runtime import TORCH_MODULES
-
-        if exc.name not in TORCH_MODULES:
-            raise
-        if note_sink is not None:
-            note_sink.append("TE-PINN skipped: evaluate scores the checkpoint with PyTorch, which this install does not "
-                             "have (pip install 'tepinn-flight[torch]')")  # fmt: skip
-        return None
 
 
-def default_learned(note_sink: list | None = None) -> list:
-    """The shipped TE-PINN and, when shipped too, the LSTM baseline trained by the same code."""
+def default_learned(note_sink: list | None = None, runtime: str = "auto") -> list:
+    """The shipped TE-PINN and, when shipped too, the LSTM baseline trained by the same code, in ``runtime``."""
     out = []
-    est = default_tepinn(note_sink)
+    est = default_tepinn(note_sink, runtime)
     if est is not None:
         out.append(est)
     try:
@@ -201,7 +217,7 @@ def default_learned(note_sink: list | None = None) -> list:
 
         path = Path(default_lstm_path())
         if path.exists():
-            out.append(TepinnEstimator.from_checkpoint(path))
+            out.append(TepinnEstimator.from_checkpoint(_shipped(path, runtime), runtime=runtime))
         elif note_sink is not None:
             note_sink.append(f"LSTM baseline skipped: no shipped LSTM at {path}")
     except Exception as exc:  # a broken extra model must not stop the evaluation
@@ -210,14 +226,14 @@ def default_learned(note_sink: list | None = None) -> list:
     return out
 
 
-def learned_estimators(model_paths: list, note_sink: list | None = None) -> list:
-    """TE-PINN/LSTM estimators from checkpoints, named by variant (``tepinn``, ``lstm``, ...) and
-    made unique with the run folder; without paths, the shipped models."""
+def learned_estimators(model_paths: list, note_sink: list | None = None, runtime: str = "auto") -> list:
+    """TE-PINN/LSTM estimators from checkpoints or exports, named by variant (``tepinn``, ``lstm``, ...) and
+    made unique with the run folder; without paths, the shipped models. ``runtime``: as ``estimate --runtime``."""
     if not model_paths:
-        return default_learned(note_sink)
+        return default_learned(note_sink, runtime)
     out: list = []
     for m in model_paths:
-        est = TepinnEstimator.from_checkpoint(m)
+        est = TepinnEstimator.from_checkpoint(m, runtime=runtime)
         if est.name in {e.name for e in out}:
             est.name = f"{est.name}-{Path(m).parent.name or Path(m).stem}"
         out.append(est)

@@ -270,7 +270,9 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
     comparisons = compare_learned(headline, estimators, dataset)
     info = [{"name": e.name, "kind": e.kind, "causal": bool(e.causal), "uses_mag": bool(e.uses_mag),
              "heading": ("none (not tracked)" if not getattr(e, "tracks_heading", True) else
-                         "raw (9-D)" if e.uses_mag else "one constant offset per run (6-D)")} for e in estimators]  # fmt: skip
+                         "raw (9-D)" if e.uses_mag else "one constant offset per run (6-D)"),
+             **({"model": e.checkpoint, "runtime": e.runtime} if getattr(e, "checkpoint", None) else {})}
+            for e in estimators]  # fmt: skip
     return EvalResult(config, info, rec_results, dataset, comparisons, notes, series)
 
 

@@ -39,6 +39,8 @@ FIGURES = {
     "error_vs_noise": "fig_error_vs_noise.png",
 }
 HTML_REPORT = "report.html"
+#: how report.md names the runtime a learned model ran in (``evaluate --runtime``)
+RUNTIME_NAMES = {"onnx": "onnxruntime", "torch": "PyTorch"}
 
 
 def _plt():
@@ -427,6 +429,11 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
     L.append("")
     L.append("Estimator ids in metrics.json: " + ", ".join(f"{display_name(n)} = `{n}`" for n in result.dataset) + ".")
     L.append("")
+    models = [f"{display_name(e['name'])}: `{md_cell(e['model'])}` in {RUNTIME_NAMES.get(e['runtime'], e['runtime'])}"
+              for e in result.estimators if e.get("model")]  # fmt: skip
+    if models:
+        L.append("Learned models: " + "; ".join(models) + ".")
+        L.append("")
     low = [f"{display_name(k)} ({_pct(v['coverage_min'])})" for k, v in result.dataset.items()
            if v.get("coverage_min") is not None and v["coverage_min"] < c.min_coverage]  # fmt: skip
     if low:

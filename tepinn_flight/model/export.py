@@ -18,7 +18,7 @@ themselves, and version 2, whose graph took all the features and gave ``q``, sti
 ``conventions``, ``graph_inputs``, ``graph_outputs``, ``sensor_model``, ``outputs_present`` (the heads the model has: the others are zeros in the graph
 and the runner replaces them with the estimators' defaults), ``opset``, ``source`` (checkpoint
 file name), ``source_sha256`` (of the checkpoint file: a checkpoint with an export of the same name
-beside it runs that export only while they match), ``training`` and ``metrics`` where
+beside it runs that export only while they match), ``training``, ``metrics`` and ``loss_config`` where
 JSON-serialisable. :func:`~.runtime.load_runner`
 rebuilds from them the same estimator settings as :func:`~.checkpoint.load_model`.
 
@@ -137,7 +137,7 @@ def _metadata(ckpt: dict, model: nn.Module, source: str, opset: int, source_sha2
         meta["tepinn_flight_version"] = ckpt["tepinn_flight_version"]
     if ckpt.get("anchor_config") is not None:
         meta["anchor_config"] = ckpt["anchor_config"]
-    for k in ("training", "metrics"):
+    for k in ("training", "metrics", "loss_config"):  # (loss_config: evaluate names an ablation's -noadaptive by it)
         if k in ckpt:
             try:
                 json.dumps(ckpt[k])
