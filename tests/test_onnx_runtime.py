@@ -361,7 +361,8 @@ def test_verbs_that_need_torch_say_so_in_a_torch_less_install(tmp_path):
     """With torch absent as it is from the [runtime] install (No module named 'torch'): `train` says in one line that it
     needs PyTorch, exit 2 (review60: "internal error", exit 1); `evaluate` scores the shipped TE-PINN and LSTM from
     their exports in onnxruntime beside the filters (session 60 had left TE-PINN out; it had failed as a whole before),
-    and `evaluate --runtime torch` is refused in one line, exit 2."""
+    `evaluate --runtime torch` is refused in one line, exit 2, and `info` describes the shipped checkpoint from its
+    export."""
     from tepinn_flight.model.synthetic import synthetic_record
     from tepinn_flight.record import write_record
 
@@ -381,11 +382,14 @@ def test_verbs_that_need_torch_say_so_in_a_torch_less_install(tmp_path):
                     "--warmup-s", "2"])
         rc3 = main(["evaluate", {str(tmp_path / 'r.parquet')!r}, "-o", {str(tmp_path / 'rep2')!r}, "--no-peers", "-q",
                     "--runtime", "torch"])
-        print("RC", rc1, rc2, rc3, "TORCH", "torch" in sys.modules)
+        from tepinn_flight.model.checkpoint import default_model_path
+        rc4 = main(["info", str(default_model_path())])  # a checkpoint: read from its export in sync beside it
+        print("RC", rc1, rc2, rc3, rc4, "TORCH", "torch" in sys.modules)
     """)
     env = {k: v for k, v in os.environ.items() if k != "TEPINN_DEBUG"}
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
-    assert "RC 2 0 2 TORCH False" in p.stdout, p.stdout + p.stderr
+    assert "RC 2 0 2 0 TORCH False" in p.stdout, p.stdout + p.stderr
+    assert "read from tepinn_default.onnx (in sync beside it; PyTorch is not installed)" in p.stdout
     lines = [ln for ln in p.stderr.splitlines() if ln.startswith("tepinn-flight train:")]
     assert len(lines) == 1 and "error: this needs PyTorch, which this install does not have" in lines[0], p.stderr
     assert "internal error" not in p.stderr and not (tmp_path / "run").exists()

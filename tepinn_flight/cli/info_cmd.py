@@ -7,16 +7,19 @@ import json
 from .helptext import add_examples
 from .paths import add_recursive
 
-HELP = "describe raw logs or flight records, or every one in a folder (format, rates, reference, segments, clipping)"
+HELP = ("describe raw logs or flight records, or every one in a folder (format, rates, reference, segments, clipping); "
+        "or a model file (.pt checkpoint, .onnx export)")
 
 
 def add_arguments(p) -> None:
     add_examples(p,
                  'tepinn-flight info 00000042.BIN',
                  'tepinn-flight info APM/LOGS/                    # every log or record in a folder',
-                 'tepinn-flight info flight.parquet --json')
+                 'tepinn-flight info flight.parquet --json',
+                 'tepinn-flight info runs/mine/model.pt           # a model: its network, estimator, training, export')
     p.add_argument("files", nargs="+", metavar="FILE",
-                   help="raw log or flight record (.parquet); a folder stands for the logs and records in it (told by content)")
+                   help="raw log or flight record (.parquet), or a model (.pt checkpoint, .onnx export); a folder stands for the logs "
+                        "and records in it (told by content)")
     p.add_argument("--imu", type=int, default=None, metavar="N", help="IMU instance (raw logs)")
     p.add_argument("--reference", default=None, metavar="SOURCE", help="reference source (raw logs)")
     p.add_argument("--json", action="store_true", help="print machine-readable JSON")
@@ -32,7 +35,7 @@ def run(args) -> int:
     from ..ingest.inputs import RECORD_OR_LOG_FORMATS, files_in
     from ..ingest.sniff import sniff
     from ..record_stats import summarize
-    from .summary import render_info
+    from .summary import render_info, render_model_info
 
     failures = 0
     results = {}
@@ -51,6 +54,20 @@ def run(args) -> int:
         else:
             files.append(item)
     for path in files:
+        if _is_model_file(path):  # a checkpoint or an export: what model it is (session 61: "not a ULog, ...")
+            try:
+                from ..model.describe import describe_model
+
+                d = describe_model(path)
+            except TepinnError as exc:
+                failures += 1
+                sys.stderr.write(f"tepinn-flight info: error: {exc if exc.path else f'{path}: {exc}'}\n")
+                continue
+            if args.json:
+                results[str(path)] = d
+            else:
+                print(render_model_info(d))
+            continue
         try:
             fmt = sniff(path)
             if fmt == "parquet" and (args.imu is not None or args.reference is not None):  # (a record is ingested)
@@ -73,3 +90,14 @@ def run(args) -> int:
 
         print(json.dumps(_jsonable(results), indent=2, default=str, allow_nan=False))  # NaN: null (JSON has no NaN)
     return 2 if failures else 0
+
+
+def _is_model_file(path) -> bool:
+    """A model file named as one: an ``.onnx`` export, or a ``.pt`` that is a torch archive (a folder's logs are
+    told by content; a model is named by the user)."""
+    from pathlib import Path
+
+    from ..model.runtime import _is_torch_archive, is_onnx_path
+
+    p = Path(path)
+    return p.is_file() and (is_onnx_path(p) or (p.suffix.lower() in (".pt", ".pth") and _is_torch_archive(p)))

@@ -121,3 +121,48 @@ def render_info(path, s: dict) -> str:
         add("note", n)
     return "\n".join(lines)
 
+
+
+def render_model_info(d: dict) -> str:
+    """``info MODEL``'s text: :func:`~tepinn_flight.model.describe.describe_model`'s dict."""
+    lines = [d["file"]]
+    add = lambda k, v: lines.append(f"  {k:<20} {v}")  # noqa: E731
+    add("kind", f"{d['kind']} ({d['format']})" + (f", read from {d['read_from']}" if d.get("read_from") else ""))
+    made = [f"written by tepinn-flight {d['written_by']}" if d.get("written_by") else "",
+            f"exported by {d['exported_by']}, opset {d.get('opset')}, from {d.get('source')}" if d.get("exported_by") else ""]
+    if any(made):
+        add("made", "; ".join(m for m in made if m))
+    n = d["network"]
+    add("network", f"{n['variant']}: {n['encoder']}, {n['n_layers']} layer(s) of width {n['d_model']}"
+        + (f", {n['n_heads']} heads" if n["encoder"] == "transformer" else "")
+        + f"; windows of {n['window_tokens']} tokens at {n['token_rate_hz']:g} Hz ({n['window_s']:g} s)"
+        + (", magnetometer in" if n["magnetometer"] else "")
+        + (f"; {n['parameters']:,} parameters" if "parameters" in n else ""))  # fmt: skip
+    e = dict(d["estimator"])
+    kind, note = e.pop("kind"), e.pop("note", None)
+    add("estimator", kind + (": " + ", ".join(f"{k}={_setting(v)}" for k, v in e.items()) if e else ""))
+    if note:
+        add("", f"note: {note}")
+    t = d.get("training") or {}
+    if t:
+        parts = [f"{t['train_files']} training and {t.get('val_files', 0)} validation files" if "train_files" in t else "",
+                 f"IMU rates {'/'.join(f'{r:g}' for r in t['imu_rates_hz'])} Hz" if t.get("imu_rates_hz") else "",
+                 f"seed {t['seed']}" if "seed" in t else "",
+                 f"{t['epoch']} epochs" if "epoch" in t else "",
+                 f"{t['elapsed_s'] / 60:.1f} min" if "elapsed_s" in t else ""]  # fmt: skip
+        add("training", ", ".join(p for p in parts if p) or "-")
+        val = [f"network {t['val_tilt_rmse_deg']:.2f}°" if "val_tilt_rmse_deg" in t else "",
+               f"NEES {t['val_nees']:.2f}" if "val_nees" in t else "",
+               f"fused {t['fusion_val_tilt_rmse_mean_deg']:.2f}°" if "fusion_val_tilt_rmse_mean_deg" in t else ""]  # fmt: skip
+        if any(val):
+            add("validation", ", ".join(v for v in val if v) + " (tilt RMSE on its validation files, as trained)")
+    if d.get("notes"):
+        add("notes", d["notes"])
+    add("beside it", d["beside"])
+    return "\n".join(lines)
+
+
+def _setting(v) -> str:
+    if isinstance(v, (list, tuple)):
+        return "/".join(map(str, v)) or "none"
+    return f"{v:g}" if isinstance(v, float) else str(v)
