@@ -204,6 +204,6 @@ def test_an_empty_output_name_and_two_report_folders_are_refused(tmp_path, capsy
 def test_an_onnx_export_where_a_checkpoint_is_needed_says_so(tmp_path, capsys):
     from tepinn_flight.model.runtime import default_onnx_path
 
-    p = _record(tmp_path)
-    assert main(["evaluate", str(p), "-o", str(tmp_path / "ev"), "--model", str(default_onnx_path()), "-q"]) == 2
-    _one_error_line(capsys, "an ONNX export, not a checkpoint")
+    assert main(["export", str(default_onnx_path()), "-o", str(tmp_path / "again.onnx"), "-q"]) == 2
+    _one_error_line(capsys, "an ONNX export, not a checkpoint: estimate, evaluate and bridge run it")  # (evaluate too: session 61)
+    assert not (tmp_path / "again.onnx").exists()

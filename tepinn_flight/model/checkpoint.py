@@ -147,8 +147,8 @@ def read_checkpoint(path: str | os.PathLike) -> dict:
             ckpt = torch.load(p, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types on corrupt files
         if p.suffix.lower() == ".onnx":  # an export: what runs it, and what needs the checkpoint it came from
-            raise CheckpointError("an ONNX export, not a checkpoint: estimate and bridge run it (--model X.onnx); "
-                                  "evaluate, export and train --init need the .pt checkpoint it was exported from", p) from None
+            raise CheckpointError("an ONNX export, not a checkpoint: estimate, evaluate and bridge run it (--model "
+                                  "X.onnx); export and train --init need the .pt checkpoint it was exported from", p) from None
         raise CheckpointError(_load_failure(exc), p) from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise CheckpointError("not a tepinn-flight checkpoint", p)
