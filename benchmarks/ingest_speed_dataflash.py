@@ -1,8 +1,8 @@
 """DataFlash ingest speed: our numpy fast path vs a plain pymavlink ``recv_match`` loop.
 
 Builds a ≥ 100 MB binary log in a temporary folder by repeating the body of the shared
-``erle_pxf_copter_15-12-2014_16.BIN`` (FMT records kept once at the start, every ``TimeMS`` field
-shifted per copy so time keeps increasing), then times in one run:
+``erle_pxf_copter_15-12-2014_16.BIN`` (FMT records kept once at the start, every ``TimeMS`` or ``TimeUS`` field —
+ArduPilot before and since 3.4 — shifted per copy so time keeps increasing), then times in one run:
 
 (a) pymavlink: ``mavutil.mavlink_connection(path)`` + ``recv_match(type=["IMU", "ATT", "MAG"])``,
     reading every field we extract into lists (what a plain script does);
@@ -33,12 +33,14 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_LOG = REPO.parent / "shared" / "real-logs" / "erle_pxf_copter_15-12-2014_16.BIN"
 DEFAULT_TEXT_LOG = REPO.parent / "shared" / "real-logs" / "aplogan_nan.log"
-TYPES = ["IMU", "ATT", "MAG"]
-FIELDS = {
-    "IMU": ("TimeMS", "GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ"),
-    "ATT": ("TimeMS", "Roll", "Pitch", "Yaw"),
-    "MAG": ("TimeMS", "MagX", "MagY", "MagZ"),
+FIELDS = {  # (each message's time first: TimeUS or TimeMS, whichever the log has)
+    "IMU": ("GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ"),
+    "ATT": ("Roll", "Pitch", "Yaw"),
+    "MAG": ("MagX", "MagY", "MagZ"),
 }
+#: a message's time field: (its DataFlash type, bytes, seconds per count); review61: only TimeMS had been shifted, so
+#: a log of ArduPilot 3.4 on (TimeUS) failed to build
+TIME_FIELDS = {"TimeUS": ("Q", 8, 1e-6), "TimeMS": ("I", 4, 1e-3)}
 
 
 def build_big_log(src: Path, dst: Path, target_mb: float) -> int:
@@ -52,47 +54,53 @@ def build_big_log(src: Path, dst: Path, target_mb: float) -> int:
     fmt_offs = res.offsets[dfs.FMT_ID]
     body_start = int(fmt_offs.max()) + dfs.FMT_LEN
     body_end = res.data_end
-    # positions and values of every TimeMS field in the body
-    pos, vals = [], []
+    # positions and values of every time field in the body, per field kind
+    found = {name: ([], []) for name in TIME_FIELDS}
     for tid, offs in res.offsets.items():
         mf = table.by_id[tid]
-        if "TimeMS" not in mf.columns or mf.type_char("TimeMS") != "I":
-            continue
-        offs = offs[offs >= body_start]
-        p = offs + mf.field_offset("TimeMS")
-        pos.append(p)
-        vals.append(data[p[:, None] + np.arange(4)].copy().view("<u4").ravel())
-    pos = np.concatenate(pos) - body_start
-    vals = np.concatenate(vals)
+        for name, (tc, nb, _) in TIME_FIELDS.items():
+            if name in mf.columns and mf.type_char(name) == tc:
+                p = offs[offs >= body_start] + mf.field_offset(name)
+                found[name][0].append(p - body_start)
+                found[name][1].append(data[p[:, None] + np.arange(nb)].copy().view(f"<u{nb}").ravel())
+                break
     imu = table.by_name["IMU"]
-    imu_t = dfs.decode_rows(buf, imu, res.offsets[imu.type_id])["TimeMS"].astype(np.int64)
-    shift = int(imu_t.max() - imu_t.min()) + 20  # ms: the next copy continues one IMU period later
+    rows = dfs.decode_rows(buf, imu, res.offsets[imu.type_id])
+    name = next((n for n in TIME_FIELDS if n in imu.columns), None)
+    if name is None:
+        raise SystemExit(f"{src}: its IMU message has neither TimeUS nor TimeMS")
+    imu_t = rows[name].astype(np.float64) * TIME_FIELDS[name][2]
+    shift_s = float(imu_t.max() - imu_t.min()) + 0.02  # the next copy continues one IMU period later
     body = data[body_start:body_end].copy()
     copies = int(np.ceil(target_mb * 1e6 / len(body)))
+    found = {name: (np.concatenate(p), np.concatenate(v)) for name, (p, v) in found.items() if p}
     with open(dst, "wb") as f:
         f.write(data[:body_start].tobytes())
         for k in range(copies):
-            shifted = (vals.astype(np.int64) + k * shift).astype("<u4")
-            body[pos[:, None] + np.arange(4)] = shifted.view(np.uint8).reshape(-1, 4)
+            for name, (pos, vals) in found.items():
+                _, nb, unit = TIME_FIELDS[name]
+                shifted = (vals.astype(np.int64) + k * round(shift_s / unit)).astype(f"<u{nb}")
+                body[pos[:, None] + np.arange(nb)] = shifted.view(np.uint8).reshape(-1, nb)
             f.write(body.tobytes())
     del mm
     return copies
 
 
 def build_big_text_log(src: Path, dst: Path, target_mb: float) -> int:
-    """Text variant: FMT lines once, then copies of the body with every TimeMS field shifted."""
+    """Text variant: FMT lines once, then copies of the body with every TimeMS or TimeUS field shifted."""
     lines = src.read_text(errors="replace").splitlines()
     fmt_idx = [i for i, ln in enumerate(lines) if ln.startswith("FMT,")]
-    time_col = {}
+    time_col, unit = {}, {}
     for i in fmt_idx:
         parts = [p.strip() for p in lines[i].split(",")]
         cols = parts[5:]
-        if "TimeMS" in cols and parts[3] != "GPS":
-            time_col[parts[3]] = cols.index("TimeMS") + 1
+        name = next((n for n in TIME_FIELDS if n in cols), None)
+        if name is not None and parts[3] != "GPS":
+            time_col[parts[3]], unit[parts[3]] = cols.index(name) + 1, TIME_FIELDS[name][2]
     head, body = lines[: fmt_idx[-1] + 1], lines[fmt_idx[-1] + 1 :]
     split = [ln.split(",") for ln in body]
-    times = [int(p[time_col[p[0]]]) for p in split if p[0] in time_col and len(p) > time_col[p[0]]]
-    shift = max(times) - min(times) + 20
+    times = [int(p[time_col[p[0]]]) * unit[p[0]] for p in split if p[0] in time_col and len(p) > time_col[p[0]]]
+    shift_s = max(times) - min(times) + 0.02
     copies = int(np.ceil(target_mb * 1e6 / sum(len(ln) + 1 for ln in body)))
     with open(dst, "w") as f:
         f.write("\n".join(head) + "\n")
@@ -101,27 +109,44 @@ def build_big_text_log(src: Path, dst: Path, target_mb: float) -> int:
             for p in split:
                 c = time_col.get(p[0])
                 if c is not None and len(p) > c:
-                    p = p[:c] + [f" {int(p[c]) + k * shift}"] + p[c + 1 :]
+                    p = p[:c] + [f" {int(p[c]) + k * round(shift_s / unit[p[0]])}"] + p[c + 1 :]
                 out.append(",".join(p))
             f.write("\n".join(out) + "\n")
     return copies
 
 
-def pymavlink_loop(path: Path, text: bool = False) -> tuple[int, dict]:
+def streams_of(raw) -> tuple[str, int | None, str, int | None]:
+    """The IMU message and instance, and the reference message and core, our reader took from a log (what the plain
+    loop reads too: review61 — a 4.x log's two IMU instances and its XKQ reference had been counted against IMU 0 and
+    ATT). A message with an instance field (``I``) or core field (``C``) is read for that one only."""
+    imu = raw.meta.get("imu_message", "IMU")
+    name, _, core = raw.ref.source.partition("[")
+    return (imu, int(raw.meta.get("imu_instance", 0)) if imu == "IMU" else None, name,
+            int(core.rstrip("]")) if core else (0 if name in ("XKQ", "NKQ") else None))
+
+
+def pymavlink_loop(path: Path, text: bool = False, streams=("IMU", None, "ATT", None)) -> tuple[int, dict]:
     from pymavlink import DFReader, mavutil
 
+    imu, inst, ref, core = streams
+    want = {imu: ("I", inst, FIELDS["IMU"]), ref: ("C", core, FIELDS["ATT"] if ref == "ATT" else ()),
+            "MAG": ("I", 0, FIELDS["MAG"])}  # fmt: skip
     # mavlink_connection picks DFReader_text for a .log name; say so explicitly for clarity
     conn = DFReader.DFReader_text(str(path)) if text else mavutil.mavlink_connection(str(path))
-    out = {t: [] for t in TYPES}
+    out = {t: [] for t in want}
     n = 0
     while True:
-        m = conn.recv_match(type=TYPES)
+        m = conn.recv_match(type=list(want))
         if m is None:
             break
         t = m.get_type()
-        out[t].append([getattr(m, f) for f in FIELDS[t]])
+        key, k, fields = want[t]
+        if k is not None and getattr(m, key, k) != k:
+            continue
+        time = getattr(m, "TimeUS", None)
+        out[t].append([getattr(m, "TimeMS") if time is None else time, *(getattr(m, f) for f in fields)])
         n += 1
-    return n, {t: np.asarray(v) for t, v in out.items()}
+    return n, {label: np.asarray(out[t]) for label, t in (("IMU", imu), ("ATT", ref), ("MAG", "MAG"))}
 
 
 def ours(path: Path):
@@ -139,21 +164,22 @@ def output_bytes(raw) -> int:
 
 
 def _compare(label: str, path: Path, size_mb: float, text: bool, warm: Path | None = None) -> None:
+    streams = streams_of(ours(warm if warm is not None else path))  # the messages both read
     if warm is not None:  # both readers once on the small source log first: their imports and first-call costs
         ours(warm)  # (the binary reader's are paid by whichever runs first; session 30)
-        pymavlink_loop(warm, text)
+        pymavlink_loop(warm, text, streams)
     t0, c0 = time.perf_counter(), time.process_time()
     raw = ours(path)
     t_ours, c_ours = time.perf_counter() - t0, time.process_time() - c0
     n_imu, n_att = len(raw.imu.t_s), len(raw.ref.t_s)
     n_mag = 0 if raw.mag is None else len(raw.mag.t_s)
     t0, c0 = time.perf_counter(), time.process_time()
-    n_pm, pm = pymavlink_loop(path, text)
+    n_pm, pm = pymavlink_loop(path, text, streams)
     t_pm, c_pm = time.perf_counter() - t0, time.process_time() - c0
     n_ours = n_imu + n_att + n_mag
     same = len(pm["IMU"]) == n_imu and len(pm["ATT"]) == n_att and len(pm["MAG"]) == n_mag
     gyro_equal = same and np.array_equal(pm["IMU"][:, 1:4], raw.imu.gyr_rad_s)
-    print(f"[{label}] messages extracted: IMU {n_imu}, ATT {n_att}, MAG {n_mag} "
+    print(f"[{label}] messages extracted: {streams[0]} {n_imu}, {streams[2]} {n_att}, MAG {n_mag} "
           f"(pymavlink: {n_pm}; counts equal: {same}; gyro values equal: {gyro_equal}; "
           f"boot epochs: {int(raw.imu.epoch.max()) + 1})")  # fmt: skip
     print(f"{'reader':<28}{'time s':>10}{'msg/s':>14}{'MB/s':>10}")

@@ -280,13 +280,14 @@ def score_file(ests, rec) -> dict:
     from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad, tilt_error_vector_rad, uncertainty_metrics
     from tepinn_flight.record_gaps import bridge_gaps
 
-    m = scoring_mask(rec, WARMUP_S)
     r = {}
     br = bridge_gaps(rec)
+    dfs = {e.name: br.original(e.estimate(br.record)) for e in ests}
+    quats = {k: df[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy() for k, df in dfs.items()}
+    # the same samples for every estimator: where each has an estimate (review61: each had been scored on its own)
+    mm = scoring_mask(rec, WARMUP_S) & np.logical_and.reduce([np.all(np.isfinite(q), 1) for q in quats.values()])
     for e in ests:
-        df = br.original(e.estimate(br.record))
-        q = df[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
-        mm = m & np.all(np.isfinite(q), 1)
+        df, q = dfs[e.name], quats[e.name]
         qe = error_quat_earth(q[mm], rec.q_ref_wxyz[mm])
         r[e.name] = float(np.degrees(np.sqrt(np.mean(inclination_error_rad(qe) ** 2)))) if mm.any() else np.nan
         if e.name == "tepinn" and str(df.attrs.get("gyro_selfcal", "")).endswith("; applied"):

@@ -134,8 +134,8 @@ def main() -> int:
     torch.set_num_threads(1)
     tp, vq = TepinnEstimator.from_checkpoint(args.model or default_model_path(), "tepinn"), VqfEstimator()
 
-    def rmse(rec, q):
-        m = scoring_mask(rec, 5.0) & np.all(np.isfinite(q), 1)
+    def rmse(rec, q, common):
+        m = scoring_mask(rec, 5.0) & common
         return float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], rec.q_ref_wxyz[m])) ** 2))))
 
     sigma_seen = []  # (NEES, within 3σ) of TE-PINN's σ on each file of the last condition that asked
@@ -148,7 +148,9 @@ def main() -> int:
             m = scoring_mask(rec, 5.0) & np.all(np.isfinite(q), 1) & np.isfinite(s)
             e2 = np.sum(tilt_error_vector_rad(error_quat_earth(q[m], rec.q_ref_wxyz[m])) ** 2, axis=1)
             sigma_seen.append((float(np.mean(e2 / s[m] ** 2)), float(np.mean(e2 <= 9 * s[m] ** 2))))
-        return tuple(rmse(rec, e[Q].to_numpy()) for e in est)
+        # the same samples for both: where each has an estimate (review61: each had been scored on its own)
+        common = np.logical_and.reduce([np.all(np.isfinite(e[Q].to_numpy()), 1) for e in est])
+        return tuple(rmse(rec, e[Q].to_numpy(), common) for e in est)
 
     split = tomllib.loads((REPO / "train/splits/real.toml").read_text())
     sh = Path(args.shared)
