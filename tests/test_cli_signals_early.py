@@ -67,3 +67,29 @@ def test_the_bridge_stopped_by_a_signal_while_routing_exits_as_every_verb_does(s
             proc.wait()
     assert proc.returncode == code, (out, err)
     assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_replay_stopped_by_a_signal_mid_play_exits_as_every_verb_does(tmp_path, sig, code):
+    """(review61: replay printed its summary and exited 0, as after the whole log)"""
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.record import write_record
+
+    write_record(synthetic_record(seed=1, duration_s=60.0, rate_hz=100.0), tmp_path / "r.parquet")
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "tepinn_flight", "replay", str(tmp_path / "r.parquet"), "--to",
+                             "udpout:127.0.0.1:9"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)  # fmt: skip
+    try:
+        seen, end = "", time.monotonic() + 60
+        while time.monotonic() < end and "playing" not in seen:
+            seen += proc.stderr.readline()
+        assert "playing" in seen, seen
+        time.sleep(1.0)
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == code, (out, err)
+    assert "replayed" in out and "Traceback" not in err

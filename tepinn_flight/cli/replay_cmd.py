@@ -54,8 +54,10 @@ def run(args) -> int:
         check_suffix("--rrd", args.rrd, (".rrd",), "a Rerun recording")
         refuse_overwriting_inputs([("--rrd", args.rrd)], [args.log])
     stop = threading.Event()
+    stopped_by = []  # the signal that stopped the playback, if one did
 
     def on_signal(signum, frame):  # noqa: ARG001
+        stopped_by.append(signum)
         stop.set()
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -77,4 +79,6 @@ def run(args) -> int:
         lat = f"lateness p99 {late['p99']:.2f} ms, max {late['max']:.2f} ms" if late.get("n") else "nothing sent"
         print(f"replayed {out['messages_sent']} messages ({out['log_s']:.1f} s of log, {out['loops']} pass(es)) "
               f"in {out['wall_s']:.1f} s; {lat}")  # fmt: skip
-    return 0
+    # stopped by Ctrl-C or SIGTERM: the summary, then the exit status every verb gives a signal (130 / 143; review61:
+    # 0, as after the whole log); the log's end or --duration: 0
+    return {signal.SIGINT: 130, signal.SIGTERM: 143}.get(stopped_by[0], 0) if stopped_by else 0
