@@ -142,7 +142,11 @@ def write_estimate_tlog(
     t = rec.t_s
     q = est[EST_Q_COLS].to_numpy(np.float64)
     bias = est[EST_BIAS_COLS].to_numpy(np.float64) if all(c in est for c in EST_BIAS_COLS) else np.zeros((len(t), 3))
-    rates = rec.gyr_rad_s - np.nan_to_num(bias)
+    from .model.estimate import bridge_holes
+
+    # the rates the estimator used: a non-finite sample bridged with the last finite one, as the estimate was made
+    # (review61: NaN rollspeed in the estimate's ATTITUDE where the record's gyro had a hole)
+    rates = bridge_holes(rec)[0].gyr_rad_s - np.nan_to_num(bias)
     counts: dict[str, int] = {}
     if len(t) == 0:
         raise TepinnError("the record has no samples")

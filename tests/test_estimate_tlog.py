@@ -175,6 +175,40 @@ def test_resume_rewrites_a_tlog_whose_options_changed(flight, tmp_path, capsys):
     assert kinds == {"NAMED_VALUE_FLOAT"}
 
 
+def test_resume_rewrites_a_tlog_another_run_left_there(flight, tmp_path, capsys):
+    """A tlog at the asked place that is not the one written with the estimate (another run wrote its tlogs elsewhere
+    after): `--resume` writes both again (review61: a 10-Hz tlog had been kept "up to date" for a 50-Hz estimate)."""
+    a = ["estimate", str(flight / "flight.parquet"), "-o", str(tmp_path / "e.parquet"), "-q"]
+    assert main([*a, "--tlog", str(tmp_path / "A.tlog"), "--tlog-rate", "10"]) == 0
+    assert main([*a, "--tlog", str(tmp_path / "B.tlog")]) == 0  # e.parquet now goes with B.tlog (50 Hz)
+    capsys.readouterr()
+    assert main([*a[:-1], "--tlog", str(tmp_path / "A.tlog"), "--resume"]) == 0
+    assert "up to date" not in capsys.readouterr().out
+    rate = lambda p: len([m for m in _read(p) if m.get_srcComponent() == 191 and m.get_type() == "ATTITUDE_QUATERNION"])  # noqa: E731
+    assert rate(tmp_path / "A.tlog") == rate(tmp_path / "B.tlog") > 0  # A rewritten at the 50 Hz asked now
+    assert main([*a[:-1], "--tlog", str(tmp_path / "A.tlog"), "--resume"]) == 0  # the pair written together: kept
+    assert "up to date" in capsys.readouterr().out
+
+
+def test_the_tlogs_rates_bridge_a_hole_as_the_estimate_does(tmp_path, capsys):
+    """(review61: NaN rollspeed in the estimate's ATTITUDE where the gyro had a non-finite sample)"""
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    rec = synthetic_record(seed=5, duration_s=8.0, rate_hz=100.0)
+    rec.data.loc[400:404, "gyr_x_rad_s"] = np.nan
+    write_record(rec, tmp_path / "holes.parquet")
+    assert main(["estimate", str(tmp_path / "holes.parquet"), "-o", str(tmp_path / "e.parquet"), "-q",
+                 "--tlog", str(tmp_path / "e.tlog"), "--tlog-rate", "100", "--tlog-messages", "attitude"]) == 0  # fmt: skip
+    att = [m for m in _read(tmp_path / "e.tlog") if m.get_srcComponent() == 191 and m.get_type() == "ATTITUDE"]
+    assert len(att) > 500
+    rates = np.array([[m.rollspeed, m.pitchspeed, m.yawspeed] for m in att])
+    assert np.all(np.isfinite(rates))
+    est = pd.read_parquet(tmp_path / "e.parquet")
+    b = est[["gyr_bias_est_x_rad_s", "gyr_bias_est_y_rad_s", "gyr_bias_est_z_rad_s"]].to_numpy()
+    i = int(np.argmin(np.abs(np.array([m.time_boot_ms for m in att]) / 1e3 - (est["t_s"][402] - est["t_s"][0] + DEFAULT_BOOT_OFFSET_S))))
+    np.testing.assert_allclose(rates[i, 0], rec.gyr_rad_s[399, 0] - b[402, 0], atol=1e-6)  # the last finite sample's
+
+
 def test_mavexplorer_graphs_evaluate_on_the_written_tlog(flight):
     """tools/mavexplorer_tepinn.xml: well-formed, and every expression evaluates (pymavlink's own
     evaluator, as MAVExplorer's grapher uses it) once the tlog's messages are seen."""

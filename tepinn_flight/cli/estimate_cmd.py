@@ -239,15 +239,26 @@ def _output_key(opts: _Options, src, tlog: bool = False) -> str:
 OUTPUT_VERSION = 2
 
 
-def _up_to_date(dst, key: str) -> bool:
-    """``dst`` exists, is a readable Parquet file and carries ``key`` (written atomically: then it is whole)."""
+def _up_to_date(dst, key: str, tlog_dst=None) -> bool:
+    """``dst`` exists, is a readable Parquet file and carries ``key`` (written atomically: then it is whole), and where a
+    tlog is asked, the file there is the one written with it (its SHA-256 in ``dst``'s metadata; review61: a tlog
+    another run had left there, of another rate or heading, was kept as "up to date")."""
     import pyarrow.parquet as pq
 
     try:
         meta = pq.read_schema(dst).metadata or {}
     except (OSError, ValueError):
         return False
-    return meta.get(b"estimate_key") == key.encode()
+    if meta.get(b"estimate_key") != key.encode():
+        return False
+    if tlog_dst is None:
+        return True
+    from ..model.runtime import file_sha256
+
+    try:
+        return meta.get(b"tlog_sha256") == file_sha256(tlog_dst).encode()
+    except OSError:
+        return False
 
 
 def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[list[str], list[str], int]:
@@ -268,7 +279,7 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
 
     out, err = [], []
     key = _output_key(opts, src, tlog=tlog_dst is not None)
-    if opts.resume and _up_to_date(dst, key) and (tlog_dst is None or tlog_dst.exists()):
+    if opts.resume and _up_to_date(dst, key, tlog_dst):
         if not opts.quiet:
             out.append(f"{src} -> {dst}: up to date (the same source, model and settings), skipped (--resume)")
         return out, err, 0
@@ -317,6 +328,11 @@ def _estimate_one(model, fusion, opts: _Options, src, dst, tlog_dst) -> tuple[li
         except TepinnError as exc:
             err.append(f"tepinn-flight estimate: error: {src}: {exc}")
             return out, err, 1
+        from ..model.runtime import file_sha256
+
+        meta = dict(table.schema.metadata)
+        meta[b"tlog_sha256"] = file_sha256(tlog_dst).encode()  # which tlog this estimate wrote (--resume checks it)
+        table = table.replace_schema_metadata(meta)
     if output_format(dst, "estimate", csv=True) == "csv":  # the columns alone (the notes are printed below)
         atomic_write(dst, lambda tmp: write_csv(table, tmp))
     else:
