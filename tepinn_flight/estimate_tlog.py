@@ -17,10 +17,12 @@ Time
     ``time_usec`` since the autopilot's boot): the estimate and the autopilot's ATTITUDE interleave
     in file order and line up on either clock. Reboots are followed through the record's
     ``epoch_time_offsets_s``. (An IMU stamped with UNIX time gives a ``time_boot_ms`` modulo 2³².)
-    Written from a DataFlash or ULog record, the autopilot's messages keep the log's own clock (the
-    estimate's ``time_boot_ms`` is the log's ``TimeUS`` / ``timestamp``: ``estimate``'s ``t_log_s``);
-    a ULog stamped in UNIX time gives the receive times that UNIX time. Other records start 10 s after
-    boot on 2023-11-14 (``tlog_writer``'s defaults). The "autopilot's" ATTITUDE written then is the
+    Written from a record of one boot of a DataFlash, ULog or MAVLink log, or a BROAD trial, the autopilot's
+    messages keep the log's own clock (the estimate's ``time_boot_ms`` is the log's ``TimeUS`` / ``timestamp`` /
+    ``time_boot_ms``, BROAD's time: ``estimate``'s ``t_log_s``); a ULog stamped in UNIX time gives the receive times
+    that UNIX time. A record of several boots runs on from its first boot's clock across the reboots (``t_log_s``
+    starts again at each); simulations and records without a log clock start 10 s after boot on 2023-11-14
+    (``tlog_writer``'s defaults). The "autopilot's" ATTITUDE written then is the
     record's reference (the log's ATT turned into the IMU board's frame by the level trim, or XKQ, or the
     truth), not the log's own ATT rows.
     ``rate_hz``: every sample of a log at that rate, through its stamps' jitter; a faster log thinned
@@ -104,7 +106,7 @@ def _same_samples(gyr_rec: np.ndarray, gyr_src: np.ndarray) -> bool:
 
 def _tlog_clock(rec: FlightRecord) -> tuple[float, float]:
     """(the boot time of the record's first sample, the UNIX receive time of it) for a tlog written from a record:
-    the log's own clock where :func:`~tepinn_flight.log_clock.boot_time_at_start_s` gives it (DataFlash, ULog: the
+    the log's own clock where :func:`~tepinn_flight.log_clock.boot_time_at_start_s` gives it (one boot: the
     estimate then lines up with the log's TimeUS / timestamp), the UNIX time for a ULog stamped in it; else the
     writer's defaults."""
     from .log_clock import boot_time_at_start_s, unix_time_at_start_s

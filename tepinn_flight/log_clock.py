@@ -38,12 +38,18 @@ def log_clock_s(t_s: np.ndarray, meta: dict) -> np.ndarray | None:
     return t - shift[k] + origin
 
 
+#: the logs whose own clock a tlog written from their record, and a replay of it, run on (one boot)
+LOG_CLOCK_KINDS = ("dataflash", "ulog", "tlog", "broad")
+
+
 def boot_time_at_start_s(t_s: np.ndarray, meta: dict) -> float | None:
-    """The autopilot's time since boot at the record's first sample, where the record is one boot of a DataFlash or
-    ULog log on a boot clock that a MAVLink ``time_boot_ms`` (uint32) can carry; else None. What a tlog written from
-    the record (``estimate --tlog``) and a replay of it (``replay``) stamp their messages from, so that they line up
-    with the log's own clock."""
-    if meta.get("source_kind") not in ("dataflash", "ulog") or len(meta.get("epoch_time_offsets_s") or {}) != 1:
+    """The autopilot's time since boot at the record's first sample, where the record is one boot of a DataFlash, ULog
+    or MAVLink log (or a BROAD trial, its own time) on a boot clock that a MAVLink ``time_boot_ms`` (uint32) can carry;
+    else None. What a tlog written from the record (``estimate --tlog``) and a replay of it (``replay``) stamp their
+    messages from, so that they line up with the log's own clock — ``estimate``'s ``t_log_s`` (review61: a tlog's
+    record without its source tlog beside it and a BROAD trial had run 10 s after it). A record of several boots runs
+    on from its first boot's clock across the reboots, where ``t_log_s`` starts again."""
+    if meta.get("source_kind") not in LOG_CLOCK_KINDS or len(meta.get("epoch_time_offsets_s") or {}) != 1:
         return None
     if meta.get("time_base") == "unix" or not len(t_s):
         return None

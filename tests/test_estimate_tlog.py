@@ -190,6 +190,28 @@ def test_resume_rewrites_a_tlog_another_run_left_there(flight, tmp_path, capsys)
     assert "up to date" in capsys.readouterr().out
 
 
+def test_a_tlogs_record_without_its_source_keeps_the_logs_clock(flight, tmp_path, capsys):
+    """A record of a tlog whose source tlog is not beside it is written as itself, on the log's own boot clock: each
+    estimate's time_boot_ms is the Parquet's t_log_s (review61: 10 s after the record's start, up to 13.7 s off)."""
+    from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.model.synthetic import synthetic_record
+
+    (tmp_path / "src").mkdir()
+    write_tlog(tmp_path / "src" / "f.tlog", synthetic_record(seed=6, duration_s=10.0, rate_hz=100.0), boot_offset_s=123.4)
+    write_record(ingest_log(tmp_path / "src" / "f.tlog"), tmp_path / "moved.parquet")  # (not beside its tlog)
+    assert main(["estimate", str(tmp_path / "moved.parquet"), "-o", str(tmp_path / "e.parquet"), "-q",
+                 "--tlog", str(tmp_path / "e.tlog")]) == 0  # fmt: skip
+    assert "source tlog" in capsys.readouterr().err  # (the fallback is said)
+    est = pd.read_parquet(tmp_path / "e.parquet")
+    t_log = est["t_log_s"].to_numpy()
+    aq = [m for m in _read(tmp_path / "e.tlog") if m.get_srcComponent() == 191 and m.get_type() == "ATTITUDE_QUATERNION"]
+    assert len(aq) > 100 and abs(t_log[0] - 123.4) < 0.02  # (a clock the writer's default would not give)
+    for m in aq:
+        i = int(np.argmin(np.abs(t_log - m.time_boot_ms / 1e3)))
+        assert abs(t_log[i] - m.time_boot_ms / 1e3) <= 0.6e-3
+        np.testing.assert_allclose([m.q1, m.q2, m.q3, m.q4], est[EST].to_numpy()[i], atol=1e-6)
+
+
 def test_the_tlogs_rates_bridge_a_hole_as_the_estimate_does(tmp_path, capsys):
     """(review61: NaN rollspeed in the estimate's ATTITUDE where the gyro had a non-finite sample)"""
     from tepinn_flight.model.synthetic import synthetic_record
