@@ -157,7 +157,7 @@ def write_estimate_tlog(
         if source is None:
             base = Path(td) / "record.tlog"
             boot0_s, start_unix_s = _tlog_clock(rec)
-            write_tlog(base, rec, boot_offset_s=boot0_s, start_unix_s=start_unix_s)  # t_s → t - t0 + boot0 (one boot)
+            write_tlog(base, rec, boot_offset_s=boot0_s, start_unix_s=start_unix_s)  # t_s → t - t0 + boot0 (on across reboots)
             imu_name, instance, sysid = "HIGHRES_IMU", 0, 1
             offsets = {0: float(t[0]) - boot0_s}
         else:

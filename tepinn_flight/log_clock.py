@@ -38,25 +38,27 @@ def log_clock_s(t_s: np.ndarray, meta: dict) -> np.ndarray | None:
     return t - shift[k] + origin
 
 
-#: the logs whose own clock a tlog written from their record, and a replay of it, run on (one boot)
+#: the logs whose own clock a tlog written from their record, and a replay of it, run on
 LOG_CLOCK_KINDS = ("dataflash", "ulog", "tlog", "broad")
 
 
 def boot_time_at_start_s(t_s: np.ndarray, meta: dict) -> float | None:
-    """The autopilot's time since boot at the record's first sample, where the record is one boot of a DataFlash, ULog
-    or MAVLink log (or a BROAD trial, its own time) on a boot clock that a MAVLink ``time_boot_ms`` (uint32) can carry;
+    """The autopilot's time since boot at the record's first sample, where the record is of a DataFlash, ULog or
+    MAVLink log (or a BROAD trial, its own time) on a boot clock that a MAVLink ``time_boot_ms`` (uint32) can carry;
     else None. What a tlog written from the record (``estimate --tlog``) and a replay of it (``replay``) stamp their
     messages from, so that they line up with the log's own clock — ``estimate``'s ``t_log_s`` (review61: a tlog's
     record without its source tlog beside it and a BROAD trial had run 10 s after it). A record of several boots runs
     on from its first boot's clock across the reboots, where ``t_log_s`` starts again."""
-    if meta.get("source_kind") not in LOG_CLOCK_KINDS or len(meta.get("epoch_time_offsets_s") or {}) != 1:
+    if meta.get("source_kind") not in LOG_CLOCK_KINDS or not meta.get("epoch_time_offsets_s"):
         return None
     if meta.get("time_base") == "unix" or not len(t_s):
         return None
-    ends = log_clock_s(np.asarray(t_s)[[0, -1]], meta)
-    if ends is None or not (ends[0] >= 0.0 and ends[1] * 1e3 < 2**32):
+    t = np.asarray(t_s, np.float64)
+    start = log_clock_s(t[:1], meta)
+    if start is None:
         return None
-    return float(ends[0])
+    boot0 = float(start[0])  # (one boot: the log's clock throughout; several: the first's, run on across them)
+    return boot0 if boot0 >= 0.0 and (boot0 + t[-1] - t[0]) * 1e3 < 2**32 else None
 
 
 def unix_time_at_start_s(t_s: np.ndarray, meta: dict) -> float | None:

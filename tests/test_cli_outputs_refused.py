@@ -106,7 +106,7 @@ def test_ablate_to_a_file_is_one_line(tmp_path, capsys):
 def test_demo_checks_its_model_before_flying(tmp_path, capsys):
     out = tmp_path / "demo"
     assert main(["demo", "--duration", "11", "-o", str(out), "--model", str(tmp_path / "missing.pt"), "-q"]) == 2
-    _one_error_line(capsys, "no such checkpoint")
+    _one_error_line(capsys, "no such model")
     assert not out.exists()
 
 

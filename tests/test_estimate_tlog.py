@@ -212,6 +212,32 @@ def test_a_tlogs_record_without_its_source_keeps_the_logs_clock(flight, tmp_path
         np.testing.assert_allclose([m.q1, m.q2, m.q3, m.q4], est[EST].to_numpy()[i], atol=1e-6)
 
 
+def test_a_record_of_two_boots_runs_on_from_its_first_boots_clock(tmp_path):
+    """A tlog's record of two boots, without its source: the written tlog's clock is the first boot's, run on across
+    the reboot (as the docs say; review61: the writer's 10-s default, 113 s off the log's clock)."""
+    from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.model.synthetic import synthetic_record
+    from tepinn_flight.tlog_writer import DEFAULT_START_UNIX_S
+
+    (tmp_path / "src").mkdir()
+    for k, (boot, seed) in enumerate(((123.4, 7), (2.0, 8))):
+        write_tlog(tmp_path / f"b{k}.tlog", synthetic_record(seed=seed, duration_s=8.0, rate_hz=100.0), boot_offset_s=boot,
+                   start_unix_s=DEFAULT_START_UNIX_S + 60.0 * k)  # fmt: skip
+    (tmp_path / "src" / "two.tlog").write_bytes((tmp_path / "b0.tlog").read_bytes() + (tmp_path / "b1.tlog").read_bytes())
+    rec = ingest_log(tmp_path / "src" / "two.tlog")
+    assert len(rec.meta["epoch_time_offsets_s"]) == 2
+    write_record(rec, tmp_path / "two.parquet")
+    assert main(["estimate", str(tmp_path / "two.parquet"), "-o", str(tmp_path / "e.parquet"), "-q",
+                 "--tlog", str(tmp_path / "e.tlog")]) == 0  # fmt: skip
+    est = pd.read_parquet(tmp_path / "e.parquet")
+    t_log, t = est["t_log_s"].to_numpy(), est["t_s"].to_numpy()
+    ms = np.array([m.time_boot_ms for m in _read(tmp_path / "e.tlog")
+                   if m.get_srcComponent() == 191 and m.get_type() == "ATTITUDE_QUATERNION"])  # fmt: skip
+    assert len(ms) > 500 and np.all(np.diff(ms) > 0)  # one clock, on across the reboot
+    np.testing.assert_allclose(ms / 1e3, t_log[0] + (t[:: max(1, len(t) // len(ms))][: len(ms)] - t[0]), atol=0.1)
+    assert abs(ms[0] / 1e3 - t_log[0]) <= 0.6e-3 and abs(t_log[0] - 123.4) < 0.02
+
+
 def test_the_tlogs_rates_bridge_a_hole_as_the_estimate_does(tmp_path, capsys):
     """(review61: NaN rollspeed in the estimate's ATTITUDE where the gyro had a non-finite sample)"""
     from tepinn_flight.model.synthetic import synthetic_record

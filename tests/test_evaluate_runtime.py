@@ -77,3 +77,38 @@ def test_an_ablation_variant_is_named_from_its_export_as_from_its_checkpoint(tmp
     assert read_onnx_metadata(tmp_path / "model.onnx")["loss_config"]["adaptive"] is False
     assert TepinnEstimator.from_checkpoint(tmp_path / "model.onnx").name == "tepinn-noadaptive"
     assert TepinnEstimator.from_checkpoint(default_model_path(), runtime="auto").name == "tepinn"  # adaptive: no suffix
+
+
+def test_models_of_one_run_folder_get_names_of_their_own_and_what_ran_is_said(tmp_path):
+    """Three models of one run folder are named apart (review61: the third had taken the second's name and the run was
+    refused after loading them all); a checkpoint run in onnxruntime is named by the export that ran — the one beside
+    it made from it — or said to be exported in memory."""
+    import shutil
+
+    from tepinn_flight.evaluation.estimators import learned_estimators
+
+    run = tmp_path / "run"
+    run.mkdir()
+    for src, dst in ((default_model_path(), "model.pt"), (default_model_path().with_suffix(".onnx"), "model.onnx"),
+                     (default_model_path(), "best.pt")):  # fmt: skip
+        shutil.copy(src, run / dst)
+    notes: list[str] = []
+    ests = learned_estimators([run / "model.onnx", run / "model.pt", run / "best.pt"], notes, "onnx")
+    assert len({e.name for e in ests}) == 3 and ests[0].name == "tepinn"
+    assert [e.checkpoint for e in ests] == [str(run / "model.onnx"), str(run / "model.onnx"), str(run / "best.pt")]
+    assert [e.exported_in_memory for e in ests] == [False, False, True] and all(e.runtime == "onnx" for e in ests)
+    assert len(notes) == 1 and "best.pt: no export made from it lies beside it; exported in memory" in notes[0]
+
+
+def test_evaluate_refuses_a_model_file_before_reading_the_records(tmp_path, capsys, monkeypatch):
+    """A model the loader would refuse is refused before the records are read (review61: after them)."""
+    import tepinn_flight.cli.paths as paths
+
+    read = []
+    monkeypatch.setattr(paths, "read_records", lambda *a, **k: read.append(1) or [])
+    (tmp_path / "x.pt").write_text("not a checkpoint")
+    assert main(["evaluate", str(tmp_path), "-o", str(tmp_path / "rep"), "--model", str(tmp_path / "x.pt"), "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "x.pt" in err[0] and "not a readable checkpoint" in err[0] and not read
+    assert main(["evaluate", str(tmp_path), "-o", str(tmp_path / "rep"), "--model", str(tmp_path / "none.pt"), "-q"]) == 2
+    assert "no such model" in capsys.readouterr().err

@@ -68,7 +68,12 @@ def test_info_refuses_a_damaged_model_in_one_line(tmp_path, capsys):
     bad.write_bytes(b"not a model")
     assert main(["info", str(bad)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "not a readable ONNX model" in err[0]
+    assert len(err) == 1 and "not a readable ONNX model" in err[0] and f"{bad}: {bad}:" not in err[0]  # (named once)
+    text = tmp_path / "notes.pt"  # a file named as a checkpoint that is none: said so, not "not a ULog, ..."
+    text.write_text("hello")
+    assert main(["info", str(text)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a readable checkpoint" in err[0] and "ULog" not in err[0]
     other = tmp_path / "state.pt"  # a torch archive that is no tepinn-flight checkpoint
     torch.save({"weights": torch.zeros(3)}, other)
     assert main(["info", str(other)]) == 2

@@ -41,12 +41,20 @@ def add_runtime(p) -> None:
 
 
 def check_runtime(models, runtime: str) -> None:
-    """Refuse now, in one line, a ``--runtime`` the models given (the shipped one where none is) cannot run in: ``torch``
-    without PyTorch, an ``.onnx`` export under ``torch``."""
+    """Refuse now, before the records are read, in one line, a ``--runtime`` the models given (the shipped one where
+    none is) cannot run in — ``torch`` without PyTorch, an ``.onnx`` export under ``torch`` — and a model file the loader
+    would refuse (:func:`~tepinn_flight.model.runtime.check_model`: without torch, a checkpoint with no export of it
+    beside it; review61)."""
     from pathlib import Path
 
     from ..model.checkpoint import default_model_path
-    from ..model.runtime import resolve_runtime
+    from ..model.runtime import check_model, resolve_runtime
 
-    for m in models or [default_model_path()]:
-        resolve_runtime(Path(m), runtime)
+    if not models:
+        resolve_runtime(default_model_path(), runtime)  # (the shipped model: its export ships beside it)
+    for m in models:
+        if not Path(m).exists():
+            from ..errors import ConfigError
+
+            raise ConfigError("no such model", m)
+        check_model(Path(m), runtime)

@@ -61,7 +61,8 @@ def run(args) -> int:
                 d = describe_model(path)
             except TepinnError as exc:
                 failures += 1
-                sys.stderr.write(f"tepinn-flight info: error: {exc if exc.path else f'{path}: {exc}'}\n")
+                named = exc.path or str(exc).startswith(f"{path}:")  # (review61: an export's error named it twice)
+                sys.stderr.write(f"tepinn-flight info: error: {exc if named else f'{path}: {exc}'}\n")
                 continue
             if args.json:
                 results[str(path)] = d
@@ -93,11 +94,11 @@ def run(args) -> int:
 
 
 def _is_model_file(path) -> bool:
-    """A model file named as one: an ``.onnx`` export, or a ``.pt`` that is a torch archive (a folder's logs are
-    told by content; a model is named by the user)."""
+    """A model file named as one: an ``.onnx`` export or a ``.pt`` / ``.pth`` checkpoint (a folder's logs are told by
+    content; a model is named by the user — one that is none is told so, not "not a ULog, ...": review61)."""
     from pathlib import Path
 
-    from ..model.runtime import _is_torch_archive, is_onnx_path
+    from ..model.runtime import is_onnx_path
 
     p = Path(path)
-    return p.is_file() and (is_onnx_path(p) or (p.suffix.lower() in (".pt", ".pth") and _is_torch_archive(p)))
+    return p.is_file() and (is_onnx_path(p) or p.suffix.lower() in (".pt", ".pth"))

@@ -129,7 +129,9 @@ def render_model_info(d: dict) -> str:
     add = lambda k, v: lines.append(f"  {k:<20} {v}")  # noqa: E731
     add("kind", f"{d['kind']} ({d['format']})" + (f", read from {d['read_from']}" if d.get("read_from") else ""))
     made = [f"written by tepinn-flight {d['written_by']}" if d.get("written_by") else "",
-            f"exported by {d['exported_by']}, opset {d.get('opset')}, from {d.get('source')}" if d.get("exported_by") else ""]
+            f"exported by {d['exported_by']}" if d.get("exported_by") else "",
+            f"opset {d['opset']}" if d.get("opset") is not None else "",
+            f"from {d['source']}" if d.get("source") else ""]  # (review61: without exported_by, opset and source unsaid)
     if any(made):
         add("made", "; ".join(m for m in made if m))
     n = d["network"]

@@ -81,6 +81,8 @@ class TepinnEstimator:
 
     kind = "learned"
 
+    exported_in_memory = False  # a checkpoint run in onnxruntime without an export of it beside it
+
     def __init__(self, model, fusion, name: str = "tepinn", checkpoint: str | None = None):
         self.model, self.fusion, self.name, self.checkpoint = model, fusion, name, checkpoint
 
@@ -159,17 +161,26 @@ class TepinnEstimator:
 
         if runtime is None:
             runtime = "onnx" if is_onnx_path(path) else "torch"
+        ran, in_memory = os.fspath(path), False
         if resolve_runtime(path, runtime) == "torch":
             from ..model.checkpoint import load_model
 
             model, fusion, ckpt = load_model(path)
         else:
+            from ..model.runtime import export_in_sync
+
+            synced = None if is_onnx_path(path) else export_in_sync(path)
             model, fusion, ckpt = load_runner(path, runtime, threads)  # (an OnnxRunner: estimate_record takes it)
+            if synced is not None:  # what ran is the export beside it (review61: the report had named the .pt)
+                ran = os.fspath(synced)
+            in_memory = not is_onnx_path(path) and synced is None
         if name is None:
             name = model.config.variant
             if (ckpt.get("loss_config") or {}).get("adaptive") is False:
                 name += "-noadaptive"
-        return cls(model, fusion, name, os.fspath(path))
+        est = cls(model, fusion, name, ran)
+        est.exported_in_memory = in_memory
+        return est
 
     def estimate(self, record: FlightRecord) -> pd.DataFrame:
         from ..model.estimate import estimate_record
@@ -234,7 +245,17 @@ def learned_estimators(model_paths: list, note_sink: list | None = None, runtime
     out: list = []
     for m in model_paths:
         est = TepinnEstimator.from_checkpoint(m, runtime=runtime)
-        if est.name in {e.name for e in out}:
-            est.name = f"{est.name}-{Path(m).parent.name or Path(m).stem}"
+        if est.exported_in_memory and note_sink is not None:
+            note_sink.append(f"{m}: no export made from it lies beside it; exported in memory for onnxruntime "
+                             f"(`tepinn-flight export {m} -o {Path(m).with_suffix('.onnx')}` keeps one)")  # fmt: skip
+        taken = {e.name for e in out}
+        base, p = est.name, Path(m)
+        # unique by the run folder, then the file's name, then a number (review61: a third model of one run folder
+        # had taken the second's name, and the run was refused after loading every model)
+        for name in (base, f"{base}-{p.parent.name or p.stem}", f"{base}-{p.parent.name}-{p.stem}" if p.parent.name else None,
+                     *(f"{base}-{k}" for k in range(2, len(model_paths) + 2))):  # fmt: skip
+            if name and name not in taken:
+                est.name = name
+                break
         out.append(est)
     return out

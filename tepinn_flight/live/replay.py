@@ -18,8 +18,8 @@ frames by receive time. :func:`schedule` turns frames into playback times:
 autopilot would (sysid 1, compid 1): HEARTBEAT at 1 Hz, the IMU at its logged rate as
 HIGHRES_IMU (rad/s, m/s², gauss) or SCALED_IMU (mrad/s, mG, mGauss), and ATTITUDE plus
 ATTITUDE_QUATERNION from the reference at about 50 Hz, stamped with a boot clock: the log's own for a
-DataFlash, ULog or MAVLink log of one boot or a BROAD trial (``log_clock.boot_time_at_start_s``), else one that
-starts ``boot_offset_s`` before the record (a log of several boots: from its first boot's clock, on across them).
+DataFlash, ULog or MAVLink log or a BROAD trial (``log_clock.boot_time_at_start_s``; a log of several boots from its
+first boot's clock, on across them), else one that starts ``boot_offset_s`` before the record.
 """
 
 from __future__ import annotations

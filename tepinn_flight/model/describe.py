@@ -56,7 +56,7 @@ def describe_model(path) -> dict:
         settings = estimator_settings(meta)
     except TepinnError as exc:
         raise ConfigError(exc.reason, path) from None
-    d["format"] = f"{meta.get('format')} v{meta.get('version')}"
+    d["format"] = f"{meta.get('format')} v{meta.get('version')}" + (" (its export's)" if "read_from" in d else "")
     for k in ("tepinn_flight_version", "exported_by", "opset", "source"):
         if meta.get(k) is not None:
             d[{"tepinn_flight_version": "written_by"}.get(k, k)] = meta[k]
