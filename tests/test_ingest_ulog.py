@@ -454,6 +454,35 @@ def test_a_gyro_at_its_range_is_marked_clipped_in_a_px4_log_without_a_gyro_clipp
     assert any("marked clipped" in n for n in rec.meta["notes"])
 
 
+def test_px4_gyro_clipping_bits_count_where_the_logged_rate_shows_a_saturation(tmp_path):
+    """Rule 35: PX4's gyro clipping bits are the gyro's saturation where the logged rate reaches half its range (a flip
+    at the range); bits set while the logged rate is far below it (raw samples clipped by vibration spikes) are left
+    in `clipped` only, and said (review61: they had opened the saturation gate on a hand-held trial, 0.27° → 3.80°)."""
+    from tepinn_flight.ingest import load_record
+
+    from .ulog_writer import SENSOR_COMBINED_V1_15, ULogWriter
+
+    w = ULogWriter()
+    w.fmt("sensor_combined", SENSOR_COMBINED_V1_15)
+    w.subscribe("sensor_combined")
+    full = np.radians(2000.0)
+    rate = np.full(2500, 0.1)
+    rate[1000:1020] = np.linspace(0.45, 0.7, 20) * full  # a flip's rise: under half the range, then over it
+    rate[1020:1100] = 0.97 * full  # at the range (under the value rule's 98 %): the bits alone say it
+    bits = np.zeros(2500, np.uint8)
+    bits[1000:1100] = 1  # the flip's clipped intervals
+    bits[[300, 301, 1500, 1800, 1801]] = 1  # vibration: the logged rate 0.1 rad/s
+    for k in range(2500):
+        w.data("sensor_combined", 0, 1_000_000 + 4000 * k, (rate[k], 0.0, 0.0), 4000, 0, (0.0, 0.0, -9.8), 4000, 0, bits[k])
+    rec = load_record(w.write(tmp_path / "bits.ulg"))
+    kept = np.flatnonzero(rec.gyr_clipped)
+    want = np.flatnonzero((bits != 0) & (np.abs(rate) >= 0.5 * full))
+    np.testing.assert_array_equal(kept, want)
+    assert kept[0] == 1004 and kept[-1] == 1099  # (the rise's first four bits are under half the range)
+    np.testing.assert_array_equal(np.flatnonzero(rec.clipped), np.flatnonzero(bits))  # a sensor did clip
+    assert any("9 of 105 sample(s) with PX4's gyro clipping bit" in n for n in rec.meta["notes"])
+
+
 def test_sensor_combined_with_no_valid_accelerometer_sample_says_so(tmp_path):
     from tepinn_flight.errors import NoImuData
     from tepinn_flight.ingest import load_record

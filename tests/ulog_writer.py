@@ -15,6 +15,9 @@ SENSOR_COMBINED_V1_14 = [("float[3]", "gyro_rad"), ("uint32_t", "gyro_integral_d
                          ("int32_t", "accelerometer_timestamp_relative"), ("float[3]", "accelerometer_m_s2"),
                          ("uint32_t", "accelerometer_integral_dt"), ("uint8_t", "accelerometer_clipping")]  # fmt: skip
 
+#: sensor_combined as PX4 v1.15 on log it (per-axis clipping bits for both sensors)
+SENSOR_COMBINED_V1_15 = [*SENSOR_COMBINED_V1_14, ("uint8_t", "gyro_clipping")]
+
 
 class ULogWriter:
     def __init__(self, t0_us: int = 0):

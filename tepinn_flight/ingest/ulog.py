@@ -69,7 +69,7 @@ import numpy as np
 from ..conventions import GAUSS_TO_UT, UNIX_TIME_THRESHOLD_US
 from ..errors import ConfigError, CorruptLog, NoImuData, TepinnError
 from .assemble import GAP_PERIODS
-from .saturation import accel_saturated, gyro_saturated
+from .saturation import accel_saturated, credible_gyro_clipping, gyro_saturated
 from .streams import PREFER_FACTOR, GnssVelStream, ImuStream, MagStream, RawLog, RefStream, nominal_period_s
 
 #: Attitude topics with ``q[0..3]`` = w, x, y, z body FRD → NED, in default-preference order.
@@ -481,7 +481,17 @@ def _select_imu(ds, imu: int | None, notes: list[str]) -> tuple[ImuStream, dict]
 def _with_value_clipping(stream: ImuStream, notes: list[str]) -> ImuStream:
     """``stream`` with the samples at their range by value marked too (:mod:`.saturation`, the rule of every
     reader): PX4 logs its own clipping flags for the accelerometer at most before v1.15, so a flip past the gyro's
-    range left ``gyr_clipped`` empty (session 53)."""
+    range left ``gyr_clipped`` empty (session 53). PX4's own gyro clipping bits are kept as the gyro's saturation only
+    where the logged rate shows one (:func:`~.saturation.credible_gyro_clipping`, rule 35); the others stay in
+    ``clipped`` (a sensor clipped) and are said."""
+    if stream.gyr_clipped is not None and np.any(stream.gyr_clipped):
+        bits = np.asarray(stream.gyr_clipped, bool)
+        kept = credible_gyro_clipping(stream.gyr_rad_s, bits)
+        if int(bits.sum()) > int(kept.sum()):
+            notes.append(f"{int(bits.sum() - kept.sum())} of {int(bits.sum())} sample(s) with PX4's gyro clipping bit "
+                         "set show a logged rate under half the gyro's range (a raw sample clipped by vibration): "
+                         "not taken as the gyro's saturation")  # fmt: skip
+            stream = dataclasses.replace(stream, gyr_clipped=kept)
     g = gyro_saturated(stream.gyr_rad_s)
     c = g | accel_saturated(stream.acc_m_s2)
     if not c.any():
