@@ -14,7 +14,7 @@ live in code rather than in training (σ's floor σ₀, the offline smoothing's 
 self-calibration's thresholds): the figure is the *network's* generalisation to trials it never saw, not
 a fully held-out one. Since session 25 the estimator smooths its tilt offline (the shipped default); fold
 networks trained before then carry checkpoints that do not: `--smooth` scores them as shipped now, and
-`--no-smooth` adds the causal tilt's column (session 25, seed-0 folds: 0.511° smoothed, 0.633° causal,
+`--no-smooth` adds the unsmoothed tilt's column (session 25, seed-0 folds: 0.511° smoothed, 0.633° unsmoothed,
 VQF 0.683°).
 
 Training: about 10–20 minutes per fold on 2 CPU cores (the campaign flown once into `RUNS/data` and

@@ -42,8 +42,11 @@ def add_arguments(p) -> None:
                    help="add each TE-PINN model once more, running every N-th window where the network stays busy "
                         "(estimate --busy-stride N: the speed knob), to see what it costs on these records")
     p.add_argument("--no-smooth", action="store_true",
-                   help="add TE-PINN without the offline tilt smoothing (estimate --no-smooth: the tilt the live bridge "
-                        "gives) beside the model as it ships")
+                   help="add TE-PINN without the offline tilt smoothing (estimate --no-smooth; the record's GNSS aid and "
+                        "gyro/accelerometer self-calibrations still apply) beside the model as it ships")
+    p.add_argument("--live", action="store_true",
+                   help="add TE-PINN as the bridge runs it live: the offline smoothing, GNSS aid and gyro self-calibration "
+                        "off (estimate --no-smooth --no-gnss-aid --no-gyro-selfcal)")
     p.add_argument("--smooth", action="store_true",
                    help="add TE-PINN with the offline tilt smoothing beside a model that does not smooth (a checkpoint "
                         "written before session 25)")
@@ -142,11 +145,16 @@ def _run(args) -> int:
             if not smooth:
                 notes.append("--smooth: no model here runs the anchored estimator without the smoothing; nothing added")
             estimators += smooth
-        if args.no_smooth:  # the causal tilt beside the model as it ships (6-D)
+        if args.no_smooth:  # the unsmoothed tilt beside the model as it ships (6-D)
             plain = [es for e in base if hasattr(e, "unsmoothed") and not e.uses_mag and (es := e.unsmoothed()) is not None]
             if not plain:
                 notes.append("--no-smooth: no model here smooths offline; nothing added")
             estimators += plain
+        if args.live:  # the bridge's causal estimate beside the model as it ships (6-D)
+            live = [es for e in base if hasattr(e, "live") and not e.uses_mag and (es := e.live()) is not None]
+            if not live:
+                notes.append("--live: no model here reads the whole record offline; its column is already the bridge's")
+            estimators += live
     else:
         notes.append("TE-PINN not evaluated (--no-model)")
     estimators += baseline_estimators(cfg, with_mag=args.with_mag)

@@ -141,14 +141,27 @@ class TepinnEstimator:
         return TepinnEstimator(self.model, dataclasses.replace(self.fusion, smoother=True), self.name + "-smooth", self.checkpoint)
 
     def unsmoothed(self) -> TepinnEstimator | None:
-        """The same model without the offline tilt smoothing (``name-nosmooth``: ``estimate --no-smooth``,
-        the tilt the live bridge gives where no other offline step applies), or None where it does not
-        smooth (the older fusion, a checkpoint written before session 25)."""
+        """The same model without the offline tilt smoothing (``name-nosmooth``: ``estimate --no-smooth``; the
+        record's GNSS aid and self-calibrations still apply: :meth:`live` turns them off too), or None where it
+        does not smooth (the older fusion, a checkpoint written before session 25)."""
         import dataclasses
 
         if not getattr(self.fusion, "smoother", False):
             return None
         return TepinnEstimator(self.model, dataclasses.replace(self.fusion, smoother=False), self.name + "-nosmooth", self.checkpoint)
+
+    def live(self) -> TepinnEstimator | None:
+        """The same model as the bridge runs it (``name-live``: ``estimate --no-smooth --no-gnss-aid
+        --no-gyro-selfcal``): the offline steps the bridge has no live form of turned off (the smoothing, the GNSS
+        aid, the gyro's self-calibration); the accelerometer's scale, which the bridge tracks as it goes, is read
+        here from the whole record. None where none of those is on (the older fusion, a checkpoint already causal)."""
+        import dataclasses
+
+        on = [step for step in ("smoother", "gnss_aid", "gyro_selfcal") if getattr(self.fusion, step, False)]
+        if not on:
+            return None
+        return TepinnEstimator(self.model, dataclasses.replace(self.fusion, **{step: False for step in on}),
+                               self.name + "-live", self.checkpoint)
 
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike, name: str | None = None, runtime: str | None = None,

@@ -53,6 +53,8 @@ def display_name(name: str) -> str:
         return f"{_BASE[name[: -len('-smooth')]]}, smoothed offline"
     if name.endswith("-nosmooth") and name[: -len("-nosmooth")] in _BASE:  # evaluate --no-smooth
         return f"{_BASE[name[: -len('-nosmooth')]]}, not smoothed"
+    if name.endswith("-live") and name[: -len("-live")] in _BASE:  # evaluate --live
+        return f"{_BASE[name[: -len('-live')]]}, live (the bridge's)"
     m = re.fullmatch(r"(.+)-stride([0-9]+)", name)  # evaluate --busy-stride N
     if m and m.group(1) in _BASE:
         return f"{_BASE[m.group(1)]}, busy stride {m.group(2)}"
