@@ -53,7 +53,7 @@ def test_a_record_with_no_scored_sample_is_said_to_be_one(two_ok_one_short):
     assert any("no scored sample" in n and "short" in n for n in res.notes)
     assert not any("not every estimator has an estimate" in n for n in res.notes)
     md = render_markdown(res, {k: f"{k}.png" for k in FIGURES})
-    assert "## Summary (mean over the 2 records in it)" in md
+    assert "## Summary (mean over the 2 records in it, 1 kept out)" in md
     assert "| short (no scored sample, not in the summary) |" in md
     assert "| a |" in md  # (in the summary: no tag)
 

@@ -62,7 +62,7 @@ def test_the_report_lists_them_apart(slow_and_fast, tmp_path):
     apart = md.split("## Records not in the summary", 1)[1].split("\n## ", 1)[0]
     assert "| uavlv_vtol | IMU too slow |" in apart and "| aplogan_nan | reference not trusted |" in apart
     assert "ardusub_small" not in apart
-    assert "## Summary (mean over the 1 records in it)" in md
+    assert "## Summary (mean over the 1 record in it, 2 kept out)" in md
     page = render_html(res)
     assert "Records not in the summary" in page and "reference not trusted" in page
     assert "estimation OK" in page and "no: IMU too slow, not in the summary" in page
@@ -85,3 +85,22 @@ def test_the_uncertainty_figure_pools_the_summary_records_only(slow_and_fast):
         m = res.series[i]["mask"] & np.isfinite(e["sigma"]) & np.all(np.isfinite(e["tilt_err"]), axis=1)
         np.testing.assert_array_equal(sig, e["sigma"][m])
         np.testing.assert_array_equal(err, np.sum(e["tilt_err"][m] ** 2, axis=1))
+
+
+def test_a_summary_over_records_that_all_fail_says_so_even_quiet(tmp_path, capsys):
+    """Where every record is kept out (a folder of telemetry tlogs), the summary is over them all: its heading says so
+    and that it is no meaningful comparison, and `evaluate -q` still says it (review61: averaged without a word)."""
+    from tepinn_flight.cli.main import main
+    from tepinn_flight.evaluation.harness import ALL_LEFT_OUT_NOTE
+
+    out = tmp_path / "r"
+    assert main(["evaluate", str(real_log("uavlv_vtol.tlog")), "-o", str(out), "--no-model", "--no-peers", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert f"note: {ALL_LEFT_OUT_NOTE}" in err
+    md = (out / "report.md").read_text()
+    assert "## Summary (mean over all 1 record, though none passes: an IMU too slow" in md
+    assert "not a meaningful comparison" in (out / "report.html").read_text()
+    # and quiet with a record that passes: no such note
+    assert main(["evaluate", str(real_log("ardusub_small.BIN")), str(real_log("uavlv_vtol.tlog")), "-o",
+                 str(tmp_path / "s"), "--no-model", "--no-peers", "-q"]) == 0  # fmt: skip
+    assert ALL_LEFT_OUT_NOTE not in capsys.readouterr().err

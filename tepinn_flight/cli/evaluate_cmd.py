@@ -178,7 +178,10 @@ def _run(args) -> int:
     if args.noise_sweep:
         result.noise_sweep = noise_sweep(records, estimators, hcfg, progress=not args.quiet, notes=result.notes)
     files = write_report(result, args.output)
-    for n in (result.notes if not args.quiet else read_notes):  # (-q: a file left out is still said)
+    from ..evaluation.harness import ALL_LEFT_OUT_NOTE
+
+    said = result.notes if not args.quiet else [*read_notes, *(n for n in result.notes if n == ALL_LEFT_OUT_NOTE)]
+    for n in said:  # (-q: a file left out is still said, and a summary over records that all fail the checks)
         sys.stderr.write(f"note: {n}\n")
     best = sorted((d["inclination_rmse_deg"], k) for k, d in result.dataset.items() if d["inclination_rmse_deg"] is not None)
     why = [w for r in result.records if (w := kept_out(r))]

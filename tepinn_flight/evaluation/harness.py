@@ -64,6 +64,11 @@ class HarnessConfig:
             raise ConfigError(f"min_coverage must be in (0, 1], got {self.min_coverage!r}")
 
 
+#: the note where every record fails the checks that keep one out of the summary (said by `evaluate` even with -q)
+ALL_LEFT_OUT_NOTE = ("every record has an IMU too slow for windowed estimation or a reference that fails the trust "
+                     "check: the summary is over them all and is not a meaningful comparison")  # fmt: skip
+
+
 def record_name(rec: FlightRecord, i: int = 0) -> str:
     from pathlib import Path
 
@@ -238,8 +243,7 @@ def evaluate(records: list[FlightRecord], estimators: list, config: HarnessConfi
     else:
         headline = rec_results
         kept_out = {}
-        notes.append("every record has an IMU too slow for windowed estimation or a reference that fails the trust "
-                     "check: the summary is over them all and is not meaningful")  # fmt: skip
+        notes.append(ALL_LEFT_OUT_NOTE)
     # no estimator has a figure there: nothing is scored (not a missing estimate) — kept out even where no record of
     # the summary has a figure (review60: two such records had been the whole summary, a line of dashes)
     unscored = [r for r in headline if not any(_scored(r["results"][e.name]) for e in estimators)]

@@ -34,3 +34,23 @@ def kept_out(r: dict) -> str:
     if "in_summary" not in r:
         return left_out(r)
     return "" if r["in_summary"] else (r.get("kept_out") or left_out(r) or "not in the summary")
+
+
+def summary_heading(records: list[dict]) -> str:
+    """The summary's heading (report.md and report.html), saying how many records its means are over: those in it
+    where some are kept out; all of them, said to be no meaningful comparison, where every record fails
+    :func:`left_out`'s checks (the harness then averages over them all rather than show no summary)."""
+    n = len(records)
+    kept = sum(1 for r in records if kept_out(r))
+    if kept:
+        m = n - kept
+        return f"Summary (mean over the {m} record{'s' if m != 1 else ''} in it, {kept} kept out)"
+    if n and all(left_out(r) for r in records):
+        return (f"Summary (mean over all {n} record{'s' if n != 1 else ''}, though none passes: an IMU too slow or a "
+                "reference not trusted; not a meaningful comparison)")
+    return f"Summary (mean over {'the ' + str(n) + ' records' if n != 1 else 'the one record'})"
+
+
+def every_record_fails(records: list[dict]) -> bool:
+    """Every record an IMU too slow or a reference not trusted: the summary is over them all and means little."""
+    return bool(records) and all(left_out(r) for r in records) and not any(kept_out(r) for r in records)

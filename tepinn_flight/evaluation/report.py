@@ -26,7 +26,7 @@ from ..record import atomic_write
 from .harness import WIN_MARGIN_DEG, EvalResult
 from .names import display_name
 from .plotdata import PAPER_COLOURS, break_wraps, colour_map, is_9d, minmax_indices, showcase_records
-from .left_out import LEFT_OUT_NOTE, kept_out
+from .left_out import LEFT_OUT_NOTE, kept_out, summary_heading
 from .report_html import RECORD_COLUMNS, kept_out_records, rate_counts, rate_labels, record_rows, write_html
 
 FIGURES = {
@@ -396,7 +396,6 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
         L.append("| " + " | ".join(map(md_cell, row)) + " |")
     L.append("")
     slow = kept_out_records(result)
-    fast = len(result.records) - len(slow)
     if slow:
         L.append("## Records not in the summary")
         L.append("")
@@ -408,7 +407,7 @@ def render_markdown(result: EvalResult, figures: dict[str, str], title: str = "A
             L.append(f"| {md_cell(r['name'])} | {kept_out(r)} | {_f(r.get('imu_rate_hz'), 1)} | "
                      + " | ".join(_f(r["results"][n].get("inclination_rmse_deg")) for n in result.dataset) + " |")
         L.append("")
-    L.append("## Summary (mean over records)" if not slow else f"## Summary (mean over the {fast} records in it)")
+    L.append(f"## {summary_heading(result.records)}")
     L.append("")
     L.append("Median and p95: of the records' inclination RMSEs (with one record, the RMSE itself); the gyro bias RMS: "
              "the mean over the records that hold the true bias (simulations); every other column is a mean over records "

@@ -21,7 +21,7 @@ import numpy as np
 
 from .. import __version__
 from ..record import atomic_write
-from .left_out import LEFT_OUT_NOTE, kept_out, left_out
+from .left_out import LEFT_OUT_NOTE, kept_out, left_out, summary_heading
 from .names import display_name
 from .plotdata import PAPER_COLOURS, break_wraps, colour_map, is_9d, minmax_indices
 
@@ -174,8 +174,7 @@ def render_html(result, title: str = "Attitude estimation report", max_points: i
     info = {e["name"]: e for e in result.estimators}
     order = sorted(names, key=lambda n: (result.dataset[n]["inclination_rmse_deg"] is None, result.dataset[n]["inclination_rmse_deg"] or 0))
     slow = kept_out_records(result)
-    P.append("<h2>Summary (mean over records)</h2>" if not slow else
-             f"<h2>Summary (mean over the {len(result.records) - len(slow)} records in it)</h2>")  # fmt: skip
+    P.append(f"<h2>{html.escape(summary_heading(result.records))}</h2>")
     P.append(_table(["estimator", "mode", "incl. RMSE [°]", "roll [°]", "pitch [°]", "heading [°]", "total [°]", "|drift| [°/min]"],
                     [[display_name(n), "9-D" if info.get(n, {}).get("uses_mag") else "6-D"] +
                      [_f(result.dataset[n][k]) for k in ("inclination_rmse_deg", "roll_rmse_deg", "pitch_rmse_deg",
