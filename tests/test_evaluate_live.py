@@ -72,3 +72,19 @@ def test_evaluate_live_adds_the_column_named_as_the_bridges(f450, tmp_path):
     names = [e["name"] for e in json.loads((out / "metrics.json").read_text())["estimators"]]
     assert "tepinn-live" in names and "tepinn-nosmooth" in names and "lstm-live" not in names
     assert "TE-PINN, live (the bridge's)" in (out / "report.md").read_text()
+
+
+def test_evaluate_live_says_when_a_model_is_already_the_bridges(f450, tmp_path, capsys):
+    import torch
+
+    _, path = f450
+    ck = torch.load(default_model_path(), weights_only=True)
+    ck["anchor_config"].update(smoother=False, gnss_aid=False, gyro_selfcal=False)
+    torch.save(ck, tmp_path / "causal.pt")
+    out = tmp_path / "r"
+    capsys.readouterr()
+    assert main(["evaluate", str(path), "-o", str(out), "--no-peers", "--live", "-q", "--runtime", "torch",
+                 "--model", str(tmp_path / "causal.pt")]) == 0  # fmt: skip
+    assert "--live: no model here has an offline step the bridge lacks" in capsys.readouterr().err
+    names = [e["name"] for e in json.loads((out / "metrics.json").read_text())["estimators"]]
+    assert not any(n.endswith("-live") for n in names)

@@ -153,7 +153,7 @@ def _run(args) -> int:
         if args.live:  # the bridge's causal estimate beside the model as it ships (6-D)
             live = [es for e in base if hasattr(e, "live") and not e.uses_mag and (es := e.live()) is not None]
             if not live:
-                notes.append("--live: no model here reads the whole record offline; its column is already the bridge's")
+                notes.append("--live: no model here has an offline step the bridge lacks; its column is already the bridge's")
             estimators += live
     else:
         notes.append("TE-PINN not evaluated (--no-model)")

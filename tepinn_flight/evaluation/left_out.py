@@ -46,11 +46,7 @@ def summary_heading(records: list[dict]) -> str:
         m = n - kept
         return f"Summary (mean over the {m} record{'s' if m != 1 else ''} in it, {kept} kept out)"
     if n and all(left_out(r) for r in records):
-        return (f"Summary (mean over all {n} record{'s' if n != 1 else ''}, though none passes: an IMU too slow or a "
-                "reference not trusted; not a meaningful comparison)")
+        over = f"all {n} records, though none passes" if n != 1 else "the one record, though it fails"
+        return f"Summary (over {over}: an IMU too slow or a reference not trusted; not a meaningful comparison)"
     return f"Summary (mean over {'the ' + str(n) + ' records' if n != 1 else 'the one record'})"
 
-
-def every_record_fails(records: list[dict]) -> bool:
-    """Every record an IMU too slow or a reference not trusted: the summary is over them all and means little."""
-    return bool(records) and all(left_out(r) for r in records) and not any(kept_out(r) for r in records)
