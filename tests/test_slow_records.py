@@ -95,8 +95,8 @@ def test_a_summary_over_records_that_all_fail_says_so_even_quiet(tmp_path, capsy
 
     out = tmp_path / "r"
     assert main(["evaluate", str(real_log("uavlv_vtol.tlog")), "-o", str(out), "--no-model", "--no-peers", "-q"]) == 0
-    err = capsys.readouterr().err
-    assert f"note: {ALL_LEFT_OUT_NOTE}" in err
+    said = capsys.readouterr()
+    assert f"note: {ALL_LEFT_OUT_NOTE}" in said.err and "every one failing the rate or reference check" in said.out
     md = (out / "report.md").read_text()
     assert "## Summary (over the one record, though it fails: an IMU too slow or a reference not trusted; not a " in md
     assert "not a meaningful comparison" in (out / "report.html").read_text()
