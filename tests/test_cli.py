@@ -703,6 +703,7 @@ def test_bridge_estimates_a_replayed_flight(tmp_path):
 
     from tepinn_flight.model.synthetic import synthetic_record
     from tepinn_flight.tlog_writer import write_tlog
+    from tests.test_bridge import StderrWatcher
     from tests.test_replay import CLI, free_udp_port, tlog_records
 
     path = tmp_path / "s.tlog"
@@ -714,17 +715,21 @@ def test_bridge_estimates_a_replayed_flight(tmp_path):
     port, summary = free_udp_port(), tmp_path / "summary.json"
     env = {k: v for k, v in os.environ.items() if k != "TEPINN_DEBUG"}
     bridge = subprocess.Popen([*CLI, "bridge", "--master", f"udpin:127.0.0.1:{port}", "--summary-json", str(summary),
-                               "--max-age", "5", "-q"], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                               "--max-age", "5"], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                               stderr=subprocess.PIPE, text=True, env=env)  # fmt: skip
+    watch = StderrWatcher(bridge)
     try:
-        time.sleep(8.0)  # model loaded, worker started
+        assert watch.wait_for("estimator ready", 180), "\n".join(watch.lines)  # model loaded, worker started
         r = subprocess.run([*CLI, "replay", str(path), "--to", f"udpout:127.0.0.1:{port}"], capture_output=True,
                            text=True, timeout=120, env=env)  # fmt: skip
         assert r.returncode == 0, r.stderr
         time.sleep(2.0)
     finally:
         bridge.send_signal(signal.SIGTERM)
-        _, err = bridge.communicate(timeout=30)
+        bridge.stdout.read()
+        bridge.wait(timeout=30)
+        watch.t.join(5)
+    err = "\n".join(watch.lines)
     assert bridge.returncode == 143, err  # stopped by SIGTERM: the summary written, and every verb's 143 (session 59)
     s = json.loads(summary.read_text())
     assert s["imu"]["samples"] == n_imu and s["estimates"]["count"] > 0, s
