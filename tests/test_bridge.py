@@ -73,6 +73,7 @@ def _parse(frames: bytes):
 
 class StderrWatcher:
     def __init__(self, proc):
+        self.proc = proc
         self.lines: list[str] = []
         self.times: list[float] = []  # when each line came (time.monotonic)
         self.t = threading.Thread(target=self._run, args=(proc,), daemon=True)
@@ -84,10 +85,14 @@ class StderrWatcher:
             self.lines.append(line.rstrip("\n"))
 
     def wait_for(self, text: str, timeout: float) -> bool:
+        """Whether ``text`` came within ``timeout`` s (False at once where the process ended without it)."""
         end = time.monotonic() + timeout
         while time.monotonic() < end:
             if any(text in ln for ln in self.lines):
                 return True
+            if self.proc.poll() is not None:  # ended: what it wrote is read to the end, then no more can come
+                self.t.join(5)
+                return any(text in ln for ln in self.lines)
             time.sleep(0.05)
         return False
 

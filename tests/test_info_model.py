@@ -43,8 +43,8 @@ def test_info_describes_the_shipped_checkpoint_and_its_export(capsys):
     assert main(["info", str(pt)]) == 0
     out = capsys.readouterr().out
     assert f"windows of {ck['model_config']['window_tokens']} tokens" in out and f"{n_params:,} parameters" in out
-    # the kept (best) epoch, as the run's own history numbers it, not taken for how many ran (review61)
-    assert f"best at epoch {ck['metrics']['epoch']}," in out and " epochs" not in out
+    # the epoch its figures are from, as the run's own history numbers it, not taken for how many ran (review61)
+    assert f"figures from epoch {ck['metrics']['epoch']}," in out and " epochs" not in out
 
 
 def test_info_says_when_the_pair_beside_differs_and_names_a_training_checkpoint(tmp_path, capsys):

@@ -100,7 +100,9 @@ def test_report_renders_with_all_figures(records_dir, tiny_checkpoint, tmp_path,
     ("complementary-9d", "complementary 9-D"), ("madgwick-original-9d-beta0.12", "Madgwick (original) 9-D, β = 0.12"),
     ("tepinn-nophysics", "TE-PINN without physics"), ("tepinn-noadaptive", "TE-PINN without adaptive weighting"),
     ("tepinn-run2", "TE-PINN (run2)"), ("tepinn-stride6", "TE-PINN, busy stride 6"), ("no-physics", "no physics"),
-    ("something-else", "something-else"),
+    ("something-else", "something-else"), ("tepinn-live", "TE-PINN, live (the bridge's)"),
+    ("tepinn-run3-live", "TE-PINN (run3), live (the bridge's)"), ("tepinn-nosmooth", "TE-PINN, not smoothed"),
+    ("tepinn-smooth", "TE-PINN, smoothed offline"), ("else-live", "else-live"),
 ])  # fmt: skip
 def test_display_names(name, shown):
     assert display_name(name) == shown

@@ -98,9 +98,27 @@ def test_a_summary_over_records_that_all_fail_says_so_even_quiet(tmp_path, capsy
     said = capsys.readouterr()
     assert f"note: {ALL_LEFT_OUT_NOTE}" in said.err and "every one failing the rate or reference check" in said.out
     md = (out / "report.md").read_text()
-    assert "## Summary (over the one record, though it fails: an IMU too slow or a reference not trusted; not a " in md
+    assert "## Summary (over the one record in it, though it fails: an IMU too slow or a reference not trusted; not a " in md
     assert "not a meaningful comparison" in (out / "report.html").read_text()
     # and quiet with a record that passes: no such note
     assert main(["evaluate", str(real_log("ardusub_small.BIN")), str(real_log("uavlv_vtol.tlog")), "-o",
                  str(tmp_path / "s"), "--no-model", "--no-peers", "-q"]) == 0  # fmt: skip
     assert ALL_LEFT_OUT_NOTE not in capsys.readouterr().err
+
+
+def test_the_summary_heading_counts_what_it_is_over():
+    """Every case of the heading (review62: where every record failed and one more was unscored, the heading had
+    dropped the warning; with every record kept out it read "the 0 records in it")."""
+    from tepinn_flight.evaluation.left_out import summary_heading
+
+    ok = {"estimation_ok": True, "reference_trusted": True, "in_summary": True, "kept_out": ""}
+    slow = {"estimation_ok": False, "reference_trusted": True, "in_summary": True, "kept_out": ""}
+    unscored = {"estimation_ok": False, "reference_trusted": True, "in_summary": False, "kept_out": "no scored sample"}
+    apart = {"estimation_ok": False, "reference_trusted": True, "in_summary": False, "kept_out": ""}
+    assert summary_heading([ok, ok]) == "Summary (mean over the 2 records)"
+    assert summary_heading([ok]) == "Summary (mean over the one record)"
+    assert summary_heading([ok, apart, apart]) == "Summary (mean over the 1 record in it, 2 kept out)"
+    assert summary_heading([slow, slow]).startswith("Summary (over all 2 records in it, though none passes")
+    h = summary_heading([slow, unscored])
+    assert h.startswith("Summary (over the one record in it, though it fails") and h.endswith("comparison, 1 kept out)")
+    assert summary_heading([unscored, unscored]) == "Summary (no record in it, 2 kept out)"

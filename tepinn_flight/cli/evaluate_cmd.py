@@ -45,8 +45,9 @@ def add_arguments(p) -> None:
                    help="add TE-PINN without the offline tilt smoothing (estimate --no-smooth; the record's GNSS aid and "
                         "gyro/accelerometer self-calibrations still apply) beside the model as it ships")
     p.add_argument("--live", action="store_true",
-                   help="add TE-PINN as the bridge runs it live: the offline smoothing, GNSS aid and gyro self-calibration "
-                        "off (estimate --no-smooth --no-gnss-aid --no-gyro-selfcal)")
+                   help="add TE-PINN as the bridge runs it live (6-D): every sample pushed through the live estimator, so no "
+                        "step that reads the whole record applies (smoothing, GNSS aid, gyro self-calibration) and the "
+                        "accelerometer's scale is read from the first quiet seconds on, as the bridge reads it")
     p.add_argument("--smooth", action="store_true",
                    help="add TE-PINN with the offline tilt smoothing beside a model that does not smooth (a checkpoint "
                         "written before session 25)")
@@ -151,10 +152,14 @@ def _run(args) -> int:
                 notes.append("--no-smooth: no model here smooths offline; nothing added")
             estimators += plain
         if args.live:  # the bridge's causal estimate beside the model as it ships (6-D)
-            live = [es for e in base if hasattr(e, "live") and not e.uses_mag and (es := e.live()) is not None]
-            if not live:
-                notes.append("--live: no model here has an offline step the bridge lacks; its column is already the bridge's")
-            estimators += live
+            for e in base:
+                es = e.live() if hasattr(e, "live") else None
+                if es is not None:
+                    estimators.append(es)
+                elif hasattr(getattr(e, "fusion", None), "smoother"):  # (an older fusion, the LSTM's: offline is live)
+                    why = ("it is 9-D; the live column is 6-D" if e.uses_mag else
+                           "it has no offline step: its own column is already the bridge's")  # fmt: skip
+                    notes.append(f"--live: nothing added for {display_name(e.name)}: {why}")
     else:
         notes.append("TE-PINN not evaluated (--no-model)")
     estimators += baseline_estimators(cfg, with_mag=args.with_mag)

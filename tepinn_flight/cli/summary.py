@@ -150,7 +150,9 @@ def render_model_info(d: dict) -> str:
         parts = [f"{t['train_files']} training and {t.get('val_files', 0)} validation files" if "train_files" in t else "",
                  f"IMU rates {'/'.join(f'{r:g}' for r in t['imu_rates_hz'])} Hz" if t.get("imu_rates_hz") else "",
                  f"seed {t['seed']}" if "seed" in t else "",
-                 f"best at epoch {t['epoch']}" if "epoch" in t else "",  # (the kept epoch's, not how many ran)
+                 # (the epoch whose figures the file holds — the best for model.pt / best.pt, the last for last.pt —
+                 # not how many ran: review61, review62)
+                 f"figures from epoch {t['epoch']}" if "epoch" in t else "",
                  f"{t['elapsed_s'] / 60:.1f} min in by then" if "elapsed_s" in t else ""]  # fmt: skip
         add("training", ", ".join(p for p in parts if p) or "-")
         val = [f"network {t['val_tilt_rmse_deg']:.2f}°" if "val_tilt_rmse_deg" in t else "",

@@ -151,17 +151,16 @@ class TepinnEstimator:
         return TepinnEstimator(self.model, dataclasses.replace(self.fusion, smoother=False), self.name + "-nosmooth", self.checkpoint)
 
     def live(self) -> TepinnEstimator | None:
-        """The same model as the bridge runs it (``name-live``: ``estimate --no-smooth --no-gnss-aid
-        --no-gyro-selfcal``): the offline steps the bridge has no live form of turned off (the smoothing, the GNSS
-        aid, the gyro's self-calibration); the accelerometer's scale, which the bridge tracks as it goes, is read
-        here from the whole record. None where none of those is on (the older fusion, a checkpoint already causal)."""
-        import dataclasses
+        """The same model as the bridge runs it (``name-live``): every sample of a record pushed through the live
+        estimator in order (:func:`~tepinn_flight.model.streaming.stream_record`), so none of the steps that read the
+        whole record applies (the smoothing, the GNSS aid, the gyro's self-calibration) and the accelerometer's scale
+        is read as the bridge reads it, from the first quiet seconds on. 6-D. None for a model with no offline step
+        (the older network-centred fusion: its offline estimate is the live one) and for a 9-D one."""
+        from ..model.estimate import OFFLINE_STEPS
 
-        on = [step for step in ("smoother", "gnss_aid", "gyro_selfcal") if getattr(self.fusion, step, False)]
-        if not on:
+        if self.uses_mag or not any(getattr(self.fusion, step, False) for step in OFFLINE_STEPS):
             return None
-        return TepinnEstimator(self.model, dataclasses.replace(self.fusion, **{step: False for step in on}),
-                               self.name + "-live", self.checkpoint)
+        return LiveTepinnEstimator(self.model, self.fusion, self.name + "-live", self.checkpoint)
 
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike, name: str | None = None, runtime: str | None = None,
@@ -199,6 +198,21 @@ class TepinnEstimator:
         from ..model.estimate import estimate_record
 
         return estimate_record(self.model, record, self.fusion)
+
+
+class LiveTepinnEstimator(TepinnEstimator):
+    """TE-PINN as the live bridge gives it (:meth:`TepinnEstimator.live`): causal, every estimate from past samples."""
+
+    causal = True
+
+    def live(self) -> None:
+        return None
+
+    def estimate(self, record: FlightRecord) -> pd.DataFrame:
+        from ..model.streaming import stream_record
+
+        q, sigma, bias = stream_record(self.model, record, self.fusion)
+        return estimate_frame(record.t_s, q, sigma, bias)
 
 
 def _shipped(path: Path, runtime: str) -> Path:

@@ -37,16 +37,16 @@ def kept_out(r: dict) -> str:
 
 
 def summary_heading(records: list[dict]) -> str:
-    """The summary's heading (report.md and report.html), saying how many records its means are over: those in it
-    where some are kept out; all of them, said to be no meaningful comparison, where every record fails
-    :func:`left_out`'s checks (the harness then averages over them all rather than show no summary)."""
-    n = len(records)
-    kept = sum(1 for r in records if kept_out(r))
-    if kept:
-        m = n - kept
-        return f"Summary (mean over the {m} record{'s' if m != 1 else ''} in it, {kept} kept out)"
-    if n and all(left_out(r) for r in records):
-        over = f"all {n} records, though none passes" if n != 1 else "the one record, though it fails"
-        return f"Summary (over {over}: an IMU too slow or a reference not trusted; not a meaningful comparison)"
-    return f"Summary (mean over {'the ' + str(n) + ' records' if n != 1 else 'the one record'})"
-
+    """The summary's heading (report.md and report.html), saying how many records its means are over and how many
+    are kept out; where every record in it fails :func:`left_out`'s checks (the harness then averages over them all
+    rather than show no summary), that it is no meaningful comparison."""
+    inside = [r for r in records if not kept_out(r)]
+    m, kept = len(inside), len(records) - len(inside)
+    apart = f", {kept} kept out" if kept else ""
+    if not inside:
+        return f"Summary (no record in it{apart})"
+    if all(left_out(r) for r in inside):
+        over = f"all {m} records in it, though none passes" if m != 1 else "the one record in it, though it fails"
+        return f"Summary (over {over}: an IMU too slow or a reference not trusted; not a meaningful comparison{apart})"
+    return f"Summary (mean over the {m} record{'s' if m != 1 else ''} in it{apart})" if kept else \
+        f"Summary (mean over {'the ' + str(m) + ' records' if m != 1 else 'the one record'})"

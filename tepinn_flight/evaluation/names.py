@@ -44,17 +44,18 @@ _VARIANT_SUFFIXES = {
 }
 
 
+#: suffixes that evaluate's variants of a model (the same network run another way) append to its name
+_MODE_SUFFIXES = {"-smooth": "smoothed offline", "-nosmooth": "not smoothed", "-live": "live (the bridge's)"}
+
+
 def display_name(name: str) -> str:
     """The method as people write it; unknown ids come back unchanged."""
     name = str(name)
     if name in _BASE:
         return _BASE[name]
-    if name.endswith("-smooth") and name[: -len("-smooth")] in _BASE:  # evaluate --smooth
-        return f"{_BASE[name[: -len('-smooth')]]}, smoothed offline"
-    if name.endswith("-nosmooth") and name[: -len("-nosmooth")] in _BASE:  # evaluate --no-smooth
-        return f"{_BASE[name[: -len('-nosmooth')]]}, not smoothed"
-    if name.endswith("-live") and name[: -len("-live")] in _BASE:  # evaluate --live
-        return f"{_BASE[name[: -len('-live')]]}, live (the bridge's)"
+    for suffix, what in _MODE_SUFFIXES.items():  # evaluate --smooth, --no-smooth, --live (of a model named apart too)
+        if name.endswith(suffix) and (shown := display_name(name[: -len(suffix)])) != name[: -len(suffix)]:
+            return f"{shown}, {what}"
     m = re.fullmatch(r"(.+)-stride([0-9]+)", name)  # evaluate --busy-stride N
     if m and m.group(1) in _BASE:
         return f"{_BASE[m.group(1)]}, busy stride {m.group(2)}"
