@@ -178,6 +178,7 @@ def _run_chain(tmp_path, model, tlog, speed, mavproxy=False, bridge_cli=None):
         _stop(bridge)
         bridge.stdout.read()
         summary = json.loads(summary_path.read_text())
+        summary["exit_code"] = bridge.returncode  # (SIGTERM: 143, the summary written; _stop's kill: -9)
         watch.t.join(5)
         summary["lost_during_replay"] = sum("silent for" in ln and t < replay_done
                                             for t, ln in zip(watch.times, watch.lines))  # fmt: skip
@@ -236,7 +237,6 @@ def test_replay_bridge_listener_end_to_end(tmp_path, model_path):
     q_off = np.array([ref[int(k)] for k in ms])
     np.testing.assert_allclose(q_live, q_off, atol=2e-6)  # float32 on the wire
     # inclination error against the simulation's truth (the tlog's ATTITUDE is the truth here)
-    t = rec.t_s
     idx = np.rint((ms / 1e3 - DEFAULT_BOOT_OFFSET_S) * 400).astype(int)
     q_true = rec.q_ref_wxyz[idx]
     g = lambda q: np.stack([2 * (q[:, 1] * q[:, 3] - q[:, 0] * q[:, 2]), 2 * (q[:, 2] * q[:, 3] + q[:, 0] * q[:, 1]),
@@ -253,6 +253,10 @@ def test_replay_bridge_listener_end_to_end(tmp_path, model_path):
     sent = tlog_records(tlog)
     msg, est = summary["messages"], summary["estimates"]
     assert msg["from_master"] == msg["forwarded_to_outs"] == len(sent)
+    # every IMU sample the tlog holds counted, and the bridge stopped by SIGTERM as every verb is (143, session 59)
+    rx = M.MAVLink(None)
+    n_imu = sum(m.get_type() == "HIGHRES_IMU" for _, fr in sent for m in rx.parse_buffer(fr) or [])
+    assert summary["imu"]["samples"] == n_imu > 0 and summary["exit_code"] == 143, summary
     assert msg["bad_frames"] == msg["own_echoes"] == msg["write_errors"] == msg["internal_errors"] == 0
     assert est["count"] == len(aq) and est["errors"] == 0 and est["resets"] == 0
     assert est["dropped_stale"] == est["dropped_queue_full"] == est["samples_without_estimator"] == 0

@@ -694,51 +694,6 @@ def test_replay_a_small_tlog(tmp_path):
 
 
 @pytest.mark.slow
-def test_bridge_estimates_a_replayed_flight(tmp_path):
-    """replay → bridge (the shipped model) for a 3 s synthetic flight: the bridge counts every IMU
-    sample the tlog holds and publishes estimates."""
-    import json
-    import signal
-    import time
-
-    from tepinn_flight.model.synthetic import synthetic_record
-    from tepinn_flight.tlog_writer import write_tlog
-    from tests.test_bridge import StderrWatcher
-    from tests.test_replay import CLI, free_udp_port, tlog_records
-
-    path = tmp_path / "s.tlog"
-    write_tlog(path, synthetic_record(seed=3, duration_s=6.0, rate_hz=100.0))
-    from tepinn_flight.live import dialect
-
-    rx = dialect().MAVLink(None)
-    n_imu = sum(m.get_type() == "HIGHRES_IMU" for _, fr in tlog_records(path) for m in rx.parse_buffer(fr) or [])
-    port, summary = free_udp_port(), tmp_path / "summary.json"
-    env = {k: v for k, v in os.environ.items() if k != "TEPINN_DEBUG"}
-    bridge = subprocess.Popen([*CLI, "bridge", "--master", f"udpin:127.0.0.1:{port}", "--summary-json", str(summary),
-                               "--max-age", "5"], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                              stderr=subprocess.PIPE, text=True, env=env)  # fmt: skip
-    watch = StderrWatcher(bridge)
-    try:
-        assert watch.wait_for("estimator ready", 180), "\n".join(watch.lines)  # model loaded, worker started
-        r = subprocess.run([*CLI, "replay", str(path), "--to", f"udpout:127.0.0.1:{port}"], capture_output=True,
-                           text=True, timeout=120, env=env)  # fmt: skip
-        assert r.returncode == 0, r.stderr
-        time.sleep(2.0)
-    finally:
-        bridge.send_signal(signal.SIGTERM)
-        try:
-            bridge.wait(timeout=30)
-        except subprocess.TimeoutExpired:  # (a bridge stuck after SIGTERM fails the test, it does not hang it)
-            bridge.kill()
-            bridge.wait()
-        watch.t.join(5)
-    err = "\n".join(watch.lines)
-    assert bridge.returncode == 143, err  # stopped by SIGTERM: the summary written, and every verb's 143 (session 59)
-    s = json.loads(summary.read_text())
-    assert s["imu"]["samples"] == n_imu and s["estimates"]["count"] > 0, s
-
-
-@pytest.mark.slow
 def test_ablate_two_variants_on_a_tiny_recipe(erle, tmp_path):
     """Two variants trained from train/tiny.toml, evaluated on the real record: one table row each."""
     import json
