@@ -2,9 +2,10 @@
 the record's GNSS aid and gyro self-calibration still applied; review62: an offline estimate with those steps off still
 read the accelerometer's scale from the whole record, where the bridge reads it from its first quiet seconds). The
 live column is the streaming estimator pushed every sample; checked here against the offline anchored estimator with
-every offline step off (an independent path: its own compiled segment loop), σ included, and on a board whose
-accelerometer reads 0.8 g at rest, against the offline estimate without the scale before the live reading and with it
-after."""
+every offline step off (an independent path: its own compiled segment loop), σ included; and on a board whose
+accelerometer reads 0.8 g at rest — where the two paths rightly differ — against the live tests' own push loop
+(``tests/live_run.py``: the vehicle and the clipping flags passed as the bridge passes them), more than 0.5° from the
+offline estimate with those steps off."""
 
 from __future__ import annotations
 

@@ -190,10 +190,11 @@ def _run(args) -> int:
         sys.stderr.write(f"note: {n}\n")
     best = sorted((d["inclination_rmse_deg"], k) for k, d in result.dataset.items() if d["inclination_rmse_deg"] is not None)
     why = [w for r in result.records if (w := kept_out(r))]
-    over = ("records" if not why else f"the {len(records) - len(why)} records in the summary; {len(why)} listed apart: "
-            + ", ".join(f"{w} ({why.count(w)})" for w in dict.fromkeys(why)))
     if ALL_LEFT_OUT_NOTE in result.notes:  # (every record failed the rate or reference check: averaged all the same)
         over = "records, every one failing the rate or reference check: no meaningful comparison"
+    else:
+        over = ("records" if not why else f"the {len(records) - len(why)} records in the summary; {len(why)} listed "
+                "apart: " + ", ".join(f"{w} ({why.count(w)})" for w in dict.fromkeys(why)))
     figures = (", ".join(f"{display_name(k)} {v:.2f}°" for v, k in best) if best else
                "none: no record in the summary (each record's figures are in the report)")  # (review60: the line ended at ':')
     print(f"{len(records)} record(s), {len(estimators)} estimator(s); inclination RMSE (mean over {over}): {figures}")

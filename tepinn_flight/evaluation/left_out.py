@@ -48,5 +48,6 @@ def summary_heading(records: list[dict]) -> str:
     if all(left_out(r) for r in inside):
         over = f"all {m} records in it, though none passes" if m != 1 else "the one record in it, though it fails"
         return f"Summary (over {over}: an IMU too slow or a reference not trusted; not a meaningful comparison{apart})"
-    return f"Summary (mean over the {m} record{'s' if m != 1 else ''} in it{apart})" if kept else \
-        f"Summary (mean over {'the ' + str(m) + ' records' if m != 1 else 'the one record'})"
+    if kept:
+        return f"Summary (mean over the {m} record{'s' if m != 1 else ''} in it{apart})"
+    return f"Summary (mean over {f'the {m} records' if m != 1 else 'the one record'})"
