@@ -98,6 +98,14 @@ def test_models_of_one_run_folder_get_names_of_their_own_and_what_ran_is_said(tm
     assert [e.checkpoint for e in ests] == [str(run / "model.onnx"), str(run / "model.onnx"), str(run / "best.pt")]
     assert [e.exported_in_memory for e in ests] == [False, False, True] and all(e.runtime == "onnx" for e in ests)
     assert len(notes) == 1 and "best.pt: no export made from it lies beside it; exported in memory" in notes[0]
+    # a run folder named as a variant's suffix: its model is not named as the first model's `--live` (or 9-D) column
+    for folder in ("live", "9d"):
+        (tmp_path / folder).mkdir()
+        shutil.copy(default_model_path(), tmp_path / folder / "model.pt")
+        shutil.copy(default_model_path().with_suffix(".onnx"), tmp_path / folder / "model.onnx")  # (not exported again)
+        first, second = learned_estimators([run / "model.onnx", tmp_path / folder / "model.pt"], [], "onnx")
+        variants = {first.live().name, first.nine_d().name}
+        assert second.name == f"tepinn-{folder}-model" and second.name not in variants, (second.name, variants)
 
 
 def test_evaluate_refuses_a_model_file_before_reading_the_records(tmp_path, capsys, monkeypatch):

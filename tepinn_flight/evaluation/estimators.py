@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from ..record import EST_BIAS_COLS, EST_Q_COLS, FlightRecord, segment_slices
+from .names import reads_as_mode
 
 
 def estimate_frame(t_s, q, sigma=None, bias=None) -> pd.DataFrame:
@@ -278,10 +279,11 @@ def learned_estimators(model_paths: list, note_sink: list | None = None, runtime
         taken = {e.name for e in out}
         base, p = est.name, Path(m)
         # unique by the run folder, then the file's name, then a number (review61: a third model of one run folder
-        # had taken the second's name, and the run was refused after loading every model)
+        # had taken the second's name, and the run was refused after loading every model); never a name that reads as
+        # another model's variant (a run folder named "live": `tepinn-live` is the shipped model's --live column)
         for name in (base, f"{base}-{p.parent.name or p.stem}", f"{base}-{p.parent.name}-{p.stem}" if p.parent.name else None,
                      *(f"{base}-{k}" for k in range(2, len(model_paths) + 2))):  # fmt: skip
-            if name and name not in taken:
+            if name and name not in taken and (name == base or not reads_as_mode(name)):
                 est.name = name
                 break
         out.append(est)

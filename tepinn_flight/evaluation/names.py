@@ -48,6 +48,12 @@ _VARIANT_SUFFIXES = {
 _MODE_SUFFIXES = {"-smooth": "smoothed offline", "-nosmooth": "not smoothed", "-live": "live (the bridge's)"}
 
 
+def reads_as_mode(name: str) -> bool:
+    """Whether ``name`` ends as a name evaluate gives a variant of a model (``-live``, ``-nosmooth``, ``-smooth``,
+    ``-strideN``, ``-9d``): a model named so would clash with, or read as, another model's variant."""
+    return name.endswith(tuple(_MODE_SUFFIXES)) or re.search(r"-(?:stride[0-9]+|9d)$", name) is not None
+
+
 def display_name(name: str) -> str:
     """The method as people write it; unknown ids come back unchanged."""
     name = str(name)
