@@ -1,6 +1,8 @@
 """The first run after installing, on a cold numba cache, checked in one fresh process (each full compile is ~40 s
-of a core here, so the checks share one; ``NUMBA_CACHE_DIR`` is the test's own, read by numba at import, so the
-cache state is known):
+of a core here, so the checks share one). Where this checkout's cache is empty as the tests start (a fresh clone:
+CI), that process is the test session's warm-up (``tests/conftest.py``) on the checkout's own cache, its output kept
+for the test — CI's one cold compile instead of two; otherwise the test runs it with a ``NUMBA_CACHE_DIR`` of its
+own, read by numba at import, so the cache state is known either way:
 
 - the notice: a cold ``estimate`` says once that it compiles, a warm one nothing; with only the anchored filter's
   steps missing from the cache (the helper process's share) it is said once without ``-q`` and not with it
@@ -24,6 +26,7 @@ import shutil
 import subprocess
 import sys
 import textwrap
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -223,15 +226,20 @@ _SCRIPT = (textwrap.dedent(_FIRST_RUN) + textwrap.dedent(_CALLS)).replace("ANCHO
 
 
 def _env(cache) -> dict:
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": REPO}
+    """The environment of a first run: numba's cache in ``cache`` (None: numba's own, beside the sources)."""
+    env = {**os.environ, "PYTHONPATH": REPO}
     env.pop("NUMBA_DISABLE_JIT", None)
+    env.pop("NUMBA_CACHE_DIR", None)
+    if cache is not None:
+        env["NUMBA_CACHE_DIR"] = str(cache)
     return env
 
 
-@pytest.mark.slow
-def test_the_first_run_compiles_each_loop_once_in_two_processes_and_says_so_once(tmp_path):
-    pytest.importorskip("torch")
-    pytest.importorskip("onnxruntime")
+def first_run(folder, cache=None) -> dict:
+    """The first run's script on its two records (written into ``folder``), numba's cache in ``cache`` (None: this
+    checkout's own, which must then be empty: a fresh clone) → its exit status, output, the records' paths and the
+    cache's folder. conftest runs it as the test session's warm-up where this checkout's cache is empty (CI's clean
+    clone: the one cold compile serves both), else the test runs it on a cache of its own."""
     from tepinn_flight.record import MAG_COLS, write_record
     from tepinn_flight.sim.simulate import simulate_record
     from tests.test_gyro_selfcal import turns_with_rests
@@ -240,12 +248,41 @@ def test_the_first_run_compiles_each_loop_once_in_two_processes_and_says_so_once
     assert flight.gnss_vel_ne_m_s is not None
     turns, _ = turns_with_rests(clipped_turn=6, n_turns=8)  # rests (the self-calibration), a clipped gyro
     turns.data[MAG_COLS] = np.tile([20.0, 0.0, 45.0], (len(turns), 1))  # 9-D
-    paths = [tmp_path / "flight.parquet", tmp_path / "turns.parquet"]
+    paths = [os.path.join(folder, "flight.parquet"), os.path.join(folder, "turns.parquet")]
     write_record(flight, paths[0])
     write_record(turns, paths[1])
-    cache = tmp_path / "cache"
-    p = subprocess.run([sys.executable, "-c", _SCRIPT, *map(str, paths)], capture_output=True, text=True,
-                       env=_env(cache), cwd=REPO, timeout=900)  # fmt: skip
+    p = subprocess.run([sys.executable, "-c", _SCRIPT, *paths], capture_output=True, text=True, env=_env(cache),
+                       cwd=REPO, timeout=900)  # fmt: skip
+    return {"returncode": p.returncode, "stdout": p.stdout, "stderr": p.stderr, "paths": paths,
+            "cache": None if cache is None else str(cache)}  # fmt: skip
+
+
+def in_tree_cache_copy(dst) -> None:
+    """This checkout's numba cache (``__pycache__`` beside each source) copied into ``dst`` laid out as numba lays out
+    a ``NUMBA_CACHE_DIR`` (its own rule for a source folder's place there)."""
+    from numba.core.caching import _CacheLocator
+
+    pkg = os.path.join(REPO, "tepinn_flight")
+    for folder, _, files in os.walk(pkg):
+        if os.path.basename(folder) != "__pycache__":
+            continue
+        src_dir = os.path.dirname(folder)
+        place = os.path.join(dst, _CacheLocator.get_suitable_cache_subpath(os.path.join(src_dir, "x.py")))
+        for f in files:
+            if f.endswith((".nbi", ".nbc")):
+                os.makedirs(place, exist_ok=True)
+                shutil.copy2(os.path.join(folder, f), place)
+
+
+@pytest.mark.slow
+def test_the_first_run_compiles_each_loop_once_in_two_processes_and_says_so_once(tmp_path, first_run_of_session):
+    """(The first run is the session's warm-up where this checkout's cache was empty; else run here on a cache of its
+    own.)"""
+    pytest.importorskip("torch")
+    pytest.importorskip("onnxruntime")
+    run = first_run_of_session or first_run(tmp_path, tmp_path / "cache")
+    p = SimpleNamespace(returncode=run["returncode"], stdout=run["stdout"], stderr=run["stderr"])
+    paths = run["paths"]
     assert p.returncode == 0, p.stderr
     said = [ln[3:].split(" ", 1) for ln in p.stdout.splitlines() if ln.startswith("@@ ")]
     said = [(k, v[0] if v else "") for k, *v in said]
@@ -280,11 +317,15 @@ def test_the_first_run_compiles_each_loop_once_in_two_processes_and_says_so_once
     args = ["estimate", str(paths[0]), "-o", str(tmp_path / "e.parquet")]
     for name, extra in (("part", []), ("quiet", ["-q"])):
         part = tmp_path / name
-        shutil.copytree(cache, part)
+        if run["cache"]:
+            shutil.copytree(run["cache"], part)
+        else:  # the first run filled this checkout's own cache
+            in_tree_cache_copy(part)
         gone = sorted(f.name for f in part.rglob("anchor_steps.update_one-*"))
         assert gone, sorted(f.name for f in part.rglob("*"))
         for f in part.rglob("anchor_steps.update_one-*"):
             f.unlink()
+        before = {f.name for f in part.rglob("*.nbi")}
         q = subprocess.run([sys.executable, "-m", "tepinn_flight", *args, *extra], capture_output=True, text=True,
                            env=_env(part), cwd=REPO, timeout=600)  # fmt: skip
         assert q.returncode == 0, q.stderr
@@ -294,3 +335,5 @@ def test_the_first_run_compiles_each_loop_once_in_two_processes_and_says_so_once
             assert [ln for ln in q.stderr.splitlines() if COMPILE_NOTICE in ln] == [
                 f"tepinn-flight estimate: note: {COMPILE_NOTICE}"], q.stderr  # fmt: skip
         assert sorted(f.name for f in part.rglob("anchor_steps.update_one-*")) == gone
+        # and nothing else was compiled: every other loop was loaded from the cache
+        assert {f.name for f in part.rglob("*.nbi")} - before == {g for g in gone if g.endswith(".nbi")}
