@@ -5,8 +5,8 @@ estimate), by vehicle and IMU rate, and the shared BROAD trials (optical truth) 
 The split is `train/splits/real.toml`: which files are held out (never trained, selected or
 calibrated on) and which the shipped network saw — the table says which is which. Simulated: the
 held-out campaign `flight_sims/campaigns/heldout.toml` (seed 77; every `--sim-every`-th flight), or
-another campaign (`--campaign`: the same flights with another seed, say, as an independent check would
-fly them; `--no-real` leaves the real files out).
+another campaign (`--campaign`), or the same flights with another seed (`--campaign-seed`, as an independent check
+would fly them: the README's seeds 2026 and 5252; `--no-real` leaves the real files out).
 
 Inclination RMSE per file (5 s warm-up, the same samples for every estimator), the files where
 TE-PINN's gyro self-calibration applied (with what it read), the mean per kind,
@@ -30,7 +30,7 @@ with the reason, as `evaluate` does: an IMU below 20 Hz, no reference attitude, 
 list are named at the end (not scored: some decided design choices, others cannot be estimated).
 
     python benchmarks/real_vs_peers.py [--shared ../shared] [--sim-every 4] [--model CKPT] [--lstm CKPT] [--no-smooth] [--smooth]
-    python benchmarks/real_vs_peers.py --campaign my_seed.toml --sim runs/my_seed --sim-every 1 --no-real
+    python benchmarks/real_vs_peers.py --campaign-seed 2026 --sim runs/seed2026 --sim-every 1 --no-real
     python benchmarks/real_vs_peers.py my_logs/ other_broad/*.hdf5
 """
 
@@ -54,6 +54,8 @@ def main() -> int:
     ap.add_argument("--sim", default=str(REPO / "runs/heldout"), help="folder of the held-out campaign")
     ap.add_argument("--campaign", default=str(REPO / "flight_sims/campaigns/heldout.toml"),
                     help="the campaign flown into --sim (default: the held-out one, seed 77)")
+    ap.add_argument("--campaign-seed", type=int, default=None, metavar="N",
+                    help="fly --campaign with N as its seed (`simulate --campaign --seed`: the same flights drawn anew)")
     ap.add_argument("--no-real", action="store_true", help="simulated flights only (none of the shared real files; files named are scored)")
     ap.add_argument("--sim-every", type=int, default=None,
                     help="every N-th held-out flight (0: none; default 4, or 0 where files are named)")
@@ -108,7 +110,7 @@ def run(args) -> int:
         else:
             files.append(item)
     if sim_every:
-        run_campaign(Path(args.campaign), Path(args.sim), progress=True)
+        run_campaign(Path(args.campaign), Path(args.sim), progress=True, seed=args.campaign_seed)
         for p in sorted(Path(args.sim).glob("*.parquet"))[::sim_every]:
             grp = p.stem.split("-")[1]
             files.append(("simulated", grp, p.stem, read_record(p), "held-out"))

@@ -136,6 +136,29 @@ repeats = 2
 """
 
 
+def test_campaign_seed_replaced_from_the_command_line(tmp_path, capsys):
+    """`simulate --campaign C --seed N` flies C's flights with N as the campaign's seed: the same bytes as a copy of
+    the file with `seed = N` (the README's other-seed checks were such copies, kept outside the repository), other
+    flights than C's own seed; a folder flown with another seed is refused; a negative seed is one line, exit 2."""
+    one = CAMPAIGN.replace('sensors = ["consumer", "industrial"]', 'sensors = ["consumer"]').replace("repeats = 2", "repeats = 1")
+    cfile, copy = tmp_path / "tiny.toml", tmp_path / "tiny7.toml"
+    cfile.write_text(one)
+    copy.write_text(one.replace("seed = 5", "seed = 7"))
+    assert sim("--campaign", cfile, "-o", tmp_path / "s7", "--seed", 7, "--workers", 1, "-q") == 0
+    assert sim("--campaign", copy, "-o", tmp_path / "c7", "--workers", 1, "-q") == 0
+    assert sim("--campaign", cfile, "-o", tmp_path / "s5", "--workers", 1, "-q") == 0
+    (f,) = [p.name for p in (tmp_path / "s7").glob("*.parquet")]
+    assert (tmp_path / "s7" / f).read_bytes() == (tmp_path / "c7" / f).read_bytes()
+    assert read_record(tmp_path / "s7" / f).meta["seed"] == flight_seed(7, 0) != read_record(tmp_path / "s5" / f).meta["seed"]
+    assert json.loads((tmp_path / "s7" / MANIFEST).read_text())["seed"] == 7
+    capsys.readouterr()
+    assert sim("--campaign", cfile, "-o", tmp_path / "s5", "--seed", 7, "-q") == 2
+    assert "holds a different campaign" in capsys.readouterr().err
+    assert sim("--campaign", cfile, "-o", tmp_path / "neg", "--seed", -1, "-q") == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "'seed' must be >= 0" in err and not (tmp_path / "neg").exists()
+
+
 def test_campaign_parallel_resumable_deterministic(tmp_path, capsys):
     cfile = tmp_path / "tiny.toml"
     cfile.write_text(CAMPAIGN)

@@ -32,7 +32,10 @@ def add_arguments(p) -> None:
     p.add_argument("--duration", type=float, default=None, metavar="S", help="flight duration in s (default 60)")
     p.add_argument("--rate", type=float, default=None, metavar="HZ",
                    help="simulation and IMU rate in Hz (default 400; the sensor's rate_hz may decimate it)")
-    p.add_argument("--seed", type=int, default=None, metavar="N", help="seed of the flight and the sensor noise (default 0)")
+    p.add_argument("--seed", type=int, default=None, metavar="N",
+                   help="seed of the flight and the sensor noise (default 0); with --campaign the campaign's seed "
+                        "replaced: the same flights drawn anew (the held-out campaign with --seed 2026 is the README's "
+                        "other-seed check)")
     p.add_argument("--sensor", default=None, metavar="PRESET",
                    help="sensor preset name or TOML path (default consumer; see --list)")
     p.add_argument("--sensor-set", action="append", default=None, metavar="KEY=VALUE",
@@ -49,7 +52,7 @@ def add_arguments(p) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors (no progress bar)")
 
 
-_SINGLE_ONLY = ("aircraft", "duration", "rate", "seed", "sensor", "sensor_set", "maneuvers", "turbulence", "tlog")
+_SINGLE_ONLY = ("aircraft", "duration", "rate", "sensor", "sensor_set", "maneuvers", "turbulence", "tlog")
 
 
 def run(args) -> int:
@@ -137,9 +140,10 @@ def _campaign(args) -> int:
 
     if cold([quad_flight_kernel.fly_quad, vibration._accumulate]):
         announce()  # the workers' forkserver compiles them, out of this process's sight
-    res = run_campaign(args.campaign, args.output, workers=args.workers, progress=not args.quiet)
+    res = run_campaign(args.campaign, args.output, workers=args.workers, progress=not args.quiet, seed=args.seed)
     if not args.quiet or res.failed:
-        print(f"campaign {args.campaign}: {res.total} flights, {res.computed} computed, {res.skipped} already done, "
+        seeded = "" if args.seed is None else f" (seed {args.seed})"
+        print(f"campaign {args.campaign}{seeded}: {res.total} flights, {res.computed} computed, {res.skipped} already done, "
               f"{len(res.failed)} failed in {res.wall_s:.1f} s (the workers' time {res.flight_s:.1f} s) -> {args.output}")
     if res.failed:
         sys.stderr.write(f"tepinn-flight simulate: error: {len(res.failed)} flight(s) failed: {res.failure_causes()}; "

@@ -26,7 +26,7 @@ import os
 import re
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -330,12 +330,16 @@ def run_campaign(
     workers: int | None = None,
     progress: bool = True,
     log=None,
+    seed: int | None = None,
 ) -> CampaignResult:
-    """Run (or resume) the campaign at ``path`` into ``out_dir``; see the module doc."""
+    """Run (or resume) the campaign at ``path`` into ``out_dir``; see the module doc. ``seed``: the campaign's seed
+    replaced (``simulate --campaign --seed``: the same flights drawn anew, as an independent check flies them)."""
     if workers is not None and workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {workers}")
     path = Path(path)
     cfg = load_campaign(path)
+    if seed is not None:
+        cfg = replace(cfg, seed=int(seed))
     flights = expand(cfg, base=path.parent)
     sensors = validate(cfg, flights)
     out = Path(out_dir)
