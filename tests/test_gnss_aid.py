@@ -337,3 +337,80 @@ def test_the_receiver_s_bound_never_misses_a_sample_a_pass_would_trust():
     assert np.all(may[trusts])
     top = settings[trusts].max()
     assert not may[-1] and settings[~may].min() < 2.5 * top
+
+
+def _with_hole(rec, t0: float, t1: float):
+    """``rec`` with no fix between t0 and t1 (ingest leaves NaN across a gap of more than 2.5 fix periods)."""
+    data = rec.data.copy()
+    hole = (data["t_s"] > t0) & (data["t_s"] < t1)
+    data.loc[hole, ["gnss_vel_n_m_s", "gnss_vel_e_m_s"]] = np.nan
+    return FlightRecord(data, dict(rec.meta))
+
+
+def test_a_hole_in_the_fixes_is_bridged_by_its_mean_acceleration_with_no_heading_read_there():
+    """Rule 36: inside the fixes' span a hole's correction is the velocity's change across it over its length (the
+    bridge's slope, in closed form from the fixes around it); the heading's evidence is read from real fixes only
+    (the same mask as without the bridge); without a hole the bridge changes nothing, bit for bit."""
+    rec, q_nb = accelerating_flight(90.0)
+    holed = _with_hole(rec, 40.0, 43.0)
+    t, v = holed.t_s, holed.gnss_vel_ne_m_s
+    plain, bridged = GnssAidConfig(), GnssAidConfig(bridge_gaps=True)
+    ev0, ev1 = (gnss_evidence(t, v, c) for c in (plain, bridged))
+    np.testing.assert_array_equal(ev0.covered, ev1.covered)  # the evidence's mask: real fixes only
+    inside = (t > 40.0 + 1.0) & (t < 43.0 - 1.0)  # both ends of the 1-s difference in the hole (and its latency)
+    assert not ev0.covered[inside].any() and ev1.corrigible[inside].all()
+    ok = np.all(np.isfinite(v), axis=1)
+    a, b = np.flatnonzero(ok & (t < 41.0))[-1], np.flatnonzero(ok & (t > 42.0))[0]  # the fixes' last and first samples
+    slope = (v[b] - v[a]) / (t[b] - t[a])
+    np.testing.assert_allclose(np.c_[ev1.za.real, ev1.za.imag][inside], np.tile(slope, (inside.sum(), 1)), atol=1e-9)
+    a_b0, tr0, _ = motion_acc_body(t, q_nb, holed.acc_m_s2, v, plain)
+    a_b1, tr1, _ = motion_acc_body(t, q_nb, holed.acc_m_s2, v, bridged)
+    assert not tr0[inside].any() and not a_b0[inside].any() and tr1[inside].all()
+    assert np.array_equal(tr0, tr1 & ev1.covered) and np.array_equal(a_b0[tr0], a_b1[tr0])  # elsewhere: the same
+    # the hole's correction: the bridge's slope in body axes (the filter's heading is the truth's here)
+    r = Rotation.from_quat(q_nb[inside][:, [1, 2, 3, 0]])
+    np.testing.assert_allclose(a_b1[inside], r.inv().apply(np.c_[np.tile(slope, (inside.sum(), 1)), np.zeros(inside.sum())]),
+                               atol=0.05)  # fmt: skip
+    for c in (plain, bridged):  # no hole: the same bits
+        got = motion_acc_body(rec.t_s, q_nb, rec.acc_m_s2, rec.gnss_vel_ne_m_s, c)
+        want = motion_acc_body(rec.t_s, q_nb, rec.acc_m_s2, rec.gnss_vel_ne_m_s, plain)
+        for x, y in zip(got, want):
+            np.testing.assert_array_equal(x, y)
+
+
+def test_the_bridge_applies_on_the_vehicle_classes_named_and_brings_an_outage_at_a_peak_back_toward_the_truth():
+    """Rule 36b: the anchored estimate bridges the receiver's holes where the log names a vehicle of a class in
+    ``bridge_gaps_for``; a 3-s outage where the motion acceleration peaks, left unbridged, leaves that peak in the
+    accelerometer while the rest of the manoeuvre is taken out (session 15's bias)."""
+    import tepinn_flight.model.estimate as est
+    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.estimate import EST_Q_COLS, aid_settings, estimate_anchored
+
+    model, anchor, _ = load_model(default_model_path())
+    policy = GnssAidConfig(bridge_gaps_for=("multirotor",))
+    assert GnssAidConfig() == policy  # shipped (rule 36b)
+    with pytest.raises(Exception, match="bridge_gaps_for"):
+        GnssAidConfig(bridge_gaps_for=("quad",))  # a class, not a vehicle type
+    assert aid_settings(anchor, policy, "quadrotor")[0].bridge_gaps
+    assert not aid_settings(anchor, policy, "fixed-wing")[0].bridge_gaps and not aid_settings(anchor, policy, None)[0].bridge_gaps
+    rec, q_true = accelerating_flight(60.0)
+    t = rec.t_s
+    mag = np.hypot(A_MS2 * np.sin(W1 * t), A_MS2 * np.sin(W2 * t))
+    peak = float(t[(t > 15) & (t < 55)][np.argmax(mag[(t > 15) & (t < 55)])])
+    holed = _with_hole(rec, peak - 1.5, peak + 1.5)
+    aided = dataclasses.replace(anchor.learned_off, gnss_aid=True)
+
+    def rmse_deg(vehicle: str) -> float:
+        r = FlightRecord(holed.data, {**holed.meta, "vehicle_type": vehicle})
+        q = estimate_anchored(model, r, aided)[EST_Q_COLS].to_numpy()
+        m = t >= 10.0
+        return float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], q_true[m])) ** 2))))
+
+    orig = est.GnssAidConfig
+    try:
+        est.GnssAidConfig = lambda: policy
+        quad, wing = rmse_deg("quadrotor"), rmse_deg("fixed-wing")
+    finally:
+        est.GnssAidConfig = orig
+    assert quad < 0.8 * wing, (quad, wing)

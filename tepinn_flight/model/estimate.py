@@ -375,7 +375,7 @@ def _beside_work(anchor: AnchorConfig, rec: FlightRecord):
         cal = self_calibrated(anchor, rec)
         yield cal
         if reads_gnss(anchor, rec):  # the GNSS aid's evidence from the receiver alone (session 40)
-            yield gnss_evidences(rec, aid_settings(anchor)[0])
+            yield gnss_evidences(rec, aid_settings(anchor, vehicle=rec.meta.get("vehicle_type"))[0])
         done = {}
         if anchor.smoother:
             done = segment_runs(cal[0], rec.t_s, np.ascontiguousarray(rec.gyr_rad_s), np.ascontiguousarray(rec.acc_m_s2),
@@ -614,10 +614,14 @@ def _piecewise(starts: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     return np.where(k >= 0, values[np.maximum(k, 0)], 0.0)
 
 
-def aid_settings(anchor: AnchorConfig, cfg: GnssAidConfig | None = None) -> tuple[GnssAidConfig, float]:
-    """The GNSS aid's settings as the anchored estimator runs it (``cfg``, default the shipped ones; no speed limit
-    with ``anchor.gnss_aid_in_flight``) and the ground speed from which the flight-speed gate acts beside it."""
+def aid_settings(anchor: AnchorConfig, cfg: GnssAidConfig | None = None, vehicle: str | None = None) -> tuple[GnssAidConfig, float]:
+    """The GNSS aid's settings as the anchored estimator runs it on a record of ``vehicle`` (its log's
+    ``vehicle_type``) — ``cfg``, default the shipped ones; no speed limit with ``anchor.gnss_aid_in_flight``; the
+    receiver's holes bridged where the vehicle's class is in ``cfg.bridge_gaps_for`` — and the ground speed from which
+    the flight-speed gate acts beside it."""
     cfg = cfg or GnssAidConfig()
+    if not cfg.bridge_gaps and cfg.bridge_gaps_for and vehicle_class(vehicle) in cfg.bridge_gaps_for:
+        cfg = replace(cfg, bridge_gaps=True)
     fast_m_s = cfg.max_speed_m_s
     if anchor.gnss_aid_in_flight:
         cfg = replace(cfg, max_speed_m_s=float("inf"))
@@ -644,7 +648,7 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
     apply, the windows' outputs for the aided filter: each window marked where the aid holds at its
     end, :class:`.anchor.WindowOutput`'s ``gnss_aided``). ``evidence``: :func:`gnss_evidences` of the record with
     these settings where already made (a helper process's); else made here, once for all the passes."""
-    cfg, fast_m_s = aid_settings(anchor, cfg)  # at fast_m_s and above, the flight-speed gate acts beside the aid
+    cfg, fast_m_s = aid_settings(anchor, cfg, rec.meta.get("vehicle_type"))  # at fast_m_s and above, the flight-speed gate acts beside the aid
     t, acc = cols[0], cols[2]
     vel = rec.gnss_vel_ne_m_s
     n = len(acc)

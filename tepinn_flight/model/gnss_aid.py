@@ -70,6 +70,16 @@ class GnssAidConfig:
     # is kept everywhere (cutting it on and off biases the filter's low-pass: an accelerometer whose
     # clipping is marked every 3 s took the training multirotors from 4.1° to 6.7°, session 22)
     clip_guard: bool = True
+    # a hole in the fixes inside their span (ingest leaves NaN across a gap of more than 2.5 fix periods) is bridged
+    # linearly for the correction: there it is the hole's mean acceleration, whose integral is the velocity's change
+    # across it, so the filter's low-pass sees the right mean. The heading's evidence is read from real fixes only.
+    # Off, the correction is zero in the hole and kept on both sides: a short outage at a manoeuvre's peak (an
+    # antenna turned over in a flip) left its acceleration uncorrected where the rest was (rule 36). ``bridge_gaps``
+    # is this record's: :func:`tepinn_flight.model.estimate.aid_settings` sets it where the log names a vehicle of a
+    # class in ``bridge_gaps_for`` (rule 36b: multirotors; on fixed wing the hole's windows leave the network's
+    # flight-speed gate its centripetal term, which did better there than the bridged aid)
+    bridge_gaps: bool = False
+    bridge_gaps_for: tuple[str, ...] = ("multirotor",)
 
     def __post_init__(self):
         finite_nonneg("margin_s", self.margin_s)
@@ -79,6 +89,10 @@ class GnssAidConfig:
         finite_nonneg("latency_s", self.latency_s)
         check(0.0 <= self.min_coherence <= 1.0, "'min_coherence' must be in [0, 1]")
         check(int(self.passes) == self.passes and self.passes >= 1, "'passes' must be an integer ≥ 1")
+        from ..vehicle_class import CLASSES
+
+        bad = [c for c in self.bridge_gaps_for if c not in CLASSES]
+        check(not bad, f"'bridge_gaps_for' takes vehicle classes ({', '.join(CLASSES)}), got {bad}")
 
 
 @dataclass(frozen=True)
@@ -121,9 +135,10 @@ def _centred_mean(x: np.ndarray, k: int) -> np.ndarray:
     return out
 
 
-def motion_acc_ne(t_s: np.ndarray, vel_ne_m_s: np.ndarray, cfg: GnssAidConfig) -> np.ndarray:
+def motion_acc_ne(t_s: np.ndarray, vel_ne_m_s: np.ndarray, cfg: GnssAidConfig, bridge: bool = False) -> np.ndarray:
     """(N, 2) horizontal motion acceleration (north, east) from the GNSS velocity on the IMU samples:
-    the velocity's difference over ``smooth_s``, read ``latency_s`` later; NaN where either end has no fix."""
+    the velocity's difference over ``smooth_s``, read ``latency_s`` later; NaN where either end has no fix
+    (``bridge``: only outside the fixes' span — a hole inside it is bridged linearly)."""
     h = cfg.smooth_s
     ok = np.all(np.isfinite(vel_ne_m_s), axis=1)
     out = np.full((len(t_s), 2), np.nan)
@@ -134,10 +149,11 @@ def motion_acc_ne(t_s: np.ndarray, vel_ne_m_s: np.ndarray, cfg: GnssAidConfig) -
     t_lo = t_s + cfg.latency_s - h / 2
     for k in range(2):
         out[:, k] = (np.interp(t_hi, tk, vk[:, k]) - np.interp(t_lo, tk, vk[:, k])) / h
-    # no fix at either end (outside the covered span, or across a hole in the fixes): NaN
-    covered = np.interp(t_hi, t_s, ok.astype(float)) > 0.999
-    covered &= np.interp(t_lo, t_s, ok.astype(float)) > 0.999
-    covered &= (t_lo >= tk[0]) & (t_hi <= tk[-1])
+    # no fix at either end (outside the covered span, or across a hole in the fixes unless bridged): NaN
+    covered = (t_lo >= tk[0]) & (t_hi <= tk[-1])
+    if not bridge:
+        covered &= np.interp(t_hi, t_s, ok.astype(float)) > 0.999
+        covered &= np.interp(t_lo, t_s, ok.astype(float)) > 0.999
     out[~covered] = np.nan
     return out
 
@@ -156,6 +172,9 @@ class GnssEvidence:
     near_wild: np.ndarray  # (N,) within margin_s of ground speed ≥ max_speed_m_s
     # whether any sample may be trusted, whatever the attitude (:func:`may_trust_any`); False: the passes skip the aid
     may_trust: bool = True
+    # (N,) where a correction may be made: ``covered`` and, with :attr:`GnssAidConfig.bridge_gaps`, the holes inside
+    # the fixes' span (``za`` bridged there); None: ``covered``
+    corrigible: np.ndarray | None = None
 
 
 def gnss_evidence(t_s, vel_ne_m_s, cfg: GnssAidConfig, gyr_clipped=None) -> GnssEvidence | None:
@@ -167,6 +186,14 @@ def gnss_evidence(t_s, vel_ne_m_s, cfg: GnssAidConfig, gyr_clipped=None) -> Gnss
     k = max(1, int(round(cfg.smooth_s / dt)))
     a_ne = motion_acc_ne(t_s, vel_ne_m_s, cfg)
     covered = np.all(np.isfinite(a_ne), axis=1)
+    corrigible = None
+    if cfg.bridge_gaps:
+        bridged = motion_acc_ne(t_s, vel_ne_m_s, cfg, bridge=True)
+        corrigible = np.all(np.isfinite(bridged), axis=1)
+        if np.array_equal(corrigible, covered):  # no hole inside the fixes' span: the same bits as without
+            corrigible = None
+        else:
+            a_ne = bridged
     za = a_ne[:, 0] + 1j * a_ne[:, 1]
     clip_ok = None
     if cfg.clip_guard and gyr_clipped is not None and np.any(gyr_clipped):
@@ -178,7 +205,7 @@ def gnss_evidence(t_s, vel_ne_m_s, cfg: GnssAidConfig, gyr_clipped=None) -> Gnss
     near_wild = _centred_mean((wild & covered).astype(float), m) > 0
     za_pow = np.abs(za) ** 2
     may = may_trust_any(covered, za_pow, clip_ok, near_wild, dt, cfg)
-    return GnssEvidence(dt, covered, za, za_pow, clip_ok, near_wild, may)
+    return GnssEvidence(dt, covered, za, za_pow, clip_ok, near_wild, may, corrigible)
 
 
 def may_trust_any(covered, za_pow, clip_ok, near_wild, dt: float, cfg: GnssAidConfig) -> bool:
@@ -218,8 +245,10 @@ def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig, gyr_c
     rows = (np.require(x, np.float64, "CW") for x in (q_nb_wxyz, acc_b))  # the kernels' one signature
     f_ne = _centred_mean(rotate_rows(*rows)[:, :2], k)  # specific force in the filter's earth frame
     zf = f_ne[:, 0] + 1j * f_ne[:, 1]
-    usable = covered & np.isfinite(zf)  # where a correction can be made
+    usable = covered & np.isfinite(zf)  # real fixes and the specific force's average
     use = usable if ev.clip_ok is None else usable & ev.clip_ok  # where the heading's evidence is read
+    if ev.corrigible is not None:  # (bridged holes: corrected, but no evidence read there)
+        usable = ev.corrigible & np.isfinite(zf)
     w = max(1, int(round(cfg.heading_window_s / ev.dt)))
     c = _centred_mean(np.where(use, zf * np.conj(za), 0), w)
     pf = _centred_mean(np.where(use, np.abs(zf) ** 2, 0.0), w)
