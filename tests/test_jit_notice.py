@@ -70,7 +70,7 @@ def test_a_campaign_announces_the_compile_its_workers_do(monkeypatch, tmp_path, 
     said = []
     monkeypatch.setattr(campaign, "run_campaign", lambda *a, **k: said.append("ran") or SimpleNamespace(
         failed=[], total=0, computed=0, skipped=0, wall_s=0.0, flight_s=0.0))  # fmt: skip
-    args = SimpleNamespace(list=False, campaign="c.toml", output=str(tmp_path / "out"), workers=1, quiet=False,
+    args = SimpleNamespace(list=False, campaign="c.toml", output=str(tmp_path / "out"), workers=1, quiet=False, seed=None,
                            **{n: None for n in simulate_cmd._SINGLE_ONLY})  # fmt: skip
     for is_cold in (True, False):
         monkeypatch.setattr(jit_warmup, "cold", lambda d, c=is_cold: c)
