@@ -48,10 +48,15 @@ _VARIANT_SUFFIXES = {
 _MODE_SUFFIXES = {"-smooth": "smoothed offline", "-nosmooth": "not smoothed", "-live": "live (the bridge's)"}
 
 
+#: evaluate --busy-stride N's and the 9-D variants' names (``tepinn-stride6``, ``tepinn-9d``, ``madgwick-9d-beta0.1``)
+_STRIDE = re.compile(r"(.+)-stride([0-9]+)")
+_NINE_D = re.compile(r"(.+)-9d(?:-beta([0-9.eE+-]+))?")
+
+
 def reads_as_mode(name: str) -> bool:
     """Whether ``name`` ends as a name evaluate gives a variant of a model (``-live``, ``-nosmooth``, ``-smooth``,
     ``-strideN``, ``-9d``): a model named so would clash with, or read as, another model's variant."""
-    return name.endswith(tuple(_MODE_SUFFIXES)) or re.search(r"-(?:stride[0-9]+|9d)$", name) is not None
+    return name.endswith(tuple(_MODE_SUFFIXES)) or any(p.fullmatch(name) for p in (_STRIDE, _NINE_D))
 
 
 def display_name(name: str) -> str:
@@ -62,10 +67,10 @@ def display_name(name: str) -> str:
     for suffix, what in _MODE_SUFFIXES.items():  # evaluate --smooth, --no-smooth, --live (of a model named apart too)
         if name.endswith(suffix) and (shown := display_name(name[: -len(suffix)])) != name[: -len(suffix)]:
             return f"{shown}, {what}"
-    m = re.fullmatch(r"(.+)-stride([0-9]+)", name)  # evaluate --busy-stride N
+    m = _STRIDE.fullmatch(name)  # evaluate --busy-stride N
     if m and m.group(1) in _BASE:
         return f"{_BASE[m.group(1)]}, busy stride {m.group(2)}"
-    m = re.fullmatch(r"(.+)-9d(?:-beta([0-9.eE+-]+))?", name)
+    m = _NINE_D.fullmatch(name)
     if m and m.group(1) in _BASE:
         out = f"{_BASE[m.group(1)]} 9-D"
         return out + (f", β = {m.group(2)}" if m.group(2) else "")

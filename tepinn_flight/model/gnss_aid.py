@@ -245,10 +245,11 @@ def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig, gyr_c
     rows = (np.require(x, np.float64, "CW") for x in (q_nb_wxyz, acc_b))  # the kernels' one signature
     f_ne = _centred_mean(rotate_rows(*rows)[:, :2], k)  # specific force in the filter's earth frame
     zf = f_ne[:, 0] + 1j * f_ne[:, 1]
-    usable = covered & np.isfinite(zf)  # real fixes and the specific force's average
-    use = usable if ev.clip_ok is None else usable & ev.clip_ok  # where the heading's evidence is read
-    if ev.corrigible is not None:  # (bridged holes: corrected, but no evidence read there)
-        usable = ev.corrigible & np.isfinite(zf)
+    finite = np.isfinite(zf)
+    use = covered & finite  # where the heading's evidence is read: real fixes only
+    if ev.clip_ok is not None:
+        use &= ev.clip_ok
+    usable = (covered if ev.corrigible is None else ev.corrigible) & finite  # where a correction can be made
     w = max(1, int(round(cfg.heading_window_s / ev.dt)))
     c = _centred_mean(np.where(use, zf * np.conj(za), 0), w)
     pf = _centred_mean(np.where(use, np.abs(zf) ** 2, 0.0), w)
