@@ -232,7 +232,8 @@ def test_aided_windows_keep_the_flight_gate_in_fast_flight_without_its_centripet
 def test_the_settings_are_checked():
     from tepinn_flight.errors import ConfigError
 
-    for bad in ({"smooth_s": 0.0}, {"min_coherence": 1.5}, {"passes": 0}, {"latency_s": -0.1}, {"max_speed_m_s": float("nan")}):
+    for bad in ({"smooth_s": 0.0}, {"min_coherence": 1.5}, {"passes": 0}, {"latency_s": -0.1}, {"max_speed_m_s": float("nan")},
+                {"latency_grid_s": (0.0, -0.05)}, {"latency_min_gain": -0.01}):
         with pytest.raises(ConfigError):
             GnssAidConfig(**bad)
 
@@ -414,3 +415,85 @@ def test_the_bridge_applies_on_the_vehicle_classes_named_and_brings_an_outage_at
     finally:
         est.GnssAidConfig = orig
     assert quad < 0.8 * wing, (quad, wing)
+
+
+def _pooled_coherence_slow(rec, q_nb, cfg: GnssAidConfig, lat: float, at: np.ndarray) -> float:
+    """The pooled coherence at one latency the obvious way: every sample of ``at`` (where all candidates have fixes),
+    a Python loop over the 30-s blocks, the specific force turned by scipy."""
+    t = rec.t_s
+    f = Rotation.from_quat(q_nb[:, [1, 2, 3, 0]]).apply(np.array(rec.acc_m_s2))[:, :2]
+    k = int(round(cfg.smooth_s * RATE_HZ))
+    f = np.stack([np.convolve(f[:, i], np.ones(k) / k, mode="same") for i in range(2)], 1)  # centred (k even: ½ sample)
+    a = motion_acc_ne(t, rec.gnss_vel_ne_m_s, dataclasses.replace(cfg, latency_s=lat))
+    zf, za = (f[at, 0] + 1j * f[at, 1]), (a[at, 0] + 1j * a[at, 1])
+    block = np.floor((t[at] - t[0]) / cfg.heading_window_s)
+    num = den = 0.0
+    for b in np.unique(block):
+        m = block == b
+        num += abs(np.sum(zf[m] * np.conj(za[m])))
+        den += np.sqrt(np.sum(np.abs(zf[m]) ** 2) * np.sum(np.abs(za[m]) ** 2))
+    return num / den
+
+
+@pytest.mark.parametrize("latency_s, read_as", [(0.1, 0.1), (0.35, 0.1), (0.5, 0.5)])
+def test_the_receivers_latency_is_read_where_the_pooled_coherence_peaks(latency_s, read_as):
+    """Rule 37: on a record whose receiver is ``latency_s`` late, the pooled coherence (against a slow reference at
+    every candidate) peaks at that latency; the record's latency is read as it where the peak clears the setting's
+    (0.1 s) coherence by ``latency_min_gain`` — on these slow manoeuvres (periods of 8 and 11 s) 0.35 s does not
+    (0.014 above), 0.5 s does (0.037)."""
+    from tepinn_flight.model.gnss_aid import latency_candidates, latency_scores, read_latency
+
+    rec, q_nb = accelerating_flight(90.0, latency_s=latency_s)
+    cfg = GnssAidConfig()
+    num, den = latency_scores(rec.t_s, q_nb, rec.acc_m_s2, rec.gnss_vel_ne_m_s, cfg)
+    grid = latency_candidates(cfg)
+    p = num / den
+    assert grid[np.argmax(p)] == pytest.approx(latency_s)
+    assert read_latency(num, den, cfg) == pytest.approx(read_as)
+    assert read_latency(num, den, dataclasses.replace(cfg, latency_min_gain=0.005)) == pytest.approx(latency_s)
+    every = [motion_acc_ne(rec.t_s, rec.gnss_vel_ne_m_s, dataclasses.replace(cfg, latency_s=float(x))) for x in grid]
+    ok = np.all([np.all(np.isfinite(a), axis=1) for a in every], axis=0)
+    at = np.flatnonzero(ok)[:: int(round(0.02 * RATE_HZ))]
+    slow = np.array([_pooled_coherence_slow(rec, q_nb, cfg, float(x), at) for x in grid])
+    np.testing.assert_allclose(p, slow, atol=3e-3)  # the decimation's phase and the odd/even centring apart
+    assert slow.max() - slow.min() > 0.01  # a peak: the test can tell latencies apart
+    # a grid without the setting's latency still compares against it; an empty grid reads nothing
+    assert read_latency(num, den, dataclasses.replace(cfg, latency_min_gain=10.0)) == cfg.latency_s
+    assert read_latency(num[:0], den[:0], dataclasses.replace(cfg, latency_grid_s=())) == cfg.latency_s
+
+
+def test_a_late_receiver_read_as_late_brings_a_multirotor_s_estimate_back_toward_the_truth():
+    """Rule 37 end to end: a receiver 0.5 s late, taken as 0.1 s late, subtracts an acceleration 0.4 s old; read from
+    the record (with the first aided pass's attitude: rule 37b), the anchored estimate's error is halved, and it says
+    what it read; a receiver on time is read as on time (the same error as not reading). Rule 37b: read only where the
+    log names a vehicle of a class in ``read_latency_for`` (multirotors)."""
+    import re
+
+    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.estimate import EST_Q_COLS, aid_settings, estimate_anchored
+
+    model, anchor, _ = load_model(default_model_path())
+    aided = dataclasses.replace(anchor.learned_off, gnss_aid=True)
+    assert GnssAidConfig().read_latency_for == ("multirotor",)  # shipped (rule 37b)
+    with pytest.raises(Exception, match="read_latency_for"):
+        GnssAidConfig(read_latency_for=("quad",))  # a class, not a vehicle type
+    assert aid_settings(anchor, None, "copter")[0].latency_grid_s == GnssAidConfig().latency_grid_s
+    assert aid_settings(anchor, None, "plane")[0].latency_grid_s == () == aid_settings(anchor, None, None)[0].latency_grid_s
+
+    def run(latency_s: float, vehicle: str):
+        rec, q_true = accelerating_flight(60.0, latency_s=latency_s)
+        df = estimate_anchored(model, FlightRecord(rec.data, {**rec.meta, "vehicle_type": vehicle}), aided)
+        q = df[EST_Q_COLS].to_numpy()
+        m = rec.t_s >= 10.0
+        return float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], q_true[m])) ** 2)))), df
+
+    on_time, said_on_time = run(0.1, "quadrotor")
+    on_time_as_set, _ = run(0.1, "fixed-wing")
+    late_as_set, said_set = run(0.5, "fixed-wing")  # not read: the setting's 0.1 s
+    late_read, said = run(0.5, "quadrotor")
+    assert late_read < 0.6 * late_as_set, (late_read, late_as_set)
+    assert on_time == on_time_as_set and "late" not in said_on_time.attrs["gnss_aid"], on_time
+    read = re.search(r"the receiver read as ([0-9.]+) s late", said.attrs["gnss_aid"])
+    assert read and 0.45 <= float(read.group(1)) <= 0.65, said.attrs["gnss_aid"]  # read with the plain pass's attitude
+    assert "late" not in said_set.attrs["gnss_aid"]

@@ -28,7 +28,7 @@ from .anchor_kernels import step_weights
 from .beside import MAX_WAIT_S_PER_SAMPLE, WAIT_S_PER_SAMPLE, Beside, BesideFailed, worth_it
 from .fusion import FusionConfig, FusionRun, feedback_bias
 from .accel_scale import AccelScale, read_accel_scale
-from .gnss_aid import GnssAidConfig, gnss_evidence, motion_acc_body, summarize
+from .gnss_aid import GnssAidConfig, gnss_evidence, latency_scores, motion_acc_body, read_latency, summarize
 from .gyro_selfcal import GyroSelfCal, self_calibrate
 from .runtime import as_runner
 from .smoother import SmootherConfig, smooth
@@ -617,11 +617,14 @@ def _piecewise(starts: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
 def aid_settings(anchor: AnchorConfig, cfg: GnssAidConfig | None = None, vehicle: str | None = None) -> tuple[GnssAidConfig, float]:
     """The GNSS aid's settings as the anchored estimator runs it on a record of ``vehicle`` (its log's
     ``vehicle_type``) — ``cfg``, default the shipped ones; no speed limit with ``anchor.gnss_aid_in_flight``; the
-    receiver's holes bridged where the vehicle's class is in ``cfg.bridge_gaps_for`` — and the ground speed from which
-    the flight-speed gate acts beside it."""
+    receiver's holes bridged where the vehicle's class is in ``cfg.bridge_gaps_for``; its latency read from the
+    record only where the class is in ``cfg.read_latency_for`` (elsewhere no ``latency_grid_s``) — and the ground speed
+    from which the flight-speed gate acts beside it."""
     cfg = cfg or GnssAidConfig()
     if not cfg.bridge_gaps and cfg.bridge_gaps_for and vehicle_class(vehicle) in cfg.bridge_gaps_for:
         cfg = replace(cfg, bridge_gaps=True)
+    if cfg.latency_grid_s and vehicle_class(vehicle) not in cfg.read_latency_for:
+        cfg = replace(cfg, latency_grid_s=())
     fast_m_s = cfg.max_speed_m_s
     if anchor.gnss_aid_in_flight:
         cfg = replace(cfg, max_speed_m_s=float("inf"))
@@ -662,11 +665,26 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
     found = (none, none, np.zeros((n, 3)))  # the masks and correction of the last pass that applied
     aided, out_aided = None, out
     ev = evidence if evidence is not None else gnss_evidences(rec, cfg)  # the receiver's part: the same every pass
-    for p in range(cfg.passes):
+
+    def correction(q_nb, cfg, ev):
         a_b, trusted, covered = np.zeros((n, 3)), none.copy(), none.copy()
         for sl in segment_slices(seg):
             a_b[sl], trusted[sl], covered[sl] = motion_acc_body(t[sl], q_nb[sl], acc[sl], vel[sl], cfg, gyr_clipped[sl],
                                                                 ev[(sl.start, sl.stop)])  # fmt: skip
+        return a_b, trusted, covered
+
+    # rule 37: the receiver's latency read from the record where it is not the setting's (None: not read). With the
+    # first aided pass's attitude (37b: the plain pass's tilt follows the slow acceleration and reads late); where the
+    # setting's latency lets nothing be trusted, with the plain pass's (37c: a receiver far later than the setting)
+    latency = None
+    for p in range(cfg.passes):
+        a_b, trusted, covered = correction(q_nb, cfg, ev)
+        if p == 0 and not trusted.any():
+            read = record_latency(t, q_nb, acc, vel, seg, cfg, ev)
+            if read != cfg.latency_s:
+                cfg, latency = replace(cfg, latency_s=read), read
+                ev = gnss_evidences(rec, cfg)
+                a_b, trusted, covered = correction(q_nb, cfg, ev)
         if not trusted.any():
             if aided is None:  # nothing applies: say why from this pass's masks
                 found = (trusted, covered, a_b)
@@ -677,8 +695,27 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
         if p + 1 < cfg.passes:
             q_nb = _anchored_pass(anchor, seg, (t, cols[1], aided, cols[3], cols[4]), idx, out_aided, use_mag,
                                   rec.meta.get("vehicle_type"))[0]  # fmt: skip
+            if p == 0 and latency is None:
+                read = record_latency(t, q_nb, acc, vel, seg, cfg, ev)
+                if read != cfg.latency_s:
+                    cfg, latency = replace(cfg, latency_s=read), read
+                    ev = gnss_evidences(rec, cfg)
     trusted, covered, a_b = found
-    return summarize(trusted, covered, a_b, vel, cfg), aided, out_aided
+    return replace(summarize(trusted, covered, a_b, vel, cfg), latency_s=latency), aided, out_aided
+
+
+def record_latency(t, q_nb, acc, vel, seg, cfg: GnssAidConfig, evidence: dict) -> float:
+    """The receiver's latency of a record (rule 37, :func:`.gnss_aid.read_latency`) from its segments whose receiver
+    evidence may be trusted at all (``evidence``: :func:`gnss_evidences`'), read with the estimate ``q_nb`` on the
+    accelerometer ``acc``; ``cfg.latency_s`` where none may be (or ``cfg.latency_grid_s`` is empty)."""
+    num = den = None
+    for sl in segment_slices(seg):
+        e = evidence[(sl.start, sl.stop)]
+        if not cfg.latency_grid_s or e is None or not e.may_trust:
+            continue
+        a, b = latency_scores(t[sl], q_nb[sl], acc[sl], vel[sl], cfg, e.clip_ok)
+        num, den = (a, b) if num is None else (num + a, den + b)
+    return cfg.latency_s if num is None else read_latency(num, den, cfg)
 
 
 def self_calibrated(anchor: AnchorConfig, rec: FlightRecord) -> tuple[AnchorConfig, GyroSelfCal | None]:

@@ -80,6 +80,16 @@ class GnssAidConfig:
     # flight-speed gate its centripetal term, which did better there than the bridged aid)
     bridge_gaps: bool = False
     bridge_gaps_for: tuple[str, ...] = ("multirotor",)
+    # the receiver's latency read from the record (rule 37): the candidate latency whose acceleration agrees best with
+    # the specific force (:func:`latency_scores`, pooled over ``heading_window_s`` blocks with the plain pass's
+    # attitude) replaces ``latency_s`` where its pooled coherence is at least ``latency_min_gain`` above
+    # ``latency_s``'s. A receiver 0.5 s late read as 0.1 s turned the aid's gain into a loss (session 63's GNSS hunt).
+    # () reads none: ``latency_s`` as set. ``latency_grid_s`` is this record's: :func:`tepinn_flight.model.estimate.
+    # aid_settings` empties it unless the log names a vehicle of a class in ``read_latency_for`` (rule 37b:
+    # multirotors; on fixed wing a receiver read late made the aid trusted again where it had hurt, rule 37)
+    latency_grid_s: tuple[float, ...] = tuple(round(0.05 * i, 2) for i in range(13))
+    latency_min_gain: float = 0.02
+    read_latency_for: tuple[str, ...] = ("multirotor",)
 
     def __post_init__(self):
         finite_nonneg("margin_s", self.margin_s)
@@ -89,10 +99,13 @@ class GnssAidConfig:
         finite_nonneg("latency_s", self.latency_s)
         check(0.0 <= self.min_coherence <= 1.0, "'min_coherence' must be in [0, 1]")
         check(int(self.passes) == self.passes and self.passes >= 1, "'passes' must be an integer ≥ 1")
+        check(all(np.isfinite(x) and x >= 0 for x in self.latency_grid_s), "'latency_grid_s' takes latencies ≥ 0 s")
+        finite_nonneg("latency_min_gain", self.latency_min_gain)
         from ..vehicle_class import CLASSES
 
-        bad = [c for c in self.bridge_gaps_for if c not in CLASSES]
-        check(not bad, f"'bridge_gaps_for' takes vehicle classes ({', '.join(CLASSES)}), got {bad}")
+        for name in ("bridge_gaps_for", "read_latency_for"):
+            bad = [c for c in getattr(self, name) if c not in CLASSES]
+            check(not bad, f"'{name}' takes vehicle classes ({', '.join(CLASSES)}), got {bad}")
 
 
 @dataclass(frozen=True)
@@ -104,14 +117,16 @@ class GnssAid:
     corrected_fraction: float  # samples whose heading offset was trusted (correction applied)
     accel_rms_m_s2: float  # RMS of the horizontal motion acceleration where corrected
     reason: str
+    latency_s: float | None = None  # the receiver's latency the aid used, where read from the record (rule 37)
 
     def describe(self) -> str:
         """One line for a user (ends with "; applied" where it was)."""
         if not self.applied:
             return f"GNSS-aided tilt: {self.reason}; not applied"
+        late = "" if self.latency_s is None else f", the receiver read as {self.latency_s:.2f} s late"
         return (f"GNSS-aided tilt: motion acceleration {self.accel_rms_m_s2:.2f} m/s² RMS taken out of the accelerometer on "
-                f"{100 * self.corrected_fraction:.0f} % of the samples (GNSS acceleration on {100 * self.covered_fraction:.0f} %); "
-                "applied")  # fmt: skip
+                f"{100 * self.corrected_fraction:.0f} % of the samples (GNSS acceleration on {100 * self.covered_fraction:.0f} %"
+                f"{late}); applied")  # fmt: skip
 
 
 def _centred_mean(x: np.ndarray, k: int) -> np.ndarray:
@@ -135,6 +150,11 @@ def _centred_mean(x: np.ndarray, k: int) -> np.ndarray:
     return out
 
 
+def _velocity_difference(t_lo, t_hi, tk, vk) -> np.ndarray:
+    """(N, 2) the velocity's mean rate of change from ``t_lo`` to ``t_hi``, linear between the fixes ``(tk, vk)``."""
+    return np.stack([(np.interp(t_hi, tk, vk[:, k]) - np.interp(t_lo, tk, vk[:, k])) for k in range(2)], 1) / (t_hi - t_lo)[:, None]
+
+
 def motion_acc_ne(t_s: np.ndarray, vel_ne_m_s: np.ndarray, cfg: GnssAidConfig, bridge: bool = False) -> np.ndarray:
     """(N, 2) horizontal motion acceleration (north, east) from the GNSS velocity on the IMU samples:
     the velocity's difference over ``smooth_s``, read ``latency_s`` later; NaN where either end has no fix
@@ -147,8 +167,7 @@ def motion_acc_ne(t_s: np.ndarray, vel_ne_m_s: np.ndarray, cfg: GnssAidConfig, b
     tk, vk = t_s[ok], vel_ne_m_s[ok]
     t_hi = t_s + cfg.latency_s + h / 2
     t_lo = t_s + cfg.latency_s - h / 2
-    for k in range(2):
-        out[:, k] = (np.interp(t_hi, tk, vk[:, k]) - np.interp(t_lo, tk, vk[:, k])) / h
+    out[:] = _velocity_difference(t_lo, t_hi, tk, vk)
     # no fix at either end (outside the covered span, or across a hole in the fixes unless bridged): NaN
     covered = (t_lo >= tk[0]) & (t_hi <= tk[-1])
     if not bridge:
@@ -226,6 +245,78 @@ def may_trust_any(covered, za_pow, clip_ok, near_wild, dt: float, cfg: GnssAidCo
     frac = _centred_mean(use.astype(float), w)
     pa = _centred_mean(np.where(use, za_pow, 0.0), w)
     return bool(np.any(covered & ~near_wild & (frac > 0.5) & (4.0 * pa >= cfg.min_accel_m_s2**2)))
+
+
+LATENCY_STEP_S = 0.02  # the latency read's samples: ~50 Hz, ten and more to a 5 Hz fix period
+
+
+def latency_scores(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig, clip_ok=None) -> tuple[np.ndarray, np.ndarray]:
+    """The pooled coherence's two sums at each of ``cfg.latency_grid_s`` on one segment estimated as ``q_nb_wxyz`` →
+    ``(num, den)``: ``Σ_b |Σ f conj(a_L)|`` and ``Σ_b √(Σ|f|² Σ|a_L|²)`` over blocks b of ``heading_window_s``, where
+    ``f`` is the specific force's horizontal part in the filter's earth frame averaged over ``smooth_s`` (as
+    :func:`motion_acc_body` reads it) and ``a_L`` the receiver's acceleration read ``L`` late (:func:`motion_acc_ne`),
+    on the samples (every ``LATENCY_STEP_S``) where every candidate has a real fix at both ends and ``clip_ok``
+    (:attr:`GnssEvidence.clip_ok`; None: all). Blocks, not a sliding window: a 6-D filter's heading drifts between
+    them. A record's latency is the grid's argmax of ``Σ num / Σ den`` over its segments (:func:`read_latency`)."""
+    grid = latency_candidates(cfg)
+    n = len(t_s)
+    zero = np.zeros(len(grid))
+    if n < 3 or not cfg.latency_grid_s:
+        return zero, zero.copy()
+    dt = float(np.median(np.diff(t_s)))
+    k = max(1, int(round(cfg.smooth_s / dt)))
+    rows = (np.require(x, np.float64, "CW") for x in (q_nb_wxyz, acc_b))
+    f_ne = _centred_mean(rotate_rows(*rows)[:, :2], k)
+    at = np.arange(0, n, max(1, int(round(LATENCY_STEP_S / dt))))
+    t = t_s[at]
+    zf = f_ne[at, 0] + 1j * f_ne[at, 1]
+    use = np.isfinite(zf) if clip_ok is None else np.isfinite(zf) & clip_ok[at]
+    # every candidate's differences read from real fixes only: no hole (NaN) from the earliest candidate's start to the
+    # latest's end, inside the fixes' span
+    ok = np.all(np.isfinite(vel_ne_m_s), axis=1)
+    if ok[at].sum() < 2:
+        return zero, zero.copy()
+    h = cfg.smooth_s
+    ok_at = ok[at]  # linear between fixes: on ~50 Hz samples, the same line but within 20 ms of a fix
+    tk, vk = t[ok_at], np.asarray(vel_ne_m_s)[at][ok_at]
+    first, last = t + grid[0] - h / 2, t + grid[-1] + h / 2
+    holes = np.r_[0, np.cumsum(~ok)]
+    use &= (first >= tk[0]) & (last <= tk[-1])
+    use &= holes[np.searchsorted(t_s, last, "right")] == holes[np.searchsorted(t_s, first, "left")]
+    za = []
+    for lat in grid:  # (:func:`motion_acc_ne`'s difference, here on the read's samples)
+        a = _velocity_difference(t + lat - h / 2, t + lat + h / 2, tk, vk)
+        za.append(a[:, 0] + 1j * a[:, 1])
+    if not use.any():
+        return zero, zero.copy()
+    block = np.floor((t[use] - t_s[0]) / cfg.heading_window_s).astype(np.int64)
+    starts = np.flatnonzero(np.r_[True, np.diff(block) != 0])
+    f = zf[use]
+    pf = np.add.reduceat(np.abs(f) ** 2, starts)
+    num, den = zero.copy(), zero.copy()
+    for j, a in enumerate(za):
+        a = a[use]
+        num[j] = np.sum(np.abs(np.add.reduceat(f * np.conj(a), starts)))
+        den[j] = np.sum(np.sqrt(pf * np.add.reduceat(np.abs(a) ** 2, starts)))
+    return num, den
+
+
+def latency_candidates(cfg: GnssAidConfig) -> np.ndarray:
+    """The latencies :func:`latency_scores` scores: ``cfg.latency_grid_s`` and ``cfg.latency_s``, ascending."""
+    return np.unique(np.r_[np.asarray(cfg.latency_grid_s, float), cfg.latency_s])
+
+
+def read_latency(num: np.ndarray, den: np.ndarray, cfg: GnssAidConfig) -> float:
+    """The receiver's latency from :func:`latency_scores`' sums over a record's segments: the best pooled coherence
+    of :func:`latency_candidates` where it is at least ``cfg.latency_min_gain`` above that at ``cfg.latency_s``, else
+    ``cfg.latency_s`` (no evidence, or none clear enough: as set)."""
+    grid = latency_candidates(cfg)
+    if not cfg.latency_grid_s or not np.all(den > 0):
+        return cfg.latency_s
+    p = num / den
+    best = int(np.argmax(p))
+    p_set = p[int(np.searchsorted(grid, cfg.latency_s))]
+    return float(grid[best]) if p[best] >= p_set + cfg.latency_min_gain else cfg.latency_s
 
 
 def motion_acc_body(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig, gyr_clipped=None,
