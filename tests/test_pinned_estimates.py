@@ -52,10 +52,12 @@ PINNED_SMOOTHED = {
 
 @pytest.mark.parametrize("aided,smoothed", [(False, False), (True, False), (True, True)],
                          ids=["causal", "gnss-aided", "shipped-offline"])  # fmt: skip
-def test_shipped_model_estimates_are_pinned(aided, smoothed):
+def test_shipped_model_estimates_are_pinned(aided, smoothed, monkeypatch):
     import dataclasses
 
+    import tepinn_flight.model.estimate as estimate_module
     from tepinn_flight.ingest import ingest_log
+    from tepinn_flight.model.gnss_aid import GnssAidConfig
     from tepinn_flight.model.checkpoint import default_model_path, load_model
     from tepinn_flight.model.estimate import estimate_record
     from tepinn_flight.model.smoother import SmootherConfig
@@ -70,7 +72,9 @@ def test_shipped_model_estimates_are_pinned(aided, smoothed):
     # output only, so the attitudes pin the same either way, and the σ pins check the σ code too)
     # (and without the smoothing's disagreement floor, session 26: tested in test_smoother.py; and with VQF taking
     # each gyro sample over one fixed period, as before session 29's step weighting: erle's millisecond stamps
-    # step by 19-21 ms, test_gyro_step_weighting.py; and without σ's aircraft terms, session 50: test_sigma_aircraft.py)
+    # step by 19-21 ms, test_gyro_step_weighting.py; and without σ's aircraft terms, session 50: test_sigma_aircraft.py;
+    # and with the receiver taken as 0.1 s late, as before session 64 read erle's as 0.20 s: test_gnss_aid.py)
+    monkeypatch.setattr(estimate_module, "GnssAidConfig", lambda: GnssAidConfig(latency_grid_s=()))
     est = estimate_record(model, rec, dataclasses.replace(estimator, gnss_aid=aided, smoother=smoothed, sigma_acc_gain=0.025,
                                                           sigma_sampling_gain=0.0, gyro_step_weighting=False,
                                                           sigma_aircraft_deg=0.0, sigma_acc_gain_aircraft=0.0),
