@@ -22,11 +22,12 @@ W1, W2 = 2 * np.pi / 8.0, 2 * np.pi / 11.0  # its two frequencies (rad/s)
 
 
 def accelerating_flight(duration_s: float = 120.0, v0_ne=(0.0, 0.0), gnss_rate_hz: float = 5.0, latency_s: float = 0.1,
-                        seed: int = 0, gnss: bool = True):  # fmt: skip
+                        seed: int = 0, gnss: bool = True, periods_s: tuple[float, float] | None = None):  # fmt: skip
     """A record whose accelerometer carries a known horizontal motion acceleration
-    ``a = A (sin ω₁t, sin ω₂t)`` on top of gravity, with a slowly turning, gently tilting attitude,
-    an exact gyro (the turn between samples) and a receiver's velocity: ``v0 + ∫a`` sampled at
-    ``gnss_rate_hz`` ``latency_s`` late, linear between fixes. Returns (record, true q_nb)."""
+    ``a = A (sin ω₁t, sin ω₂t)`` on top of gravity (``periods_s``: 2π/ω₁, 2π/ω₂; default those of W1, W2), with a
+    slowly turning, gently tilting attitude, an exact gyro (the turn between samples) and a receiver's velocity:
+    ``v0 + ∫a`` sampled at ``gnss_rate_hz`` ``latency_s`` late, linear between fixes. Returns (record, true q_nb)."""
+    W1, W2 = (globals()["W1"], globals()["W2"]) if periods_s is None else (2 * np.pi / periods_s[0], 2 * np.pi / periods_s[1])
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, duration_s, 1.0 / RATE_HZ)
     yaw = 0.3 * t + 0.5
@@ -438,15 +439,19 @@ def _pooled_coherence_slow(rec, q_nb, cfg: GnssAidConfig, lat: float, at: np.nda
     return num / den
 
 
-@pytest.mark.parametrize("latency_s, read_as", [(0.1, 0.1), (0.35, 0.1), (0.5, 0.5)])
-def test_the_receivers_latency_is_read_where_the_pooled_coherence_peaks(latency_s, read_as):
+@pytest.mark.parametrize("latency_s, read_as, turn_rad", [(0.1, 0.1, 0.0), (0.35, 0.1, 0.0), (0.5, 0.5, 0.0), (0.5, 0.5, 2.0)])
+def test_the_receivers_latency_is_read_where_the_pooled_coherence_peaks(latency_s, read_as, turn_rad):
     """Rule 37: on a record whose receiver is ``latency_s`` late, the pooled coherence (against a slow reference at
     every candidate) peaks at that latency; the record's latency is read as it where the peak clears the setting's
     (0.1 s) coherence by ``latency_min_gain`` — on these slow manoeuvres (periods of 8 and 11 s) 0.35 s does not
-    (0.014 above), 0.5 s does (0.037)."""
+    (0.014 above), 0.5 s does (0.037). With the filter's heading origin different in each 30-s block (``turn_rad``
+    more each block: a 6-D filter's heading drifts, if far more slowly) the pooling over blocks reads the same, where
+    one sum over the whole record would not."""
     from tepinn_flight.model.gnss_aid import latency_candidates, latency_scores, read_latency
 
-    rec, q_nb = accelerating_flight(90.0, latency_s=latency_s)
+    rec, q_true = accelerating_flight(90.0, latency_s=latency_s)
+    drift = Rotation.from_euler("z", (turn_rad * np.floor(rec.t_s / 30.0))[:, None])  # the filter's frame about down
+    q_nb = (drift * Rotation.from_quat(q_true[:, [1, 2, 3, 0]])).as_quat()[:, [3, 0, 1, 2]]
     cfg = GnssAidConfig()
     num, den = latency_scores(rec.t_s, q_nb, rec.acc_m_s2, rec.gnss_vel_ne_m_s, cfg)
     grid = latency_candidates(cfg)
@@ -460,7 +465,11 @@ def test_the_receivers_latency_is_read_where_the_pooled_coherence_peaks(latency_
     slow = np.array([_pooled_coherence_slow(rec, q_nb, cfg, float(x), at) for x in grid])
     np.testing.assert_allclose(p, slow, atol=3e-3)  # the decimation's phase and the odd/even centring apart
     assert slow.max() - slow.min() > 0.01  # a peak: the test can tell latencies apart
-    # a grid without the setting's latency still compares against it; an empty grid reads nothing
+    if turn_rad:  # one block (the whole record) would not see it: the turns cancel the sum
+        one = dataclasses.replace(cfg, heading_window_s=1e9)
+        n1, d1 = latency_scores(rec.t_s, q_nb, rec.acc_m_s2, rec.gnss_vel_ne_m_s, one)
+        assert (n1 / d1).max() < 0.5 < p.max(), (n1 / d1, p)
+    # a gain out of reach leaves the setting; an empty grid reads nothing
     assert read_latency(num, den, dataclasses.replace(cfg, latency_min_gain=10.0)) == cfg.latency_s
     assert read_latency(num[:0], den[:0], dataclasses.replace(cfg, latency_grid_s=())) == cfg.latency_s
 
@@ -500,3 +509,33 @@ def test_a_late_receiver_read_as_late_brings_a_multirotor_s_estimate_back_toward
     read = re.search(r"the receiver read as ([0-9.]+) s late", said.attrs["gnss_aid"])
     assert read and 0.45 <= float(read.group(1)) <= 0.65, said.attrs["gnss_aid"]  # read with the plain pass's attitude
     assert "late" not in said_set.attrs["gnss_aid"]
+
+
+def test_a_receiver_far_later_than_the_setting_is_read_with_the_plain_pass_s_attitude(monkeypatch):
+    """Rule 37c: a receiver 0.7 s late on quicker manoeuvres (periods 2.5 and 3.3 s) is trusted nowhere at the setting's
+    0.1 s, so there is no aided pass to read with: read with the plain pass's attitude (the grid's end, 0.6 s), the aid
+    then applies and the error falls below the unaided one (a fixed wing's log: not read). And a read at which the next
+    pass trusts nothing leaves the last pass that did, reported at the setting's latency."""
+    import tepinn_flight.model.estimate as est
+    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.estimate import EST_Q_COLS, estimate_anchored
+
+    model, anchor, _ = load_model(default_model_path())
+    aided = dataclasses.replace(anchor.learned_off, gnss_aid=True)
+
+    def run(latency_s: float, vehicle: str):
+        rec, q_true = accelerating_flight(60.0, latency_s=latency_s, periods_s=(2.5, 3.3))
+        df = estimate_anchored(model, FlightRecord(rec.data, {**rec.meta, "vehicle_type": vehicle}), aided)
+        q = df[EST_Q_COLS].to_numpy()
+        m = rec.t_s >= 10.0
+        return float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], q_true[m])) ** 2)))), df
+
+    read, said = run(0.7, "quadrotor")
+    unread, said_unread = run(0.7, "fixed-wing")
+    assert "the receiver read as 0.60 s late); applied" in said.attrs["gnss_aid"], said.attrs["gnss_aid"]
+    assert said_unread.attrs["gnss_aid"].endswith("not applied"), said_unread.attrs["gnss_aid"]
+    assert read < 0.9 * unread, (read, unread)
+    monkeypatch.setattr(est, "record_latency", lambda *a: 1000.0)  # a "read" no fix covers: pass 1 trusts nothing
+    _, kept = run(0.1, "quadrotor")
+    assert kept.attrs["gnss_aid"].endswith("; applied") and "late" not in kept.attrs["gnss_aid"], kept.attrs["gnss_aid"]

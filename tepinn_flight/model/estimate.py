@@ -663,6 +663,7 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
     at = np.asarray(idx, np.int64)
     fast = np.hypot(vel[at, 0], vel[at, 1]) >= fast_m_s  # the windows' ends (NaN: no fix, not fast)
     found = (none, none, np.zeros((n, 3)))  # the masks and correction of the last pass that applied
+    found_latency = None  # the latency read that that correction was made at (None: the setting's)
     aided, out_aided = None, out
     ev = evidence if evidence is not None else gnss_evidences(rec, cfg)  # the receiver's part: the same every pass
 
@@ -674,8 +675,10 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
         return a_b, trusted, covered
 
     # rule 37: the receiver's latency read from the record where it is not the setting's (None: not read). With the
-    # first aided pass's attitude (37b: the plain pass's tilt follows the slow acceleration and reads late); where the
-    # setting's latency lets nothing be trusted, with the plain pass's (37c: a receiver far later than the setting)
+    # first aided pass's attitude (37b: the plain pass's tilt follows the slow acceleration and reads late; so with
+    # ``passes`` 1 nothing is read there); where the setting's latency lets nothing be trusted, with the plain pass's
+    # (37c: a receiver far later than the setting), and not read again after. A pass at the latency read that trusts
+    # nothing leaves the last pass that did, and the summary its latency
     latency = None
     for p in range(cfg.passes):
         a_b, trusted, covered = correction(q_nb, cfg, ev)
@@ -689,7 +692,7 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
             if aided is None:  # nothing applies: say why from this pass's masks
                 found = (trusted, covered, a_b)
             break
-        found = (trusted, covered, a_b)
+        found, found_latency = (trusted, covered, a_b), latency
         aided = acc - a_b
         out_aided = dict(out, gnss_aided=trusted[at], gnss_fast=fast)
         if p + 1 < cfg.passes:
@@ -701,7 +704,7 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
                     cfg, latency = replace(cfg, latency_s=read), read
                     ev = gnss_evidences(rec, cfg)
     trusted, covered, a_b = found
-    return replace(summarize(trusted, covered, a_b, vel, cfg), latency_s=latency), aided, out_aided
+    return replace(summarize(trusted, covered, a_b, vel, cfg), latency_s=found_latency), aided, out_aided
 
 
 def record_latency(t, q_nb, acc, vel, seg, cfg: GnssAidConfig, evidence: dict) -> float:

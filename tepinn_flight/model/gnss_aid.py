@@ -81,9 +81,9 @@ class GnssAidConfig:
     bridge_gaps: bool = False
     bridge_gaps_for: tuple[str, ...] = ("multirotor",)
     # the receiver's latency read from the record (rule 37): the candidate latency whose acceleration agrees best with
-    # the specific force (:func:`latency_scores`, pooled over ``heading_window_s`` blocks with the plain pass's
-    # attitude) replaces ``latency_s`` where its pooled coherence is at least ``latency_min_gain`` above
-    # ``latency_s``'s. A receiver 0.5 s late read as 0.1 s turned the aid's gain into a loss (session 63's GNSS hunt).
+    # the specific force (:func:`latency_scores`, pooled over ``heading_window_s`` blocks with the first aided pass's
+    # attitude, or the plain pass's where that trusts nothing: :func:`tepinn_flight.model.estimate.gnss_aided_acc`)
+    # replaces ``latency_s`` where its pooled coherence is at least ``latency_min_gain`` above ``latency_s``'s. A receiver 0.5 s late read as 0.1 s turned the aid's gain into a loss (session 63's GNSS hunt).
     # () reads none: ``latency_s`` as set. ``latency_grid_s`` is this record's: :func:`tepinn_flight.model.estimate.
     # aid_settings` empties it unless the log names a vehicle of a class in ``read_latency_for`` (rule 37b:
     # multirotors; on fixed wing a receiver read late made the aid trusted again where it had hurt, rule 37)
@@ -251,12 +251,14 @@ LATENCY_STEP_S = 0.02  # the latency read's samples: ~50 Hz, ten and more to a 5
 
 
 def latency_scores(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig, clip_ok=None) -> tuple[np.ndarray, np.ndarray]:
-    """The pooled coherence's two sums at each of ``cfg.latency_grid_s`` on one segment estimated as ``q_nb_wxyz`` →
+    """The pooled coherence's two sums at each of :func:`latency_candidates` (``cfg.latency_grid_s`` and
+    ``cfg.latency_s``) on one segment estimated as ``q_nb_wxyz`` →
     ``(num, den)``: ``Σ_b |Σ f conj(a_L)|`` and ``Σ_b √(Σ|f|² Σ|a_L|²)`` over blocks b of ``heading_window_s``, where
     ``f`` is the specific force's horizontal part in the filter's earth frame averaged over ``smooth_s`` (as
-    :func:`motion_acc_body` reads it) and ``a_L`` the receiver's acceleration read ``L`` late (:func:`motion_acc_ne`),
-    on the samples (every ``LATENCY_STEP_S``) where every candidate has a real fix at both ends and ``clip_ok``
-    (:attr:`GnssEvidence.clip_ok`; None: all). Blocks, not a sliding window: a 6-D filter's heading drifts between
+    :func:`motion_acc_body` reads it) and ``a_L`` the receiver's acceleration read ``L`` late (:func:`motion_acc_ne`'s
+    difference), on the samples (every ``LATENCY_STEP_S``) inside the fixes' span with no hole (NaN) from the earliest
+    candidate's start to the latest's end, and where ``clip_ok`` (:attr:`GnssEvidence.clip_ok`, made for the setting's
+    latency; None: all). Blocks, not a sliding window: a 6-D filter's heading drifts between
     them. A record's latency is the grid's argmax of ``Σ num / Σ den`` over its segments (:func:`read_latency`)."""
     grid = latency_candidates(cfg)
     n = len(t_s)
