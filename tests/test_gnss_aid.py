@@ -474,6 +474,22 @@ def test_the_receivers_latency_is_read_where_the_pooled_coherence_peaks(latency_
     assert read_latency(num[:0], den[:0], dataclasses.replace(cfg, latency_grid_s=())) == cfg.latency_s
 
 
+def _aided_rmse_deg(latency_s: float, vehicle: str, **flight) -> tuple[float, object]:
+    """The physics filter with the GNSS aid (the shipped anchor, learned parts off) on :func:`accelerating_flight` with a
+    receiver ``latency_s`` late, logged as ``vehicle`` → (inclination RMSE after 10 s in °, the estimate)."""
+    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
+    from tepinn_flight.model.checkpoint import default_model_path, load_model
+    from tepinn_flight.model.estimate import EST_Q_COLS, estimate_anchored
+
+    model, anchor, _ = load_model(default_model_path())
+    rec, q_true = accelerating_flight(60.0, latency_s=latency_s, **flight)
+    df = estimate_anchored(model, FlightRecord(rec.data, {**rec.meta, "vehicle_type": vehicle}),
+                           dataclasses.replace(anchor.learned_off, gnss_aid=True))  # fmt: skip
+    q = df[EST_Q_COLS].to_numpy()
+    m = rec.t_s >= 10.0
+    return float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], q_true[m])) ** 2)))), df
+
+
 def test_a_late_receiver_read_as_late_brings_a_multirotor_s_estimate_back_toward_the_truth():
     """Rule 37 end to end: a receiver 0.5 s late, taken as 0.1 s late, subtracts an acceleration 0.4 s old; read from
     the record (with the first aided pass's attitude: rule 37b), the anchored estimate's error is halved, and it says
@@ -481,33 +497,24 @@ def test_a_late_receiver_read_as_late_brings_a_multirotor_s_estimate_back_toward
     log names a vehicle of a class in ``read_latency_for`` (multirotors)."""
     import re
 
-    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
     from tepinn_flight.model.checkpoint import default_model_path, load_model
-    from tepinn_flight.model.estimate import EST_Q_COLS, aid_settings, estimate_anchored
+    from tepinn_flight.model.estimate import aid_settings
 
-    model, anchor, _ = load_model(default_model_path())
-    aided = dataclasses.replace(anchor.learned_off, gnss_aid=True)
+    anchor = load_model(default_model_path())[1]
     assert GnssAidConfig().read_latency_for == ("multirotor",)  # shipped (rule 37b)
     with pytest.raises(Exception, match="read_latency_for"):
         GnssAidConfig(read_latency_for=("quad",))  # a class, not a vehicle type
     assert aid_settings(anchor, None, "copter")[0].latency_grid_s == GnssAidConfig().latency_grid_s
     assert aid_settings(anchor, None, "plane")[0].latency_grid_s == () == aid_settings(anchor, None, None)[0].latency_grid_s
 
-    def run(latency_s: float, vehicle: str):
-        rec, q_true = accelerating_flight(60.0, latency_s=latency_s)
-        df = estimate_anchored(model, FlightRecord(rec.data, {**rec.meta, "vehicle_type": vehicle}), aided)
-        q = df[EST_Q_COLS].to_numpy()
-        m = rec.t_s >= 10.0
-        return float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], q_true[m])) ** 2)))), df
-
-    on_time, said_on_time = run(0.1, "quadrotor")
-    on_time_as_set, _ = run(0.1, "fixed-wing")
-    late_as_set, said_set = run(0.5, "fixed-wing")  # not read: the setting's 0.1 s
-    late_read, said = run(0.5, "quadrotor")
+    on_time, said_on_time = _aided_rmse_deg(0.1, "quadrotor")
+    on_time_as_set, _ = _aided_rmse_deg(0.1, "fixed-wing")
+    late_as_set, said_set = _aided_rmse_deg(0.5, "fixed-wing")  # not read: the setting's 0.1 s
+    late_read, said = _aided_rmse_deg(0.5, "quadrotor")
     assert late_read < 0.6 * late_as_set, (late_read, late_as_set)
     assert on_time == on_time_as_set and "late" not in said_on_time.attrs["gnss_aid"], on_time
     read = re.search(r"the receiver read as ([0-9.]+) s late", said.attrs["gnss_aid"])
-    assert read and 0.45 <= float(read.group(1)) <= 0.65, said.attrs["gnss_aid"]  # read with the plain pass's attitude
+    assert read and 0.45 <= float(read.group(1)) <= 0.65, said.attrs["gnss_aid"]  # with the first aided pass's attitude
     assert "late" not in said_set.attrs["gnss_aid"]
 
 
@@ -517,25 +524,13 @@ def test_a_receiver_far_later_than_the_setting_is_read_with_the_plain_pass_s_att
     then applies and the error falls below the unaided one (a fixed wing's log: not read). And a read at which the next
     pass trusts nothing leaves the last pass that did, reported at the setting's latency."""
     import tepinn_flight.model.estimate as est
-    from tepinn_flight.evaluation.metrics import error_quat_earth, inclination_error_rad
-    from tepinn_flight.model.checkpoint import default_model_path, load_model
-    from tepinn_flight.model.estimate import EST_Q_COLS, estimate_anchored
 
-    model, anchor, _ = load_model(default_model_path())
-    aided = dataclasses.replace(anchor.learned_off, gnss_aid=True)
-
-    def run(latency_s: float, vehicle: str):
-        rec, q_true = accelerating_flight(60.0, latency_s=latency_s, periods_s=(2.5, 3.3))
-        df = estimate_anchored(model, FlightRecord(rec.data, {**rec.meta, "vehicle_type": vehicle}), aided)
-        q = df[EST_Q_COLS].to_numpy()
-        m = rec.t_s >= 10.0
-        return float(np.degrees(np.sqrt(np.mean(inclination_error_rad(error_quat_earth(q[m], q_true[m])) ** 2)))), df
-
-    read, said = run(0.7, "quadrotor")
-    unread, said_unread = run(0.7, "fixed-wing")
+    quick = {"periods_s": (2.5, 3.3)}
+    read, said = _aided_rmse_deg(0.7, "quadrotor", **quick)
+    unread, said_unread = _aided_rmse_deg(0.7, "fixed-wing", **quick)
     assert "the receiver read as 0.60 s late); applied" in said.attrs["gnss_aid"], said.attrs["gnss_aid"]
     assert said_unread.attrs["gnss_aid"].endswith("not applied"), said_unread.attrs["gnss_aid"]
     assert read < 0.9 * unread, (read, unread)
     monkeypatch.setattr(est, "record_latency", lambda *a: 1000.0)  # a "read" no fix covers: pass 1 trusts nothing
-    _, kept = run(0.1, "quadrotor")
+    _, kept = _aided_rmse_deg(0.1, "quadrotor", **quick)
     assert kept.attrs["gnss_aid"].endswith("; applied") and "late" not in kept.attrs["gnss_aid"], kept.attrs["gnss_aid"]
