@@ -83,8 +83,9 @@ class GnssAidConfig:
     # the receiver's latency read from the record (rule 37): the candidate latency whose acceleration agrees best with
     # the specific force (:func:`latency_scores`, pooled over ``heading_window_s`` blocks with the first aided pass's
     # attitude, or the plain pass's where that trusts nothing: :func:`tepinn_flight.model.estimate.gnss_aided_acc`)
-    # replaces ``latency_s`` where its pooled coherence is at least ``latency_min_gain`` above ``latency_s``'s. A receiver 0.5 s late read as 0.1 s turned the aid's gain into a loss (session 63's GNSS hunt).
-    # () reads none: ``latency_s`` as set. ``latency_grid_s`` is this record's: :func:`tepinn_flight.model.estimate.
+    # replaces ``latency_s`` where its pooled coherence is at least ``latency_min_gain`` above ``latency_s``'s. A
+    # receiver 0.5 s late read as 0.1 s turned the aid's gain into a loss (session 63's GNSS hunt). () reads none:
+    # ``latency_s`` as set. ``latency_grid_s`` is this record's: :func:`tepinn_flight.model.estimate.
     # aid_settings` empties it unless the log names a vehicle of a class in ``read_latency_for`` (rule 37b:
     # multirotors; on fixed wing a receiver read late made the aid trusted again where it had hurt, rule 37)
     latency_grid_s: tuple[float, ...] = tuple(round(0.05 * i, 2) for i in range(13))
@@ -150,9 +151,10 @@ def _centred_mean(x: np.ndarray, k: int) -> np.ndarray:
     return out
 
 
-def _velocity_difference(t_lo, t_hi, tk, vk) -> np.ndarray:
-    """(N, 2) the velocity's mean rate of change from ``t_lo`` to ``t_hi``, linear between the fixes ``(tk, vk)``."""
-    return np.stack([(np.interp(t_hi, tk, vk[:, k]) - np.interp(t_lo, tk, vk[:, k])) for k in range(2)], 1) / (t_hi - t_lo)[:, None]
+def _velocity_difference(t_lo, t_hi, h: float, tk, vk) -> np.ndarray:
+    """(N, 2) the velocity's mean rate of change from ``t_lo`` to ``t_hi`` (``h`` apart), linear between the fixes
+    ``(tk, vk)``."""
+    return np.stack([np.interp(t_hi, tk, vk[:, k]) - np.interp(t_lo, tk, vk[:, k]) for k in range(2)], 1) / h
 
 
 def motion_acc_ne(t_s: np.ndarray, vel_ne_m_s: np.ndarray, cfg: GnssAidConfig, bridge: bool = False) -> np.ndarray:
@@ -167,7 +169,7 @@ def motion_acc_ne(t_s: np.ndarray, vel_ne_m_s: np.ndarray, cfg: GnssAidConfig, b
     tk, vk = t_s[ok], vel_ne_m_s[ok]
     t_hi = t_s + cfg.latency_s + h / 2
     t_lo = t_s + cfg.latency_s - h / 2
-    out[:] = _velocity_difference(t_lo, t_hi, tk, vk)
+    out[:] = _velocity_difference(t_lo, t_hi, h, tk, vk)
     # no fix at either end (outside the covered span, or across a hole in the fixes unless bridged): NaN
     covered = (t_lo >= tk[0]) & (t_hi <= tk[-1])
     if not bridge:
@@ -258,8 +260,7 @@ def latency_scores(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig, clip_o
     :func:`motion_acc_body` reads it) and ``a_L`` the receiver's acceleration read ``L`` late (:func:`motion_acc_ne`'s
     difference), on the samples (every ``LATENCY_STEP_S``) inside the fixes' span with no hole (NaN) from the earliest
     candidate's start to the latest's end, and where ``clip_ok`` (:attr:`GnssEvidence.clip_ok`, made for the setting's
-    latency; None: all). Blocks, not a sliding window: a 6-D filter's heading drifts between
-    them. A record's latency is the grid's argmax of ``Σ num / Σ den`` over its segments (:func:`read_latency`)."""
+    latency; None: all). Blocks, not a sliding window: a 6-D filter's heading drifts between them. A record's latency is the grid's argmax of ``Σ num / Σ den`` over its segments (:func:`read_latency`)."""
     grid = latency_candidates(cfg)
     n = len(t_s)
     zero = np.zeros(len(grid))
@@ -287,7 +288,7 @@ def latency_scores(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig, clip_o
     use &= holes[np.searchsorted(t_s, last, "right")] == holes[np.searchsorted(t_s, first, "left")]
     za = []
     for lat in grid:  # (:func:`motion_acc_ne`'s difference, here on the read's samples)
-        a = _velocity_difference(t + lat - h / 2, t + lat + h / 2, tk, vk)
+        a = _velocity_difference(t + lat - h / 2, t + lat + h / 2, h, tk, vk)
         za.append(a[:, 0] + 1j * a[:, 1])
     if not use.any():
         return zero, zero.copy()
