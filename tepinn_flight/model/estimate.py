@@ -680,13 +680,19 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
     # (37c: a receiver far later than the setting), and not read again after. A pass at the latency read that trusts
     # nothing leaves the last pass that did, and the summary its latency
     latency = None
+
+    def read_with(q_nb, cfg, ev):  # → the settings, the latency read (None: the setting's) and the evidence at it
+        read = record_latency(t, q_nb, acc, vel, seg, cfg, ev)
+        if read == cfg.latency_s:
+            return cfg, None, ev
+        cfg = replace(cfg, latency_s=read)
+        return cfg, read, gnss_evidences(rec, cfg)
+
     for p in range(cfg.passes):
         a_b, trusted, covered = correction(q_nb, cfg, ev)
         if p == 0 and not trusted.any():
-            read = record_latency(t, q_nb, acc, vel, seg, cfg, ev)
-            if read != cfg.latency_s:
-                cfg, latency = replace(cfg, latency_s=read), read
-                ev = gnss_evidences(rec, cfg)
+            cfg, latency, ev = read_with(q_nb, cfg, ev)
+            if latency is not None:
                 a_b, trusted, covered = correction(q_nb, cfg, ev)
         if not trusted.any():
             if aided is None:  # nothing applies: say why from this pass's masks
@@ -699,10 +705,7 @@ def gnss_aided_acc(rec: FlightRecord, q_nb: np.ndarray, anchor: AnchorConfig, id
             q_nb = _anchored_pass(anchor, seg, (t, cols[1], aided, cols[3], cols[4]), idx, out_aided, use_mag,
                                   rec.meta.get("vehicle_type"))[0]  # fmt: skip
             if p == 0 and latency is None:
-                read = record_latency(t, q_nb, acc, vel, seg, cfg, ev)
-                if read != cfg.latency_s:
-                    cfg, latency = replace(cfg, latency_s=read), read
-                    ev = gnss_evidences(rec, cfg)
+                cfg, latency, ev = read_with(q_nb, cfg, ev)
     trusted, covered, a_b = found
     return replace(summarize(trusted, covered, a_b, vel, cfg), latency_s=found_latency), aided, out_aided
 
@@ -711,10 +714,12 @@ def record_latency(t, q_nb, acc, vel, seg, cfg: GnssAidConfig, evidence: dict) -
     """The receiver's latency of a record (rule 37, :func:`.gnss_aid.read_latency`) from its segments whose receiver
     evidence may be trusted at all (``evidence``: :func:`gnss_evidences`'), read with the estimate ``q_nb`` on the
     accelerometer ``acc``; ``cfg.latency_s`` where none may be (or ``cfg.latency_grid_s`` is empty)."""
+    if not cfg.latency_grid_s:
+        return cfg.latency_s
     num = den = None
     for sl in segment_slices(seg):
         e = evidence[(sl.start, sl.stop)]
-        if not cfg.latency_grid_s or e is None or not e.may_trust:
+        if e is None or not e.may_trust:
             continue
         a, b = latency_scores(t[sl], q_nb[sl], acc[sl], vel[sl], cfg, e.clip_ok)
         num, den = (a, b) if num is None else (num + a, den + b)

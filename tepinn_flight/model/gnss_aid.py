@@ -286,19 +286,16 @@ def latency_scores(t_s, q_nb_wxyz, acc_b, vel_ne_m_s, cfg: GnssAidConfig, clip_o
     holes = np.r_[0, np.cumsum(~ok)]
     use &= (first >= tk[0]) & (last <= tk[-1])
     use &= holes[np.searchsorted(t_s, last, "right")] == holes[np.searchsorted(t_s, first, "left")]
-    za = []
-    for lat in grid:  # (:func:`motion_acc_ne`'s difference, here on the read's samples)
-        a = _velocity_difference(t + lat - h / 2, t + lat + h / 2, h, tk, vk)
-        za.append(a[:, 0] + 1j * a[:, 1])
     if not use.any():
         return zero, zero.copy()
-    block = np.floor((t[use] - t_s[0]) / cfg.heading_window_s).astype(np.int64)
+    tu, f = t[use], zf[use]
+    block = np.floor((tu - t_s[0]) / cfg.heading_window_s).astype(np.int64)
     starts = np.flatnonzero(np.r_[True, np.diff(block) != 0])
-    f = zf[use]
     pf = np.add.reduceat(np.abs(f) ** 2, starts)
     num, den = zero.copy(), zero.copy()
-    for j, a in enumerate(za):
-        a = a[use]
+    for j, lat in enumerate(grid):  # (:func:`motion_acc_ne`'s difference, here on the read's samples)
+        a_ne = _velocity_difference(tu + lat - h / 2, tu + lat + h / 2, h, tk, vk)
+        a = a_ne[:, 0] + 1j * a_ne[:, 1]
         num[j] = np.sum(np.abs(np.add.reduceat(f * np.conj(a), starts)))
         den[j] = np.sum(np.sqrt(pf * np.add.reduceat(np.abs(a) ** 2, starts)))
     return num, den
