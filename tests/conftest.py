@@ -20,53 +20,103 @@ def _session_folder(tmp_path_factory) -> Path:
 
 
 _FIRST_RUN_JSON = "first-run.json"
+_FIRST_FLIGHTS_JSON = "first-flights.json"
 
 
-def _cache_empty(jit_warmup) -> bool:
-    """Whether none of the loops the warm-up compiles is in this checkout's numba cache (a fresh clone); a loop
-    compiled as its module is imported (given its signature) does not count."""
+def _never_compiled(dispatchers) -> bool:
+    """Whether none of these loops is in this checkout's numba cache (a fresh clone); a loop compiled as its module is
+    imported (given its signature) does not count."""
     try:
-        return all(not os.path.exists(d._cache._cache_file._index_path) for d in jit_warmup._dispatchers(filters=True)
-                   if not d.signatures)  # fmt: skip
+        return all(not os.path.exists(d._cache._cache_file._index_path) for d in dispatchers if not d.signatures)
     except AttributeError:  # another numba's internals
         return False
 
 
+def _estimator_warm_up(shared: Path) -> None:
+    """The estimator's loops: on this checkout's empty cache, the first run that ``tests/test_first_run_compile.py``
+    checks (its output kept for that test), then the warm-up the commands run (two processes at once)."""
+    from tepinn_flight import jit_warmup
+
+    if os.environ.get("NUMBA_CACHE_DIR") is None and _never_compiled(jit_warmup._dispatchers()):
+        import json
+
+        from tests.test_first_run_compile import first_run
+
+        folder = shared / "first-run"
+        folder.mkdir(exist_ok=True)
+        try:
+            run = first_run(folder)
+        except Exception as e:  # (said by the test that reads it; the warm-up below still runs)
+            run = {"returncode": -1, "stdout": "", "stderr": f"the session's first run failed: {e!r}", "paths": [],
+                   "cache": None}  # fmt: skip
+        (shared / _FIRST_RUN_JSON).write_text(json.dumps(run))
+    jit_warmup.warm_up()
+
+
+def _simulation_and_filters_warm_up(shared: Path) -> None:
+    """The simulation's loops: on this checkout's empty cache, the first flights that
+    ``tests/test_quad_flight_kernel.py`` checks (their output kept for that test), then the campaign's preload; and the
+    baseline filters ``evaluate`` runs. None of these loops is the estimator's (so the estimator's first run, beside
+    it, still finds its own cold)."""
+    from tepinn_flight.sim import quad_flight_kernel
+
+    if os.environ.get("NUMBA_CACHE_DIR") is None and _never_compiled([quad_flight_kernel.fly_quad]):
+        import json
+
+        from tests.test_quad_flight_kernel import first_flights
+
+        try:
+            run = first_flights(shared / "first-flights.parquet")
+        except Exception as e:
+            run = {"returncode": -1, "stdout": "", "stderr": f"the session's first flights failed: {e!r}", "cache": None}
+        (shared / _FIRST_FLIGHTS_JSON).write_text(json.dumps(run))
+    import tepinn_flight.sim.preload  # noqa: F401  (the simulation's loops, as a campaign's forkserver loads them)
+    from tepinn_flight import jit_warmup
+
+    jit_warmup.warm_filters()
+
+
+#: the session's two warm-ups, each the job of the first xdist worker free to take it (a file lock, and a file saying
+#: it is done)
+_WARM_UPS = (("estimator", _estimator_warm_up), ("simulation", _simulation_and_filters_warm_up))
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _loops_compiled_once(tmp_path_factory):
-    """numba's cache for this checkout filled before the first test (a fresh clone's is empty) by the warm-up the
-    commands run (``tepinn_flight/jit_warmup.py``: two processes at once) and the simulation's preload, by one xdist
-    worker at a time: the other waits, then finds the cache warm. Otherwise each worker compiled the same loops as its
-    tests first needed them (a test paid ~40-60 s in CI that takes ~6 s on a warm cache). Where the cache is empty (a
-    fresh clone, as in CI) the warm-up is the first run that ``tests/test_first_run_compile.py`` checks, its output
-    kept for that test: one cold compile in CI instead of two (~80 s of a worker). Other tests of the cold cache use
-    their own ``NUMBA_CACHE_DIR``."""
+    """numba's cache for this checkout filled before the first test (a fresh clone's is empty): the estimator's loops
+    by the warm-up the commands run (``tepinn_flight/jit_warmup.py``), the simulation's and the baseline filters' by
+    their preloads. The two warm-ups run side by side, one per xdist worker (the first run's estimate keeps one core
+    busy for most of its minute: the other had waited for it, then compiled the rest alone); a worker then waits for the
+    other's before its first test. Otherwise each worker compiled the same loops as its tests first needed them (a test
+    paid ~40-60 s in CI that takes ~6 s on a warm cache). Where the cache is empty (a fresh clone, as in CI) the
+    warm-ups are the first runs that ``tests/test_first_run_compile.py`` and ``tests/test_quad_flight_kernel.py`` check,
+    their outputs kept for those tests: one cold compile in CI instead of two. Other tests of the cold cache use their
+    own ``NUMBA_CACHE_DIR``."""
     if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):
         return
     try:
         import fcntl
     except ImportError:  # not POSIX: each worker compiles as its tests need
         return
-    from tepinn_flight import jit_warmup
+    shared = _session_folder(tmp_path_factory)  # (this session's: its locks and the jobs' done marks)
 
-    shared = _session_folder(tmp_path_factory)
-    with open(tmp_path_factory.getbasetemp().parent / "numba-warm-up.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # (released as the file closes)
-        if os.environ.get("NUMBA_CACHE_DIR") is None and _cache_empty(jit_warmup):
-            import json
-
-            from tests.test_first_run_compile import first_run
-
-            folder = shared / "first-run"
-            folder.mkdir(exist_ok=True)
+    def run(name, job, wait: bool) -> None:
+        with open(shared / f"numba-warm-up-{name}.lock", "w") as lock:
             try:
-                run = first_run(folder)
-            except Exception as e:  # (said by the test that reads it; the warm-up below still runs)
-                run = {"returncode": -1, "stdout": "", "stderr": f"the session's first run failed: {e!r}", "paths": [],
-                       "cache": None}  # fmt: skip
-            (shared / _FIRST_RUN_JSON).write_text(json.dumps(run))
-        jit_warmup.warm_up(filters=True)
-        import tepinn_flight.sim.preload  # noqa: F401  (the simulation's loops, as a campaign's forkserver loads them)
+                fcntl.flock(lock, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))  # (released as the file closes)
+            except BlockingIOError:  # the other worker's job now: waited for below
+                return
+            done = shared / f"numba-warm-up-{name}.done"
+            if not done.exists():
+                try:
+                    job(shared)
+                finally:
+                    done.touch()
+
+    for name, job in _WARM_UPS:  # the first job free, then the other's end (or the job itself, where none took it)
+        run(name, job, wait=False)
+    for name, job in _WARM_UPS:
+        run(name, job, wait=True)
 
 
 @pytest.fixture
@@ -76,6 +126,16 @@ def first_run_of_session(tmp_path_factory):
     import json
 
     f = _session_folder(tmp_path_factory) / _FIRST_RUN_JSON
+    return json.loads(f.read_text()) if f.exists() else None
+
+
+@pytest.fixture
+def first_flights_of_session(tmp_path_factory):
+    """The first flights the session's warm-up flew on this checkout's empty cache (``first_flights``' output), or None
+    where the cache was not empty (the test then flies its own)."""
+    import json
+
+    f = _session_folder(tmp_path_factory) / _FIRST_FLIGHTS_JSON
     return json.loads(f.read_text()) if f.exists() else None
 
 

@@ -395,7 +395,7 @@ def test_a_fine_tuning_stopped_while_tuning_or_validating_leaves_no_model(tmp_pa
     data, _ = _quarters(tmp_path)
     run = tmp_path / "run"
     with pytest.raises(KeyboardInterrupt):
-        F.finetune("default", [str(data)], run, minutes=0.2, progress=True)
+        F.finetune("default", [str(data)], run, minutes=0.01, progress=True)
     assert not (run / "model.pt").exists() and (run / F.UNTUNED_NAME).exists()
     assert not (run / "finetune.json").exists()
     said = capsys.readouterr()

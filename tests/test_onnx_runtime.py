@@ -266,15 +266,17 @@ def test_fresh_venv_runtime_extra_without_torch(tmp_path, exported, monkeypatch)
     if why:
         pytest.skip(f"pip cannot reach the package index ({why})")
     venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=120)
+    # a plain venv without pip of its own: this pip installs into it (--python; seeding the venv's own pip was ~5 s of
+    # CI's time)
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=120)
     py = venv / "bin" / "python"
     src = tmp_path / "src"  # a copy: the build must not leave files in the checkout
     shutil.copytree(REPO, src, ignore=shutil.ignore_patterns(".git", ".venv", "__pycache__", "*.egg-info", "build", "tests",
                                                            "runs"))  # fmt: skip
     # --no-compile: the installed packages' byte-code is written as they are first imported, not all up front (pip's
     # compiling of ~1 GB of packages was half of this install: 76 -> 31 s)
-    p = subprocess.run([str(py), "-m", "pip", "install", "-q", "--no-compile", f"{src}[runtime]"], capture_output=True,
-                       text=True, timeout=600)  # fmt: skip
+    p = subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "-q", "--no-compile", f"{src}[runtime]"],
+                       capture_output=True, text=True, timeout=600)  # fmt: skip
     assert p.returncode == 0, p.stderr[-3000:]
     p = subprocess.run([str(py), "-c", "import torch"], capture_output=True, text=True)
     assert p.returncode != 0 and "No module named 'torch'" in p.stderr

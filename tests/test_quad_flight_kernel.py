@@ -228,28 +228,47 @@ print("@@", len(fly_quad.signatures), len(maneuver_update.signatures), len(contr
 """
 
 
+def first_flights(flight: str, cache=None) -> dict:
+    """``_SIGNATURES``'s flights in a fresh process (the first writing ``flight``), numba's cache in ``cache`` (None:
+    this checkout's own, which must then be empty: a fresh clone) → its exit status, output and the cache's folder.
+    conftest runs it as the test session's warm-up where this checkout's cache is empty (CI's clean clone: the one cold
+    compile serves both), else the test runs it on a cache of its own."""
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    env = {**os.environ, "PYTHONPATH": repo}
+    env.pop("NUMBA_DISABLE_JIT", None)
+    env.pop("NUMBA_CACHE_DIR", None)
+    if cache is not None:
+        env["NUMBA_CACHE_DIR"] = str(cache)
+    p = subprocess.run([sys.executable, "-c", _SIGNATURES, str(flight)], capture_output=True, text=True, env=env, cwd=repo,
+                       timeout=600)  # fmt: skip
+    return {"returncode": p.returncode, "stdout": p.stdout, "stderr": p.stderr, "cache": None if cache is None else str(cache)}
+
+
 @pytest.mark.slow
 @needs_layout
-def test_the_loop_and_laws_compile_once(tmp_path):
+def test_the_loop_and_laws_compile_once(tmp_path, first_flights_of_session):
     """The forkserver's warm-up compiles the loop for the signature flights call it with, and the laws called
     from Python (the binding's path) share theirs, and so does `simulate`: one compile each (each extra one is seconds
     per process). The first flight after installing (a fresh cache) says once that it compiles, the next does not
-    (``tepinn_flight/jit_notice.py``; checked here, where the cold compile is paid anyway)."""
+    (``tepinn_flight/jit_notice.py``; checked here, where the cold compile is paid anyway: the session's warm-up where
+    this checkout's cache was empty, else a run on a cache of its own)."""
     from tepinn_flight.jit_notice import COMPILE_NOTICE
 
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": repo}
-    env.pop("NUMBA_DISABLE_JIT", None)
-    flight = str(tmp_path / "f.parquet")
-    p = subprocess.run([sys.executable, "-c", _SIGNATURES, flight], capture_output=True, text=True, env=env, cwd=repo,
-                       timeout=600)  # fmt: skip
-    assert p.returncode == 0, p.stderr
-    assert [ln.split()[1:] for ln in p.stdout.splitlines() if ln.startswith("@@ ")] == [["1", "1", "1"]], p.stdout
-    cold = p.stderr.split("@@ mark\n")[0]
+    run = first_flights_of_session or first_flights(tmp_path / "f.parquet", tmp_path / "cache")
+    assert run["returncode"] == 0, run["stderr"]
+    assert [ln.split()[1:] for ln in run["stdout"].splitlines() if ln.startswith("@@ ")] == [["1", "1", "1"]], run["stdout"]
+    cold = run["stderr"].split("@@ mark\n")[0]
     assert [ln for ln in cold.splitlines() if COMPILE_NOTICE in ln] == [
-        f"tepinn-flight simulate: note: {COMPILE_NOTICE}"], p.stderr  # fmt: skip
+        f"tepinn-flight simulate: note: {COMPILE_NOTICE}"], run["stderr"]  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": repo}
+    env.pop("NUMBA_DISABLE_JIT", None)
+    env.pop("NUMBA_CACHE_DIR", None)
+    if run["cache"] is not None:
+        env["NUMBA_CACHE_DIR"] = run["cache"]
     warm = subprocess.run([sys.executable, "-m", "tepinn_flight", "simulate", "--aircraft", "agile_quad", "--duration",
-                           "0.5", "-o", flight], capture_output=True, text=True, env=env, cwd=repo, timeout=600)  # fmt: skip
+                           "0.5", "-o", str(tmp_path / "g.parquet")], capture_output=True, text=True, env=env, cwd=repo,
+                          timeout=600)  # fmt: skip
     assert warm.returncode == 0 and COMPILE_NOTICE not in warm.stderr, warm.stderr
 
 
