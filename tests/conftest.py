@@ -15,8 +15,9 @@ BROAD = SHARED / "broad"
 
 def _session_folder(tmp_path_factory) -> Path:
     """A folder of this test session that every xdist worker shares (the workers' base folders' parent)."""
-    base = tmp_path_factory.getbasetemp()
-    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    base = tmp_path_factory.getbasetemp()  # (a worker's is <the session's>/popen-gwN; a pytest started inside a
+    # worker inherits PYTEST_XDIST_WORKER but not that folder: it keeps its own, review65)
+    return base.parent if os.environ.get("PYTEST_XDIST_WORKER") and base.name.startswith("popen-") else base
 
 
 _FIRST_RUN_JSON = "first-run.json"
@@ -77,8 +78,9 @@ def _simulation_and_filters_warm_up(shared: Path) -> None:
 
 
 #: the session's two warm-ups, each the job of the first xdist worker free to take it (a file lock, and a file saying
-#: it is done)
-_WARM_UPS = (("estimator", _estimator_warm_up), ("simulation", _simulation_and_filters_warm_up))
+#: it is done); one process alone runs them in this order (the estimator's first run flies a record: the simulation's
+#: loop would be warm before its own first flights)
+_WARM_UPS = (("simulation", _simulation_and_filters_warm_up), ("estimator", _estimator_warm_up))
 
 
 @pytest.fixture(scope="session", autouse=True)
