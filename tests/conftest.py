@@ -22,6 +22,7 @@ def _session_folder(tmp_path_factory) -> Path:
 
 _FIRST_RUN_JSON = "first-run.json"
 _FIRST_FLIGHTS_JSON = "first-flights.json"
+_RUNTIME_VENV_JSON = "runtime-venv.json"
 
 
 def _never_compiled(dispatchers) -> bool:
@@ -33,7 +34,7 @@ def _never_compiled(dispatchers) -> bool:
         return False
 
 
-def _estimator_warm_up(shared: Path) -> None:
+def _estimator_warm_up(shared: Path, want_venv: bool) -> None:
     """The estimator's loops: on this checkout's empty cache, the first run that ``tests/test_first_run_compile.py``
     checks (its output kept for that test), then the warm-up the commands run (two processes at once)."""
     from tepinn_flight import jit_warmup
@@ -54,11 +55,13 @@ def _estimator_warm_up(shared: Path) -> None:
     jit_warmup.warm_up()
 
 
-def _simulation_and_filters_warm_up(shared: Path) -> None:
+def _simulation_and_filters_warm_up(shared: Path, want_venv: bool) -> None:
     """The simulation's loops: on this checkout's empty cache, the first flights that
     ``tests/test_quad_flight_kernel.py`` checks (their output kept for that test), then the campaign's preload; and the
     baseline filters ``evaluate`` runs. None of these loops is the estimator's (so the estimator's first run, beside
-    it, still finds its own cold)."""
+    it, still finds its own cold). On the empty cache then also the runtime extra's venv that
+    ``tests/test_onnx_runtime.py`` runs (``tests/runtime_venv.py``) where that test is to run (``want_venv``): the
+    estimator's first run takes the longer."""
     from tepinn_flight.sim import quad_flight_kernel
 
     if os.environ.get("NUMBA_CACHE_DIR") is None and _never_compiled([quad_flight_kernel.fly_quad]):
@@ -71,10 +74,23 @@ def _simulation_and_filters_warm_up(shared: Path) -> None:
         except Exception as e:
             run = {"returncode": -1, "stdout": "", "stderr": f"the session's first flights failed: {e!r}", "cache": None}
         (shared / _FIRST_FLIGHTS_JSON).write_text(json.dumps(run))
+        fresh = True
+    else:
+        fresh = False
     import tepinn_flight.sim.preload  # noqa: F401  (the simulation's loops, as a campaign's forkserver loads them)
     from tepinn_flight import jit_warmup
 
     jit_warmup.warm_filters()
+    if fresh and want_venv:  # a fresh clone: this worker would wait for the estimator's first run; it builds the venv
+        import json
+
+        from tests.runtime_venv import build_runtime_venv
+
+        try:
+            built = build_runtime_venv(shared / "runtime")
+        except Exception as e:  # (said by the test that reads it)
+            built = {"skip": None, "venv": None, "returncode": -1, "stderr": f"the session's venv build failed: {e!r}"}
+        (shared / _RUNTIME_VENV_JSON).write_text(json.dumps(built))
 
 
 #: the session's two warm-ups, each the job of the first xdist worker free to take it (a file lock, and a file saying
@@ -84,7 +100,7 @@ _WARM_UPS = (("simulation", _simulation_and_filters_warm_up), ("estimator", _est
 
 
 @pytest.fixture(scope="session", autouse=True)
-def _loops_compiled_once(tmp_path_factory):
+def _loops_compiled_once(tmp_path_factory, request):
     """numba's cache for this checkout filled before the first test (a fresh clone's is empty): the estimator's loops
     by the warm-up the commands run (``tepinn_flight/jit_warmup.py``), the simulation's and the baseline filters' by
     their preloads. The two warm-ups run side by side, one per xdist worker (the first run's estimate keeps one core
@@ -101,6 +117,7 @@ def _loops_compiled_once(tmp_path_factory):
     except ImportError:  # not POSIX: each worker compiles as its tests need
         return
     shared = _session_folder(tmp_path_factory)  # (this session's: its locks and the jobs' done marks)
+    want_venv = any(item.name.startswith("test_fresh_venv_runtime_extra") for item in request.session.items)
 
     def run(name, job, wait: bool) -> None:
         with open(shared / f"numba-warm-up-{name}.lock", "w") as lock:
@@ -111,7 +128,7 @@ def _loops_compiled_once(tmp_path_factory):
             done = shared / f"numba-warm-up-{name}.done"
             if not done.exists():
                 try:
-                    job(shared)
+                    job(shared, want_venv)
                 finally:
                     done.touch()
 
@@ -138,6 +155,16 @@ def first_flights_of_session(tmp_path_factory):
     import json
 
     f = _session_folder(tmp_path_factory) / _FIRST_FLIGHTS_JSON
+    return json.loads(f.read_text()) if f.exists() else None
+
+
+@pytest.fixture
+def runtime_venv_of_session(tmp_path_factory):
+    """The runtime extra's venv the session's warm-up built (``tests/runtime_venv.py``'s result), or None where it
+    built none (the test then builds its own)."""
+    import json
+
+    f = _session_folder(tmp_path_factory) / _RUNTIME_VENV_JSON
     return json.loads(f.read_text()) if f.exists() else None
 
 

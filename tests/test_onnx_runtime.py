@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import textwrap
@@ -248,36 +247,22 @@ def test_estimate_and_live_worker_run_without_torch(tmp_path, exported):
         np.testing.assert_allclose(got.to_numpy(), ref.to_numpy(), rtol=0, atol=1e-5, equal_nan=True)
 
 
-def _index_reachable(tmp: Path) -> str | None:
-    """None when pip can fetch packages, else why not."""
-    p = subprocess.run([sys.executable, "-m", "pip", "download", "--no-deps", "-d", str(tmp / "dl"), "-q", "tqdm"],
-                       capture_output=True, text=True, timeout=120)  # fmt: skip
-    return None if p.returncode == 0 else (p.stderr.strip().splitlines() or ["pip download failed"])[-1]
-
-
 @pytest.mark.slow
-def test_fresh_venv_runtime_extra_without_torch(tmp_path, exported, monkeypatch):
+def test_fresh_venv_runtime_extra_without_torch(tmp_path, exported, monkeypatch, runtime_venv_of_session):
     """`pip install ".[runtime]"` into a plain venv: no torch; `estimate --runtime onnx` works there and gives the torch
     path's estimates, `evaluate` scores the shipped models' exports, the installed live modules import, and the bridge run by that venv's Python works end to end (replay → the venv's bridge on the .onnx → listener: every
     autopilot frame forwarded, estimates on the 50 Hz grid, equal to the torch StreamingEstimator's on the same
     samples). Where pip cannot reach the package index it is skipped; the live estimator without torch is still tested
-    in-process (test_estimate_and_live_worker_run_without_torch)."""
-    why = _index_reachable(tmp_path)
-    if why:
-        pytest.skip(f"pip cannot reach the package index ({why})")
-    venv = tmp_path / "venv"
-    # a plain venv without pip of its own: this pip installs into it (--python; seeding the venv's own pip was ~5 s of
-    # CI's time)
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True, timeout=120)
+    in-process (test_estimate_and_live_worker_run_without_torch). The venv is the session's where its warm-up built it
+    (a fresh clone: ``tests/runtime_venv.py``), else built here."""
+    from tests.runtime_venv import build_runtime_venv
+
+    built = runtime_venv_of_session or build_runtime_venv(tmp_path / "runtime")
+    if built["skip"]:
+        pytest.skip(f"pip cannot reach the package index ({built['skip']})")
+    assert built["returncode"] == 0, built["stderr"]
+    venv = Path(built["venv"])
     py = venv / "bin" / "python"
-    src = tmp_path / "src"  # a copy: the build must not leave files in the checkout
-    shutil.copytree(REPO, src, ignore=shutil.ignore_patterns(".git", ".venv", "__pycache__", "*.egg-info", "build", "tests",
-                                                           "runs"))  # fmt: skip
-    # --no-compile: the installed packages' byte-code is written as they are first imported, not all up front (pip's
-    # compiling of ~1 GB of packages was half of this install: 76 -> 31 s)
-    p = subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "-q", "--no-compile", f"{src}[runtime]"],
-                       capture_output=True, text=True, timeout=600)  # fmt: skip
-    assert p.returncode == 0, p.stderr[-3000:]
     p = subprocess.run([str(py), "-c", "import torch"], capture_output=True, text=True)
     assert p.returncode != 0 and "No module named 'torch'" in p.stderr
     # a companion computer's autopilot is on a serial port: the extra brings pyserial (review60: it did not)
