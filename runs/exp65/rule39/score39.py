@@ -1,7 +1,8 @@
 """Rule 39 measurement (runs/exp65/rule39.md): the candidate (aided windows keep the flight-speed gate 3 s after a hard manoeuvre, on
 speed on fixed wing) on the c172x flights of the given folders; shipped / no-aid / VQF too where not scored before
 (review64/fw/results.jsonl holds them for its four folders). One process, resumable.
-usage: python score38.py OUT.jsonl FOLDER [FOLDER...] [--arms candidate,aid,noaid,vqf]"""
+usage: python score39.py OUT.jsonl FOLDER [FOLDER...] [--arms=candidate,candidate_b,candidate_b29,candidate_b31,candidate_c,aid,noaid,vqf]
+(candidate: rule 39; candidate_b: 39b, its span 2.9/3.1 s in _b29/_b31; candidate_c: 39c; PYTHONPATH: a worktree with rule39c.patch)"""
 import dataclasses, functools, json, sys, time
 from pathlib import Path
 
@@ -33,9 +34,9 @@ def main():
                     continue
                 rec = rec or read_record(p)
                 t0 = time.time()
-                est_mod.GnssAidConfig = (functools.partial(GnssAidConfig, gate_after_hard_for=("fixed-wing",), gate_after_hard_speed=(arm == "candidate_b"))
-                                         if arm in ("candidate", "candidate_b") else GnssAidConfig)
-                e = {"candidate": tep, "candidate_b": tep, "aid": tep, "noaid": noaid, "vqf": VqfEstimator()}[arm]
+                est_mod.GnssAidConfig = (functools.partial(GnssAidConfig, gate_after_hard_for=("fixed-wing",), gate_after_hard_speed=arm.startswith("candidate_b") or arm == "candidate_c", gate_after_hard_last_pass_only=(arm == "candidate_c"), gate_after_hard_s={"candidate_b29": 2.9, "candidate_b31": 3.1}.get(arm, 3.0))
+                                         if arm.startswith("candidate") else GnssAidConfig)
+                e = {"candidate": tep, "candidate_b": tep, "candidate_b29": tep, "candidate_b31": tep, "candidate_c": tep, "aid": tep, "noaid": noaid, "vqf": VqfEstimator()}[arm]
                 r = evaluate([rec], [e], HarnessConfig(), progress=False, keep_series=False).records[0]
                 est_mod.GnssAidConfig = GnssAidConfig
                 row = {"batch": Path(folder).name, "flight": p.stem, "arm": arm,
