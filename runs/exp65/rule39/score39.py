@@ -1,5 +1,5 @@
-"""Rule 39 measurement (runs/exp65/rule39.md): the candidate (aided windows keep the flight-speed gate 3 s after a hard manoeuvre, on
-speed on fixed wing) on the c172x flights of the given folders; shipped / no-aid / VQF too where not scored before
+"""Rules 39/39b/39c's measurement (runs/exp65/rule39.md): the candidates (fixed wing: aided windows keep the flight-speed
+gate 3 s after the receiver shows a hard manoeuvre) on the c172x flights of the given folders; shipped / no-aid / VQF too where not scored before
 (review64/fw/results.jsonl holds them for its four folders). One process, resumable.
 usage: python score39.py OUT.jsonl FOLDER [FOLDER...] [--arms=candidate,candidate_b,candidate_b29,candidate_b31,candidate_c,aid,noaid,vqf]
 (candidate: rule 39; candidate_b: 39b, its span 2.9/3.1 s in _b29/_b31; candidate_c: 39c; PYTHONPATH: a worktree with rule39c.patch)"""
