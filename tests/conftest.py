@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -40,8 +41,6 @@ def _estimator_warm_up(shared: Path, want_venv: bool) -> None:
     from tepinn_flight import jit_warmup
 
     if os.environ.get("NUMBA_CACHE_DIR") is None and _never_compiled(jit_warmup._dispatchers()):
-        import json
-
         from tests.test_first_run_compile import first_run
 
         folder = shared / "first-run"
@@ -64,9 +63,8 @@ def _simulation_and_filters_warm_up(shared: Path, want_venv: bool) -> None:
     estimator's first run takes the longer."""
     from tepinn_flight.sim import quad_flight_kernel
 
-    if os.environ.get("NUMBA_CACHE_DIR") is None and _never_compiled([quad_flight_kernel.fly_quad]):
-        import json
-
+    fresh = os.environ.get("NUMBA_CACHE_DIR") is None and _never_compiled([quad_flight_kernel.fly_quad])
+    if fresh:
         from tests.test_quad_flight_kernel import first_flights
 
         try:
@@ -74,16 +72,11 @@ def _simulation_and_filters_warm_up(shared: Path, want_venv: bool) -> None:
         except Exception as e:
             run = {"returncode": -1, "stdout": "", "stderr": f"the session's first flights failed: {e!r}", "cache": None}
         (shared / _FIRST_FLIGHTS_JSON).write_text(json.dumps(run))
-        fresh = True
-    else:
-        fresh = False
     import tepinn_flight.sim.preload  # noqa: F401  (the simulation's loops, as a campaign's forkserver loads them)
     from tepinn_flight import jit_warmup
 
     jit_warmup.warm_filters()
     if fresh and want_venv:  # a fresh clone: this worker would wait for the estimator's first run; it builds the venv
-        import json
-
         from tests.runtime_venv import build_runtime_venv
 
         try:
@@ -138,34 +131,31 @@ def _loops_compiled_once(tmp_path_factory, request):
         run(name, job, wait=True)
 
 
+def _session_result(tmp_path_factory, name: str):
+    """A warm-up's result this session kept for a test (its JSON), or None where it made none."""
+    f = _session_folder(tmp_path_factory) / name
+    return json.loads(f.read_text()) if f.exists() else None
+
+
 @pytest.fixture
 def first_run_of_session(tmp_path_factory):
     """The first run the session's warm-up made on this checkout's empty cache (its exit status, output, records), or
     None where the cache was not empty (the test then makes its own)."""
-    import json
-
-    f = _session_folder(tmp_path_factory) / _FIRST_RUN_JSON
-    return json.loads(f.read_text()) if f.exists() else None
+    return _session_result(tmp_path_factory, _FIRST_RUN_JSON)
 
 
 @pytest.fixture
 def first_flights_of_session(tmp_path_factory):
     """The first flights the session's warm-up flew on this checkout's empty cache (``first_flights``' output), or None
     where the cache was not empty (the test then flies its own)."""
-    import json
-
-    f = _session_folder(tmp_path_factory) / _FIRST_FLIGHTS_JSON
-    return json.loads(f.read_text()) if f.exists() else None
+    return _session_result(tmp_path_factory, _FIRST_FLIGHTS_JSON)
 
 
 @pytest.fixture
 def runtime_venv_of_session(tmp_path_factory):
     """The runtime extra's venv the session's warm-up built (``tests/runtime_venv.py``'s result), or None where it
     built none (the test then builds its own)."""
-    import json
-
-    f = _session_folder(tmp_path_factory) / _RUNTIME_VENV_JSON
-    return json.loads(f.read_text()) if f.exists() else None
+    return _session_result(tmp_path_factory, _RUNTIME_VENV_JSON)
 
 
 def real_log(name: str) -> Path:

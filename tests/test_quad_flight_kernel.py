@@ -2,7 +2,6 @@
 (sim/quad_maneuver_law.py): against the former pure-Python maneuvers, and against the binding's Python loop."""
 
 import math
-import os
 import subprocess
 import sys
 
@@ -235,14 +234,10 @@ def first_flights(flight: str, cache=None) -> dict:
     this checkout's own, which must then be empty: a fresh clone) → its exit status, output and the cache's folder.
     conftest runs it as the test session's warm-up where this checkout's cache is empty (CI's clean clone: the one cold
     compile serves both), else the test runs it on a cache of its own."""
-    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    env = {**os.environ, "PYTHONPATH": repo}
-    env.pop("NUMBA_DISABLE_JIT", None)
-    env.pop("NUMBA_CACHE_DIR", None)
-    if cache is not None:
-        env["NUMBA_CACHE_DIR"] = str(cache)
-    p = subprocess.run([sys.executable, "-c", _SIGNATURES, str(flight)], capture_output=True, text=True, env=env, cwd=repo,
-                       timeout=600)  # fmt: skip
+    from tests.test_first_run_compile import _env
+
+    p = subprocess.run([sys.executable, "-c", _SIGNATURES, str(flight)], capture_output=True, text=True, env=_env(cache),
+                       cwd=_env(None)["PYTHONPATH"], timeout=600)  # fmt: skip
     return {"returncode": p.returncode, "stdout": p.stdout, "stderr": p.stderr, "cache": None if cache is None else str(cache)}
 
 
@@ -256,25 +251,21 @@ def test_the_loop_and_laws_compile_once(tmp_path, first_flights_of_session):
     this checkout's cache was empty and the loop still missing from it as the flight started — the estimator's warm-up
     beside it flies a record too — else a run on a cache of its own)."""
     from tepinn_flight.jit_notice import COMPILE_NOTICE
+    from tests.test_first_run_compile import _env
 
-    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     run = first_flights_of_session
     if run is None or "@@hits 0" not in run["stdout"].splitlines():  # (the session's: another process of it had
         run = first_flights(tmp_path / "f.parquet", tmp_path / "cache")  # compiled the loop first, review65)
-    assert "@@hits 0" in run["stdout"].splitlines(), run["stdout"]
     assert run["returncode"] == 0, run["stderr"]
+    assert "@@hits 0" in run["stdout"].splitlines(), run["stdout"]
     assert [ln.split()[1:] for ln in run["stdout"].splitlines() if ln.startswith("@@ ")] == [["1", "1", "1"]], run["stdout"]
     cold = run["stderr"].split("@@ mark\n")[0]
     assert [ln for ln in cold.splitlines() if COMPILE_NOTICE in ln] == [
         f"tepinn-flight simulate: note: {COMPILE_NOTICE}"], run["stderr"]  # fmt: skip
-    env = {**os.environ, "PYTHONPATH": repo}
-    env.pop("NUMBA_DISABLE_JIT", None)
-    env.pop("NUMBA_CACHE_DIR", None)
-    if run["cache"] is not None:
-        env["NUMBA_CACHE_DIR"] = run["cache"]
+    env = _env(run["cache"])
     warm = subprocess.run([sys.executable, "-m", "tepinn_flight", "simulate", "--aircraft", "agile_quad", "--duration",
-                           "0.5", "-o", str(tmp_path / "g.parquet")], capture_output=True, text=True, env=env, cwd=repo,
-                          timeout=600)  # fmt: skip
+                           "0.5", "-o", str(tmp_path / "g.parquet")], capture_output=True, text=True, env=env,
+                          cwd=env["PYTHONPATH"], timeout=600)  # fmt: skip
     assert warm.returncode == 0 and COMPILE_NOTICE not in warm.stderr, warm.stderr
 
 
