@@ -228,6 +228,7 @@ def warm_kernels() -> None:
     from .model.gnss_aid import GnssAidConfig, motion_acc_body
     from .model.gyro_selfcal import self_calibrate
     from .model.head_physics import window_attitude
+    from .model.rotation_memory import rotation_memory
     from .model.smoother import blend_tilt, disagreement_sigma
     from .model.window_features import SensorValues, window_features
 
@@ -242,6 +243,7 @@ def warm_kernels() -> None:
     fusion_tilt_f(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
     blend_tilt(q, q, np.ones(n))
     disagreement_sigma(t, q, q, np.zeros(n, np.int64), 1.0)
+    rotation_memory(t, gyr, np.zeros(n, np.int64), 1.0)
     vel = np.column_stack([np.cos(t), np.sin(t)])
     motion_acc_body(t, q, acc, vel, GnssAidConfig())
     self_calibrate(t, gyr, acc, np.zeros(n, np.int64), clipped)

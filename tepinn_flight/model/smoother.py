@@ -21,8 +21,9 @@ better tilt. So:
   the causal attitude about a horizontal axis, so the **heading stays the causal estimate's**
   (VQF's, or 9-D's magnetometer heading);
 - σ (``sigma_rad``) of a smoothed sample is the causal σ times ``1 − w·(1 − sigma_scale)``, w the
-  smoothed tilt's weight: ``sigma_scale`` fitted as σ₀ and c were, on the BROAD trials the network
-  saw (mean NEES nearest 2 with ≥ 97.5 % within 3σ, per file averaged), and at least
+  smoothed tilt's weight, with ``(w·k·R)²`` added to σ² (rule 40: R the rotation around the sample in time,
+  :mod:`.rotation_memory`, k ``sigma_rotation_gain``): ``sigma_scale`` and k fitted on the BROAD trials the
+  network saw (mean NEES in 1.75–2.25, the most samples within 3σ, per file averaged), and at least
   ``sigma_disagreement_gain`` times the centred RMS, over ``sigma_disagreement_window_s``, of the
   tilt angle between the causal and the smoothed estimate (:func:`disagreement_sigma`).
 
@@ -52,11 +53,11 @@ class SmootherConfig:
     # in session 15 against the short gaps between a fixed wing's gates, where VQF's tilt is what is wrong)
     min_free_stretch_s: float = 5.0
     ramp_s: float = 5.0  # from a gate's edge, the smoothed tilt's weight goes 0 → 1 over this
-    # σ of a smoothed sample: the causal σ times this (weight 1); fitted on the 17 seen BROAD trials
-    # (mean NEES nearest 2 with ≥ 97.5 % within 3σ; `benchmarks/sigma_fit.py --smooth --rates 11`).
-    # Session 18, refitted for the σ with the sampling term: NEES 1.76, 98.1 % within 3σ at 286 Hz, 1.03,
-    # 98.8 % at 26 Hz (0.65, session 15's factor on the σ before, gave 2.35 and 95.6 % at 286 Hz)
-    sigma_scale: float = 0.75
+    # σ of a smoothed sample: the causal σ times this (weight 1), beside the rotation term below; fitted with it on
+    # the 17 seen BROAD trials by rule 40 (session 66, `runs/exp66/rule40.md`: mean NEES in 1.75–2.25, the most
+    # samples within 3σ; NEES 1.73 → 1.78, 98.2 → 98.9 % within 3σ; leave one trial out 97.5 → 98.7 %). Before it
+    # 0.75 (session 18: mean NEES nearest 2 with ≥ 97.5 % within 3σ, `benchmarks/sigma_fit.py --smooth`)
+    sigma_scale: float = 0.5
     # k and W: σ of a smoothed sample is at least k times the centred RMS over W s of the tilt angle between
     # the causal and the smoothed estimate (where the forward-only and the forward-backward filter disagree,
     # the motion fooled the forward one, and the smoothed tilt is not exact either); 0: off (before session
@@ -64,6 +65,11 @@ class SmootherConfig:
     # 1.76 / 5.36 -> 1.73 / 1.96 where smoothed, 98.1 / 87.2 -> 98.2 / 97.0 % within 3σ; docs/design-log.md)
     sigma_disagreement_gain: float = 0.5
     sigma_disagreement_window_s: float = 1.0
+    # k and τ of σ's rotation term (rule 40, session 66): a smoothed sample's σ² takes (w·k·R)², R the rotation
+    # around it in time (:func:`.rotation_memory.rotation_memory`, decaying over τ both ways), rad of σ per rad
+    # turned: the gyro's scale and misalignment error the smoothing cannot read out; 0: off (before session 66)
+    sigma_rotation_gain: float = 0.0005
+    sigma_rotation_tau_s: float = 3.0
     # A clipped gyro's missed turn put back before VQF runs both ways (:mod:`.clip_turn`, rule 25, session 34): per
     # episode of clipping (runs less than merge_s apart), one excess rate per clipped axis (0 .. max_excess × the
     # range) fitted so that the mean specific force over window_s before and after it (at least min_window_s each)
@@ -84,6 +90,8 @@ class SmootherConfig:
         check_range("sigma_scale", self.sigma_scale, 0, 1, lo_open=True)
         check_range("sigma_disagreement_gain", self.sigma_disagreement_gain, 0, None)
         check_range("sigma_disagreement_window_s", self.sigma_disagreement_window_s, 0, None)
+        check_range("sigma_rotation_gain", self.sigma_rotation_gain, 0, None)
+        check_range("sigma_rotation_tau_s", self.sigma_rotation_tau_s, 0, None, lo_open=True)
         check_range("clip_turn_window_s", self.clip_turn_window_s, 0, None, lo_open=True)
         check_range("clip_turn_min_window_s", self.clip_turn_min_window_s, 0, self.clip_turn_window_s)
         check_range("clip_turn_merge_s", self.clip_turn_merge_s, 0, None)
@@ -153,7 +161,7 @@ def blend_tilt(q_nb: np.ndarray, q_smooth_nb: np.ndarray, w: np.ndarray) -> np.n
 
 
 def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
-           gyr_clipped=None, relevel=None, imu=None) -> tuple[np.ndarray, np.ndarray, Smoothing]:  # fmt: skip
+           gyr_clipped=None, relevel=None, imu=None, gyr_rad_s=None) -> tuple[np.ndarray, np.ndarray, Smoothing]:  # fmt: skip
     """The causal estimate ``q_nb`` (σ ``sigma_rad``) with its tilt smoothed on every ungated stretch
     of every segment → (q_nb, σ, what was done). ``offline(slice)`` gives the smoothed attitude
     (body→NED) of the samples of one stretch, run on those samples alone.
@@ -177,7 +185,15 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
     ``imu`` (``(gyr, acc, bias)``, per sample: the gyro as the filter integrates it, the accelerometer it
     corrects with, the filter's gyro bias; None: not done) with ``cfg.clip_turn``: each clipping inside a
     smoothed stretch has its missed turn fitted from gravity before and after it (:mod:`.clip_turn`), and where
-    one is taken ``offline(slice, extra)`` is given the (n, 3) rates to add to the filter's gyro (0 elsewhere)."""
+    one is taken ``offline(slice, extra)`` is given the (n, 3) rates to add to the filter's gyro (0 elsewhere).
+
+    ``gyr_rad_s`` ((n, 3), the record's rates; None: no rotation term) with ``cfg.sigma_rotation_gain`` > 0: a
+    smoothed sample's σ takes the rotation term (rule 40, :mod:`.rotation_memory`)."""
+    rot = None
+    if gyr_rad_s is not None and cfg.sigma_rotation_gain > 0:
+        from .rotation_memory import rotation_memory
+
+        rot = cfg.sigma_rotation_gain * rotation_memory(t_s, gyr_rad_s, seg, cfg.sigma_rotation_tau_s)
     turns, exempt = [], None
     if imu is not None and cfg.clip_turn and gyr_clipped is not None and np.any(gyr_clipped):
         t_a, g_a = np.asarray(t_s, np.float64), np.asarray(gate, np.float64)
@@ -193,7 +209,7 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
                 for c in turns:
                     if c.accepted:
                         exempt[c.start : c.stop] = True
-    out, sig, info = _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg, offline, gyr_clipped, relevel, exempt)
+    out, sig, info = _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg, offline, gyr_clipped, relevel, exempt, rot)
     info = replace(info, clip_turns=tuple(turns))
     if cfg.sigma_disagreement_gain > 0 and info.applied:
         floor = cfg.sigma_disagreement_gain * disagreement_sigma(t_s, q_nb, out, seg, cfg.sigma_disagreement_window_s)
@@ -225,13 +241,15 @@ def disagreement_sigma(t_s, q_a, q_b, seg, window_s: float) -> np.ndarray:
     return out
 
 
-def _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, gyr_clipped, relevel, exempt=None):
+def _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, gyr_clipped, relevel, exempt=None,
+                 rot=None):  # fmt: skip
     """:func:`smooth` without the disagreement's σ floor. ``exempt`` (None: none): samples that keep the whole
-    stretch's run though runs before them end there (a clipping whose missed turn ``offline`` puts back)."""
+    stretch's run though runs before them end there (a clipping whose missed turn ``offline`` puts back); ``rot``
+    (None: none): σ's rotation term k·R per sample."""
     t_s = np.asarray(t_s, np.float64)
     gate = np.asarray(gate, np.float64)
     n = len(t_s)
-    out, sig, done, n_str = _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg, offline)
+    out, sig, done, n_str = _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg, offline, rot=rot)
     clipped = np.zeros(n, bool) if gyr_clipped is None else np.asarray(gyr_clipped, bool)
     rl = np.zeros(n, bool)
     if relevel is not None and len(relevel):
@@ -258,13 +276,15 @@ def _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, 
             keep[a:last] = True
         if exempt is not None:
             keep &= ~exempt
-        out_c, sig_c, done_c, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(keep, cut, 1.0), seg, cfg, offline, gate)
+        out_c, sig_c, done_c, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(keep, cut, 1.0), seg, cfg, offline, gate,
+                                            rot)  # fmt: skip
         out[keep], sig[keep], done[keep] = out_c[keep], sig_c[keep], done_c[keep]
     if after:  # from a re-levelling on: a run of its own (the causal tilt where it is too short)
         own = np.zeros(n, bool)
         for r, b in after:
             own[r:b] = True
-        out_r, sig_r, done_r, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(own, gate, 1.0), seg, cfg, offline, gate)
+        out_r, sig_r, done_r, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(own, gate, 1.0), seg, cfg, offline, gate,
+                                            rot)  # fmt: skip
         out[own], sig[own], done[own] = out_r[own], sig_r[own], done_r[own]
     return out, sig, _summary(done, n_str, gate, cfg)
 
@@ -288,10 +308,10 @@ def smoothed_stretches(t_s, gate, real_gate, sl: slice, cfg: SmootherConfig) -> 
     return out
 
 
-def _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, real_gate=None):
+def _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, real_gate=None, rot=None):
     """``q_nb`` and σ with every stretch where ``gate`` ≤ 0 smoothed on its own → (q_nb, σ, the samples
     smoothed, the number of stretches). ``real_gate``: where a gate acts (default ``gate``), for
-    :func:`smoothed_stretches`."""
+    :func:`smoothed_stretches`; ``rot``: σ's rotation term k·R per sample (None: none)."""
     real_gate = gate if real_gate is None else real_gate
     out = np.array(q_nb, np.float64, copy=True)
     sig = np.array(sigma_rad, np.float64, copy=True)
@@ -308,6 +328,8 @@ def _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, rea
             rows = np.flatnonzero(ok) + a
             out[rows] = blend_tilt(out[rows], q_s[ok], w[ok])
             sig[rows] *= 1.0 - w[ok] * (1.0 - cfg.sigma_scale)
+            if rot is not None:  # rule 40: σ² += (w·k·R)²
+                sig[rows] = np.hypot(sig[rows], w[ok] * rot[rows])
             done[rows] = True
             n_stretches += 1
     return out, sig, done, n_stretches
