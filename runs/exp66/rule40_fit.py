@@ -28,7 +28,8 @@ def probe(out, files):
     for f in files:
         p = Path(f)
         rec = read_record(p) if p.suffix == ".parquet" else load_record(p)
-        runs = [estimate_anchored(model, rec, anchor, smoother=SmootherConfig(sigma_scale=s, sigma_disagreement_gain=g))
+        runs = [estimate_anchored(model, rec, anchor, smoother=SmootherConfig(sigma_scale=s, sigma_disagreement_gain=g,
+                                                                     sigma_rotation_gain=0.0))
                 for s, g in ((1.0, 0.0), (0.5, 0.0), (1e-6, SmootherConfig().sigma_disagreement_gain))]
         ship = estimate_anchored(model, rec, anchor)
         q = ship[EST_Q_COLS].to_numpy()
