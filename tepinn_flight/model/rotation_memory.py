@@ -39,7 +39,7 @@ def _decayed_both_ways(t, w, tau, max_step, out):
 
 def rotation_memory(t_s, gyr_rad_s, segment, tau_s: float) -> np.ndarray:
     """(n,) R in rad (module docstring) for rates ``gyr_rad_s`` (n, 3) at ``t_s`` within each segment."""
-    t = np.ascontiguousarray(t_s, np.float64)
+    t = np.array(t_s, np.float64)  # a writable copy: a record's read-only column would compile a second signature
     rate = np.linalg.norm(np.asarray(gyr_rad_s, np.float64), axis=1)
     rate = np.where(np.isfinite(rate), rate, 0.0)
     out = np.zeros(len(t))
