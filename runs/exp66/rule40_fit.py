@@ -2,7 +2,16 @@
 smoothing's σ factor at 1 and 0.5 (disagreement floor off) and at ~0 (floor on) gives the causal σ, the smoothed
 weight w and the floor F per sample, so any (s, k, τ) is scored without running it again:
 σ = max(sqrt((σ_c(1 − w(1 − s)))² + (w k R_τ)²), F), then the aircraft term. A fourth run (shipped) checks the
-reconstruction. Usage: rule40_fit.py probe OUT.npz FILES... ; rule40_fit.py fit BROAD.npz [SIMS.npz ...]"""
+reconstruction. Usage: rule40_fit.py probe OUT.npz FILES... ; rule40_fit.py fit BROAD.npz [SIMS.npz ...]
+
+Session 66's run (the probes switch the rotation term off; the printed reconstruction check is against the code's
+own defaults):
+    tepinn-flight simulate --campaign flight_sims/campaigns/design50.toml -o D50 --workers 2
+    tepinn-flight simulate --campaign flight_sims/campaigns/mixed.toml -o TRAIN --workers 2
+    python runs/exp66/rule40_fit.py probe broad.npz ../shared/broad/*.hdf5
+    python runs/exp66/rule40_fit.py probe train4.npz $(ls TRAIN/*.parquet | awk 'NR%4==1')
+    python runs/exp66/rule40_fit.py probe d50.npz D50/*.parquet
+    python runs/exp66/rule40_fit.py fit broad.npz train4.npz d50.npz     (→ runs/exp66/rule40_gate.txt)"""
 import sys
 import dataclasses
 from pathlib import Path
@@ -46,7 +55,8 @@ def probe(out, files):
         R = {tau: rotation_memory(rec.t_s, rec.gyr_rad_s, rec.segment, tau)[m] for tau in TAUS}
         key = p.name
         res[key] = dict(e2=e2, sc=sA[m], w=w[m], F=F[m], va=va, ship=ship["sigma_rad"].to_numpy()[m], **{f"R{t:g}": R[t] for t in TAUS})
-        rec_sig = sigma(res[key], 0.75, 0.0, 1.0)
+        dflt = SmootherConfig()  # the code's own σ settings (before rule 40: 0.75, 0; after: 0.5, 0.0005, 3 s)
+        rec_sig = sigma(res[key], dflt.sigma_scale, dflt.sigma_rotation_gain, dflt.sigma_rotation_tau_s)
         err = np.max(np.abs(rec_sig - res[key]["ship"]) / res[key]["ship"]) if m.any() else 0
         print(f"{key[:44]:44s} n {m.sum():7d} smoothed {np.mean(w[m] > 0):.2f} reconstruction rel err {err:.1e}", flush=True)
     np.savez(out, **{f"{k}|{n}": v for k, d in res.items() for n, v in d.items()})
