@@ -3,9 +3,12 @@
 A gyro's scale and misalignment errors turn the integrated attitude by a fraction of the rotation it integrates;
 the accelerometer pulls that back over the filter's time constant, and the offline smoothing, which runs the filter
 both ways, from either side. So the tilt error a smoothed sample can still hold grows with the rotation around it
-in time: ``R(t_i) = (F_i + B_i) / 2``, ``F_i = Σ_{j ≤ i} |ω_j|·Δt_j·exp(−(t_i − t_j)/τ)`` and ``B`` its backward
-twin (``Δt_j`` the step ending at ``j`` going forward, the step starting at ``j`` going backward), per segment.
-Non-finite rates count as no rotation; steps longer than ``MAX_STEP_S`` (a logging gap) count as that.
+in time: ``R(t_i) = (F_i + B_i) / 2``, ``F_i = Σ_{j ≤ i} |ω_j|·Δt_j·exp(−(c_i − c_j)/τ)`` and ``B`` its backward
+twin (``Δt_j`` the step ending at ``j`` going forward, the step starting at ``j`` going backward), per segment, where
+the clock ``c`` counts the steps as taken: each at most ``MAX_STEP_S`` (a logging gap is neither rotation seen nor
+time to forget the rotation before it: across a 5-s gap the memory keeps e^(−0.1/τ) of it, not e^(−5/τ)), a step
+back in time as none. Non-finite rates count as no rotation; a non-finite time stamp makes its segment's R NaN (a
+record's checks refuse one).
 """
 
 from __future__ import annotations
