@@ -124,16 +124,25 @@ def slower_stretches(t: np.ndarray, breaks: np.ndarray, bridged: list, period: f
     return out
 
 
+def second_differences(values: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """(n, k) x[i−1] − 2x[i] + x[i+1] where the three samples share a segment, NaN elsewhere (a segment's ends):
+    white noise of σ gives σ√6 per axis, smooth motion next to nothing."""
+    x = np.asarray(values, np.float64)
+    out = np.full(x.shape, np.nan)
+    if len(x) >= 3:
+        seg = np.asarray(seg)
+        same = (seg[:-2] == seg[1:-1]) & (seg[1:-1] == seg[2:])
+        out[1:-1] = np.where(same[:, None], x[:-2] - 2.0 * x[1:-1] + x[2:], np.nan)
+    return out
+
+
 def sample_noise(values: np.ndarray, seg: np.ndarray, period: float, window_s: float = 1.0) -> float | None:
-    """A sensor's noise per sample and axis, as its second differences show it (x[i−1] − 2x[i] + x[i+1], within a
-    segment: white noise of σ gives σ√6, smooth motion next to nothing): in windows of ``window_s``,
-    √(mean over axes of their variance / 6), the median over the windows (None: less than one window). A
-    vibrating frame shows here in m/s² on the accelerometer."""
+    """A sensor's noise per sample and axis, as its second differences show it (:func:`second_differences`): in
+    windows of ``window_s``, √(mean over axes of their variance / 6), the median over the windows (None: less than
+    one window). A vibrating frame shows here in m/s² on the accelerometer."""
     if not (np.isfinite(period) and period > 0) or len(values) < 3:
         return None
-    x = np.asarray(values, np.float64)
-    same = (seg[:-2] == seg[1:-1]) & (seg[1:-1] == seg[2:])
-    d = (x[:-2] - 2.0 * x[1:-1] + x[2:])[same]
+    d = second_differences(values, seg)
     d = d[np.all(np.isfinite(d), axis=1)]
     k = max(8, int(round(window_s / period)))
     m = len(d) // k
@@ -141,6 +150,29 @@ def sample_noise(values: np.ndarray, seg: np.ndarray, period: float, window_s: f
         return None
     v = d[: m * k].reshape(m, k, -1).var(axis=1).mean(axis=1) / 6.0
     return float(np.sqrt(np.median(v)))
+
+
+def running_sample_noise(t_s: np.ndarray, values: np.ndarray, seg: np.ndarray, window_s: float = 1.0) -> np.ndarray:
+    """(n,) a sensor's noise per sample and axis around each sample: √(mean over the axes and over a centred
+    ``window_s`` within the segment of the squared :func:`second_differences` / 6) — :func:`sample_noise`'s reading,
+    sample by sample (σ's vibration term, rule 41). 0 where the window holds no finite second difference."""
+    t = np.asarray(t_s, np.float64)
+    d = second_differences(values, seg)
+    v = np.mean(d * d, axis=1) / 6.0
+    good = np.isfinite(v)
+    out = np.zeros(len(t))
+    from .record import segment_slices
+
+    for s in segment_slices(np.asarray(seg)):
+        tt, vv, gg = t[s], v[s], good[s]
+        c = np.r_[0.0, np.cumsum(np.where(gg, vv, 0.0))]
+        k = np.r_[0, np.cumsum(gg)]
+        lo = np.searchsorted(tt, tt - 0.5 * window_s, "left")
+        hi = np.searchsorted(tt, tt + 0.5 * window_s, "right")
+        cnt = k[hi] - k[lo]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[s] = np.where(cnt > 0, np.sqrt((c[hi] - c[lo]) / np.maximum(cnt, 1)), 0.0)
+    return out
 
 
 def _log_clock_span(t: np.ndarray, meta: dict) -> list[float] | None:

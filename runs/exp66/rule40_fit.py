@@ -22,6 +22,11 @@ S_GRID = np.round(np.arange(0.40, 0.8001, 0.05), 2)
 K_GRID = (0.0, 0.0005, 0.001, 0.0015, 0.002, 0.0025, 0.003)
 
 
+def _no_vib():
+    from tepinn_flight.model.smoother import SmootherConfig
+    return {"sigma_vibration_gain": 0.0} if hasattr(SmootherConfig(), "sigma_vibration_gain") else {}
+
+
 def probe(out, files):
     from tepinn_flight.ingest import load_record
     from tepinn_flight.record import read_record
@@ -38,7 +43,7 @@ def probe(out, files):
         p = Path(f)
         rec = read_record(p) if p.suffix == ".parquet" else load_record(p)
         runs = [estimate_anchored(model, rec, anchor, smoother=SmootherConfig(sigma_scale=s, sigma_disagreement_gain=g,
-                                                                     sigma_rotation_gain=0.0))
+                                                                     sigma_rotation_gain=0.0, **_no_vib()))
                 for s, g in ((1.0, 0.0), (0.5, 0.0), (1e-6, SmootherConfig().sigma_disagreement_gain))]
         ship = estimate_anchored(model, rec, anchor)
         q = ship[EST_Q_COLS].to_numpy()
@@ -53,10 +58,17 @@ def probe(out, files):
         base_min = sA * (1.0 - w * (1.0 - 1e-6))
         F = np.where(sC > base_min * (1 + 1e-9) + 1e-15, sC, 0.0)
         R = {tau: rotation_memory(rec.t_s, rec.gyr_rad_s, rec.segment, tau)[m] for tau in TAUS}
+        try:  # rule 41's witness (N·√Δt), where the code has it
+            from tepinn_flight.model.smoother import vibration_sigma
+            V = vibration_sigma(rec.t_s, rec.acc_m_s2, rec.segment)[m]
+        except ImportError:
+            V = np.zeros(int(m.sum()))
         key = p.name
-        res[key] = dict(e2=e2, sc=sA[m], w=w[m], F=F[m], va=va, ship=ship["sigma_rad"].to_numpy()[m], **{f"R{t:g}": R[t] for t in TAUS})
+        res[key] = dict(e2=e2, sc=sA[m], w=w[m], F=F[m], va=va, V=V, ship=ship["sigma_rad"].to_numpy()[m],
+                        **{f"R{t:g}": R[t] for t in TAUS})
         dflt = SmootherConfig()  # the code's own σ settings (before rule 40: 0.75, 0; after: 0.5, 0.0005, 3 s)
-        rec_sig = sigma(res[key], dflt.sigma_scale, dflt.sigma_rotation_gain, dflt.sigma_rotation_tau_s)
+        rec_sig = sigma(res[key], dflt.sigma_scale, dflt.sigma_rotation_gain, dflt.sigma_rotation_tau_s,
+                        getattr(dflt, "sigma_vibration_gain", 0.0))
         err = np.max(np.abs(rec_sig - res[key]["ship"]) / res[key]["ship"]) if m.any() else 0
         print(f"{key[:44]:44s} n {m.sum():7d} smoothed {np.mean(w[m] > 0):.2f} reconstruction rel err {err:.1e}", flush=True)
     np.savez(out, **{f"{k}|{n}": v for k, d in res.items() for n, v in d.items()})
@@ -71,8 +83,9 @@ def load(path):
     return d
 
 
-def sigma(d, s, k, tau):
-    sm = np.hypot(d["sc"] * (1.0 - d["w"] * (1.0 - s)), d["w"] * k * d[f"R{tau:g}"])
+def sigma(d, s, k, tau, kv=0.0):
+    extra = k * d[f"R{tau:g}"] if kv == 0 else np.hypot(k * d[f"R{tau:g}"], kv * d["V"])
+    sm = np.hypot(d["sc"] * (1.0 - d["w"] * (1.0 - s)), d["w"] * extra)
     return np.sqrt(np.maximum(sm, d["F"]) ** 2 + d["va"])
 
 

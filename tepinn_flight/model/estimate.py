@@ -472,7 +472,7 @@ def _estimate_anchored(model, rec, anchor, acal, batch_size, windows, smoother, 
         clips = cols[4] is not None and bool(np.any(cols[4]))  # the clip-turn fit's inputs only where the gyro clipped
         q_out, s_out, done = smooth(t, q_out, s_out, gate, rec.segment, smoother or SmootherConfig(), offline, cols[4],
                                     relevel_i, imu=(gyr * scale, cols[2], b_out) if clips else None,
-                                    gyr_rad_s=gyr)  # fmt: skip
+                                    gyr_rad_s=gyr, acc_m_s2=acc)  # fmt: skip
     s_out = with_aircraft_sigma(s_out, aircraft_var_rad2(anchor, vehicle))  # rule 28: an aircraft's IMU
     df = _frame(t, q_out, s_out, b_out)
     for key, found in (("accel_scale_selfcal", acal), ("gyro_selfcal", cal), ("gnss_aid", aid), ("smoother", done)):

@@ -70,6 +70,11 @@ class SmootherConfig:
     # turned: the gyro's scale and misalignment error the smoothing cannot read out; 0: off (before session 66)
     sigma_rotation_gain: float = 0.0005
     sigma_rotation_tau_s: float = 3.0
+    # k_v of σ's vibration term (rule 41, session 66): a smoothed sample's σ² takes (w·k_v·N·√Δt)², N the
+    # accelerometer's sample noise around it (:func:`..record_stats.running_sample_noise`, a centred 1-s window), Δt the
+    # segment's median step; rad per (m/s²·√s) (VQF's 3-s low-pass run both ways: about 0.03); 0: off. Fitted by rule
+    # 41 on the seen BROAD trials with 1, 2, 4 m/s² of vibration added (pooled NEES 3.40, 92.3 % → 2.06, 98.4 % within 3σ)
+    sigma_vibration_gain: float = 0.02
     # A clipped gyro's missed turn put back before VQF runs both ways (:mod:`.clip_turn`, rule 25, session 34): per
     # episode of clipping (runs less than merge_s apart), one excess rate per clipped axis (0 .. max_excess × the
     # range) fitted so that the mean specific force over window_s before and after it (at least min_window_s each)
@@ -92,6 +97,7 @@ class SmootherConfig:
         check_range("sigma_disagreement_window_s", self.sigma_disagreement_window_s, 0, None)
         check_range("sigma_rotation_gain", self.sigma_rotation_gain, 0, None)
         check_range("sigma_rotation_tau_s", self.sigma_rotation_tau_s, 0, None, lo_open=True)
+        check_range("sigma_vibration_gain", self.sigma_vibration_gain, 0, None)
         check_range("clip_turn_window_s", self.clip_turn_window_s, 0, None, lo_open=True)
         check_range("clip_turn_min_window_s", self.clip_turn_min_window_s, 0, self.clip_turn_window_s)
         check_range("clip_turn_merge_s", self.clip_turn_merge_s, 0, None)
@@ -161,7 +167,8 @@ def blend_tilt(q_nb: np.ndarray, q_smooth_nb: np.ndarray, w: np.ndarray) -> np.n
 
 
 def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
-           gyr_clipped=None, relevel=None, imu=None, gyr_rad_s=None) -> tuple[np.ndarray, np.ndarray, Smoothing]:  # fmt: skip
+           gyr_clipped=None, relevel=None, imu=None, gyr_rad_s=None,
+           acc_m_s2=None) -> tuple[np.ndarray, np.ndarray, Smoothing]:  # fmt: skip
     """The causal estimate ``q_nb`` (σ ``sigma_rad``) with its tilt smoothed on every ungated stretch
     of every segment → (q_nb, σ, what was done). ``offline(slice)`` gives the smoothed attitude
     (body→NED) of the samples of one stretch, run on those samples alone.
@@ -188,12 +195,16 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
     one is taken ``offline(slice, extra)`` is given the (n, 3) rates to add to the filter's gyro (0 elsewhere).
 
     ``gyr_rad_s`` ((n, 3), the record's rates; None: no rotation term) with ``cfg.sigma_rotation_gain`` > 0: a
-    smoothed sample's σ takes the rotation term (rule 40, :mod:`.rotation_memory`)."""
+    smoothed sample's σ takes the rotation term (rule 40, :mod:`.rotation_memory`); ``acc_m_s2`` ((n, 3); None: no
+    vibration term) with ``cfg.sigma_vibration_gain`` > 0, the vibration term (rule 41)."""
     rot = None
     if gyr_rad_s is not None and cfg.sigma_rotation_gain > 0:
         from .rotation_memory import rotation_memory
 
         rot = cfg.sigma_rotation_gain * rotation_memory(t_s, gyr_rad_s, seg, cfg.sigma_rotation_tau_s)
+    if acc_m_s2 is not None and cfg.sigma_vibration_gain > 0:
+        vib = cfg.sigma_vibration_gain * vibration_sigma(t_s, acc_m_s2, seg)
+        rot = vib if rot is None else np.hypot(rot, vib)
     turns, exempt = [], None
     if imu is not None and cfg.clip_turn and gyr_clipped is not None and np.any(gyr_clipped):
         t_a, g_a = np.asarray(t_s, np.float64), np.asarray(gate, np.float64)
@@ -215,6 +226,20 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
         floor = cfg.sigma_disagreement_gain * disagreement_sigma(t_s, q_nb, out, seg, cfg.sigma_disagreement_window_s)
         sig = np.where(np.isfinite(floor), np.maximum(sig, floor), sig)
     return out, sig, info
+
+
+def vibration_sigma(t_s, acc_m_s2, seg) -> np.ndarray:
+    """(n,) N·√Δt (rule 41): the accelerometer's sample noise around each sample
+    (:func:`..record_stats.running_sample_noise`, a centred 1-s window) times the square root of its segment's
+    median step; σ's vibration term is ``sigma_vibration_gain`` times this."""
+    from ..record_stats import running_sample_noise
+
+    t_s = np.asarray(t_s, np.float64)
+    step = np.zeros(len(t_s))
+    for s in segment_slices(np.asarray(seg)):
+        if s.stop - s.start > 1:
+            step[s] = float(np.median(np.diff(t_s[s])))
+    return running_sample_noise(t_s, acc_m_s2, seg, 1.0) * np.sqrt(step)
 
 
 def disagreement_sigma(t_s, q_a, q_b, seg, window_s: float) -> np.ndarray:
@@ -245,7 +270,7 @@ def _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, 
                  rot=None):  # fmt: skip
     """:func:`smooth` without the disagreement's σ floor. ``exempt`` (None: none): samples that keep the whole
     stretch's run though runs before them end there (a clipping whose missed turn ``offline`` puts back); ``rot``
-    (None: none): σ's rotation term k·R per sample."""
+    (None: none): σ's rotation term k·R per sample (with the vibration term in quadrature where it is on, rule 41)."""
     t_s = np.asarray(t_s, np.float64)
     gate = np.asarray(gate, np.float64)
     n = len(t_s)
@@ -311,7 +336,8 @@ def smoothed_stretches(t_s, gate, real_gate, sl: slice, cfg: SmootherConfig) -> 
 def _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, real_gate=None, rot=None):
     """``q_nb`` and σ with every stretch where ``gate`` ≤ 0 smoothed on its own → (q_nb, σ, the samples
     smoothed, the number of stretches). ``real_gate``: where a gate acts (default ``gate``), for
-    :func:`smoothed_stretches`; ``rot``: σ's rotation term k·R per sample (None: none)."""
+    :func:`smoothed_stretches`; ``rot``: σ's rotation term k·R per sample, with the vibration term in quadrature where it is
+    on (None: none)."""
     real_gate = gate if real_gate is None else real_gate
     out = np.array(q_nb, np.float64, copy=True)
     sig = np.array(sigma_rad, np.float64, copy=True)
@@ -328,7 +354,7 @@ def _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, rea
             rows = np.flatnonzero(ok) + a
             out[rows] = blend_tilt(out[rows], q_s[ok], w[ok])
             sig[rows] *= 1.0 - w[ok] * (1.0 - cfg.sigma_scale)
-            if rot is not None:  # rule 40: σ² += (w·k·R)²
+            if rot is not None:  # rules 40 and 41: σ² += w²·((k·R)² + (k_v·N·√Δt)²)
                 sig[rows] = np.hypot(sig[rows], w[ok] * rot[rows])
             done[rows] = True
             n_stretches += 1
