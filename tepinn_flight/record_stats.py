@@ -152,27 +152,34 @@ def sample_noise(values: np.ndarray, seg: np.ndarray, period: float, window_s: f
     return float(np.sqrt(np.median(v)))
 
 
-def running_sample_noise(t_s: np.ndarray, values: np.ndarray, seg: np.ndarray, window_s: float = 1.0) -> np.ndarray:
-    """(n,) a sensor's noise per sample and axis around each sample: √(mean over the axes and over a centred
-    ``window_s`` within the segment of the squared :func:`second_differences` / 6) — :func:`sample_noise`'s reading,
-    sample by sample (σ's vibration term, rule 41). 0 where the window holds no finite second difference."""
-    t = np.asarray(t_s, np.float64)
-    d = second_differences(values, seg)
-    v = np.mean(d * d, axis=1) / 6.0
-    good = np.isfinite(v)
-    out = np.zeros(len(t))
+def centred_mean(t_s: np.ndarray, values: np.ndarray, seg: np.ndarray, window_s: float) -> np.ndarray:
+    """(n,) the mean of the finite ``values`` over a centred ``window_s`` around each sample, within its segment
+    (NaN where the window holds none)."""
     from .record import segment_slices
 
+    t = np.asarray(t_s, np.float64)
+    v = np.asarray(values, np.float64)
+    good = np.isfinite(v)
+    out = np.full(len(t), np.nan)
     for s in segment_slices(np.asarray(seg)):
-        tt, vv, gg = t[s], v[s], good[s]
-        c = np.r_[0.0, np.cumsum(np.where(gg, vv, 0.0))]
-        k = np.r_[0, np.cumsum(gg)]
+        tt = t[s]
+        c = np.r_[0.0, np.cumsum(np.where(good[s], v[s], 0.0))]
+        k = np.r_[0, np.cumsum(good[s])]
         lo = np.searchsorted(tt, tt - 0.5 * window_s, "left")
         hi = np.searchsorted(tt, tt + 0.5 * window_s, "right")
         cnt = k[hi] - k[lo]
         with np.errstate(invalid="ignore", divide="ignore"):
-            out[s] = np.where(cnt > 0, np.sqrt((c[hi] - c[lo]) / np.maximum(cnt, 1)), 0.0)
+            out[s] = (c[hi] - c[lo]) / cnt
     return out
+
+
+def running_sample_noise(t_s: np.ndarray, values: np.ndarray, seg: np.ndarray, window_s: float = 1.0) -> np.ndarray:
+    """(n,) a sensor's noise per sample and axis around each sample: √(mean over the axes and over a centred
+    ``window_s`` within the segment of the squared :func:`second_differences` / 6) — :func:`sample_noise`'s reading,
+    sample by sample (σ's vibration term, rule 41). 0 where the window holds no finite second difference."""
+    d = second_differences(values, seg)
+    m = centred_mean(t_s, np.mean(d * d, axis=1) / 6.0, seg, window_s)
+    return np.where(np.isfinite(m), np.sqrt(m), 0.0)
 
 
 def _log_clock_span(t: np.ndarray, meta: dict) -> list[float] | None:

@@ -74,13 +74,14 @@ def test_shipped_model_estimates_are_pinned(aided, smoothed, monkeypatch):
     # each gyro sample over one fixed period, as before session 29's step weighting: erle's millisecond stamps
     # step by 19-21 ms, test_gyro_step_weighting.py; and without σ's aircraft terms, session 50: test_sigma_aircraft.py;
     # and with the receiver taken as 0.1 s late, as before session 64 read erle's as 0.20 s: test_gnss_aid.py; and
-    # with the smoothed σ's factor 0.75 and no rotation term, as before session 66's rule 40: test_rotation_memory.py)
+    # with the smoothed σ's factor 0.75 and no rotation or vibration term, as before session 66's rules 40 and 41:
+    # test_rotation_memory.py, test_vibration_sigma.py)
     monkeypatch.setattr(estimate_module, "GnssAidConfig", lambda: GnssAidConfig(latency_grid_s=()))
     est = estimate_record(model, rec, dataclasses.replace(estimator, gnss_aid=aided, smoother=smoothed, sigma_acc_gain=0.025,
                                                           sigma_sampling_gain=0.0, gyro_step_weighting=False,
                                                           sigma_aircraft_deg=0.0, sigma_acc_gain_aircraft=0.0),
                           smoother=SmootherConfig(sigma_disagreement_gain=0.0, sigma_scale=0.75,
-                                                  sigma_rotation_gain=0.0))  # fmt: skip
+                                                  sigma_rotation_gain=0.0, sigma_vibration_gain=0.0))  # fmt: skip
     assert len(est) == 7600
     q = est[["q_est_w", "q_est_x", "q_est_y", "q_est_z"]].to_numpy()
     s = est["sigma_rad"].to_numpy()

@@ -251,19 +251,9 @@ def disagreement_sigma(t_s, q_a, q_b, seg, window_s: float) -> np.ndarray:
     d2 **= 2
     if window_s <= 0:
         return np.sqrt(d2)
-    t_s = np.asarray(t_s, np.float64)
-    out = np.full(len(t_s), np.nan)
-    for s in segment_slices(seg):
-        t, v = t_s[s], d2[s]
-        good = np.isfinite(v)
-        c = np.r_[0.0, np.cumsum(np.where(good, v, 0.0))]
-        k = np.r_[0, np.cumsum(good)]
-        lo = np.searchsorted(t, t - 0.5 * window_s, "left")
-        hi = np.searchsorted(t, t + 0.5 * window_s, "right")
-        cnt = k[hi] - k[lo]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out[s] = np.sqrt((c[hi] - c[lo]) / cnt)
-    return out
+    from ..record_stats import centred_mean
+
+    return np.sqrt(centred_mean(t_s, d2, seg, window_s))
 
 
 def _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, gyr_clipped, relevel, exempt=None,
