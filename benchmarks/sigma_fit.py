@@ -26,7 +26,7 @@ nearest 2 among the grid points with at least `--coverage` of the samples within
    own rate and at each of `--rates`, by the same rule (session 18: with the sampling-term σ the factor
    of session 15, 0.65, gave NEES 2.35 and 95.6 % within 3σ at 286 Hz; 0.75: 1.76, 98.1 %; at 26 Hz
    1.03, 98.8 %). w is read through a probe: the smoothed estimate's σ at k = 1 and at k = 0.5. Without σ's
-   rotation term: since session 66 (rule 40) the factor (0.5) is fitted together with that term,
+   rotation and vibration terms: since session 66 (rule 40) the factor (0.5) is fitted together with that term,
    `runs/exp66/rule40_fit.py`.
 
 6. `--aircraft DIR` (alone): σ's aircraft terms chosen by the same rule on the simulated flights of DIR with the
@@ -71,9 +71,10 @@ def _smoothed_samples(model, anchor, rec, warmup_s: float = 5.0):
     from tepinn_flight.model.smoother import SmootherConfig
 
     on = dataclasses.replace(anchor, smoother=True)
-    # the factor alone (no rotation term): since session 66 the factor is fitted with the term, rule 40,
+    # the factor alone (no rotation or vibration term): since session 66 the factor is fitted with the first, rule 40,
     # runs/exp66/rule40_fit.py — this part scores the factor as sessions 15–18 fitted it
-    a, b = (estimate_anchored(model, rec, on, smoother=SmootherConfig(sigma_scale=k, sigma_rotation_gain=0.0))
+    a, b = (estimate_anchored(model, rec, on, smoother=SmootherConfig(sigma_scale=k, sigma_rotation_gain=0.0,
+                                                                        sigma_vibration_gain=0.0))
             for k in (1.0, 0.5))  # fmt: skip
     q, s1, s2 = a[EST_Q_COLS].to_numpy(), a["sigma_rad"].to_numpy(), b["sigma_rad"].to_numpy()
     m = scoring_mask(rec, warmup_s) & np.all(np.isfinite(q), 1) & np.isfinite(s1) & (s1 > 0)

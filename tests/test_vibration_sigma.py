@@ -53,7 +53,7 @@ def test_white_noise_reads_its_sigma_and_the_per_record_reading_is_the_same_form
 
 
 def test_sigma_of_a_smoothed_sample_takes_the_vibration_term():
-    # a fully weighted smoothed sample's σ is sqrt((s·σ)² + (k·R)² + (k_v·N·√Δt)²); k_v = 0 is rule 40's σ bit for bit
+    # a fully weighted smoothed sample's σ is sqrt((s·σ)² + (k·R)² + (k_v·N·√Δt)²), Δt the segment's period; k_v = 0 is rule 40's σ bit for bit
     n = 6000
     t = np.arange(n) * 0.01
     seg, gate = np.zeros(n, np.int32), np.zeros(n)

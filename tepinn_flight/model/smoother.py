@@ -72,7 +72,7 @@ class SmootherConfig:
     sigma_rotation_tau_s: float = 3.0
     # k_v of σ's vibration term (rule 41, session 66): a smoothed sample's σ² takes (w·k_v·N·√Δt)², N the
     # accelerometer's sample noise around it (:func:`..record_stats.running_sample_noise`, a centred 1-s window), Δt the
-    # segment's median step; rad per (m/s²·√s) (VQF's 3-s low-pass run both ways: about 0.03); 0: off. Fitted by rule
+    # segment's period; rad per (m/s²·√s) (VQF's 3-s low-pass run both ways: about 0.03); 0: off. Fitted by rule
     # 41 on the seen BROAD trials with 1, 2, 4 m/s² of vibration added (pooled NEES 3.40, 92.3 % → 2.06, 98.4 % within 3σ)
     sigma_vibration_gain: float = 0.02
     # A clipped gyro's missed turn put back before VQF runs both ways (:mod:`.clip_turn`, rule 25, session 34): per
@@ -197,14 +197,14 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
     ``gyr_rad_s`` ((n, 3), the record's rates; None: no rotation term) with ``cfg.sigma_rotation_gain`` > 0: a
     smoothed sample's σ takes the rotation term (rule 40, :mod:`.rotation_memory`); ``acc_m_s2`` ((n, 3); None: no
     vibration term) with ``cfg.sigma_vibration_gain`` > 0, the vibration term (rule 41)."""
-    rot = None
+    added = None  # σ's added terms at weight 1: rotation and vibration in quadrature (None: neither)
     if gyr_rad_s is not None and cfg.sigma_rotation_gain > 0:
         from .rotation_memory import rotation_memory
 
-        rot = cfg.sigma_rotation_gain * rotation_memory(t_s, gyr_rad_s, seg, cfg.sigma_rotation_tau_s)
+        added = cfg.sigma_rotation_gain * rotation_memory(t_s, gyr_rad_s, seg, cfg.sigma_rotation_tau_s)
     if acc_m_s2 is not None and cfg.sigma_vibration_gain > 0:
         vib = cfg.sigma_vibration_gain * vibration_sigma(t_s, acc_m_s2, seg)
-        rot = vib if rot is None else np.hypot(rot, vib)
+        added = vib if added is None else np.hypot(added, vib)
     turns, exempt = [], None
     if imu is not None and cfg.clip_turn and gyr_clipped is not None and np.any(gyr_clipped):
         t_a, g_a = np.asarray(t_s, np.float64), np.asarray(gate, np.float64)
@@ -220,7 +220,7 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
                 for c in turns:
                     if c.accepted:
                         exempt[c.start : c.stop] = True
-    out, sig, info = _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg, offline, gyr_clipped, relevel, exempt, rot)
+    out, sig, info = _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg, offline, gyr_clipped, relevel, exempt, added)
     info = replace(info, clip_turns=tuple(turns))
     if cfg.sigma_disagreement_gain > 0 and info.applied:
         floor = cfg.sigma_disagreement_gain * disagreement_sigma(t_s, q_nb, out, seg, cfg.sigma_disagreement_window_s)
@@ -231,14 +231,15 @@ def smooth(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline,
 def vibration_sigma(t_s, acc_m_s2, seg) -> np.ndarray:
     """(n,) N·√Δt (rule 41): the accelerometer's sample noise around each sample
     (:func:`..record_stats.running_sample_noise`, a centred 1-s window) times the square root of its segment's
-    median step; σ's vibration term is ``sigma_vibration_gain`` times this."""
+    period (:func:`..record_gaps.segment_period_s`, 0 for a segment of one sample); σ's vibration term is
+    ``sigma_vibration_gain`` times this."""
+    from ..record_gaps import segment_period_s
     from ..record_stats import running_sample_noise
 
     t_s = np.asarray(t_s, np.float64)
     step = np.zeros(len(t_s))
     for s in segment_slices(np.asarray(seg)):
-        if s.stop - s.start > 1:
-            step[s] = float(np.median(np.diff(t_s[s])))
+        step[s] = segment_period_s(t_s[s], 0.0)
     return running_sample_noise(t_s, acc_m_s2, seg, 1.0) * np.sqrt(step)
 
 
@@ -257,14 +258,14 @@ def disagreement_sigma(t_s, q_a, q_b, seg, window_s: float) -> np.ndarray:
 
 
 def _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, gyr_clipped, relevel, exempt=None,
-                 rot=None):  # fmt: skip
+                 added=None):  # fmt: skip
     """:func:`smooth` without the disagreement's σ floor. ``exempt`` (None: none): samples that keep the whole
-    stretch's run though runs before them end there (a clipping whose missed turn ``offline`` puts back); ``rot``
-    (None: none): σ's rotation term k·R per sample (with the vibration term in quadrature where it is on, rule 41)."""
+    stretch's run though runs before them end there (a clipping whose missed turn ``offline`` puts back); ``added``
+    (None: none): σ's added terms per sample at weight 1 — rotation k·R (rule 40) and vibration (rule 41) in quadrature."""
     t_s = np.asarray(t_s, np.float64)
     gate = np.asarray(gate, np.float64)
     n = len(t_s)
-    out, sig, done, n_str = _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg, offline, rot=rot)
+    out, sig, done, n_str = _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg, offline, added=added)
     clipped = np.zeros(n, bool) if gyr_clipped is None else np.asarray(gyr_clipped, bool)
     rl = np.zeros(n, bool)
     if relevel is not None and len(relevel):
@@ -292,14 +293,14 @@ def _smooth_tilt(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, 
         if exempt is not None:
             keep &= ~exempt
         out_c, sig_c, done_c, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(keep, cut, 1.0), seg, cfg, offline, gate,
-                                            rot)  # fmt: skip
+                                            added)  # fmt: skip
         out[keep], sig[keep], done[keep] = out_c[keep], sig_c[keep], done_c[keep]
     if after:  # from a re-levelling on: a run of its own (the causal tilt where it is too short)
         own = np.zeros(n, bool)
         for r, b in after:
             own[r:b] = True
         out_r, sig_r, done_r, _ = _smoothed(t_s, q_nb, sigma_rad, np.where(own, gate, 1.0), seg, cfg, offline, gate,
-                                            rot)  # fmt: skip
+                                            added)  # fmt: skip
         out[own], sig[own], done[own] = out_r[own], sig_r[own], done_r[own]
     return out, sig, _summary(done, n_str, gate, cfg)
 
@@ -323,11 +324,10 @@ def smoothed_stretches(t_s, gate, real_gate, sl: slice, cfg: SmootherConfig) -> 
     return out
 
 
-def _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, real_gate=None, rot=None):
+def _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, real_gate=None, added=None):
     """``q_nb`` and σ with every stretch where ``gate`` ≤ 0 smoothed on its own → (q_nb, σ, the samples
     smoothed, the number of stretches). ``real_gate``: where a gate acts (default ``gate``), for
-    :func:`smoothed_stretches`; ``rot``: σ's rotation term k·R per sample, with the vibration term in quadrature where it is
-    on (None: none)."""
+    :func:`smoothed_stretches`; ``added``: σ's added terms per sample at weight 1 (None: none)."""
     real_gate = gate if real_gate is None else real_gate
     out = np.array(q_nb, np.float64, copy=True)
     sig = np.array(sigma_rad, np.float64, copy=True)
@@ -344,8 +344,8 @@ def _smoothed(t_s, q_nb, sigma_rad, gate, seg, cfg: SmootherConfig, offline, rea
             rows = np.flatnonzero(ok) + a
             out[rows] = blend_tilt(out[rows], q_s[ok], w[ok])
             sig[rows] *= 1.0 - w[ok] * (1.0 - cfg.sigma_scale)
-            if rot is not None:  # rules 40 and 41: σ² += w²·((k·R)² + (k_v·N·√Δt)²)
-                sig[rows] = np.hypot(sig[rows], w[ok] * rot[rows])
+            if added is not None:  # rules 40 and 41: σ² += w²·((k·R)² + (k_v·N·√Δt)²)
+                sig[rows] = np.hypot(sig[rows], w[ok] * added[rows])
             done[rows] = True
             n_stretches += 1
     return out, sig, done, n_stretches
